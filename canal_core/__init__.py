@@ -1,0 +1,47 @@
+"""canal_core: learning from demonstration with canal surfaces, as pure numpy/scipy functions.
+
+Ahmadzadeh & Chernova, "Encoding Demonstrations and Learning New Trajectories using Canal
+Surfaces". Quick use::
+
+    import canal_core
+    canal = canal_core.fit(demos, cross_section="ellipse")
+    canal.reproduce(start)        # (N', D) trajectory by the ratio rule
+    canal.contains(points)        # (M,) bool
+    canal.mesh()                  # Mesh(vertices, faces, normals)
+    canal_core.Canal.from_dict(canal.to_dict())
+"""
+
+from . import datasets, metrics
+from .cross_sections import CrossSections
+from .errors import (
+    CanalError,
+    DegenerateCanalError,
+    InvalidInputError,
+    ModelFormatError,
+    OutsideCanalError,
+)
+from .model import Canal, FitOptions, Reproduction, fit, fit_options
+from .surface import Mesh
+from .tracker import Tracker, TrackerTarget
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Canal",
+    "CanalError",
+    "CrossSections",
+    "DegenerateCanalError",
+    "FitOptions",
+    "InvalidInputError",
+    "Mesh",
+    "ModelFormatError",
+    "OutsideCanalError",
+    "Reproduction",
+    "Tracker",
+    "TrackerTarget",
+    "__version__",
+    "datasets",
+    "fit",
+    "fit_options",
+    "metrics",
+]

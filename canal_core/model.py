@@ -1,0 +1,422 @@
+"""The canal model: :func:`fit` builds it (Alg. 1 lines 1-6), :class:`Canal` uses it.
+
+``Canal`` is a frozen dataclass of arrays plus thin methods that call the pure functions of
+the other modules; it round-trips exactly through :meth:`Canal.to_dict` / :meth:`Canal.from_dict`
+(JSON-able: floats are written with ``repr`` precision, so every float64 survives).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from .alignment import dtw_aligned_demonstrations, resampled_demonstrations
+from .cross_sections import KINDS, KINDS_3D, CrossSections, fitted_sections, section_radii
+from .crossings import in_plane_coordinates, plane_crossings
+from .directrix import directrix_gmr, directrix_mean
+from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
+from .frames import frenet_frames, planar_frames, rotation_minimizing_frames
+from .preprocess import STILL_TOLERANCE, cleaned_demonstration
+from .reproduce import Location, located_points, ratio_rule_positions, section_basis
+from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
+from .tracker import Tracker, tracker_geometry
+from .validation import (
+    MIN_POINTS,
+    BoolArray,
+    FloatArray,
+    check_choice,
+    check_demonstrations,
+    check_int,
+    check_point,
+    check_points,
+)
+
+FORMAT = "canal-model"
+FORMAT_VERSION = 1
+
+CROSS_SECTIONS = KINDS_3D
+FRAMES = ("rmf", "frenet")
+ALIGNMENTS = ("spline", "dtw")
+DIRECTRICES = ("mean", "gmr")
+#: Relative tolerance of :meth:`Canal.contains` on eta and on the axial offset at the ends.
+CONTAINS_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How a canal was fitted (see :func:`fit`)."""
+
+    cross_section: str = "circle"
+    frames: str = "rmf"
+    alignment: str = "spline"
+    directrix: str = "mean"
+    n_samples: int = 200
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class Reproduction:
+    """A trajectory reproduced by the ratio rule.
+
+    Attributes
+    ----------
+    positions : array, shape (N', D)
+        The start, then one point per remaining cross-section, ending on the last one.
+    start : array, shape (D,)
+    inside : bool
+        Whether the start lies inside the canal.
+    eta : float
+        Ratio used for the whole trajectory (clamped to 1 when the start was outside).
+    section_index : int
+        Section the start was located at.
+    projected : bool
+        True when the start's ratio exceeded 1 and was clamped to the boundary.
+    """
+
+    positions: FloatArray
+    start: FloatArray
+    inside: bool
+    eta: float
+    section_index: int
+    projected: bool
+
+
+@dataclass(frozen=True, eq=False)
+class Canal:
+    """A fitted canal surface.
+
+    Attributes
+    ----------
+    directrix : array, shape (N, D)
+    tangents, normals : arrays, shape (N, D)
+    binormals : array, shape (N, 3), or None in 2-D
+    arclength : array, shape (N,)
+    sections : CrossSections
+    section_points : array, shape (N, n, D - 1)
+        In-plane coordinates of where each demonstration crosses each section plane.
+    options : FitOptions
+    """
+
+    directrix: FloatArray
+    tangents: FloatArray
+    normals: FloatArray
+    binormals: FloatArray | None
+    arclength: FloatArray
+    sections: CrossSections
+    section_points: FloatArray
+    options: FitOptions = field(default_factory=FitOptions)
+
+    # -- derived ---------------------------------------------------------------------
+    @property
+    def dim(self) -> int:
+        return int(self.directrix.shape[1])
+
+    @property
+    def n_sections(self) -> int:
+        return int(self.directrix.shape[0])
+
+    @property
+    def n_demos(self) -> int:
+        return int(self.section_points.shape[1])
+
+    @property
+    def section_kind(self) -> str:
+        return self.sections.kind
+
+    @cached_property
+    def basis(self) -> FloatArray:
+        """In-plane unit vectors per section, shape (N, D - 1, D)."""
+        return section_basis(self.normals, self.binormals)
+
+    @cached_property
+    def radii(self) -> FloatArray:
+        """Largest boundary distance from the directrix per section, shape (N,)."""
+        return section_radii(self.sections)
+
+    @cached_property
+    def bounds(self) -> FloatArray:
+        """Axis-aligned bounding box of the canal, shape (2, D): min corner, max corner."""
+        if self.dim == 2:
+            s = self.sections.params
+            pts = np.vstack(
+                [self.directrix + s["lower"][:, None] * self.normals, self.directrix + s["upper"][:, None] * self.normals]
+            )
+        else:
+            pts = ring_vertices(self.directrix, self.basis, self.sections, 32).reshape(-1, 3)
+        return np.stack([pts.min(axis=0), pts.max(axis=0)])
+
+    # -- queries ---------------------------------------------------------------------
+    def locate(self, points: Any) -> Location:
+        """Where points (M, D) sit in the canal (see :func:`canal_core.reproduce.located_points`)."""
+        pts = check_points(points, self.dim)
+        return located_points(pts, self.directrix, self.tangents, self.basis, self.sections)
+
+    def contains(self, points: Any, tol: float = CONTAINS_TOLERANCE) -> BoolArray:
+        """Whether each point (M, D) lies in the volume swept by the cross-sections.
+
+        ``tol`` is relative: eta <= 1 + tol, and at the two ends an axial offset up to
+        tol times the largest radius.
+        """
+        loc = self.locate(points)
+        axial_tol = tol * float(self.radii.max(initial=0.0))
+        return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= axial_tol))
+
+    def reproduce_detailed(self, start: Any, outside: str = "project") -> Reproduction:
+        """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
+
+        Parameters
+        ----------
+        start : array_like, shape (D,)
+        outside : {"project", "raise"}
+            For a start outside the canal: clamp its ratio to 1 (the boundary) and say so in
+            ``projected``, or raise :class:`OutsideCanalError`.
+        """
+        point = check_point(start, self.dim, "start")
+        check_choice(outside, ("project", "raise"), "outside")
+        loc = located_points(point[None, :], self.directrix, self.tangents, self.basis, self.sections)
+        eta = float(loc.eta[0])
+        inside = bool(self.contains(point[None, :])[0])
+        if outside == "raise" and not inside:
+            raise OutsideCanalError(
+                f"expected start inside the canal, got eta={eta:.4g} at section {int(loc.index[0])}"
+                + (f" and {float(loc.axial[0]):.4g} beyond its end plane" if loc.axial[0] else ""),
+                field="start",
+            )
+        first = min(int(loc.index[0]) + 1, self.n_sections - 1)
+        path = ratio_rule_positions(
+            first, min(eta, 1.0), loc.direction[0], self.directrix, self.basis, self.sections
+        )
+        return Reproduction(
+            positions=np.vstack([point, path]),
+            start=point,
+            inside=inside,
+            eta=min(eta, 1.0),
+            section_index=int(loc.index[0]),
+            projected=eta > 1.0,
+        )
+
+    def reproduce(self, start: Any) -> FloatArray:
+        """Trajectory (N', D) from ``start`` (D,) to the canal's end; see :meth:`reproduce_detailed`."""
+        return self.reproduce_detailed(start).positions
+
+    def tracker(self, lookahead: int = 1) -> Tracker:
+        """A reactive tracker for one live stream (see :mod:`canal_core.tracker`)."""
+        check_int(lookahead, 1, "lookahead")
+        return Tracker(
+            tracker_geometry(self.directrix, self.tangents, self.basis, self.sections), lookahead
+        )
+
+    def mesh(self, n_angles: int = 32, caps: bool = False, envelope: bool = False) -> Mesh:
+        """The canal surface as a triangle mesh.
+
+        Parameters
+        ----------
+        n_angles : int
+            Vertices per ring (3-D).
+        caps : bool
+            Close both ends with a fan to the end directrix points (3-D).
+        envelope : bool
+            Use the true envelope of Eq. 9 (``circle`` sections only) instead of the ring form.
+        """
+        if self.dim == 2:
+            return strip_mesh(self.directrix, self.normals, self.sections)
+        check_int(n_angles, 3, "n_angles")
+        if envelope:
+            if self.sections.kind != "circle":
+                raise InvalidInputError(
+                    f"expected envelope=True only with circle sections, got {self.sections.kind!r}",
+                    field="envelope",
+                )
+            rings = envelope_vertices(
+                self.directrix, self.tangents, self.basis, self.sections.params["radius"],
+                self.arclength, n_angles,
+            )
+        else:
+            rings = ring_vertices(self.directrix, self.basis, self.sections, n_angles)
+        return tube_mesh(rings, self.directrix, caps)
+
+    # -- serialisation ---------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (format ``canal-model`` version 1) that round-trips exactly."""
+        return {
+            "format": FORMAT,
+            "version": FORMAT_VERSION,
+            "dim": self.dim,
+            "options": self.options.to_dict(),
+            "directrix": self.directrix.tolist(),
+            "tangents": self.tangents.tolist(),
+            "normals": self.normals.tolist(),
+            "binormals": None if self.binormals is None else self.binormals.tolist(),
+            "arclength": self.arclength.tolist(),
+            "sections": self.sections.to_dict(),
+            "section_points": self.section_points.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Canal:
+        """Rebuild a canal written by :meth:`to_dict`; raises :class:`ModelFormatError`."""
+        try:
+            if data.get("format") != FORMAT or data.get("version") != FORMAT_VERSION:
+                raise ModelFormatError(
+                    f"expected format {FORMAT!r} version {FORMAT_VERSION}, got "
+                    f"{data.get('format')!r} version {data.get('version')!r}",
+                    field="format",
+                )
+            arr = {
+                k: np.asarray(data[k], dtype=np.float64)
+                for k in ("directrix", "tangents", "normals", "arclength", "section_points")
+            }
+            dim = int(data["dim"])
+            n = arr["directrix"].shape[0]
+            sec = dict(data["sections"])
+            kind = sec.pop("kind")
+            if kind not in KINDS:
+                raise ModelFormatError(f"unknown cross-section kind {kind!r}", field="sections")
+            params = {k: np.asarray(v, dtype=np.float64) for k, v in sec.items()}
+            binormals = None if data["binormals"] is None else np.asarray(data["binormals"], dtype=np.float64)
+            expected = {
+                "directrix": (n, dim), "tangents": (n, dim), "normals": (n, dim), "arclength": (n,),
+            }
+            for key, shape in expected.items():
+                if arr[key].shape != shape:
+                    raise ModelFormatError(f"expected {key} of shape {shape}, got {arr[key].shape}", field=key)
+            if any(v.shape[0] != n for v in params.values()):
+                raise ModelFormatError(f"expected {n} cross-sections in every parameter", field="sections")
+            return cls(
+                directrix=arr["directrix"],
+                tangents=arr["tangents"],
+                normals=arr["normals"],
+                binormals=binormals,
+                arclength=arr["arclength"],
+                sections=CrossSections(kind, params),
+                section_points=arr["section_points"],
+                options=FitOptions(**data["options"]),
+            )
+        except ModelFormatError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ModelFormatError(f"malformed canal model: {exc!r}") from exc
+
+
+# -------------------------------------------------------------------------------------
+
+
+def fit_options(
+    cross_section: str = "circle",
+    frames: str = "rmf",
+    alignment: str = "spline",
+    directrix: str = "mean",
+    n_samples: int = 200,
+) -> FitOptions:
+    """Validated :class:`FitOptions`."""
+    return FitOptions(
+        cross_section=check_choice(cross_section, CROSS_SECTIONS, "cross_section"),
+        frames=check_choice(frames, FRAMES, "frames"),
+        alignment=check_choice(alignment, ALIGNMENTS, "alignment"),
+        directrix=check_choice(directrix, DIRECTRICES, "directrix"),
+        n_samples=check_int(n_samples, 2, "n_samples", maximum=100_000),
+    )
+
+
+def fit(
+    demos: Any,
+    timestamps: Any = None,
+    cross_section: str = "circle",
+    frames: str = "rmf",
+    alignment: str = "spline",
+    directrix: str = "mean",
+    n_samples: int = 200,
+    still_tolerance: float = STILL_TOLERANCE,
+) -> Canal:
+    """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
+
+    Parameters
+    ----------
+    demos : sequence of array_like, each shape (T_j, D)
+        n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
+    timestamps : sequence of (array_like, shape (T_j,) or None), optional
+        Strictly increasing; alignment is by time where given, else by arc length.
+    cross_section : {"circle", "mec", "ellipse", "spline"}
+    frames : {"rmf", "frenet"}
+    alignment : {"spline", "dtw"}
+    directrix : {"mean", "gmr"}
+    n_samples : int
+        N, the number of cross-sections.
+    still_tolerance : float
+        Head and tail samples within this fraction of the path length of the first/last
+        sample are trimmed (see :mod:`canal_core.preprocess`).
+
+    Returns
+    -------
+    Canal
+
+    Raises
+    ------
+    InvalidInputError
+        Malformed demonstrations, timestamps or options.
+    DegenerateCanalError
+        Every demonstration identical, or a directrix of zero length.
+    """
+    options = fit_options(cross_section, frames, alignment, directrix, n_samples)
+    demos_, times_, dim = check_demonstrations(demos, timestamps)
+    if options.cross_section == "spline" and dim == 3 and len(demos_) < 3:
+        raise InvalidInputError(
+            f"expected at least 3 demonstrations for spline cross-sections, got {len(demos_)}",
+            field="cross_section",
+        )
+
+    cleaned = [cleaned_demonstration(d, t, still_tolerance) for d, t in zip(demos_, times_, strict=True)]
+    for j, (d, _) in enumerate(cleaned):
+        if d.shape[0] < MIN_POINTS:
+            raise InvalidInputError(
+                f"expected at least {MIN_POINTS} distinct moving samples in demos[{j}], got "
+                f"{d.shape[0]} after dropping repeats and still ends",
+                field=f"demos[{j}]",
+            )
+    positions = [d for d, _ in cleaned]
+    times = [t for _, t in cleaned]
+
+    if options.alignment == "dtw":
+        aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
+    else:
+        aligned = resampled_demonstrations(positions, times, options.n_samples)
+
+    centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    arclength = np.concatenate([[0.0], np.cumsum(steps)])
+    spread = float(np.ptp(aligned.reshape(-1, dim), axis=0).max())
+    if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
+        raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
+
+    binormals: FloatArray | None
+    if dim == 2:
+        tangents, normals = planar_frames(centres)
+        binormals = None
+    elif options.frames == "frenet":
+        tangents, normals, binormals = frenet_frames(centres)
+    else:
+        tangents, normals, binormals = rotation_minimizing_frames(centres)
+
+    crossings = plane_crossings(aligned, centres, tangents)
+    basis = section_basis(normals, binormals)
+    coords = in_plane_coordinates(crossings, centres, basis)
+    if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
+        raise DegenerateCanalError(
+            "every demonstration is identical: the canal has zero radius everywhere"
+        )
+    sections = fitted_sections(coords, options.cross_section)
+    return Canal(
+        directrix=centres,
+        tangents=tangents,
+        normals=normals,
+        binormals=binormals,
+        arclength=arclength,
+        sections=sections,
+        section_points=coords,
+        options=options,
+    )

@@ -1,0 +1,189 @@
+"""Validators in one place: each says what it expected and what it got.
+
+Every public entry point of canal_core passes its arguments through these ``check_*``
+functions before doing any math, so a malformed call fails early with an
+:class:`~canal_core.errors.InvalidInputError` whose ``field`` names the argument.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .errors import InvalidInputError
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+MIN_POINTS = 4
+MIN_DEMOS = 2
+DIMENSIONS = (2, 3)
+
+
+def _as_float_array(value: Any, field: str) -> FloatArray:
+    try:
+        array = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            f"expected {field} as an array of numbers, got {type(value).__name__} ({exc})",
+            field=field,
+        ) from exc
+    return array
+
+
+def check_finite(array: FloatArray, field: str) -> None:
+    """Raise if ``array`` holds NaN or Inf, naming the first bad row."""
+    bad = ~np.isfinite(array)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise InvalidInputError(
+            f"expected finite {field}, got NaN or Inf at row {row}", field=field
+        )
+
+
+def check_positions(value: Any, field: str = "positions", dim: int | None = None) -> FloatArray:
+    """Return ``value`` as a finite float array of shape (T, D), T >= 4, D in {2, 3}.
+
+    Parameters
+    ----------
+    value : array_like, shape (T, D)
+    field : str
+        Name used in error messages.
+    dim : int, optional
+        Required dimension D; any of 2 or 3 when None.
+    """
+    array = _as_float_array(value, field)
+    expected_dim = "D" if dim is None else str(dim)
+    if array.ndim != 2 or array.shape[1] not in DIMENSIONS or (
+        dim is not None and array.shape[1] != dim
+    ):
+        raise InvalidInputError(
+            f"expected {field} of shape (T, {expected_dim}) with D in {{2, 3}}, got {array.shape}",
+            field=field,
+        )
+    if array.shape[0] < MIN_POINTS:
+        raise InvalidInputError(
+            f"expected at least {MIN_POINTS} points in {field}, got {array.shape[0]}",
+            field=field,
+        )
+    check_finite(array, field)
+    return array
+
+
+def check_timestamps(value: Any, n_points: int, field: str = "timestamps") -> FloatArray:
+    """Return ``value`` as a finite, strictly increasing float array of shape (T,)."""
+    array = _as_float_array(value, field)
+    if array.ndim != 1 or array.shape[0] != n_points:
+        raise InvalidInputError(
+            f"expected {field} of shape ({n_points},), got {array.shape}", field=field
+        )
+    check_finite(array, field)
+    steps = np.diff(array)
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise InvalidInputError(
+            f"expected strictly increasing {field}, got {array[row]!r} after "
+            f"{array[row - 1]!r} at index {row}",
+            field=field,
+        )
+    return array
+
+
+def check_demonstrations(
+    demos: Any, timestamps: Any = None
+) -> tuple[list[FloatArray], list[FloatArray | None], int]:
+    """Validate a set of demonstrations and their optional timestamps.
+
+    Parameters
+    ----------
+    demos : sequence of array_like, each shape (T_j, D)
+        At least two demonstrations of one dimension D in {2, 3}, each with T_j >= 4.
+    timestamps : sequence of (array_like, shape (T_j,) or None), optional
+
+    Returns
+    -------
+    demos : list of arrays, each shape (T_j, D)
+    timestamps : list of (array, shape (T_j,)) or None
+    dim : int
+    """
+    if isinstance(demos, np.ndarray) and demos.ndim == 3:
+        demos = list(demos)
+    if not isinstance(demos, Sequence) or isinstance(demos, str | bytes):
+        raise InvalidInputError(
+            f"expected demos as a list of (T_j, D) arrays, got {type(demos).__name__}",
+            field="demos",
+        )
+    if len(demos) < MIN_DEMOS:
+        raise InvalidInputError(
+            f"expected at least {MIN_DEMOS} demonstrations, got {len(demos)}", field="demos"
+        )
+    checked = [check_positions(d, f"demos[{j}]") for j, d in enumerate(demos)]
+    dims = {d.shape[1] for d in checked}
+    if len(dims) != 1:
+        shapes = [d.shape for d in checked]
+        raise InvalidInputError(
+            f"expected every demonstration to have the same dimension D, got shapes {shapes}",
+            field="demos",
+        )
+    if timestamps is None:
+        times: list[FloatArray | None] = [None] * len(checked)
+    else:
+        if not isinstance(timestamps, Sequence) or len(timestamps) != len(checked):
+            got = len(timestamps) if isinstance(timestamps, Sequence) else type(timestamps).__name__
+            raise InvalidInputError(
+                f"expected timestamps as a list of {len(checked)} arrays (one per demo), got {got}",
+                field="timestamps",
+            )
+        times = [
+            None if t is None else check_timestamps(t, d.shape[0], f"timestamps[{j}]")
+            for j, (d, t) in enumerate(zip(checked, timestamps, strict=True))
+        ]
+    return checked, times, dims.pop()
+
+
+def check_point(value: Any, dim: int, field: str = "start") -> FloatArray:
+    """Return ``value`` as a finite float array of shape (D,)."""
+    array = _as_float_array(value, field)
+    if array.shape != (dim,):
+        raise InvalidInputError(f"expected {field} of shape ({dim},), got {array.shape}", field=field)
+    check_finite(array, field)
+    return array
+
+
+def check_points(value: Any, dim: int, field: str = "points") -> FloatArray:
+    """Return ``value`` as a finite float array of shape (M, D); a single (D,) point becomes (1, D)."""
+    array = _as_float_array(value, field)
+    if array.ndim == 1 and array.shape == (dim,):
+        array = array[None, :]
+    if array.ndim != 2 or array.shape[1] != dim:
+        raise InvalidInputError(
+            f"expected {field} of shape (M, {dim}), got {array.shape}", field=field
+        )
+    check_finite(array, field)
+    return array
+
+
+def check_choice(value: Any, allowed: Sequence[str], field: str) -> str:
+    """Return ``value`` if it is one of ``allowed``."""
+    if value not in allowed:
+        raise InvalidInputError(
+            f"expected {field} to be one of {', '.join(map(repr, allowed))}, got {value!r}",
+            field=field,
+        )
+    return str(value)
+
+
+def check_int(value: Any, minimum: int, field: str, maximum: int | None = None) -> int:
+    """Return ``value`` as an int in [minimum, maximum]."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise InvalidInputError(
+            f"expected {field} as an integer, got {type(value).__name__}", field=field
+        )
+    if value < minimum or (maximum is not None and value > maximum):
+        upper = "" if maximum is None else f" and <= {maximum}"
+        raise InvalidInputError(f"expected {field} >= {minimum}{upper}, got {value}", field=field)
+    return int(value)

@@ -1,0 +1,61 @@
+"""Service settings, read from ``CANAL_*`` environment variables or passed in directly.
+
+The defaults are the embedded deployment: loopback only, a SQLite file and a recordings
+folder inside one local data folder, no token, no CORS. A multi-instance deployment points
+``CANAL_DATABASE_URL`` at PostgreSQL and keeps everything else.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+DEFAULT_MAX_BODY_BYTES = 64 * 1024 * 1024
+
+
+class Settings(BaseSettings):
+    """Everything the service can be told at start."""
+
+    model_config = SettingsConfigDict(env_prefix="CANAL_", extra="ignore")
+
+    host: str = Field("127.0.0.1", description="Interface to bind; loopback unless told otherwise.")
+    port: int = Field(8000, ge=0, le=65535)
+    data_dir: Path = Field(Path("data"), description="Folder for the SQLite file and recordings.")
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL; default is a SQLite file in data_dir."
+    )
+    recordings_dir: Path | None = Field(
+        None, description="Where the recorder writes; default is data_dir/recordings."
+    )
+    recordings_enabled: bool = True
+    token: SecretStr | None = Field(
+        None, description="When set, every route except /healthz needs 'Authorization: Bearer ...'."
+    )
+    cors_origins: list[str] = Field(
+        default_factory=list, description="Allowed CORS origins; CORS stays off when empty."
+    )
+    max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, gt=0)
+    model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
+    log_level: str = "info"
+
+    @field_validator("token")
+    @classmethod
+    def _blank_token_is_none(cls, value: SecretStr | None) -> SecretStr | None:
+        # An empty CANAL_TOKEN= in a compose file means "no token", not "the empty token".
+        if value is not None and not value.get_secret_value():
+            return None
+        return value
+
+    @property
+    def resolved_database_url(self) -> str:
+        """The database URL, with the embedded SQLite default filled in."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'canal.sqlite3').resolve()}"
+
+    @property
+    def resolved_recordings_dir(self) -> Path:
+        """The recordings folder, beside the database by default."""
+        return self.recordings_dir if self.recordings_dir is not None else self.data_dir / "recordings"

@@ -1,0 +1,88 @@
+"""SQLAlchemy tables. The Alembic migrations in ``canal_service/migrations`` create them."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    DateTime,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    UniqueConstraint,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+
+def utcnow() -> datetime:
+    """Timezone-aware now; one clock for every row."""
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    """Declarative base of the service's tables."""
+
+
+class Skill(Base):
+    """A named task with one dimension; owns its demonstrations and model versions."""
+
+    __tablename__ = "skills"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True, nullable=False)
+    description: Mapped[str] = mapped_column(Text, nullable=False, default="")
+    dim: Mapped[int] = mapped_column(Integer, nullable=False)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+    demonstrations: Mapped[list[Demonstration]] = relationship(
+        back_populates="skill", cascade="all, delete-orphan", passive_deletes=True
+    )
+    models: Mapped[list[ModelVersion]] = relationship(
+        back_populates="skill", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class Demonstration(Base):
+    """One recorded trajectory, arrays stored as packed float64 bytes (see ``arrays``)."""
+
+    __tablename__ = "demonstrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), index=True, nullable=False
+    )
+    label: Mapped[str | None] = mapped_column(String(256), nullable=True)
+    n_points: Mapped[int] = mapped_column(Integer, nullable=False)
+    dim: Mapped[int] = mapped_column(Integer, nullable=False)
+    positions: Mapped[bytes] = mapped_column(LargeBinary, nullable=False)
+    timestamps: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    orientations: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    checksum: Mapped[str] = mapped_column(String(64), nullable=False)
+    source: Mapped[str] = mapped_column(String(16), nullable=False, default="json")
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+    skill: Mapped[Skill] = relationship(back_populates="demonstrations")
+
+
+class ModelVersion(Base):
+    """One fit, kept forever: the options, the demos it used and the serialised canal."""
+
+    __tablename__ = "models"
+    __table_args__ = (UniqueConstraint("skill_id", "version", name="uq_models_skill_version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), index=True, nullable=False
+    )
+    version: Mapped[int] = mapped_column(Integer, nullable=False)
+    options: Mapped[dict[str, Any]] = mapped_column(JSON, nullable=False)
+    demo_ids: Mapped[list[int]] = mapped_column(JSON, nullable=False)
+    canal: Mapped[dict[str, Any]] = mapped_column(JSON, nullable=False)
+    fit_seconds: Mapped[float] = mapped_column(nullable=False, default=0.0)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+    skill: Mapped[Skill] = relationship(back_populates="models")
