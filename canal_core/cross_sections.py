@@ -13,8 +13,8 @@ Kinds (3-D):
              may sit off the directrix.
 ``ellipse``  the minimum-area enclosing ellipse of the crossings and c_i (Khachiyan's
              algorithm, batched over sections), then scaled so every point is inside exactly.
-``spline``   a closed C2 periodic cubic spline in polar form r(theta) about c_i that passes
-             through every crossing (Fig. 3), for >= 3 demos. Storing the section as a
+``spline``   a closed C2 periodic cubic spline in polar form r(theta) about c_i through the
+             crossings on the section's convex hull, enclosing the rest (Fig. 3), >= 3 demos. Storing the section as a
              radius-by-angle function makes containment and the ratio rule a lookup.
 
 In 2-D a cross-section is an interval [lower, upper] on the normal line, lower <= 0 <= upper:
@@ -46,8 +46,8 @@ RELATIVE_FLOOR = 1e-9
 #: Above this many points per section, the minimum enclosing circle is found per section
 #: with Welzl's algorithm instead of the vectorised enumeration of all pairs and triples.
 MEC_ENUMERATION_LIMIT = 13
-KHACHIYAN_TOLERANCE = 1e-7
-KHACHIYAN_MAX_ITERATIONS = 500
+KHACHIYAN_TOLERANCE = 1e-9
+KHACHIYAN_MAX_ITERATIONS = 2000
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,7 +219,11 @@ def ellipse_matrices(axes: FloatArray, angle: FloatArray) -> FloatArray:
 
 
 def khachiyan_ellipses(points: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Minimum-volume enclosing ellipses of point sets, batched (Khachiyan 1996; Todd & Yildirim).
+    """Minimum-volume enclosing ellipses of point sets, batched over sections.
+
+    Khachiyan's barycentric coordinate ascent with Todd and Yildirim's "away" steps
+    (Todd & Yildirim 2007, "On Khachiyan's algorithm for the computation of minimum-volume
+    enclosing ellipsoids"), which converges linearly where plain Khachiyan crawls.
 
     Parameters
     ----------
@@ -230,25 +234,36 @@ def khachiyan_ellipses(points: FloatArray) -> tuple[FloatArray, FloatArray]:
     -------
     centres : array, shape (N, 2)
     matrices : array, shape (N, 2, 2)
-        (q - centre)^T A (q - centre) <= 1 (approximately; rescale for exactness).
+        (q - centre)^T A (q - centre) <= 1 up to the tolerance (rescale for exactness).
     """
     n_sec, m, d = points.shape
     lifted = np.concatenate([points, np.ones((n_sec, m, 1))], axis=2)  # (N, m, 3)
     u = np.full((n_sec, m), 1.0 / m)
-    active = np.ones(n_sec, dtype=bool)
+    active = np.arange(n_sec)
     for _ in range(KHACHIYAN_MAX_ITERATIONS):
-        q = lifted[active]
-        x = np.einsum("nmi,nm,nmj->nij", q, u[active], q)
+        q, ua = lifted[active], u[active]
+        x = np.einsum("nmi,nm,nmj->nij", q, ua, q)
         g = np.einsum("nmi,nij,nmj->nm", q, np.linalg.inv(x), q)
-        j = np.argmax(g, axis=1)
-        gmax = g[np.arange(j.size), j]
-        step = (gmax - d - 1.0) / ((d + 1.0) * (gmax - 1.0))
-        ua = u[active] * (1.0 - step[:, None])
-        ua[np.arange(j.size), j] += step
-        u[active] = ua
-        idx = np.flatnonzero(active)
-        active[idx[step < KHACHIYAN_TOLERANCE]] = False
-        if not active.any():
+        rows = np.arange(active.size)
+        up = np.argmax(g, axis=1)
+        down = np.argmin(np.where(ua > 0.0, g, np.inf), axis=1)
+        g_up, g_down = g[rows, up], g[rows, down]
+        eps_up = g_up / (d + 1.0) - 1.0
+        eps_down = 1.0 - g_down / (d + 1.0)
+        toward = eps_up >= eps_down
+        beta_up = (g_up - d - 1.0) / ((d + 1.0) * np.maximum(g_up - 1.0, 1e-300))
+        u_down = ua[rows, down]
+        beta_down = np.minimum(
+            (d + 1.0 - g_down) / ((d + 1.0) * np.maximum(g_down - 1.0, 1e-300)),
+            u_down / np.maximum(1.0 - u_down, 1e-300),
+        )
+        scale = np.where(toward, 1.0 - beta_up, 1.0 + beta_down)
+        ua = ua * scale[:, None]
+        ua[rows[toward], up[toward]] += beta_up[toward]
+        ua[rows[~toward], down[~toward]] -= beta_down[~toward]
+        u[active] = np.maximum(ua, 0.0)
+        active = active[np.maximum(eps_up, eps_down) > KHACHIYAN_TOLERANCE]
+        if active.size == 0:
             break
     centre = np.einsum("nmi,nm->ni", points, u)
     scatter = np.einsum("nmi,nm,nmj->nij", points, u, points) - np.einsum("ni,nj->nij", centre, centre)
@@ -348,35 +363,43 @@ def periodic_spline_values(
     )
 
 
-def _spline_knots(coords: FloatArray, floor: float) -> tuple[FloatArray, FloatArray]:
-    """Polar knots (angle, radius) per section, sorted, with degenerate points made harmless."""
-    n_sec, k, _ = coords.shape
+def hull_radial_function(points: FloatArray, theta: FloatArray, n_normals: int = 256) -> FloatArray:
+    """Radial function about the origin of a polygon circumscribing each section's points.
+
+    The polygon is the intersection of ``n_normals`` half-planes, each the support
+    half-plane of the points (and the origin) in one direction, so it contains the convex
+    hull and exceeds it by at most 1/cos(pi / n_normals) - 1 (8e-5 for 256 normals).
+
+    Parameters
+    ----------
+    points : array, shape (N, m, 2)
+    theta : array, shape (N, K)
+        Angles at which to evaluate.
+
+    Returns
+    -------
+    r : array, shape (N, K)
+    """
+    phi = np.linspace(0.0, TWO_PI, n_normals, endpoint=False)
+    normals = np.stack([np.cos(phi), np.sin(phi)], axis=1)  # (L, 2)
+    support = np.maximum(np.einsum("nmi,li->nml", points, normals).max(axis=1), 0.0)  # (N, L)
+    cos = np.cos(theta[:, :, None] - phi[None, None, :])  # (N, K, L)
+    with np.errstate(divide="ignore"):
+        reach = np.where(cos > 1e-9, support[:, None, :] / np.where(cos > 1e-9, cos, 1.0), np.inf)
+    return np.asarray(reach.min(axis=2), dtype=np.float64)
+
+
+def _spline_knots(coords: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Polar knots (angle, radius) per section: each demo's angle, on the section's hull."""
+    k = coords.shape[1]
     theta = np.mod(np.arctan2(coords[:, :, 1], coords[:, :, 0]), TWO_PI)
-    rho = np.linalg.norm(coords, axis=2)
     order = np.argsort(theta, axis=1)
     theta = np.take_along_axis(theta, order, axis=1)
-    rho = np.take_along_axis(rho, order, axis=1)
-
-    # A crossing on the directrix has no angle: give it the radius its neighbours imply,
-    # which contains it (its own radius is ~0) without pinching the boundary to c_i.
-    valid = np.asarray(rho > floor)
-    if not valid.all():
-        idx = np.arange(3 * k)
-        tiled_valid = np.tile(valid, 3)
-        prev = np.where(tiled_valid, idx, -1)
-        prev = np.maximum.accumulate(prev, axis=1)[:, k : 2 * k]
-        nxt = np.where(tiled_valid, idx, 3 * k)
-        nxt = np.minimum.accumulate(nxt[:, ::-1], axis=1)[:, ::-1][:, k : 2 * k]
-        t3 = np.concatenate([theta - TWO_PI, theta, theta + TWO_PI], axis=1)
-        r3 = np.tile(rho, 3)
-        rows = np.arange(n_sec)[:, None]
-        has = np.asarray(valid.any(axis=1))[:, None]
-        p = np.clip(prev, 0, 3 * k - 1)
-        q = np.clip(nxt, 0, 3 * k - 1)
-        span = t3[rows, q] - t3[rows, p]
-        w = np.divide(theta - t3[rows, p], span, out=np.full_like(span, 0.5), where=span > 0)
-        filled = r3[rows, p] + np.clip(w, 0.0, 1.0) * (r3[rows, q] - r3[rows, p])
-        rho = np.where(valid, rho, np.where(has, filled, 0.0))
+    # Knots sit where each demo's ray meets the convex hull of the crossings (and c_i): the
+    # outermost demos are interpolated, inner ones are enclosed. Interpolating every demo
+    # instead makes the closed curve swing wildly (even through c_i) wherever two demos
+    # cross the plane at nearly the same angle but different distances.
+    rho = hull_radial_function(_with_origin(coords), theta)
 
     # Near-coincident angles would make the spline's slope explode: merge them to their
     # larger radius (which still contains both), then spread the knots minimally apart.
@@ -386,23 +409,24 @@ def _spline_knots(coords: FloatArray, floor: float) -> tuple[FloatArray, FloatAr
         if not close.any():
             break
         pair_max = np.maximum(rho[:, :-1], rho[:, 1:])
-        rho[:, :-1] = np.where(close, np.maximum(rho[:, :-1], pair_max), rho[:, :-1])
+        rho[:, :-1] = np.where(close, pair_max, rho[:, :-1])
         rho[:, 1:] = np.where(close, np.maximum(rho[:, 1:], pair_max), rho[:, 1:])
         ramp = np.arange(k) * min_gap
         theta = np.maximum.accumulate(theta - ramp, axis=1) + ramp
     return theta, rho
 
 
-def spline_sections(coords: FloatArray, floor: float) -> CrossSections:
-    """Closed periodic cubic splines r(theta) about c_i through every crossing (>= 3 demos).
+def spline_sections(coords: FloatArray) -> CrossSections:
+    """Closed periodic cubic splines r(theta) about c_i enclosing every crossing (>= 3 demos).
+
+    The spline passes through the crossings on the convex hull of the section and encloses
+    the others (see :func:`_spline_knots`).
 
     Parameters
     ----------
     coords : array, shape (N, n, 2)
-    floor : float
-        Radius below which a crossing counts as lying on the directrix.
     """
-    knots, radii = _spline_knots(coords, floor)
+    knots, radii = _spline_knots(coords)
     sections = CrossSections(
         "spline", {"knot_angles": knots, "knot_radii": radii, "scale": np.ones(knots.shape[0])}
     )
@@ -490,7 +514,7 @@ def fitted_sections(coords: FloatArray, kind: str) -> CrossSections:
     if kind == "ellipse":
         return ellipse_sections(coords, floor)
     if kind == "spline":
-        return spline_sections(coords, floor)
+        return spline_sections(coords)
     raise ValueError(f"unknown cross-section kind {kind!r}")
 
 

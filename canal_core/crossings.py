@@ -22,6 +22,8 @@ from .validation import FloatArray
 
 #: Half-width of the cheap first search, in samples.
 NEAR_WINDOW = 4
+#: Half-width of the second search, in samples.
+MID_WINDOW = 32
 
 
 def _signed_distances(
@@ -40,11 +42,12 @@ def _crossings_in_window(
     sections: np.ndarray,
     demos: np.ndarray,
     half_width: int,
-) -> tuple[FloatArray, np.ndarray]:
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
     """Crossing points for (section, demo) pairs searched within ``half_width`` samples.
 
-    Returns the points, shape (P, D), and a mask, shape (P,), of pairs where a sign change
-    was found; unfound pairs hold the window sample nearest the plane, projected onto it.
+    Returns the points, shape (P, D), a mask, shape (P,), of pairs where a sign change
+    was found (unfound pairs hold the window sample nearest the plane, projected onto it),
+    and the distance from c_i of that nearest sample, shape (P,).
     """
     n_samples = aligned.shape[1]
     offsets = np.arange(-half_width, half_width + 1)
@@ -70,14 +73,12 @@ def _crossings_in_window(
     x1 = aligned[demos, cols[pair, seg + 1]]
     points = x0 + np.clip(alpha, 0.0, 1.0)[:, None] * (x1 - x0)
 
-    if not found.all():
-        miss = ~found
-        nearest = np.argmin(np.abs(dist[miss]), axis=1)
-        x = aligned[demos[miss], cols[miss][np.arange(nearest.size), nearest]]
-        t = tangents[sections[miss]]
-        offset = dist[miss][np.arange(nearest.size), nearest]
-        points[miss] = x - offset[:, None] * t
-    return points, found
+    nearest = np.argmin(np.abs(dist), axis=1)
+    x = aligned[demos, cols[pair, nearest]]
+    reference = np.linalg.norm(x - centres[sections], axis=1)
+    miss = ~found
+    points[miss] = x[miss] - dist[pair, nearest][miss, None] * tangents[sections[miss]]
+    return points, found, reference
 
 
 def plane_crossings(
@@ -104,16 +105,27 @@ def plane_crossings(
     n_demos, n_samples, _ = aligned.shape
     sections = np.repeat(np.arange(n_samples), n_demos)
     demos = np.tile(np.arange(n_demos), n_samples)
-    points, found = _crossings_in_window(
-        aligned, centres, tangents, sections, demos, min(NEAR_WINDOW, n_samples)
-    )
     wide = max(NEAR_WINDOW + 1, round(window * n_samples))
-    if not found.all() and wide > NEAR_WINDOW:
-        # Only pairs without a nearby crossing pay for the wide search.
-        miss = np.flatnonzero(~found)
-        points[miss], _ = _crossings_in_window(
-            aligned, centres, tangents, sections[miss], demos[miss], wide
+    # Widen the search only for the pairs that have not found a crossing yet: most pairs
+    # cross within a few samples, the ends of the canal need the whole window.
+    widths = sorted({min(NEAR_WINDOW, wide), min(MID_WINDOW, wide), wide})
+    points, found, reference = _crossings_in_window(
+        aligned, centres, tangents, sections, demos, widths[0]
+    )
+    pending = np.flatnonzero(~found)
+    for width in widths[1:]:
+        if pending.size == 0:
+            break
+        far_points, far_found, _ = _crossings_in_window(
+            aligned, centres, tangents, sections[pending], demos[pending], width
         )
+        # A crossing found far away is taken only if it is nearer c_i than the demo's own
+        # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
+        # (or of a helix turn) met by a demo that starts ahead of the first plane does not.
+        near_enough = np.linalg.norm(far_points - centres[sections[pending]], axis=1) <= reference[pending]
+        take = far_found & near_enough
+        points[pending[take]] = far_points[take]
+        pending = pending[~far_found]
     return points.reshape(n_samples, n_demos, -1)
 
 

@@ -88,7 +88,12 @@ def frenet_frames(points: FloatArray) -> tuple[FloatArray, FloatArray, FloatArra
     steps = np.linalg.norm(np.gradient(points, axis=0), axis=1)
     curvature = np.gradient(tangents, axis=0) / np.maximum(steps, 1e-300)[:, None]
     curvature -= np.einsum("ij,ij->i", curvature, tangents)[:, None] * tangents
-    normals, valid = _normalised(curvature)
+    # Curvature below 1e-9 turns over the whole curve is rounding noise, not a direction.
+    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    kappa = np.linalg.norm(curvature, axis=1)
+    valid = kappa > 1e-9 / max(length, 1e-300)
+    normals = np.zeros_like(curvature)
+    normals[valid] = curvature[valid] / kappa[valid, None]
     if not valid.any():
         normals = np.broadcast_to(perpendicular_vector(tangents[0]), tangents.shape).copy()
     else:

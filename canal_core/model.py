@@ -99,6 +99,11 @@ class Canal:
     sections : CrossSections
     section_points : array, shape (N, n, D - 1)
         In-plane coordinates of where each demonstration crosses each section plane.
+    end_depths : array, shape (2,)
+        How far the demonstrations reach behind the first plane and past the last one.
+        Demonstrations rarely start exactly in the first cross-section plane (it is tilted
+        by the mean's tangent); the canal's end sections are extruded along t by these
+        depths so that every demonstrated point is inside the canal.
     options : FitOptions
     """
 
@@ -109,6 +114,7 @@ class Canal:
     arclength: FloatArray
     sections: CrossSections
     section_points: FloatArray
+    end_depths: FloatArray = field(default_factory=lambda: np.zeros(2))
     options: FitOptions = field(default_factory=FitOptions)
 
     # -- derived ---------------------------------------------------------------------
@@ -164,7 +170,8 @@ class Canal:
         """
         loc = self.locate(points)
         axial_tol = tol * float(self.radii.max(initial=0.0))
-        return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= axial_tol))
+        reach = np.where(loc.axial < 0.0, self.end_depths[0], self.end_depths[1]) + axial_tol
+        return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
 
     def reproduce_detailed(self, start: Any, outside: str = "project") -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
@@ -255,6 +262,7 @@ class Canal:
             "arclength": self.arclength.tolist(),
             "sections": self.sections.to_dict(),
             "section_points": self.section_points.tolist(),
+            "end_depths": self.end_depths.tolist(),
         }
 
     @classmethod
@@ -269,7 +277,7 @@ class Canal:
                 )
             arr = {
                 k: np.asarray(data[k], dtype=np.float64)
-                for k in ("directrix", "tangents", "normals", "arclength", "section_points")
+                for k in ("directrix", "tangents", "normals", "arclength", "section_points", "end_depths")
             }
             dim = int(data["dim"])
             n = arr["directrix"].shape[0]
@@ -281,6 +289,7 @@ class Canal:
             binormals = None if data["binormals"] is None else np.asarray(data["binormals"], dtype=np.float64)
             expected = {
                 "directrix": (n, dim), "tangents": (n, dim), "normals": (n, dim), "arclength": (n,),
+                "end_depths": (2,),
             }
             for key, shape in expected.items():
                 if arr[key].shape != shape:
@@ -295,6 +304,7 @@ class Canal:
                 arclength=arr["arclength"],
                 sections=CrossSections(kind, params),
                 section_points=arr["section_points"],
+                end_depths=arr["end_depths"],
                 options=FitOptions(**data["options"]),
             )
         except ModelFormatError:
@@ -304,6 +314,18 @@ class Canal:
 
 
 # -------------------------------------------------------------------------------------
+
+
+def end_depths(aligned: FloatArray, centres: FloatArray, tangents: FloatArray) -> FloatArray:
+    """How far the aligned demos (n, N, D) reach behind plane 0 and past plane N-1, shape (2,).
+
+    Only the first and last thirds are measured, so a curve that loops back near its start
+    later on does not count.
+    """
+    third = max(aligned.shape[1] // 3, 1)
+    behind = (aligned[:, :third] - centres[0]) @ tangents[0]
+    past = (aligned[:, -third:] - centres[-1]) @ tangents[-1]
+    return np.array([max(0.0, -float(behind.min())), max(0.0, float(past.max()))])
 
 
 def fit_options(
@@ -403,6 +425,14 @@ def fit(
         tangents, normals, binormals = rotation_minimizing_frames(centres)
 
     crossings = plane_crossings(aligned, centres, tangents)
+    # A demo that starts behind the first plane (or ends past the last) is measured at the
+    # end section by its projected end sample, so the extruded ends hold the whole demo.
+    first = aligned[:, 0] - ((aligned[:, 0] - centres[0]) @ tangents[0])[:, None] * tangents[0]
+    behind = (aligned[:, 0] - centres[0]) @ tangents[0] < 0.0
+    crossings[0, behind] = first[behind]
+    last = aligned[:, -1] - ((aligned[:, -1] - centres[-1]) @ tangents[-1])[:, None] * tangents[-1]
+    past = (aligned[:, -1] - centres[-1]) @ tangents[-1] > 0.0
+    crossings[-1, past] = last[past]
     basis = section_basis(normals, binormals)
     coords = in_plane_coordinates(crossings, centres, basis)
     if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
@@ -411,6 +441,7 @@ def fit(
         )
     sections = fitted_sections(coords, options.cross_section)
     return Canal(
+        end_depths=end_depths(aligned, centres, tangents),
         directrix=centres,
         tangents=tangents,
         normals=normals,

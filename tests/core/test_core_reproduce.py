@@ -1,0 +1,126 @@
+"""Reproduction by the ratio rule (Section 4.2), Task I/II, starts anywhere, outside starts."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import helix_demos, sleeve_demos
+
+import canal_core
+from canal_core import OutsideCanalError, datasets
+from canal_core.cross_sections import boundary_distance
+
+KINDS = ("circle", "mec", "ellipse", "spline")
+
+
+def eta_along(canal: canal_core.Canal, path: np.ndarray) -> np.ndarray:
+    loc = canal.locate(path)
+    return loc.eta
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_task_one_reproduction_passes_the_narrow_middle(kind: str, rng: np.random.Generator) -> None:
+    canal = canal_core.fit(datasets.task_one(), cross_section=kind)
+    for _ in range(5):
+        # A random start inside the first cross-section.
+        angle = rng.uniform(0, 2 * np.pi)
+        radius = rng.uniform(0, 0.9) * 0.2
+        start = np.array([0.0, radius * np.cos(angle), radius * np.sin(angle)])
+        result = canal.reproduce_detailed(start)
+        assert result.inside and not result.projected
+        path = result.positions
+        assert canal.contains(path).all()
+        # In the middle (x = 0.5) the canal is 1 cm wide: the reproduction passes within it.
+        middle = path[np.argmin(np.abs(path[:, 0] - 0.5))]
+        assert np.hypot(middle[1], middle[2]) <= 0.0101
+        np.testing.assert_allclose(path[-1, 0], 1.0, atol=1e-9)  # ends at the canal's end
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_eta_is_preserved_along_the_reproduction(kind: str) -> None:
+    canal = canal_core.fit(sleeve_demos(), cross_section=kind, n_samples=120)
+    start = canal.directrix[10] + 0.6 * 0.05 * canal.normals[10] + 0.2 * 0.05 * canal.binormals[10]
+    result = canal.reproduce_detailed(start)
+    idx = np.arange(result.section_index + 1, canal.n_sections)
+    # Each reproduced point sits exactly in its cross-section at ratio eta.
+    rel = result.positions[1:] - canal.directrix[idx]
+    q = np.einsum("nkd,nd->nk", canal.basis[idx], rel)
+    norm = np.linalg.norm(q, axis=1)
+    reach = boundary_distance(canal.sections, idx, q / norm[:, None])
+    np.testing.assert_allclose(norm / reach, result.eta, rtol=1e-9)
+    axial = np.einsum("nd,nd->n", rel, canal.tangents[idx])
+    assert np.abs(axial).max() < 1e-12
+
+
+def test_start_is_matched_to_its_nearest_section_not_the_first() -> None:
+    canal = canal_core.fit(helix_demos(), n_samples=150)
+    start = canal.directrix[90] + 0.02 * canal.normals[90]
+    result = canal.reproduce_detailed(start)
+    assert result.section_index in (89, 90)
+    assert result.positions.shape[0] == 1 + canal.n_sections - 1 - result.section_index
+    np.testing.assert_allclose(result.positions[-1], canal.directrix[-1] + result.eta * canal.radii[-1] * canal.normals[-1], atol=1e-9)
+
+
+def test_start_on_the_directrix_follows_the_directrix() -> None:
+    canal = canal_core.fit(datasets.task_one())
+    result = canal.reproduce_detailed(canal.directrix[0])
+    assert result.eta == 0.0 and result.inside
+    np.testing.assert_allclose(result.positions[1:], canal.directrix[1:], atol=1e-12)
+    assert np.isfinite(result.positions).all()
+
+
+def test_start_outside_is_projected_or_raises() -> None:
+    canal = canal_core.fit(datasets.task_one())
+    start = np.array([0.0, 0.5, 0.0])  # 2.5 radii out at the first section
+    result = canal.reproduce_detailed(start)
+    assert not result.inside and result.projected and result.eta == 1.0
+    np.testing.assert_array_equal(result.positions[0], start)
+    # After the start, the path runs along the boundary and stays in the canal.
+    assert canal.contains(result.positions[1:]).all()
+    with pytest.raises(OutsideCanalError, match=r"eta=2\.5"):
+        canal.reproduce_detailed(start, outside="raise")
+
+
+def test_two_dimensional_reproduction_keeps_its_side() -> None:
+    x = np.linspace(0, 1, 80)
+    demos = [np.column_stack([x, 0.3 * np.sin(np.pi * x) + d * (1.2 - x)]) for d in (-0.05, 0.02, 0.1)]
+    canal = canal_core.fit(demos, cross_section="ellipse", n_samples=80)
+    start = canal.directrix[0] + 0.5 * canal.sections.params["lower"][0] * canal.normals[0]
+    path = canal.reproduce(start)
+    side = np.einsum("nd,nd->n", path[1:] - canal.directrix[1:], canal.normals[1:])
+    np.testing.assert_allclose(side, 0.5 * canal.sections.params["lower"][1:], rtol=1e-9, atol=1e-15)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_model_round_trips_exactly_through_json(kind: str) -> None:
+    canal = canal_core.fit(helix_demos(), cross_section=kind, n_samples=60, frames="frenet")
+    text = json.dumps(canal.to_dict())
+    again = canal_core.Canal.from_dict(json.loads(text))
+    for name in ("directrix", "tangents", "normals", "binormals", "arclength", "section_points", "end_depths", "radii"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(canal, name))
+    assert again.options == canal.options
+    start = canal.directrix[3] + 0.01 * canal.normals[3]
+    np.testing.assert_array_equal(again.reproduce(start), canal.reproduce(start))
+    np.testing.assert_array_equal(again.mesh().vertices, canal.mesh().vertices)
+
+
+def test_from_dict_rejects_foreign_data() -> None:
+    data = canal_core.fit(datasets.task_one(n_points=20), n_samples=20).to_dict()
+    with pytest.raises(canal_core.ModelFormatError, match="version"):
+        canal_core.Canal.from_dict({**data, "version": 99})
+    with pytest.raises(canal_core.ModelFormatError, match="shape"):
+        canal_core.Canal.from_dict({**data, "directrix": [[0.0, 0.0, 0.0]]})
+    with pytest.raises(canal_core.ModelFormatError):
+        canal_core.Canal.from_dict({k: v for k, v in data.items() if k != "sections"})
+
+
+def test_options_are_recorded() -> None:
+    canal = canal_core.fit(datasets.task_one(), alignment="dtw", directrix="gmr", n_samples=80)
+    assert canal.options.to_dict() == {
+        "cross_section": "circle", "frames": "rmf", "alignment": "dtw", "directrix": "gmr", "n_samples": 80,
+    }
+    assert canal.directrix.shape == (80, 3)
+    for demo in datasets.task_one():
+        assert canal.contains(demo, tol=2e-2).mean() > 0.95
