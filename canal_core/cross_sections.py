@@ -530,3 +530,20 @@ def section_radii(sections: CrossSections, n_angles: int = 64) -> FloatArray:
     index = np.repeat(np.arange(n), n_angles)
     dist = boundary_distance(sections, index, np.tile(dirs, (n, 1)))
     return np.asarray(dist.reshape(n, n_angles).max(axis=1), dtype=np.float64)
+
+
+def scaled_sections(sections: CrossSections, scale: FloatArray) -> CrossSections:
+    """Sections enlarged by a homothety about c_i: every boundary distance times ``scale`` (N,)."""
+    p = {k: v.copy() for k, v in sections.params.items()}
+    if sections.kind == "circle":
+        p["radius"] *= scale
+    elif sections.kind == "interval":
+        p["lower"] *= scale
+        p["upper"] *= scale
+    elif sections.kind in ("mec", "ellipse"):
+        p["center"] *= scale[:, None]
+        key = "radius" if sections.kind == "mec" else "axes"
+        p[key] *= scale if key == "radius" else scale[:, None]
+    elif sections.kind == "spline":
+        p["scale"] *= scale
+    return CrossSections(sections.kind, p)

@@ -13,14 +13,27 @@ from typing import Any
 
 import numpy as np
 
-from .alignment import dtw_aligned_demonstrations, resampled_demonstrations
-from .cross_sections import KINDS, KINDS_3D, CrossSections, fitted_sections, section_radii
+from .alignment import dtw_aligned_demonstrations, resampled_demonstrations, spline_parameter
+from .cross_sections import (
+    KINDS,
+    KINDS_3D,
+    CrossSections,
+    fitted_sections,
+    scaled_sections,
+    section_radii,
+)
 from .crossings import in_plane_coordinates, plane_crossings
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames
 from .preprocess import STILL_TOLERANCE, cleaned_demonstration
-from .reproduce import Location, located_points, ratio_rule_positions, section_basis
+from .reproduce import (
+    Location,
+    enclosing_scales,
+    located_points,
+    ratio_rule_positions,
+    section_basis,
+)
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
 from .tracker import Tracker, tracker_geometry
 from .validation import (
@@ -316,16 +329,19 @@ class Canal:
 # -------------------------------------------------------------------------------------
 
 
-def end_depths(aligned: FloatArray, centres: FloatArray, tangents: FloatArray) -> FloatArray:
-    """How far the aligned demos (n, N, D) reach behind plane 0 and past plane N-1, shape (2,).
+def end_depths(
+    samples: FloatArray, phase: FloatArray, centres: FloatArray, tangents: FloatArray
+) -> FloatArray:
+    """How far demo samples (M, D) reach behind plane 0 and past plane N-1, shape (2,).
 
-    Only the first and last thirds are measured, so a curve that loops back near its start
-    later on does not count.
+    Only samples in the first and last 5 % of their demo (by ``phase`` in [0, 1]) count,
+    so a curve that loops back near its start later on does not stretch the canal.
     """
-    third = max(aligned.shape[1] // 3, 1)
-    behind = (aligned[:, :third] - centres[0]) @ tangents[0]
-    past = (aligned[:, -third:] - centres[-1]) @ tangents[-1]
-    return np.array([max(0.0, -float(behind.min())), max(0.0, float(past.max()))])
+    behind = (samples[phase < 0.05] - centres[0]) @ tangents[0]
+    past = (samples[phase > 0.95] - centres[-1]) @ tangents[-1]
+    return np.array(
+        [max(0.0, -float(behind.min(initial=0.0))), max(0.0, float(past.max(initial=0.0)))]
+    )
 
 
 def fit_options(
@@ -440,8 +456,17 @@ def fit(
             "every demonstration is identical: the canal has zero radius everywhere"
         )
     sections = fitted_sections(coords, options.cross_section)
+    # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
+    # Every sample the caller gave counts, the trimmed still ends and repeats included.
+    samples = np.vstack(demos_)
+    phase = np.concatenate([spline_parameter(d, t) for d, t in zip(demos_, times_, strict=True)])
+    approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
+    window = max(8, options.n_samples // 50)
+    sections = scaled_sections(
+        sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
+    )
     return Canal(
-        end_depths=end_depths(aligned, centres, tangents),
+        end_depths=end_depths(samples, phase, centres, tangents),
         directrix=centres,
         tangents=tangents,
         normals=normals,

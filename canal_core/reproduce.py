@@ -196,3 +196,64 @@ def ratio_rule_positions(
     reach = boundary_distance(sections, idx, np.ascontiguousarray(dirs))
     offset = np.einsum("k,nkd->nd", direction, basis[idx])
     return np.asarray(centres[idx] + (eta * reach)[:, None] * offset, dtype=np.float64)
+
+
+def enclosing_scales(
+    samples: FloatArray,
+    approx_index: IntArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    basis: FloatArray,
+    sections: CrossSections,
+    window: int = 8,
+) -> FloatArray:
+    """Per-section enlargement that makes every demo sample lie inside the swept canal.
+
+    A demo sample between planes i and i + 1 is judged against the blend of sections i and
+    i + 1. Demonstrations that define the boundary lie exactly on it at the planes, but in
+    between the blend is a chord and leaves them out by a second-order amount. Enlarging
+    both sections by the sample's eta puts it back on the boundary; taking the largest such
+    factor per section makes the canal a true envelope of its demonstrations. Samples are
+    searched only within ``window`` sections of ``approx_index`` (their own phase).
+
+    Parameters
+    ----------
+    samples : array, shape (M, D)
+    approx_index : array of int, shape (M,)
+    centres, tangents : arrays, shape (N, D)
+    basis : array, shape (N, D - 1, D)
+    sections : CrossSections
+
+    Returns
+    -------
+    scale : array, shape (N,), >= 1
+    """
+    n = centres.shape[0]
+    scale = np.ones(n)
+    if n < 2:
+        return scale
+    offsets = np.arange(-window, window)
+    lower = np.clip(approx_index[:, None] + offsets[None, :], 0, n - 2)  # (M, W)
+    plane = np.einsum("nd,nd->n", centres, tangents)
+    d_lo = np.einsum("md,mwd->mw", samples, tangents[lower]) - plane[lower]
+    d_hi = np.einsum("md,mwd->mw", samples, tangents[lower + 1]) - plane[lower + 1]
+    crossing = (d_lo == 0.0) | (np.sign(d_lo) != np.sign(d_hi))
+    score = np.where(crossing, np.abs(offsets + 0.5)[None, :], np.inf)
+    best = np.argmin(score, axis=1)
+    rows = np.arange(samples.shape[0])
+    found = np.isfinite(score[rows, best])
+    index = lower[rows, best]
+    a, b = d_lo[rows, best], d_hi[rows, best]
+    alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
+    # Samples behind the first plane or past the last are measured on the end sections.
+    # Only samples whose phase is at an end may be measured on the end sections.
+    behind = ~found & (approx_index < window) & (samples @ tangents[0] - plane[0] < 0.0)
+    past = ~found & (approx_index > n - 1 - window) & (samples @ tangents[-1] - plane[-1] > 0.0)
+    index = np.where(behind, 0, np.where(past, n - 2, index))
+    alpha = np.where(behind, 0.0, np.where(past, 1.0, alpha))
+    use = found | behind | past
+    _, _, eta = blended_location(samples[use], index[use], alpha[use], centres, basis, sections)
+    need = np.where(np.isfinite(eta), eta, 1.0)
+    np.maximum.at(scale, index[use], need)
+    np.maximum.at(scale, index[use] + 1, need)
+    return scale

@@ -62,13 +62,17 @@ class TrackerGeometry:
     basis: FloatArray  # (N, D - 1, D)
     offsets: FloatArray  # (N,) t_i . c_i
     sections: CrossSections
+    done_tolerance: float
 
 
 def tracker_geometry(
     centres: FloatArray, tangents: FloatArray, basis: FloatArray, sections: CrossSections
 ) -> TrackerGeometry:
     """Precompute the plane offsets t_i . c_i used by every step."""
-    return TrackerGeometry(centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections)
+    spacing = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).mean()) if len(centres) > 1 else 0.0
+    return TrackerGeometry(
+        centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing
+    )
 
 
 def _first_crossing(dist: FloatArray) -> int:
@@ -137,7 +141,9 @@ def tracker_step(
     reach_target = boundary_distance(g.sections, np.array([target_index]), direction)[0]
     target = g.centres[target_index] + min(eta, 1.0) * reach_target * (direction[0] @ g.basis[target_index])
     last = n - 1
-    done = bool(g.tangents[last] @ position - g.offsets[last] >= 0.0)
+    # "Reached" up to a millionth of the mean section spacing: a robot converging on the
+    # last target approaches its plane geometrically and would otherwise never cross it.
+    done = bool(g.tangents[last] @ position - g.offsets[last] >= -g.done_tolerance)
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
     return (
         TrackerTarget(target, float(progress), eta, index, inside, done),

