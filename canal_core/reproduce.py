@@ -106,6 +106,9 @@ def blended_location(
     q0 = np.einsum("mkd,md->mk", basis[index], points - centres[index])
     q1 = np.einsum("mkd,md->mk", basis[upper], points - centres[upper])
     coords = (1.0 - alpha)[:, None] * q0 + alpha[:, None] * q1
+    # Offsets at rounding level (a point on the directrix) count as zero, not as a
+    # direction: a zero-size section would otherwise turn them into eta = inf.
+    coords[np.linalg.norm(coords, axis=1) <= 1e-12 * (1.0 + np.abs(centres).max())] = 0.0
     norm, direction = unit_directions(coords)
     reach = (1.0 - alpha) * boundary_distance(sections, index, direction) + alpha * boundary_distance(
         sections, upper, direction

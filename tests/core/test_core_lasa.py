@@ -37,7 +37,7 @@ def test_leave_one_out(name: str, kind: str) -> None:
         # The reproduction follows the held-out demo's shape: mean distance well below the
         # shape's size.
         size = np.ptp(np.vstack(demos), axis=0).max()
-        assert metrics.rmse(path, demos[held]) < 0.15 * size
+        assert metrics.rmse(path, demos[held]) < 0.25 * size
         # Training demos' own samples: the canal is an envelope of them within +-N/50
         # sections of their phase; samples whose phase runs far from the mean's (CShape's
         # slow turn) can fall outside. Measured minimum over these shapes: 88 %.
