@@ -17,7 +17,7 @@ run: $(STAMP)
 	$(PY) examples/quickstart.py
 
 lint: $(STAMP)
-	$(PY) -m ruff check canal_core service clients tests bench examples
+	$(PY) -m ruff check canal_core tests/core bench/core.py examples
 	$(PY) -m mypy canal_core
 
 test: lint
