@@ -201,6 +201,45 @@ def ratio_rule_positions(
     return np.asarray(centres[idx] + (eta * reach)[:, None] * offset, dtype=np.float64)
 
 
+def bracketing_sections(
+    samples: FloatArray,
+    approx_index: IntArray,
+    tangents: FloatArray,
+    plane: FloatArray,
+    window: int,
+) -> tuple[IntArray, FloatArray, BoolArray]:
+    """For each sample, the pair (i, i + 1) of planes around it nearest ``approx_index``.
+
+    Parameters
+    ----------
+    samples : array, shape (M, D)
+    approx_index : array of int, shape (M,)
+    tangents : array, shape (N, D)
+    plane : array, shape (N,)
+        t_i . c_i.
+    window : int
+        Half-width of the search, in sections.
+
+    Returns
+    -------
+    index : array of int, shape (M,)
+    alpha : array, shape (M,)
+    found : array of bool, shape (M,)
+    """
+    n = tangents.shape[0]
+    offsets = np.arange(-window, window)
+    lower = np.clip(approx_index[:, None] + offsets[None, :], 0, n - 2)  # (M, W)
+    dist = np.einsum("md,mwd->mw", samples, tangents[lower]) - plane[lower]
+    dist_next = np.einsum("md,mwd->mw", samples, tangents[lower + 1]) - plane[lower + 1]
+    crossing = (dist == 0.0) | (np.sign(dist) != np.sign(dist_next))
+    score = np.where(crossing, np.abs(offsets + 0.5)[None, :], np.inf)
+    best = np.argmin(score, axis=1)
+    rows = np.arange(samples.shape[0])
+    a, b = dist[rows, best], dist_next[rows, best]
+    alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
+    return lower[rows, best], alpha, np.isfinite(score[rows, best])
+
+
 def enclosing_scales(
     samples: FloatArray,
     approx_index: IntArray,
@@ -235,20 +274,15 @@ def enclosing_scales(
     scale = np.ones(n)
     if n < 2:
         return scale
-    offsets = np.arange(-window, window)
-    lower = np.clip(approx_index[:, None] + offsets[None, :], 0, n - 2)  # (M, W)
     plane = np.einsum("nd,nd->n", centres, tangents)
-    d_lo = np.einsum("md,mwd->mw", samples, tangents[lower]) - plane[lower]
-    d_hi = np.einsum("md,mwd->mw", samples, tangents[lower + 1]) - plane[lower + 1]
-    crossing = (d_lo == 0.0) | (np.sign(d_lo) != np.sign(d_hi))
-    score = np.where(crossing, np.abs(offsets + 0.5)[None, :], np.inf)
-    best = np.argmin(score, axis=1)
-    rows = np.arange(samples.shape[0])
-    found = np.isfinite(score[rows, best])
-    index = lower[rows, best]
-    a, b = d_lo[rows, best], d_hi[rows, best]
-    alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
-    # Samples behind the first plane or past the last are measured on the end sections.
+    # Most samples sit within a few sections of their phase: search there first, and
+    # widen only for the rest.
+    index, alpha, found = bracketing_sections(samples, approx_index, tangents, plane, min(4, window))
+    if window > 4 and not found.all():
+        miss = np.flatnonzero(~found)
+        index[miss], alpha[miss], found[miss] = bracketing_sections(
+            samples[miss], approx_index[miss], tangents, plane, window
+        )
     # Only samples whose phase is at an end may be measured on the end sections.
     behind = ~found & (approx_index < window) & (samples @ tangents[0] - plane[0] < 0.0)
     past = ~found & (approx_index > n - 1 - window) & (samples @ tangents[-1] - plane[-1] > 0.0)
