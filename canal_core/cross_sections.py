@@ -46,7 +46,7 @@ RELATIVE_FLOOR = 1e-9
 #: Above this many points per section, the minimum enclosing circle is found per section
 #: with Welzl's algorithm instead of the vectorised enumeration of all pairs and triples.
 MEC_ENUMERATION_LIMIT = 13
-KHACHIYAN_TOLERANCE = 1e-9
+KHACHIYAN_TOLERANCE = 1e-8
 KHACHIYAN_MAX_ITERATIONS = 2000
 
 
