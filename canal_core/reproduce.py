@@ -26,6 +26,9 @@ import numpy as np
 from .cross_sections import CrossSections, boundary_distance
 from .validation import BoolArray, FloatArray, IntArray
 
+#: Relative slack on eta when preferring a section that holds a point (rounding only).
+INSIDE_TOLERANCE = 1e-9
+
 
 @dataclass(frozen=True, eq=False)
 class Location:
@@ -139,8 +142,11 @@ def located_points(
     m, n = points.shape[0], centres.shape[0]
     offsets = np.einsum("nd,nd->n", centres, tangents)
     dist = points @ tangents.T - offsets[None, :]  # (M, N) signed plane distances
+    # A point on a plane up to rounding is on it: where the sweep folds, the neighbouring
+    # planes may all lie on one side of it and no sign change would be seen.
+    dist[np.abs(dist) <= 1e-12 * (1.0 + np.abs(centres).max())] = 0.0
     lo, hi = dist[:, :-1], dist[:, 1:]
-    crossing = (lo == 0.0) | (np.sign(lo) != np.sign(hi))
+    crossing = (lo == 0.0) | (hi == 0.0) | (np.sign(lo) != np.sign(hi))
     pt, sec = np.nonzero(crossing)
     denom = lo[pt, sec] - hi[pt, sec]
     alpha = np.divide(lo[pt, sec], denom, out=np.zeros_like(denom), where=denom != 0.0)
@@ -158,7 +164,7 @@ def located_points(
 
     coords, direction, eta = blended_location(points[pt], sec, alpha, centres, basis, sections)
     # Prefer a section that holds the point; else the end or pair where it is least outside.
-    key = np.where((axial == 0.0) & (eta <= 1.0), eta, 2.0 + eta)
+    key = np.where((axial == 0.0) & (eta <= 1.0 + INSIDE_TOLERANCE), eta, 2.0 + eta)
     order = np.lexsort((key, pt))
     first = order[np.searchsorted(pt[order], np.arange(m))]
     return Location(
