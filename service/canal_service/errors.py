@@ -15,6 +15,11 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
 from canal_core.errors import (
     CanalError,
     DegenerateCanalError,
@@ -22,10 +27,6 @@ from canal_core.errors import (
     ModelFormatError,
     OutsideCanalError,
 )
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from starlette.exceptions import HTTPException as StarletteHTTPException
 
 log = logging.getLogger("canal_service")
 
@@ -77,11 +78,14 @@ class UnsupportedMediaType(ServiceError):
     error_type = "unsupported_media_type"
 
 
-class Unavailable(ServiceError):
-    """A feature switched off in this deployment (e.g. recordings)."""
+class Disabled(ServiceError):
+    """A feature switched off in this deployment (e.g. recordings).
 
-    status_code = 503
-    error_type = "unavailable"
+    404, not 503: the resource does not exist here, and retrying will not make it appear.
+    """
+
+    status_code = 404
+    error_type = "disabled"
 
 
 class PayloadTooLarge(StarletteHTTPException):

@@ -70,12 +70,13 @@ class Database:
 
     @contextmanager
     def read(self) -> Iterator[Session]:
-        """A session for queries only; rolled back at the end."""
+        """A session for queries only; closing it ends the transaction.
+
+        Closing, not rolling back: a rollback would expire the loaded rows the caller
+        still reads after the block.
+        """
         with self._read() as session:
-            try:
-                yield session
-            finally:
-                session.rollback()
+            yield session
 
     @contextmanager
     def write(self) -> Iterator[Session]:

@@ -83,6 +83,8 @@ class ModelVersion(Base):
     demo_ids: Mapped[list[int]] = mapped_column(JSON, nullable=False)
     canal: Mapped[dict[str, Any]] = mapped_column(JSON, nullable=False)
     fit_seconds: Mapped[float] = mapped_column(nullable=False, default=0.0)
+    n_sections: Mapped[int] = mapped_column(Integer, nullable=False)
+    section_kind: Mapped[str] = mapped_column(String(16), nullable=False)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
     skill: Mapped[Skill] = relationship(back_populates="models")

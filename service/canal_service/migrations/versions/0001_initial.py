@@ -53,6 +53,8 @@ def upgrade() -> None:
         sa.Column("demo_ids", sa.JSON(), nullable=False),
         sa.Column("canal", sa.JSON(), nullable=False),
         sa.Column("fit_seconds", sa.Float(), nullable=False),
+        sa.Column("n_sections", sa.Integer(), nullable=False),
+        sa.Column("section_kind", sa.String(16), nullable=False),
         sa.Column("created_at", sa.DateTime(timezone=True), nullable=True),
         sa.UniqueConstraint("skill_id", "version", name="uq_models_skill_version"),
     )

@@ -1,0 +1,239 @@
+"""Service benchmark over real HTTP: uploads, fits and reproductions.
+
+Starts ``python -m canal_service`` on a free loopback port (its own process, fresh data
+folder), then drives it with a concurrent httpx client:
+
+1. 1,000 demonstration uploads of 1,000 points each (JSON), then checks every one is stored
+   (count, and the SHA-256 checksum of each upload's positions);
+2. fits: one over all uploaded demos, then repeated fits of a 10 x 1,000-point skill;
+3. 1,000 reproductions against the fitted model.
+
+Prints a table of throughput and p50/p99 latency with the targets of issue #3 (on a 2-core
+machine: uploads >= 200/s, fit p99 < 100 ms for 10 x 1,000, reproduction p99 < 20 ms) and
+exits 1 when a target or the storage check fails. ``--quick`` runs a tenth of the work.
+
+    python bench/service.py [--quick] [--concurrency 16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import hashlib
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+import numpy as np
+import orjson
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def demo(j: int, n: int, rng: np.random.Generator) -> np.ndarray:
+    """A noisy arc, different per demo."""
+    t = np.linspace(0.0, 1.0, n)
+    off = rng.normal(0.0, 0.02)
+    return np.column_stack([
+        t,
+        0.3 * np.sin(np.pi * t) + off + 0.002 * rng.standard_normal(n),
+        0.1 * t + 0.5 * off * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n),
+    ])
+
+
+def checksum(positions: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(positions, dtype="<f8").tobytes()).hexdigest()
+
+
+@dataclass
+class Row:
+    name: str
+    count: int
+    seconds: float
+    latencies: list[float]
+    target: str = ""
+    ok: bool | None = None
+
+    @property
+    def rate(self) -> float:
+        return self.count / self.seconds if self.seconds else float("nan")
+
+    def pct(self, q: float) -> float:
+        return float(np.percentile(self.latencies, q)) * 1000 if self.latencies else float("nan")
+
+
+async def timed(client: httpx.AsyncClient, method: str, url: str, **kw: object
+                ) -> tuple[httpx.Response, float]:
+    t0 = time.perf_counter()
+    r = await client.request(method, url, **kw)  # type: ignore[arg-type]
+    return r, time.perf_counter() - t0
+
+
+async def run_many(n: int, concurrency: int, make: object) -> tuple[list[object], float]:
+    """Run ``make(i)`` coroutines for i < n, at most ``concurrency`` at once."""
+    sem = asyncio.Semaphore(concurrency)
+
+    async def one(i: int) -> object:
+        async with sem:
+            return await make(i)  # type: ignore[operator]
+
+    t0 = time.perf_counter()
+    results = await asyncio.gather(*(one(i) for i in range(n)))
+    return list(results), time.perf_counter() - t0
+
+
+async def bench(url: str, n_uploads: int, n_points: int, n_fits: int, n_repro: int,
+                concurrency: int, repro_concurrency: int) -> tuple[list[Row], list[str]]:
+    rng = np.random.default_rng(0)
+    problems: list[str] = []
+    rows: list[Row] = []
+    limits = httpx.Limits(max_connections=concurrency, max_keepalive_connections=concurrency)
+    async with httpx.AsyncClient(base_url=url, timeout=120, limits=limits) as client:
+        await client.post("/skills", json={"name": "bench", "dim": 3})
+        await client.post("/skills", json={"name": "fit10", "dim": 3})
+
+        demos = [demo(j, n_points, rng) for j in range(n_uploads)]
+        bodies = [orjson.dumps({"positions": d, "label": f"d{j}"},
+                               option=orjson.OPT_SERIALIZE_NUMPY) for j, d in enumerate(demos)]
+        headers = {"content-type": "application/json"}
+
+        async def upload(i: int) -> tuple[httpx.Response, float]:
+            return await timed(client, "POST", "/skills/bench/demonstrations",
+                               content=bodies[i], headers=headers)
+
+        results, seconds = await run_many(n_uploads, concurrency, upload)
+        bad = [r for r, _ in results if r.status_code != 201]  # type: ignore[misc]
+        if bad:
+            problems.append(f"{len(bad)} uploads failed, first: {bad[0].status_code} {bad[0].text}")
+        rows.append(Row(f"upload ({n_points} pts, x{concurrency})", n_uploads, seconds,
+                        [lat for _, lat in results], ">= 200/s"))  # type: ignore[misc]
+        rows[-1].ok = rows[-1].rate >= 200
+
+        # every upload stored: count and checksums
+        stored: list[str] = []
+        offset = 0
+        while True:
+            page = (await client.get("/skills/bench/demonstrations",
+                                     params={"offset": offset, "limit": 1000})).json()
+            stored += [item["checksum"] for item in page["items"]]
+            offset += len(page["items"])
+            if not page["items"] or offset >= page["total"]:
+                break
+        expected = sorted(checksum(d) for d in demos)
+        if len(stored) != n_uploads or sorted(stored) != expected:
+            problems.append(f"storage check failed: {len(stored)} stored of {n_uploads}, "
+                            f"{len(set(stored) & set(expected))} checksums match")
+        else:
+            print(f"storage check: {len(stored)}/{n_uploads} stored, all checksums match")
+
+        r, lat = await timed(client, "POST", "/skills/bench/fit", json={})
+        if r.status_code != 201:
+            problems.append(f"fit of all demos failed: {r.status_code} {r.text[:200]}")
+        rows.append(Row(f"fit ({n_uploads} x {n_points} pts)", 1, lat, [lat]))
+
+        for j in range(10):
+            await client.post("/skills/fit10/demonstrations",
+                              content=orjson.dumps({"positions": demo(j, 1000, rng)},
+                                                   option=orjson.OPT_SERIALIZE_NUMPY),
+                              headers=headers)
+        fit_lat = []
+        t0 = time.perf_counter()
+        for _ in range(n_fits):
+            r, lat = await timed(client, "POST", "/skills/fit10/fit", json={})
+            if r.status_code != 201:
+                problems.append(f"fit10 failed: {r.status_code} {r.text[:200]}")
+                break
+            fit_lat.append(lat)
+        rows.append(Row("fit (10 x 1000 pts)", len(fit_lat), time.perf_counter() - t0, fit_lat,
+                        "p99 < 100 ms"))
+        rows[-1].ok = rows[-1].pct(99) < 100
+
+        model = (await client.get("/skills/bench/models/latest")).json()
+        directrix = np.asarray(model["directrix"])
+        radii = np.asarray(model["radii"])
+        starts = []
+        for _ in range(n_repro):
+            k = int(rng.integers(0, len(directrix) // 2))
+            starts.append((directrix[k] + rng.normal(0, 0.3 * radii[k] / np.sqrt(3), 3)).tolist())
+
+        async def reproduce(i: int) -> tuple[httpx.Response, float]:
+            return await timed(client, "POST", "/skills/bench/reproductions",
+                               json={"start": starts[i]})
+
+        results, seconds = await run_many(n_repro, repro_concurrency, reproduce)
+        bad = [r for r, _ in results if r.status_code != 200]  # type: ignore[misc]
+        if bad:
+            problems.append(f"{len(bad)} reproductions failed: {bad[0].text[:200]}")
+        rows.append(Row(f"reproduce (x{repro_concurrency} in flight)", n_repro, seconds,
+                        [lat for _, lat in results], "p99 < 20 ms"))  # type: ignore[misc]
+        rows[-1].ok = rows[-1].pct(99) < 20
+    return rows, problems
+
+
+def print_table(rows: list[Row]) -> None:
+    print(f"\n{os.cpu_count()} CPUs shared by client and server")
+    head = f"{'step':<30} {'n':>6} {'total s':>8} {'per s':>9} {'p50 ms':>8} {'p99 ms':>8}  target"
+    print(head)
+    print("-" * len(head) + "-" * 12)
+    for r in rows:
+        verdict = "" if r.ok is None else ("  PASS" if r.ok else "  FAIL")
+        print(f"{r.name:<30} {r.count:>6} {r.seconds:>8.2f} {r.rate:>9.1f} {r.pct(50):>8.1f} "
+              f"{r.pct(99):>8.1f}  {r.target}{verdict}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="a tenth of the work (smoke run)")
+    p.add_argument("--concurrency", type=int, default=8,
+                   help="requests in flight for uploads (default 8)")
+    p.add_argument("--repro-concurrency", type=int, default=2,
+                   help="requests in flight for reproductions (default 2: a latency target, "
+                        "measured with client and server sharing the machine's 2 cores)")
+    args = p.parse_args(argv)
+    n_uploads, n_fits, n_repro = (100, 10, 100) if args.quick else (1000, 30, 1000)
+
+    port = free_port()
+    with tempfile.TemporaryDirectory(prefix="canal-bench-") as data:
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "service"),
+                                                            os.environ.get("PYTHONPATH", "")])}
+        server = subprocess.Popen(
+            [sys.executable, "-m", "canal_service", "--port", str(port), "--data-dir", data,
+             "--no-recordings", "--log-level", "warning"], env=env)
+        url = f"http://127.0.0.1:{port}"
+        try:
+            deadline = time.monotonic() + 30
+            while True:
+                try:
+                    httpx.get(f"{url}/healthz", timeout=1)
+                    break
+                except httpx.TransportError:
+                    if server.poll() is not None or time.monotonic() > deadline:
+                        print("service did not start", file=sys.stderr)
+                        return 1
+                    time.sleep(0.1)
+            rows, problems = asyncio.run(bench(url, n_uploads, 1000, n_fits, n_repro,
+                                               args.concurrency, args.repro_concurrency))
+        finally:
+            server.terminate()
+            server.wait(10)
+    print_table(rows)
+    for problem in problems:
+        print("PROBLEM:", problem)
+    failed = problems or any(r.ok is False for r in rows)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""``create_app(settings)``: the FastAPI application, its storage, recorder and middleware."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.concurrency import run_in_threadpool
+from fastapi.middleware.cors import CORSMiddleware
+
+from . import __version__
+from .core.config import Settings
+from .errors import install_error_handlers
+from .metrics import Metrics
+from .middleware import BearerAuth, BodySizeLimit, RequestMetrics
+from .routes import api_router, health
+from .service import CanalService, RecorderLike
+from .storage import Database
+
+log = logging.getLogger("canal_service")
+
+OPEN_PATHS = frozenset({"/healthz"})
+
+DESCRIPTION = """
+Learn robot skills from demonstrations with canal surfaces (Ahmadzadeh & Chernova).
+
+Create a skill, post demonstrations (JSON, CSV, NPY or MCAP), fit a canal, look at it
+(geometry, mesh), remove a bad demonstration and refit, and ask for reproductions.
+Every error is JSON: `{"error": {"type", "field", "message"}}`.
+"""
+
+
+def make_recorder(settings: Settings) -> RecorderLike | None:
+    """The recorder from config, or None when disabled or not installed."""
+    if not settings.recordings_enabled:
+        return None
+    try:
+        from .recording import Recorder  # type: ignore[attr-defined]
+    except ImportError as exc:
+        log.warning("recordings disabled: canal_service.recording not importable (%s)", exc)
+        return None
+    # Rerun phones home on first use unless told not to; a lab service should not.
+    os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
+    root = settings.resolved_recordings_dir
+    root.mkdir(parents=True, exist_ok=True)
+    recorder: RecorderLike = Recorder(root, enabled=True)
+    return recorder
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the app: migrate the database now, open the recorder in the lifespan."""
+    settings = settings or Settings()
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    db = Database(settings.resolved_database_url)
+    db.migrate()
+    metrics = Metrics()
+    service = CanalService(db, metrics, cache_size=settings.model_cache_size)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        service.recorder = await run_in_threadpool(make_recorder, settings)
+        try:
+            yield
+        finally:
+            recorder, service.recorder = service.recorder, None
+            if recorder is not None:
+                await run_in_threadpool(recorder.close)
+            db.dispose()
+
+    app = FastAPI(
+        title="Canal",
+        version=__version__,
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        responses={401: {"description": "Missing or wrong bearer token (when one is set)"}},
+    )
+    app.state.settings = settings
+    app.state.service = service
+    app.state.metrics = metrics
+    install_error_handlers(app)
+    app.include_router(health.router)
+    app.include_router(api_router)
+
+    # Added innermost first: metrics see every response, auth runs before the body is read,
+    # the size limit wraps everything that reads a body.
+    if settings.cors_origins:
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
+                           allow_methods=["*"], allow_headers=["*"])
+    app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
+    if settings.token is not None:
+        app.add_middleware(BearerAuth, token=settings.token.get_secret_value(),
+                           open_paths=OPEN_PATHS)
+        _declare_bearer(app)
+    app.add_middleware(RequestMetrics, metrics=metrics)
+    return app
+
+
+def _declare_bearer(app: FastAPI) -> None:
+    """Show the bearer scheme in the OpenAPI document so /docs offers 'Authorize'."""
+    original = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        schema = original()
+        components = schema.setdefault("components", {})
+        components.setdefault("securitySchemes", {})["bearer"] = {"type": "http",
+                                                                   "scheme": "bearer"}
+        schema["security"] = [{"bearer": []}]
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]

@@ -1,0 +1,42 @@
+"""Typed dependencies shared by the routes."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Depends, Path, Query, Request
+
+from .schemas import MAX_ID, SKILL_NAME_PATTERN
+from .service import CanalService
+
+
+def get_service(request: Request) -> CanalService:
+    """The app's service object (built by ``create_app``)."""
+    service: CanalService = request.app.state.service
+    return service
+
+
+ServiceDep = Annotated[CanalService, Depends(get_service)]
+SkillName = Annotated[
+    str, Path(pattern=SKILL_NAME_PATTERN, description="Skill name", examples=["pour"])
+]
+DemoId = Annotated[int, Path(ge=1, le=MAX_ID, description="Demonstration id")]
+Offset = Annotated[int, Query(ge=0, le=MAX_ID, description="Items to skip")]
+Limit = Annotated[int, Query(ge=1, le=1000, description="Page size")]
+
+
+def parse_version(value: str, field: str = "version") -> int | None:
+    """'latest' -> None, a positive number -> int; anything else is a 422 naming ``field``."""
+    from .errors import InvalidInput
+
+    if value == "latest":
+        return None
+    if value.isascii() and value.isdigit() and 1 <= int(value) <= MAX_ID:
+        return int(value)
+    raise InvalidInput(f"expected a model version number or 'latest', got {value!r}", field=field)
+
+
+VersionRef = Annotated[
+    str, Path(description="A version number or 'latest'", examples=["latest", "1"],
+              pattern=r"^(latest|[0-9]{1,10})$")
+]

@@ -1,0 +1,145 @@
+"""/skills/{name}/demonstrations: JSON bodies and file uploads (CSV, NPY, MCAP)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Query, Request, Response, status
+from fastapi.concurrency import run_in_threadpool
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
+from starlette.datastructures import UploadFile
+from starlette.exceptions import HTTPException
+
+from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
+from ..errors import BadUpload, InvalidInput, PayloadTooLarge, UnsupportedMediaType
+from ..schemas import (
+    DemonstrationCreated,
+    DemonstrationIn,
+    DemonstrationOut,
+    DemonstrationSummary,
+    ErrorResponse,
+    Page,
+)
+from ..uploads import detect_format
+
+router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
+
+_FILE_TYPES = ("text/csv", "application/csv", "application/x-npy", "application/npy",
+               "application/x-mcap", "application/mcap", "application/octet-stream")
+_BINARY = {"type": "string", "format": "binary"}
+_REQUEST_BODY: dict[str, Any] = {
+    "required": True,
+    "description": (
+        "One demonstration, as JSON, as a multipart upload (field `file`, optional field "
+        "`label`), or as a raw file body. Files: CSV, NumPy .npy or MCAP (one demonstration "
+        "per file, see the service docs); format from ?format=, the file name, the content "
+        "type or the file's magic bytes."
+    ),
+    "content": {
+        "application/json": {"schema": DemonstrationIn.model_json_schema()},
+        "multipart/form-data": {
+            "schema": {
+                "type": "object",
+                "properties": {"file": _BINARY, "label": {"type": "string", "maxLength": 256}},
+                "required": ["file"],
+            }
+        },
+        "text/csv": {"schema": {"type": "string"}},
+        "application/x-npy": {"schema": _BINARY},
+        "application/x-mcap": {"schema": _BINARY},
+        "application/octet-stream": {"schema": _BINARY},
+    },
+}
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse} for code in (400, 404, 413, 415, 422)
+}
+
+Format = Annotated[Literal["csv", "npy", "mcap"] | None,
+                   Query(description="File format; guessed when omitted.")]
+Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
+Label = Annotated[str | None, Query(max_length=256, pattern=r"^[^\x00]*$",
+                                    description="Label for a file upload.")]
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=DemonstrationCreated,
+             responses=_ERRORS, openapi_extra={"requestBody": _REQUEST_BODY})
+async def add_demonstration(
+    name: SkillName,
+    request: Request,
+    service: ServiceDep,
+    format: Format = None,
+    topic: Topic = None,
+    label: Label = None,
+) -> DemonstrationCreated:
+    """Store one demonstration; nothing is stored unless every check passes."""
+    content_type = request.headers.get("content-type", "")
+    base = content_type.split(";", 1)[0].strip().lower()
+    if base == "application/json" or base.endswith("+json"):
+        raw = await request.body()
+        if not raw.strip():
+            raise InvalidInput("expected a JSON body with 'positions', got an empty body",
+                               field="body")
+        try:
+            body = DemonstrationIn.model_validate_json(raw)
+        except ValidationError as exc:
+            raise RequestValidationError(exc.errors(include_url=False)) from exc
+        return await run_in_threadpool(service.add_json_demonstration, name, body)
+    if base == "multipart/form-data":
+        data, filename, part_type, form_label = await _read_multipart(request)
+        if label is None:
+            label = form_label
+    elif base in _FILE_TYPES:
+        data, filename, part_type = await request.body(), None, base
+    else:
+        raise UnsupportedMediaType(
+            f"expected Content-Type application/json, multipart/form-data or one of "
+            f"{', '.join(_FILE_TYPES)}, got {content_type or 'none'!r}",
+            field="Content-Type",
+        )
+    if not data:
+        raise BadUpload("the uploaded file is empty", field="file")
+    fmt = detect_format(format, filename, part_type, data)
+    return await run_in_threadpool(service.add_file_demonstration, name, fmt, data, topic, label)
+
+
+async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | None, str | None]:
+    try:
+        form = await request.form(max_files=1, max_fields=8)
+    except PayloadTooLarge:
+        raise
+    except HTTPException as exc:
+        raise BadUpload(f"unreadable multipart body: {exc.detail}", field="body") from exc
+    try:
+        upload = form.get("file")
+        if not isinstance(upload, UploadFile):
+            raise InvalidInput("expected a file in the multipart field 'file'", field="file")
+        data = await upload.read()
+        label = form.get("label")
+        if label is not None and (not isinstance(label, str) or len(label) > 256 or "\x00" in label):
+            raise InvalidInput("expected 'label' as text of at most 256 characters",
+                               field="label")
+        return data, upload.filename, upload.content_type, label
+    finally:
+        await form.close()
+
+
+@router.get("", response_model=Page[DemonstrationSummary], responses=_ERRORS)
+def list_demonstrations(name: SkillName, service: ServiceDep, offset: Offset = 0,
+                        limit: Limit = 100) -> Page[DemonstrationSummary]:
+    """Demonstration summaries (no arrays), oldest first."""
+    return service.list_demonstrations(name, offset, limit)
+
+
+@router.get("/{demo_id}", response_model=DemonstrationOut, responses=_ERRORS)
+def get_demonstration(name: SkillName, demo_id: DemoId, service: ServiceDep) -> DemonstrationOut:
+    """One demonstration with its full arrays."""
+    return service.get_demonstration(name, demo_id)
+
+
+@router.delete("/{demo_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+               responses=_ERRORS)
+def delete_demonstration(name: SkillName, demo_id: DemoId, service: ServiceDep) -> Response:
+    """Delete a demonstration; model versions that used it keep their record of its id."""
+    service.delete_demonstration(name, demo_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,444 @@
+"""The service layer: the only place that combines storage, canal_core and the recorder.
+
+Routes call these methods (in a worker thread: every method here may block on the database
+or on numpy). Each method runs in one transaction, so a failure stores nothing; the recorder
+hears about a change only after it committed.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+from sqlalchemy.exc import IntegrityError
+
+import canal_core
+
+from . import schemas, uploads
+from .errors import Conflict, InvalidInput, NotFound
+from .metrics import Metrics
+from .storage import Database, Demonstration, ModelVersion, Skill, arrays
+from .storage import repository as repo
+from .validation import DemoArrays, check_demonstration
+
+log = logging.getLogger("canal_service")
+
+_VERSION_RETRIES = 5
+
+
+class RecorderLike(Protocol):
+    """The part of ``canal_service.recording.Recorder`` the service calls."""
+
+    def demo_added(self, skill: str, dim: int, demo_id: int, positions: Any, timestamps: Any,
+                   label: str | None) -> None: ...
+    def demo_removed(self, skill: str, demo_id: int) -> None: ...
+    def model_fitted(self, skill: str, version: int, canal: Any) -> None: ...
+    def reproduction(self, skill: str, version: int, result: Any) -> None: ...
+    def skill_deleted(self, skill: str) -> None: ...
+    def export_rrd(self, skill: str) -> Any: ...
+    def export_mcap(self, skill: str) -> Any: ...
+    def health(self) -> dict[str, Any]: ...
+    def close(self) -> None: ...
+
+
+class CanalCache:
+    """Decoded canals by model row id. Model versions never change, so entries never go stale."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._items: OrderedDict[int, Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: int) -> Any | None:
+        """The cached canal, marked recently used, or None."""
+        with self._lock:
+            canal = self._items.get(key)
+            if canal is not None:
+                self._items.move_to_end(key)
+            return canal
+
+    def put(self, key: int, canal: Any) -> None:
+        """Keep ``canal``, evicting the least recently used beyond ``size``."""
+        if self.size <= 0:
+            return
+        with self._lock:
+            self._items[key] = canal
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
+
+
+def _tolist(value: Any) -> Any:
+    return None if value is None else np.asarray(value, dtype=np.float64).tolist()
+
+
+class CanalService:
+    """Use cases of the REST API, independent of HTTP."""
+
+    def __init__(self, db: Database, metrics: Metrics, *, cache_size: int = 64,
+                 recorder: RecorderLike | None = None) -> None:
+        self.db = db
+        self.metrics = metrics
+        self.recorder = recorder
+        self.cache = CanalCache(cache_size)
+
+    # ---- recorder ---------------------------------------------------------------------------
+
+    def _record(self, method: str, *args: Any) -> None:
+        # The recorder promises never to raise; a broken one must still not fail a request
+        # whose data is already committed.
+        if self.recorder is None:
+            return
+        try:
+            getattr(self.recorder, method)(*args)
+        except Exception:
+            log.exception("recorder.%s failed", method)
+
+    # ---- skills -----------------------------------------------------------------------------
+
+    def create_skill(self, body: schemas.SkillCreate) -> schemas.SkillOut:
+        """Create a skill (409 when the name is taken)."""
+        with self.db.write() as s:
+            skill = repo.create_skill(s, body.name, body.description, body.dim)
+            return self._skill_out(skill, repo.SkillStats(0, 0, None))
+
+    def get_skill(self, name: str) -> schemas.SkillOut:
+        """A skill with its counts."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            return self._skill_out(skill, repo.skill_stats(s, [skill.id])[skill.id])
+
+    def list_skills(self, offset: int, limit: int) -> schemas.Page[schemas.SkillOut]:
+        """A page of skills with counts."""
+        with self.db.read() as s:
+            skills, total = repo.list_skills(s, offset, limit)
+            stats = repo.skill_stats(s, [k.id for k in skills])
+            items = [self._skill_out(k, stats[k.id]) for k in skills]
+        return schemas.Page[schemas.SkillOut](items=items, total=total, offset=offset, limit=limit)
+
+    def delete_skill(self, name: str) -> None:
+        """Delete a skill with its demonstrations and models."""
+        with self.db.write() as s:
+            repo.delete_skill(s, name)
+        self._record("skill_deleted", name)
+
+    @staticmethod
+    def _skill_out(skill: Skill, stats: repo.SkillStats) -> schemas.SkillOut:
+        return schemas.SkillOut(
+            name=skill.name, description=skill.description, dim=skill.dim,
+            created_at=skill.created_at, n_demonstrations=stats.n_demonstrations,
+            n_models=stats.n_models, latest_model_version=stats.latest_model_version,
+        )
+
+    def skill_dim(self, name: str) -> int:
+        """The skill's dimension (NotFound for an unknown skill)."""
+        with self.db.read() as s:
+            return repo.get_skill(s, name).dim
+
+    # ---- demonstrations ---------------------------------------------------------------------
+
+    def add_json_demonstration(self, name: str, body: schemas.DemonstrationIn
+                               ) -> schemas.DemonstrationCreated:
+        """Check and store a demonstration sent as JSON."""
+        dim = self.skill_dim(name)
+        demo = check_demonstration(body.positions, dim, body.timestamps, body.orientations)
+        return self.add_demonstration(name, demo, body.label, "json")
+
+    def add_file_demonstration(self, name: str, fmt: uploads.UploadFormat, data: bytes,
+                               topic: str | None, label: str | None
+                               ) -> schemas.DemonstrationCreated:
+        """Parse, check and store a demonstration uploaded as a CSV, NPY or MCAP file."""
+        dim = self.skill_dim(name)
+        parsed = uploads.parse_upload(fmt, data, dim, topic)
+        demo = check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations)
+        return self.add_demonstration(name, demo, label, fmt)
+
+    def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,
+                          source: str) -> schemas.DemonstrationCreated:
+        """Store a checked demonstration; its dimension was checked against the skill's."""
+        with self.db.write() as s:
+            skill = repo.get_skill(s, name)
+            if demo.positions.shape[1] != skill.dim:
+                raise InvalidInput(
+                    f"expected {skill.dim} columns for skill {name!r}, got {demo.positions.shape[1]}",
+                    field="positions",
+                )
+            row = repo.add_demonstration(s, skill, demo.positions, demo.timestamps,
+                                         demo.orientations, label, source)
+            created = schemas.DemonstrationCreated(id=row.id, n_points=row.n_points,
+                                                   checksum=row.checksum)
+            dim = skill.dim
+        self.metrics.demos_stored.labels(source).inc()
+        self._record("demo_added", name, dim, created.id, demo.positions, demo.timestamps, label)
+        return created
+
+    def list_demonstrations(self, name: str, offset: int, limit: int
+                            ) -> schemas.Page[schemas.DemonstrationSummary]:
+        """A page of demonstration summaries."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            rows, total, flags = repo.list_demonstrations(s, skill, offset, limit)
+            items = [self._demo_summary(r, *flags.get(r.id, (False, False))) for r in rows]
+        return schemas.Page[schemas.DemonstrationSummary](items=items, total=total,
+                                                           offset=offset, limit=limit)
+
+    def get_demonstration(self, name: str, demo_id: int) -> schemas.DemonstrationOut:
+        """One demonstration with its arrays."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            row = repo.get_demonstration(s, skill, demo_id)
+            positions, times, quats = _demo_arrays(row)
+            summary = self._demo_summary(row, times is not None, quats is not None)
+        return schemas.DemonstrationOut(
+            **summary.model_dump(), positions=positions.tolist(), timestamps=_tolist(times),
+            orientations=_tolist(quats),
+        )
+
+    def delete_demonstration(self, name: str, demo_id: int) -> None:
+        """Delete one demonstration (fitted models keep their record of it)."""
+        with self.db.write() as s:
+            skill = repo.get_skill(s, name)
+            repo.delete_demonstration(s, skill, demo_id)
+        self._record("demo_removed", name, demo_id)
+
+    @staticmethod
+    def _demo_summary(row: Demonstration, has_t: bool, has_q: bool
+                      ) -> schemas.DemonstrationSummary:
+        return schemas.DemonstrationSummary(
+            id=row.id, label=row.label, n_points=row.n_points, dim=row.dim,
+            has_timestamps=has_t, has_orientations=has_q, source=row.source,
+            checksum=row.checksum, created_at=row.created_at,
+        )
+
+    # ---- fitting ----------------------------------------------------------------------------
+
+    def fit(self, name: str, body: schemas.FitRequest) -> schemas.ModelSummary:
+        """Fit a new model version from the skill's demonstrations (or the chosen ones)."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
+            loaded = [(r.id, *_demo_arrays(r)) for r in rows]
+        if body.demo_ids is not None:
+            missing = sorted(set(body.demo_ids) - {d[0] for d in loaded})
+            if missing:
+                raise InvalidInput(f"skill {name!r} has no demonstrations {missing}",
+                                   field="demo_ids")
+        if len(loaded) < 2:
+            raise Conflict(
+                f"fitting needs at least 2 demonstrations, skill {name!r} has {len(loaded)}"
+                + (" selected" if body.demo_ids is not None else ""),
+                field="demonstrations",
+            )
+        demo_ids = [d[0] for d in loaded]
+        positions = [d[1] for d in loaded]
+        times = [d[2] for d in loaded]
+        options = body.model_dump(exclude={"demo_ids"})
+        started = time.perf_counter()
+        try:
+            canal = canal_core.fit(positions, timestamps=None if all(t is None for t in times)
+                                   else times, **options)
+        except canal_core.CanalError as exc:
+            _name_demo_in(exc, demo_ids)
+            # canal_core leaves the field empty when the set as a whole is at fault.
+            exc.field = exc.field or "demonstrations"
+            raise
+        seconds = time.perf_counter() - started
+        serialized = canal.to_dict()
+        used_options = canal.options.to_dict()
+        model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
+        self.cache.put(model[0], canal)
+        self.metrics.fits.inc()
+        self.metrics.fit_seconds.observe(seconds)
+        self._record("model_fitted", name, model[1].version, canal)
+        return model[1]
+
+    def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
+                     serialized: dict[str, Any], seconds: float, canal: Any
+                     ) -> tuple[int, schemas.ModelSummary]:
+        # Versions are max + 1 under a unique constraint: two replicas fitting at once both
+        # try the same number, one wins, the other retries with the next.
+        for attempt in range(_VERSION_RETRIES):
+            try:
+                with self.db.write() as s:
+                    skill = repo.get_skill(s, name)
+                    version = repo.next_model_version(s, skill)
+                    row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
+                                         int(canal.n_sections), str(canal.section_kind))
+                    return row.id, self._model_summary(row, skill.dim, len(demo_ids))
+            except IntegrityError:
+                if attempt == _VERSION_RETRIES - 1:
+                    raise
+        raise AssertionError("unreachable")
+
+    @staticmethod
+    def _model_summary(row: ModelVersion, dim: int, n_demos: int | None = None
+                       ) -> schemas.ModelSummary:
+        return schemas.ModelSummary(
+            version=row.version, created_at=row.created_at, demo_ids=list(row.demo_ids),
+            options=dict(row.options), dim=dim,
+            n_demos=len(row.demo_ids) if n_demos is None else n_demos,
+            n_sections=row.n_sections, section_kind=row.section_kind, fit_seconds=row.fit_seconds,
+        )
+
+    def list_models(self, name: str, offset: int, limit: int) -> schemas.Page[schemas.ModelSummary]:
+        """A page of model versions, newest first."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            rows, total = repo.list_models(s, skill, offset, limit)
+            items = [self._model_summary(r, skill.dim) for r in rows]
+        return schemas.Page[schemas.ModelSummary](items=items, total=total, offset=offset,
+                                                   limit=limit)
+
+    def load_canal(self, name: str, version: int | None) -> tuple[Any, ModelVersion | None, int, int]:
+        """(canal, row or None when served from cache, version, dim) of a version or the latest."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            ref = repo.model_ref(s, skill, version)
+            if ref is None:
+                if version is None:
+                    raise Conflict(f"skill {name!r} has no fitted model yet; POST .../fit first",
+                                   field="model")
+                raise NotFound(f"skill {name!r} has no model version {version}", field="model")
+            model_id, found_version = ref
+            canal = self.cache.get(model_id)
+            row = None
+            if canal is None:
+                row = repo.get_model(s, model_id)
+                canal = canal_core.Canal.from_dict(row.canal)
+                self.cache.put(model_id, canal)
+            return canal, row, found_version, skill.dim
+
+    def get_model(self, name: str, version: int | None, serialized: bool) -> schemas.ModelOut:
+        """A model version with its geometry."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            ref = repo.model_ref(s, skill, version)
+            if ref is None:
+                if version is None:
+                    raise Conflict(f"skill {name!r} has no fitted model yet", field="model")
+                raise NotFound(f"skill {name!r} has no model version {version}", field="model")
+            row = repo.get_model(s, ref[0])
+            dim = skill.dim
+        canal = self.cache.get(row.id)
+        if canal is None:
+            canal = canal_core.Canal.from_dict(row.canal)
+            self.cache.put(row.id, canal)
+        summary = self._model_summary(row, dim)
+        data = row.canal
+        sections = data.get("sections") if isinstance(data, dict) else None
+        return schemas.ModelOut(
+            **summary.model_dump(),
+            directrix=_tolist(canal.directrix),
+            arclength=_tolist(canal.arclength),
+            radii=_tolist(canal.radii),
+            frames=schemas.Frames(tangents=_tolist(canal.tangents), normals=_tolist(canal.normals),
+                                  binormals=_tolist(canal.binormals)),
+            bounds=_tolist(canal.bounds),
+            sections=sections if isinstance(sections, dict) else None,
+            serialized=data if serialized else None,
+        )
+
+    def mesh(self, name: str, version: int | None, n_angles: int, caps: bool,
+             envelope: bool) -> Any:
+        """The canal's surface mesh from canal_core."""
+        canal, _row, _version, _dim = self.load_canal(name, version)
+        return canal.mesh(n_angles=n_angles, caps=caps, envelope=envelope)
+
+    # ---- reproductions ----------------------------------------------------------------------
+
+    def reproduce(self, name: str, body: schemas.ReproductionRequest
+                  ) -> schemas.ReproductionOut | schemas.ReproductionBatchOut:
+        """Reproduce from one start or a batch; every start is checked before any is computed."""
+        version = None if body.model == "latest" else int(body.model)
+        canal, _row, found_version, dim = self.load_canal(name, version)
+        if body.start is not None:
+            starts, fields = [body.start], ["start"]
+        else:
+            assert body.starts is not None
+            starts, fields = body.starts, [f"starts[{i}]" for i in range(len(body.starts))]
+        for start, field in zip(starts, fields, strict=True):
+            if len(start) != dim:
+                raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(start)}",
+                                   field=field)
+        results = []
+        for start, field in zip(starts, fields, strict=True):
+            try:
+                result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
+                                                  outside=body.outside)
+            except canal_core.CanalError as exc:
+                exc.field = field
+                raise
+            results.append(result)
+        outs = []
+        for result in results:
+            self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
+            self._record("reproduction", name, found_version, result)
+            outs.append(schemas.ReproductionOut(
+                positions=_tolist(result.positions), start=_tolist(result.start),
+                inside=bool(result.inside), eta=float(result.eta),
+                section_index=int(result.section_index), projected=bool(result.projected),
+                model_version=found_version,
+            ))
+        if body.start is not None:
+            return outs[0]
+        return schemas.ReproductionBatchOut(reproductions=outs)
+
+    # ---- recordings and health --------------------------------------------------------------
+
+    def export_recording(self, name: str, kind: str) -> Any:
+        """A snapshot file of the skill's recording (the caller deletes it after sending)."""
+        self.skill_dim(name)
+        assert self.recorder is not None
+        return self.recorder.export_rrd(name) if kind == "rrd" else self.recorder.export_mcap(name)
+
+    def health(self) -> schemas.HealthOut:
+        """Database and recorder state; degraded when either is unwell."""
+        status: str = "ok"
+        try:
+            self.db.ping()
+            database = "ok"
+        except Exception as exc:  # health must report, not raise
+            database = f"error: {type(exc).__name__}"
+            status = "degraded"
+        if self.recorder is None:
+            recorder: dict[str, Any] = {"status": "disabled", "detail": None}
+        else:
+            try:
+                recorder = dict(self.recorder.health())
+            except Exception as exc:
+                recorder = {"status": "degraded", "detail": f"health() failed: {exc}"}
+            if recorder.get("status") != "ok":
+                status = "degraded"
+        from . import __version__
+
+        return schemas.HealthOut(status=status, database=database,  # type: ignore[arg-type]
+                                 recorder=recorder, version=__version__)
+
+
+_INDEXED_FIELD = re.compile(r"^(demos|timestamps)\[(\d+)\]")
+
+
+def _name_demo_in(exc: canal_core.CanalError, demo_ids: Sequence[int]) -> None:
+    """Rewrite canal_core's list index (``demos[2]``) as the stored id the client knows."""
+    match = _INDEXED_FIELD.match(exc.field or "")
+    if match and int(match.group(2)) < len(demo_ids):
+        demo_id = demo_ids[int(match.group(2))]
+        exc.field = f"demonstrations[id={demo_id}]"
+        exc.message = f"demonstration {demo_id}: {exc.message}"
+
+
+def _demo_arrays(row: Demonstration) -> tuple[arrays.FloatArray, arrays.FloatArray | None,
+                                              arrays.FloatArray | None]:
+    positions = arrays.unpack(row.positions, row.n_points, row.dim)
+    times = None if row.timestamps is None else arrays.unpack(row.timestamps, row.n_points)
+    quats = None if row.orientations is None else arrays.unpack(row.orientations, row.n_points, 4)
+    return positions, times, quats
+
+
+__all__: Sequence[str] = ["CanalCache", "CanalService", "RecorderLike"]

@@ -1,0 +1,227 @@
+"""Repository functions: every query the service runs, each taking the caller's session.
+
+They raise the service's own errors (NotFound, Conflict) so callers never see SQLAlchemy
+exceptions for expected situations. Transactions belong to the caller.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import delete, func, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, defer
+
+from ..errors import Conflict, NotFound
+from . import arrays
+from .models import Demonstration, ModelVersion, Skill
+
+
+@dataclass(frozen=True)
+class SkillStats:
+    """Counts shown with a skill."""
+
+    n_demonstrations: int
+    n_models: int
+    latest_model_version: int | None
+
+
+def create_skill(session: Session, name: str, description: str, dim: int) -> Skill:
+    """Insert a skill; a name already taken is a Conflict."""
+    skill = Skill(name=name, description=description, dim=dim)
+    session.add(skill)
+    try:
+        session.flush()
+    except IntegrityError as exc:
+        raise Conflict(f"skill {name!r} already exists", field="name") from exc
+    return skill
+
+
+def get_skill(session: Session, name: str) -> Skill:
+    """The skill called ``name`` or NotFound."""
+    skill = session.scalars(select(Skill).where(Skill.name == name)).one_or_none()
+    if skill is None:
+        raise NotFound(f"no skill named {name!r}", field="name")
+    return skill
+
+
+def skill_stats(session: Session, skill_ids: Sequence[int]) -> dict[int, SkillStats]:
+    """Counts for several skills in two grouped queries."""
+    demos = dict(
+        session.execute(
+            select(Demonstration.skill_id, func.count())
+            .where(Demonstration.skill_id.in_(skill_ids))
+            .group_by(Demonstration.skill_id)
+        ).all()
+    )
+    models = {
+        sid: (n, latest)
+        for sid, n, latest in session.execute(
+            select(ModelVersion.skill_id, func.count(), func.max(ModelVersion.version))
+            .where(ModelVersion.skill_id.in_(skill_ids))
+            .group_by(ModelVersion.skill_id)
+        )
+    }
+    return {
+        sid: SkillStats(demos.get(sid, 0), models.get(sid, (0, None))[0], models.get(sid, (0, None))[1])
+        for sid in skill_ids
+    }
+
+
+def list_skills(session: Session, offset: int, limit: int) -> tuple[list[Skill], int]:
+    """A page of skills by name, and the total count."""
+    total = session.scalar(select(func.count()).select_from(Skill)) or 0
+    rows = session.scalars(select(Skill).order_by(Skill.name).offset(offset).limit(limit)).all()
+    return list(rows), total
+
+
+def delete_skill(session: Session, name: str) -> None:
+    """Delete a skill; its demonstrations and models go with it (FK cascade)."""
+    skill = get_skill(session, name)
+    # Explicit deletes too, so the cascade does not depend on the backend's FK enforcement.
+    session.execute(delete(Demonstration).where(Demonstration.skill_id == skill.id))
+    session.execute(delete(ModelVersion).where(ModelVersion.skill_id == skill.id))
+    session.execute(delete(Skill).where(Skill.id == skill.id))
+
+
+def add_demonstration(
+    session: Session,
+    skill: Skill,
+    positions: arrays.FloatArray,
+    timestamps: arrays.FloatArray | None,
+    orientations: arrays.FloatArray | None,
+    label: str | None,
+    source: str,
+) -> Demonstration:
+    """Store one checked demonstration as packed arrays."""
+    demo = Demonstration(
+        skill_id=skill.id,
+        label=label,
+        n_points=int(positions.shape[0]),
+        dim=int(positions.shape[1]),
+        positions=arrays.pack(positions),
+        timestamps=None if timestamps is None else arrays.pack(timestamps),
+        orientations=None if orientations is None else arrays.pack(orientations),
+        checksum=arrays.checksum(positions),
+        source=source,
+    )
+    session.add(demo)
+    session.flush()
+    return demo
+
+
+_BLOBS = (defer(Demonstration.positions), defer(Demonstration.timestamps),
+          defer(Demonstration.orientations))
+
+
+def list_demonstrations(
+    session: Session, skill: Skill, offset: int, limit: int
+) -> tuple[list[Demonstration], int, dict[int, tuple[bool, bool]]]:
+    """A page of demonstrations without their arrays, the total, and which have t / q."""
+    total = session.scalar(
+        select(func.count()).select_from(Demonstration).where(Demonstration.skill_id == skill.id)
+    ) or 0
+    rows = session.scalars(
+        select(Demonstration).options(*_BLOBS).where(Demonstration.skill_id == skill.id)
+        .order_by(Demonstration.id).offset(offset).limit(limit)
+    ).all()
+    ids = [r.id for r in rows]
+    flags = {
+        did: (bool(has_t), bool(has_q))
+        for did, has_t, has_q in session.execute(
+            select(Demonstration.id, Demonstration.timestamps.is_not(None),
+                   Demonstration.orientations.is_not(None)).where(Demonstration.id.in_(ids))
+        )
+    }
+    return list(rows), total, flags
+
+
+def get_demonstration(session: Session, skill: Skill, demo_id: int) -> Demonstration:
+    """One demonstration of ``skill`` with its arrays, or NotFound."""
+    demo = session.scalars(
+        select(Demonstration).where(Demonstration.skill_id == skill.id, Demonstration.id == demo_id)
+    ).one_or_none()
+    if demo is None:
+        raise NotFound(f"skill {skill.name!r} has no demonstration {demo_id}", field="id")
+    return demo
+
+
+def delete_demonstration(session: Session, skill: Skill, demo_id: int) -> None:
+    """Delete one demonstration; model versions that used it stay (they are history)."""
+    demo = get_demonstration(session, skill, demo_id)
+    session.delete(demo)
+
+
+def demonstrations_for_fit(
+    session: Session, skill: Skill, ids: Sequence[int] | None
+) -> list[Demonstration]:
+    """The demonstrations to fit, in id order; unknown ids are NotFound-free 422s upstream."""
+    query = select(Demonstration).where(Demonstration.skill_id == skill.id)
+    if ids is not None:
+        query = query.where(Demonstration.id.in_(list(ids)))
+    return list(session.scalars(query.order_by(Demonstration.id)).all())
+
+
+def next_model_version(session: Session, skill: Skill) -> int:
+    """One more than the highest version; the unique constraint catches a concurrent twin."""
+    latest = session.scalar(
+        select(func.max(ModelVersion.version)).where(ModelVersion.skill_id == skill.id)
+    )
+    return int(latest or 0) + 1
+
+
+def add_model(
+    session: Session,
+    skill: Skill,
+    version: int,
+    options: dict[str, Any],
+    demo_ids: list[int],
+    canal: dict[str, Any],
+    fit_seconds: float,
+    n_sections: int,
+    section_kind: str,
+) -> ModelVersion:
+    """Insert a model version (flushes, so a version clash raises IntegrityError here)."""
+    model = ModelVersion(skill_id=skill.id, version=version, options=options, demo_ids=demo_ids,
+                         canal=canal, fit_seconds=fit_seconds, n_sections=n_sections,
+                         section_kind=section_kind)
+    session.add(model)
+    session.flush()
+    return model
+
+
+_NO_CANAL = (defer(ModelVersion.canal),)
+
+
+def list_models(session: Session, skill: Skill, offset: int, limit: int
+                ) -> tuple[list[ModelVersion], int]:
+    """A page of model versions (newest first) without the serialised canal, and the total."""
+    total = session.scalar(
+        select(func.count()).select_from(ModelVersion).where(ModelVersion.skill_id == skill.id)
+    ) or 0
+    rows = session.scalars(
+        select(ModelVersion).options(*_NO_CANAL).where(ModelVersion.skill_id == skill.id)
+        .order_by(ModelVersion.version.desc()).offset(offset).limit(limit)
+    ).all()
+    return list(rows), total
+
+
+def model_ref(session: Session, skill: Skill, version: int | None) -> tuple[int, int] | None:
+    """(row id, version) of a version, or of the latest when ``version`` is None."""
+    query = select(ModelVersion.id, ModelVersion.version).where(ModelVersion.skill_id == skill.id)
+    if version is None:
+        query = query.order_by(ModelVersion.version.desc()).limit(1)
+    else:
+        query = query.where(ModelVersion.version == version)
+    row = session.execute(query).first()
+    return None if row is None else (int(row[0]), int(row[1]))
+
+
+def get_model(session: Session, model_id: int) -> ModelVersion:
+    """A model row by its primary key (the caller got the id from :func:`model_ref`)."""
+    model = session.get(ModelVersion, model_id)
+    if model is None:
+        raise NotFound(f"model {model_id} is gone", field="model")
+    return model

@@ -1,0 +1,155 @@
+"""Checks on a demonstration before anything is stored.
+
+Pure functions: arrays in, checked arrays out, or an :class:`InvalidInput` naming the field,
+the row and what was expected. Every source (JSON, CSV, NPY, MCAP) ends here, so the rules
+are the same whichever way a demonstration arrives.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from .errors import InvalidInput
+
+FloatArray = npt.NDArray[np.float64]
+
+MIN_POINTS = 4
+# Quaternions from robot drivers are often float32 and renormalised loosely; 1e-3 accepts
+# those and still catches Euler angles or unnormalised garbage.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True)
+class DemoArrays:
+    """A checked demonstration: positions (T, D), optional timestamps (T,) and quaternions (T, 4)."""
+
+    positions: FloatArray
+    timestamps: FloatArray | None = None
+    orientations: FloatArray | None = None
+
+    @property
+    def n_points(self) -> int:
+        """Number of samples T."""
+        return int(self.positions.shape[0])
+
+
+def _matrix(value: Any, field: str, columns: int, what: str) -> FloatArray:
+    """``value`` as a (T, columns) float array; ragged rows and wrong widths named by row."""
+    if isinstance(value, np.ndarray):
+        array = value
+    else:
+        # Fast path: a well-formed list converts in one call; only a failure pays for the
+        # row-by-row walk that names the bad row.
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            array = None
+        if array is not None and array.ndim == 2 and array.shape[1] == columns:
+            return np.ascontiguousarray(array)
+        if not isinstance(value, Sequence) or isinstance(value, str | bytes):
+            raise InvalidInput(f"expected {field} as a list of rows, got {type(value).__name__}",
+                               field=field)
+        for i, row in enumerate(value):
+            if not isinstance(row, Sequence) or isinstance(row, str | bytes):
+                raise InvalidInput(f"expected {field}[{i}] to be a row of {columns} numbers",
+                                   field=f"{field}[{i}]")
+            if len(row) != columns:
+                raise InvalidInput(
+                    f"expected {columns} values per row ({what}), got {len(row)} at row {i}",
+                    field=f"{field}[{i}]",
+                )
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInput(f"expected numbers in {field}: {exc}", field=field) from exc
+    if array.ndim != 2 or array.shape[1] != columns:
+        raise InvalidInput(
+            f"expected {field} of shape (T, {columns}) ({what}), got {tuple(array.shape)}",
+            field=field,
+        )
+    return np.ascontiguousarray(array, dtype=np.float64)
+
+
+def _check_finite(array: FloatArray, field: str) -> None:
+    bad = ~np.isfinite(array)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise InvalidInput(f"expected finite numbers, got NaN or Inf at row {row}",
+                           field=f"{field}[{row}]")
+
+
+def check_positions(value: Any, dim: int) -> FloatArray:
+    """Positions as a finite (T, dim) array with T >= 4."""
+    axes = "x, y" if dim == 2 else "x, y, z"
+    positions = _matrix(value, "positions", dim, f"{axes} for a {dim}-D skill")
+    if positions.shape[0] < MIN_POINTS:
+        raise InvalidInput(
+            f"expected at least {MIN_POINTS} points, got {positions.shape[0]}", field="positions"
+        )
+    _check_finite(positions, "positions")
+    return positions
+
+
+def check_timestamps(value: Any, n_points: int) -> FloatArray:
+    """Timestamps as a finite, strictly increasing (T,) array."""
+    try:
+        times = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInput(f"expected timestamps as a list of numbers: {exc}",
+                           field="timestamps") from exc
+    if times.ndim != 1:
+        raise InvalidInput(f"expected timestamps as a flat list, got shape {times.shape}",
+                           field="timestamps")
+    if times.shape[0] != n_points:
+        raise InvalidInput(
+            f"expected one timestamp per position ({n_points}), got {times.shape[0]}",
+            field="timestamps",
+        )
+    _check_finite(times[:, None], "timestamps")
+    steps = np.diff(times)
+    if steps.size and (steps <= 0).any():
+        i = int(np.argmax(steps <= 0)) + 1
+        problem = "duplicate" if steps[i - 1] == 0 else "decreasing"
+        raise InvalidInput(
+            f"expected strictly increasing timestamps, got {problem} value {float(times[i])!r} "
+            f"after {float(times[i - 1])!r} at index {i}",
+            field=f"timestamps[{i}]",
+        )
+    return times
+
+
+def check_orientations(value: Any, n_points: int) -> FloatArray:
+    """Orientations as (T, 4) unit quaternions in (qx, qy, qz, qw) order."""
+    quats = _matrix(value, "orientations", 4, "qx, qy, qz, qw")
+    if quats.shape[0] != n_points:
+        raise InvalidInput(
+            f"expected one orientation per position ({n_points}), got {quats.shape[0]}",
+            field="orientations",
+        )
+    _check_finite(quats, "orientations")
+    norms = np.linalg.norm(quats, axis=1)
+    bad = np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InvalidInput(
+            f"expected unit quaternions (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
+            f"got norm {norms[i]:.6g} at row {i}",
+            field=f"orientations[{i}]",
+        )
+    return quats
+
+
+def check_demonstration(
+    positions: Any, dim: int, timestamps: Any = None, orientations: Any = None
+) -> DemoArrays:
+    """Run every check; the first failure raises :class:`InvalidInput`."""
+    checked = check_positions(positions, dim)
+    n = checked.shape[0]
+    times = None if timestamps is None else check_timestamps(timestamps, n)
+    quats = None if orientations is None else check_orientations(orientations, n)
+    return DemoArrays(checked, times, quats)

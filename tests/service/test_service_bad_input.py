@@ -1,0 +1,271 @@
+"""Every bad input of issue #3: a 4xx, a JSON error naming the field, and nothing stored."""
+
+from __future__ import annotations
+
+import io
+import json
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import demo_positions
+from fastapi.testclient import TestClient
+
+GOOD = demo_positions(0, n=6).tolist()
+
+
+def stored(client: TestClient, skill: str = "pour") -> tuple[int, int]:
+    """(demonstrations, models) stored for ``skill``."""
+    s = client.get(f"/skills/{skill}").json()
+    return s["n_demonstrations"], s["n_models"]
+
+
+def assert_error(r: Any, status: int, field: str, error_type: str | None = None) -> dict[str, Any]:
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"].startswith("application/json")
+    error = r.json()["error"]
+    assert error["field"] is not None and field in error["field"], error
+    assert error["message"]
+    if error_type:
+        assert error["type"] == error_type
+    return error
+
+
+def raw_json(text: str) -> dict[str, Any]:
+    return {"content": text.encode(), "headers": {"content-type": "application/json"}}
+
+
+# (what was tried, request kwargs, status, field named)
+JSON_CASES: list[tuple[str, dict[str, Any], int, str]] = [
+    ("NaN in a position (JSON NaN literal)",
+     raw_json('{"positions": [[0,0,0],[1,0,0],[2,0,0],[3,0,NaN]]}'), 422, "positions[3]"),
+    ("Infinity in a position",
+     raw_json('{"positions": [[0,0,0],[1,0,0],[2,Infinity,0],[3,0,0]]}'), 422, "positions[2]"),
+    ("a number too large for float64 (overflows to inf)",
+     raw_json('{"positions": [[0,0,0],[1,0,0],[2,1e999,0],[3,0,0]]}'), 422, "positions[2]"),
+    ("ragged rows", {"json": {"positions": [[0, 0, 0], [1, 0, 0], [2, 0], [3, 0, 0]]}}, 422,
+     "positions[2]"),
+    ("2 columns for a 3-D skill", {"json": {"positions": [[0, 0], [1, 0], [2, 0], [3, 0]]}}, 422,
+     "positions[0]"),
+    ("4 columns for a 3-D skill",
+     {"json": {"positions": [[0, 0, 0, 0], [1, 0, 0, 0], [2, 0, 0, 0], [3, 0, 0, 0]]}}, 422,
+     "positions[0]"),
+    ("3 points (fewer than 4)", {"json": {"positions": GOOD[:3]}}, 422, "positions"),
+    ("no points", {"json": {"positions": []}}, 422, "positions"),
+    ("duplicate timestamps", {"json": {"positions": GOOD, "timestamps": [0, 1, 1, 2, 3, 4]}},
+     422, "timestamps[2]"),
+    ("decreasing timestamps", {"json": {"positions": GOOD, "timestamps": [0, 1, 2, 1.5, 3, 4]}},
+     422, "timestamps[3]"),
+    ("timestamps length mismatch", {"json": {"positions": GOOD, "timestamps": [0, 1, 2]}}, 422,
+     "timestamps"),
+    ("NaN timestamp", raw_json(json.dumps({"positions": GOOD}).replace(
+        "}", ', "timestamps": [0, 1, NaN, 3, 4, 5]}')), 422, "timestamps[2]"),
+    ("non-unit quaternion",
+     {"json": {"positions": GOOD, "orientations": [[0, 0, 0, 1]] * 3 + [[0, 0, 0, 2]] +
+               [[0, 0, 0, 1]] * 2}}, 422, "orientations[3]"),
+    ("quaternions with 3 components", {"json": {"positions": GOOD, "orientations": [[0, 0, 1]] * 6}},
+     422, "orientations[0]"),
+    ("orientations length mismatch", {"json": {"positions": GOOD, "orientations": [[0, 0, 0, 1]]}},
+     422, "orientations"),
+    ("empty JSON body", raw_json(""), 422, "body"),
+    ("malformed JSON", raw_json('{"positions": [[0,0,0],'), 422, "body"),
+    ("JSON array instead of object", raw_json("[[0,0,0]]"), 422, "body"),
+    ("strings as coordinates", {"json": {"positions": [["a", 0, 0]] * 4}}, 422, "positions[0][0]"),
+    ("unknown key (typo)", {"json": {"position": GOOD}}, 422, "position"),
+    ("missing positions", {"json": {"label": "x"}}, 422, "positions"),
+    ("label with a NUL byte", {"json": {"positions": GOOD, "label": "a\u0000b"}}, 422, "label"),
+    ("wrong content type", {"content": b"positions", "headers": {"content-type": "image/png"}},
+     415, "Content-Type"),
+    ("no content type", {"content": b"x,y,z\n"}, 415, "Content-Type"),
+]
+
+
+@pytest.mark.parametrize(("tried", "kwargs", "status", "field"), JSON_CASES,
+                         ids=[c[0] for c in JSON_CASES])
+def test_bad_demonstration_is_refused_and_not_stored(
+    client: TestClient, skill: str, tried: str, kwargs: dict[str, Any], status: int, field: str
+) -> None:
+    before = stored(client)
+    r = client.post(f"/skills/{skill}/demonstrations", **kwargs)
+    assert_error(r, status, field)
+    assert stored(client) == before, f"{tried}: something was stored"
+    assert client.get(f"/skills/{skill}/demonstrations").json()["items"] == []
+
+
+def _npy(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=True)
+    return buf.getvalue()
+
+
+GARBAGE = bytes(range(256)) * 8
+FILE_CASES: list[tuple[str, str, bytes, int, str]] = [
+    ("garbage bytes as MCAP", "mcap", GARBAGE, 400, "file"),
+    ("MCAP magic then garbage", "mcap", b"\x89MCAP0\r\n" + GARBAGE, 400, "file"),
+    ("garbage bytes as NPY", "npy", GARBAGE, 400, "file"),
+    ("NPY magic then garbage", "npy", b"\x93NUMPY\x01\x00" + GARBAGE, 400, "file"),
+    ("NPY header promising more data than sent", "npy", _npy(np.zeros((50, 3)))[:-8], 400, "file"),
+    ("pickled object array in an NPY (must never be unpickled)", "npy",
+     _npy(np.array([{"a": 1}] * 4, dtype=object)), 400, "file"),
+    ("NPY of strings", "npy", _npy(np.array([["a", "b", "c"]] * 4)), 400, "file"),
+    ("NPY with the wrong number of columns", "npy", _npy(np.zeros((10, 5))), 422, "file"),
+    ("NPY with NaN", "npy", _npy(np.full((10, 3), np.nan)), 422, "positions[0]"),
+    ("garbage bytes as CSV", "csv", GARBAGE, 400, "file"),
+    ("empty file", "csv", b"", 400, "file"),
+    ("CSV with text in a number column", "csv", b"x,y,z\n1,2,3\n1,two,3\n1,2,3\n1,2,3\n", 422,
+     "line 3"),
+    ("CSV with a ragged line", "csv", b"x,y,z\n1,2,3\n1,2\n1,2,3\n1,2,3\n", 422, "line 3"),
+    ("CSV without x/y/z header columns", "csv", b"a,b,c\n1,2,3\n1,2,3\n1,2,3\n1,2,3\n", 422,
+     "header"),
+    ("CSV with decreasing t", "csv", b"t,x,y,z\n0,1,2,3\n2,1,2,4\n1,1,2,5\n3,1,2,6\n", 422,
+     "timestamps[2]"),
+]
+
+
+@pytest.mark.parametrize(("tried", "fmt", "data", "status", "field"), FILE_CASES,
+                         ids=[c[0] for c in FILE_CASES])
+def test_bad_upload_is_refused_and_not_stored(
+    client: TestClient, skill: str, tried: str, fmt: str, data: bytes, status: int, field: str
+) -> None:
+    before = stored(client)
+    r = client.post(f"/skills/{skill}/demonstrations", files={"file": (f"demo.{fmt}", data)})
+    assert_error(r, status, field)
+    # the same bytes as a raw body with ?format=
+    r = client.post(f"/skills/{skill}/demonstrations?format={fmt}", content=data,
+                    headers={"content-type": "application/octet-stream"})
+    assert 400 <= r.status_code < 500, (tried, r.text)
+    assert stored(client) == before, f"{tried}: something was stored"
+
+
+def test_multipart_without_file_field(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/demonstrations", data={"label": "x"},
+                    files={"other": ("a.csv", b"x,y,z\n")})
+    assert_error(r, 422, "file")
+    assert stored(client) == (0, 0)
+
+
+def test_unknown_format_cannot_be_guessed(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/demonstrations", content=b"1,2,3\n",
+                    headers={"content-type": "application/octet-stream"})
+    assert_error(r, 422, "format")
+    assert stored(client) == (0, 0)
+
+
+def test_unknown_skill(client: TestClient) -> None:
+    r = client.post("/skills/nope/demonstrations", json={"positions": GOOD})
+    assert_error(r, 404, "name", "not_found")
+    for path in ("/skills/nope", "/skills/nope/demonstrations", "/skills/nope/models",
+                 "/skills/nope/models/latest", "/skills/nope/models/latest/mesh"):
+        assert_error(client.get(path), 404, "name")
+    assert_error(client.post("/skills/nope/fit", json={}), 404, "name")
+    assert_error(client.post("/skills/nope/reproductions", json={"start": [0, 0, 0]}), 404, "name")
+    assert_error(client.delete("/skills/nope"), 404, "name")
+    assert client.get("/skills").json()["total"] == 0
+
+
+@pytest.mark.parametrize(("tried", "body", "field"), [
+    ("empty name", {"name": "", "dim": 3}, "name"),
+    ("name with a slash", {"name": "a/b", "dim": 3}, "name"),
+    ("dimension 4", {"name": "a", "dim": 4}, "dim"),
+    ("dimension as text", {"name": "a", "dim": "three"}, "dim"),
+    ("missing name", {"dim": 3}, "name"),
+])
+def test_bad_skill_is_refused(client: TestClient, tried: str, body: dict[str, Any],
+                              field: str) -> None:
+    assert_error(client.post("/skills", json=body), 422, field)
+    assert client.get("/skills").json()["total"] == 0, tried
+
+
+def test_duplicate_skill_is_a_conflict(client: TestClient, skill: str) -> None:
+    r = client.post("/skills", json={"name": skill, "dim": 2})
+    assert_error(r, 409, "name", "conflict")
+    assert client.get(f"/skills/{skill}").json()["dim"] == 3
+
+
+def test_fit_with_fewer_than_two_demos(client: TestClient, skill: str) -> None:
+    assert_error(client.post(f"/skills/{skill}/fit", json={}), 409, "demonstrations")
+    client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD})
+    assert_error(client.post(f"/skills/{skill}/fit", json={}), 409, "demonstrations")
+    assert stored(client) == (1, 0)
+
+
+@pytest.mark.parametrize(("tried", "body", "field"), [
+    ("unknown cross-section", {"cross_section": "square"}, "cross_section"),
+    ("n_samples 1", {"n_samples": 1}, "n_samples"),
+    ("n_samples huge", {"n_samples": 10**9}, "n_samples"),
+    ("unknown demo id", {"demo_ids": [1, 999]}, "demo_ids"),
+    ("unknown option", {"smoothing": 3}, "smoothing"),
+])
+def test_bad_fit_request(client: TestClient, fitted: str, tried: str, body: dict[str, Any],
+                         field: str) -> None:
+    before = stored(client)
+    assert_error(client.post(f"/skills/{fitted}/fit", json=body), 422, field)
+    assert stored(client) == before, tried
+
+
+def test_fit_on_identical_demos_is_degenerate(client: TestClient, skill: str) -> None:
+    for _ in range(3):
+        client.post(f"/skills/{skill}/demonstrations", json={"positions": demo_positions(0).tolist()})
+    error = assert_error(client.post(f"/skills/{skill}/fit", json={}), 422, "")
+    assert error["type"] in ("degenerate_canal", "invalid_input")
+    assert stored(client) == (3, 0)
+
+
+def test_fit_names_the_bad_demonstration_by_id(client: TestClient, skill: str) -> None:
+    ok = client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD}).json()["id"]
+    still = [[0.0, 0.0, 0.0]] * 3 + [[1.0, 0.0, 0.0]] * 3  # only 2 distinct samples
+    bad = client.post(f"/skills/{skill}/demonstrations", json={"positions": still}).json()["id"]
+    error = assert_error(client.post(f"/skills/{skill}/fit", json={}), 422,
+                         f"demonstrations[id={bad}]")
+    assert str(bad) in error["message"] and ok != bad
+    assert stored(client) == (2, 0)
+
+
+def test_reproduce_before_any_fit(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/reproductions", json={"start": [0, 0, 0]})
+    assert_error(r, 409, "model", "conflict")
+    assert_error(client.get(f"/skills/{skill}/models/latest"), 409, "model")
+
+
+@pytest.mark.parametrize(("tried", "body", "status", "field"), [
+    ("start with 2 coordinates on a 3-D skill", {"start": [0, 0]}, 422, "start"),
+    ("start with 4 coordinates", {"start": [0, 0, 0, 0]}, 422, "start"),
+    ("NaN start", "NaN", 422, "start"),
+    ("start and starts together", {"start": [0, 0, 0], "starts": [[0, 0, 0]]}, 422, "body"),
+    ("neither start nor starts", {}, 422, "body"),
+    ("one bad start in a batch", {"starts": [[0, 0, 0], [0, 0]]}, 422, "starts[1]"),
+    ("unknown model version", {"start": [0, 0, 0], "model": 7}, 404, "model"),
+    ("model as a word", {"start": [0, 0, 0], "model": "newest"}, 422, "model"),
+    ("unknown outside policy", {"start": [0, 0, 0], "outside": "clamp"}, 422, "outside"),
+])
+def test_bad_reproduction_request(client: TestClient, fitted: str, tried: str, body: Any,
+                                  status: int, field: str) -> None:
+    if body == "NaN":
+        r = client.post(f"/skills/{fitted}/reproductions", **raw_json('{"start": [0, NaN, 0]}'))
+    else:
+        r = client.post(f"/skills/{fitted}/reproductions", json=body)
+    assert_error(r, status, field)
+    assert stored(client) == (4, 1), tried
+
+
+def test_start_outside_the_canal(client: TestClient, fitted: str) -> None:
+    far = [0.0, 5.0, 0.0]
+    r = client.post(f"/skills/{fitted}/reproductions", json={"start": far})
+    assert r.status_code == 200, r.text
+    assert r.json()["inside"] is False and r.json()["projected"] is True
+    r = client.post(f"/skills/{fitted}/reproductions", json={"start": far, "outside": "raise"})
+    assert_error(r, 422, "start", "outside_canal")
+    r = client.post(f"/skills/{fitted}/reproductions",
+                    json={"starts": [[0.0, 0.0, 0.0], far], "outside": "raise"})
+    assert_error(r, 422, "starts[1]", "outside_canal")
+
+
+def test_bad_ids_and_versions_in_paths(client: TestClient, fitted: str) -> None:
+    assert_error(client.get(f"/skills/{fitted}/demonstrations/0"), 422, "demo_id")
+    assert_error(client.get(f"/skills/{fitted}/demonstrations/99"), 404, "id")
+    assert_error(client.delete(f"/skills/{fitted}/demonstrations/99"), 404, "id")
+    assert_error(client.get(f"/skills/{fitted}/models/99"), 404, "model")
+    assert_error(client.get(f"/skills/{fitted}/models/first"), 422, "version")
+    assert_error(client.get(f"/skills/{fitted}/models/1/mesh?format=stl"), 422, "format")
+    assert_error(client.get(f"/skills/{fitted}/demonstrations?limit=0"), 422, "limit")
+    assert stored(client) == (4, 1)

@@ -1,0 +1,156 @@
+"""Fitting, model versions, meshes and reproductions."""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+
+import httpx
+import numpy as np
+import pytest
+import trimesh
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from conftest import LiveServer, demo_positions
+from fastapi.testclient import TestClient
+
+
+def test_model_detail_and_serialized_round_trip(client: TestClient, fitted: str) -> None:
+    import canal_core
+
+    model = client.get(f"/skills/{fitted}/models/1?serialized=true").json()
+    assert model["version"] == 1 and model["section_kind"] == "circle" and model["dim"] == 3
+    assert model["sections"]["kind"] == "circle"
+    canal = canal_core.Canal.from_dict(model["serialized"])
+    assert np.allclose(canal.directrix, model["directrix"])
+    assert np.allclose(canal.radii, model["radii"])
+    assert client.get(f"/skills/{fitted}/models/latest").json()["serialized"] is None
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj", "glb"])
+def test_mesh_file_formats_load_in_trimesh(client: TestClient, fitted: str, fmt: str) -> None:
+    r = client.get(f"/skills/{fitted}/models/latest/mesh?format={fmt}&n_angles=12")
+    assert r.status_code == 200, r.text
+    assert f".{fmt}" in r.headers["content-disposition"]
+    loaded = trimesh.load(io.BytesIO(r.content), file_type=fmt, force="mesh", process=False)
+    assert len(loaded.vertices) == 50 * 12 and len(loaded.faces) > 0
+
+
+def test_mesh_json_matches_canal_core(client: TestClient, fitted: str) -> None:
+    import canal_core
+
+    r = client.get(f"/skills/{fitted}/models/1/mesh?format=json&caps=true")
+    assert r.status_code == 200 and r.headers["content-type"] == "application/json"
+    mesh = r.json()
+    serialized = client.get(f"/skills/{fitted}/models/1?serialized=true").json()["serialized"]
+    expected = canal_core.Canal.from_dict(serialized).mesh(caps=True)
+    assert np.allclose(mesh["vertices"], expected.vertices)
+    assert np.array_equal(mesh["faces"], expected.faces)
+
+
+def test_envelope_mesh_only_for_circles_is_a_422(client: TestClient, fitted: str) -> None:
+    client.post(f"/skills/{fitted}/fit", json={"cross_section": "ellipse", "n_samples": 30})
+    r = client.get(f"/skills/{fitted}/models/2/mesh?envelope=true")
+    assert r.status_code == 422 and r.json()["error"]["field"] == "envelope"
+    assert client.get(f"/skills/{fitted}/models/1/mesh?envelope=true").status_code == 200
+
+
+def test_batch_reproductions_and_versions(client: TestClient, fitted: str) -> None:
+    model = client.get(f"/skills/{fitted}/models/latest").json()
+    d = np.asarray(model["directrix"])
+    starts = [d[0].tolist(), d[10].tolist(), [0.0, 3.0, 0.0]]
+    r = client.post(f"/skills/{fitted}/reproductions", json={"starts": starts, "model": 1})
+    assert r.status_code == 200, r.text
+    reps = r.json()["reproductions"]
+    assert [x["inside"] for x in reps] == [True, True, False]
+    assert [x["projected"] for x in reps] == [False, False, True]
+    assert reps[1]["section_index"] >= 5 and all(x["model_version"] == 1 for x in reps)
+    single = client.post(f"/skills/{fitted}/reproductions", json={"start": starts[1]}).json()
+    assert np.allclose(single["positions"], reps[1]["positions"])
+    assert 0.0 <= single["eta"] <= 1.0
+    # a second version; reproductions against the old one still work
+    client.post(f"/skills/{fitted}/fit", json={"n_samples": 20})
+    assert client.post(f"/skills/{fitted}/reproductions",
+                       json={"start": starts[0]}).json()["model_version"] == 2
+    old = client.post(f"/skills/{fitted}/reproductions", json={"start": starts[0], "model": 1})
+    assert old.json()["model_version"] == 1 and len(old.json()["positions"]) <= 50
+
+
+def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> None:
+    ids = []
+    for j in range(3):
+        body = {"positions": demo_positions(j).tolist(),
+                "timestamps": (np.arange(50) * (0.02 + 0.01 * j)).tolist()}
+        ids.append(client.post(f"/skills/{skill}/demonstrations", json=body).json()["id"])
+    r = client.post(f"/skills/{skill}/fit", json={
+        "demo_ids": ids[:2], "alignment": "dtw", "directrix": "mean", "frames": "frenet",
+        "cross_section": "mec", "n_samples": 30})
+    assert r.status_code == 201, r.text
+    m = r.json()
+    assert m["demo_ids"] == ids[:2] and m["n_demos"] == 2 and m["section_kind"] == "mec"
+    assert m["options"] == {"cross_section": "mec", "frames": "frenet", "alignment": "dtw",
+                            "directrix": "mean", "n_samples": 30}
+    assert client.post(f"/skills/{skill}/fit").status_code == 201  # no body: all defaults
+
+
+def test_two_dimensional_skill(client: TestClient) -> None:
+    client.post("/skills", json={"name": "wipe", "dim": 2})
+    for j in range(3):
+        client.post("/skills/wipe/demonstrations",
+                    json={"positions": demo_positions(j, dim=2).tolist()})
+    r = client.post("/skills/wipe/fit", json={"n_samples": 25})
+    assert r.status_code == 201 and r.json()["dim"] == 2, r.text
+    model = client.get("/skills/wipe/models/latest").json()
+    assert model["frames"]["binormals"] is None and np.asarray(model["directrix"]).shape == (25, 2)
+    rep = client.post("/skills/wipe/reproductions", json={"start": model["directrix"][0]}).json()
+    assert np.asarray(rep["positions"]).shape[1] == 2
+    assert client.get("/skills/wipe/models/latest/mesh?format=ply").status_code == 200
+
+
+def test_models_survive_a_restart(settings: Settings) -> None:
+    with TestClient(create_app(settings)) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        for j in range(3):
+            c.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+        c.post("/skills/pour/fit", json={"n_samples": 30})
+        before = c.post("/skills/pour/reproductions", json={"start": [0, 0, 0]}).json()
+    with TestClient(create_app(settings)) as c:  # new app, same SQLite file, no cache
+        after = c.post("/skills/pour/reproductions", json={"start": [0, 0, 0]}).json()
+        assert c.get("/skills/pour").json()["n_demonstrations"] == 3
+    assert np.allclose(before["positions"], after["positions"])
+
+
+def test_a_long_fit_does_not_block_other_requests(settings: Settings) -> None:
+    with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as http:
+        http.post("/skills", json={"name": "big", "dim": 3})
+        for j in range(10):
+            body = json.dumps({"positions": demo_positions(j, n=3000).tolist()})
+            r = http.post("/skills/big/demonstrations", content=body,
+                          headers={"content-type": "application/json"})
+            assert r.status_code == 201
+        fit_result: dict[str, float] = {}
+
+        def slow_fit() -> None:
+            with httpx.Client(base_url=server.url, timeout=60) as c2:
+                t0 = time.perf_counter()
+                r = c2.post("/skills/big/fit", json={"alignment": "dtw", "n_samples": 1000})
+                fit_result["seconds"] = time.perf_counter() - t0
+                fit_result["status"] = r.status_code
+
+        thread = threading.Thread(target=slow_fit)
+        thread.start()
+        time.sleep(0.1)
+        latencies = []
+        while thread.is_alive():
+            t0 = time.perf_counter()
+            assert http.get("/skills/big").status_code == 200
+            latencies.append(time.perf_counter() - t0)
+            time.sleep(0.02)
+        thread.join()
+    assert fit_result["status"] == 201
+    assert fit_result["seconds"] > 0.3, "the fit was too quick to show anything"
+    assert len(latencies) >= 3
+    # answered while the fit ran, each far quicker than the fit itself
+    assert max(latencies) < fit_result["seconds"] / 2, (latencies, fit_result)
