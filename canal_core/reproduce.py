@@ -28,6 +28,8 @@ from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
 INSIDE_TOLERANCE = 1e-9
+#: Largest factor by which one demo sample may enlarge its two sections (see enclosing_scales).
+MAX_STRETCH = 1.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -296,7 +298,10 @@ def enclosing_scales(
     alpha = np.where(behind, 0.0, np.where(past, 1.0, alpha))
     use = found | behind | past
     _, _, eta = blended_location(samples[use], index[use], alpha[use], centres, basis, sections)
-    need = np.where(np.isfinite(eta), eta, 1.0)
+    # The blend's chord error is second order: a sample far outside (eta > MAX_STRETCH) was
+    # matched to the wrong sections by phase (demos that start far apart and merge late),
+    # and stretching a near-zero section by its eta would blow it up; it is left out.
+    need = np.where(np.isfinite(eta) & (eta <= MAX_STRETCH), eta, 1.0)
     np.maximum.at(scale, index[use], need)
     np.maximum.at(scale, index[use] + 1, need)
     return scale
