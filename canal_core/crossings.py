@@ -26,15 +26,6 @@ NEAR_WINDOW = 4
 MID_WINDOW = 32
 
 
-def _signed_distances(
-    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, rows: np.ndarray,
-    demos: np.ndarray, cols: np.ndarray,
-) -> FloatArray:
-    """t_i . (x_{j,k} - c_i) for index arrays of matching shape (sections i, demos j, samples k)."""
-    diff = aligned[demos, cols] - centres[rows]
-    return np.einsum("...d,...d->...", diff, tangents[rows])
-
-
 def _crossings_in_window(
     aligned: FloatArray,
     centres: FloatArray,
@@ -52,9 +43,10 @@ def _crossings_in_window(
     n_samples = aligned.shape[1]
     offsets = np.arange(-half_width, half_width + 1)
     cols = np.clip(sections[:, None] + offsets[None, :], 0, n_samples - 1)  # (P, W)
-    rows = np.broadcast_to(sections[:, None], cols.shape)
-    dems = np.broadcast_to(demos[:, None], cols.shape)
-    dist = _signed_distances(aligned, centres, tangents, rows, dems, cols)  # (P, W)
+    # t_i . (x_{j,k} - c_i) = t_i . x_{j,k} - t_i . c_i: gather samples only, not frames.
+    t = tangents[sections]
+    plane = np.einsum("pd,pd->p", centres[sections], t)
+    dist = np.einsum("pwd,pd->pw", aligned[demos[:, None], cols], t) - plane[:, None]  # (P, W)
 
     lo, hi = dist[:, :-1], dist[:, 1:]
     moves = cols[:, 1:] != cols[:, :-1]  # clipped windows repeat the end sample
