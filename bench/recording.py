@@ -1,0 +1,208 @@
+"""Cost of the review recorder (prints a table).
+
+Run: ``.venv/bin/python bench/recording.py`` (``--quick``: fewer fits, a 1-minute stream).
+
+* Fit: the same fits with and without ``recorder.model_fitted`` after each, interleaved in one
+  run; the writer thread builds and writes the geometry concurrently, so its GIL share shows up
+  in the "with" times.
+* Live: a 1 kHz tracker stream on a simulated clock (1 ms per pose), fed one simulated second
+  at a time as fast as the loop runs, then waiting for the writer; caller-side cost per pose is
+  the time of ``recorder.live`` (enqueue) against the same loop calling a no-op. File sizes
+  are per minute of stream time.
+* Memory: resident set size before and at the peak of the long stream.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+from canal_service.recording import Recorder
+from canal_service.recording.geometry import model_geometry
+from canal_service.recording.mcap_log import McapSegment
+from canal_service.recording.rerun_log import RerunSegment
+
+import canal_core
+
+os.environ.setdefault("XDG_CONFIG_HOME", tempfile.mkdtemp(prefix="canal-bench-rerun-"))
+
+
+def helix_demos(n: int = 3, samples: int = 300) -> list[np.ndarray]:
+    s = np.linspace(0.0, 1.0, samples)
+    rng = np.random.default_rng(0)
+    return [np.c_[np.cos(4 * s), np.sin(4 * s), s] + 0.03 * rng.standard_normal((samples, 3))
+            for _ in range(n)]
+
+
+def bench_fit(root: Path, demos: list[np.ndarray], repeats: int) -> dict[str, float]:
+    rec = Recorder(root, flush_interval_s=1.0)
+    without, with_rec, enqueue = [], [], []
+
+    def plain() -> None:
+        t0 = time.perf_counter()
+        canal_core.fit(demos)
+        without.append(time.perf_counter() - t0)
+
+    def recorded(version: int) -> None:
+        t0 = time.perf_counter()
+        canal = canal_core.fit(demos)
+        t1 = time.perf_counter()
+        rec.model_fitted("fit", version, canal)
+        t2 = time.perf_counter()
+        with_rec.append(t2 - t0)
+        enqueue.append(t2 - t1)
+
+    try:
+        canal_core.fit(demos)  # warm-up
+        for version in range(1, repeats + 1):
+            # A-B / B-A alternation: neither side always runs first.
+            if version % 2:
+                plain()
+                recorded(version)
+            else:
+                recorded(version)
+                plain()
+        rec.export_mcap("fit").unlink()  # everything queued is written before we leave
+    finally:
+        rec.close()
+    base, withr = statistics.median(without), statistics.median(with_rec)
+    return {"fit_ms": 1e3 * base, "fit_rec_ms": 1e3 * withr,
+            "overhead_pct": 100 * (withr - base) / base,
+            "enqueue_us": 1e6 * statistics.median(enqueue),
+            "writer_ms_per_model": 1e3 * writer_cost(root / "writer", demos)}
+
+
+def writer_cost(root: Path, demos: list[np.ndarray], repeats: int = 5) -> float:
+    """Seconds the writer thread spends on one model: geometry, both logs, both flushes."""
+    canal = canal_core.fit(demos)
+    root.mkdir(parents=True)
+    times = []
+    for k in range(repeats):
+        rerun = RerunSegment(root / f"{k}.rrd", "bench", "bench", blueprint=False)
+        mcap = McapSegment(root / f"{k}.mcap", time.time_ns())
+        t0 = time.perf_counter()
+        geo = model_geometry(1, canal)
+        rerun.model(time.time_ns(), geo)
+        mcap.model(time.time_ns(), geo)
+        rerun.flush()
+        mcap.flush()
+        times.append(time.perf_counter() - t0)
+        rerun.close()
+        mcap.close()
+    return statistics.median(times)
+
+
+class PeakRss:
+    """Samples the process RSS in a thread; ``peak`` after ``stop()``."""
+
+    def __init__(self) -> None:
+        self.proc = psutil.Process()
+        self.start = self.peak = self.proc.memory_info().rss
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.05):
+            self.peak = max(self.peak, self.proc.memory_info().rss)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def bench_live(root: Path, demos: list[np.ndarray], minutes: float,
+               live_max_hz: float | None) -> dict[str, Any]:
+    canal = canal_core.fit(demos)
+    tracker = canal.tracker()
+    path = demos[1]
+    targets = [(p, tracker.step(p)) for p in path]  # precomputed: time only the recorder
+    n = int(minutes * 60_000)
+    rec = Recorder(root, flush_interval_s=0.05, live_max_hz=live_max_hz)
+    rss = PeakRss()
+    t0 = time.time_ns()
+
+    def noop(*_: Any, **__: Any) -> None:
+        return None
+
+    def loop(fn: Any, wait: bool) -> float:
+        """Feed 1 s of stream at a time; time only the calls, then let the writer catch up.
+
+        The clock is simulated and the feed runs far faster than real time; waiting between
+        blocks keeps the queue from overflowing, as it would not at 1 kHz real time.
+        """
+        spent = 0.0
+        for block in range(0, n, 1000):
+            start = time.perf_counter()
+            for k in range(block, min(n, block + 1000)):
+                p, target = targets[k % len(targets)]
+                fn("live", "ur5", p, target, t_ns=t0 + k * 1_000_000)
+            spent += time.perf_counter() - start
+            while wait and rec.health()["queued"] > 0:
+                time.sleep(0.001)
+        return spent
+
+    try:
+        base = loop(noop, wait=False)
+        timed = loop(rec.live, wait=True)
+        rec.export_mcap("live").unlink()  # drains the queue; the export is not measured
+    finally:
+        rec.close()
+        rss.stop()
+    size = {kind: sum(p.stat().st_size for p in (root / "live").glob(f"seg-*.{kind}"))
+            for kind in ("rrd", "mcap")}
+    health = rec.health()
+    return {
+        "poses": n, "minutes": minutes, "hz": live_max_hz or 1000,
+        "enqueue_us": 1e6 * (timed - base) / n,
+        "rrd_mb_per_min": size["rrd"] / 1e6 / minutes,
+        "mcap_mb_per_min": size["mcap"] / 1e6 / minutes,
+        "kept": health["live_written"], "decimated": health["decimated"],
+        "dropped": health["dropped"],
+        "rss_growth_mb": (rss.peak - rss.start) / 1e6,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    demos = helix_demos()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        fit = bench_fit(root / "fit", demos, 10 if args.quick else 40)
+        long_minutes = 1.0 if args.quick else 10.0
+        live = [bench_live(root / "live100", demos, long_minutes, 100.0),
+                bench_live(root / "live1k", demos, 1.0 if not args.quick else 0.25, None)]
+
+    print(f"fit (3 demos x 300 samples, N=200, mesh 6400 vertices), {fit['fit_ms']:.2f} ms alone")
+    print(f"| {'measure':44} | {'value':>10} |")
+    print(f"|{'-' * 46}|{'-' * 12}|")
+    print(f"| {'fit, median, without recorder (ms)':44} | {fit['fit_ms']:10.2f} |")
+    print(f"| {'fit + model_fitted, median, with (ms)':44} | {fit['fit_rec_ms']:10.2f} |")
+    print(f"| {'overhead on fit (%)':44} | {fit['overhead_pct']:10.1f} |")
+    print(f"| {'model_fitted call (enqueue, us)':44} | {fit['enqueue_us']:10.1f} |")
+    print(f"| {'writer thread per model: mesh+logs+flush (ms)':44} | "
+          f"{fit['writer_ms_per_model']:10.1f} |")
+    print()
+    print(f"| {'live stream (simulated 1 kHz)':30} | {'kept Hz':>7} | {'poses':>7} | "
+          f"{'us/pose':>7} | {'rrd MB/min':>10} | {'mcap MB/min':>11} | {'dropped':>7} | "
+          f"{'RSS +MB':>7} |")
+    print(f"|{'-' * 32}|{'-' * 9}|{'-' * 9}|{'-' * 9}|{'-' * 12}|{'-' * 13}|{'-' * 9}|{'-' * 9}|")
+    for r in live:
+        label = f"{r['minutes']:g} min, decimated" if r["hz"] != 1000 else f"{r['minutes']:g} min, every pose"
+        print(f"| {label:30} | {r['hz']:7.0f} | {r['poses']:7d} | {r['enqueue_us']:7.2f} | "
+              f"{r['rrd_mb_per_min']:10.2f} | {r['mcap_mb_per_min']:11.2f} | "
+              f"{r['dropped']:7d} | {r['rss_growth_mb']:7.1f} |")
+
+
+if __name__ == "__main__":
+    main()

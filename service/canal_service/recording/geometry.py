@@ -1,0 +1,156 @@
+"""What a fitted canal looks like in a review: mesh, colours, rings, frames, all as 3-D arrays.
+
+Computed once per model version on the writer thread and shared by the Rerun and MCAP logs.
+Only the canal attributes listed in docs/CONTRACTS.md are used (``directrix``, ``tangents``,
+``normals``, ``binormals``, ``radii``, ``arclength``, ``dim``, ``n_sections``, ``mesh()``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+FloatArray = NDArray[np.float64]
+
+#: Stops of the radius colour ramp (viridis-like: narrow = dark blue, wide = yellow), RGBA 0..1.
+_RAMP = np.array([
+    [0.267, 0.005, 0.329, 1.0],
+    [0.229, 0.322, 0.546, 1.0],
+    [0.128, 0.567, 0.551, 1.0],
+    [0.369, 0.789, 0.383, 1.0],
+    [0.993, 0.906, 0.144, 1.0],
+])
+#: About this many rings and frames are drawn along the canal, whatever its sample count.
+TARGET_MARKS = 20
+RING_POINTS = 32
+MESH_ANGLES = 32
+
+
+def points3d(points: Any) -> FloatArray:
+    """Points as 3-D, 2-D input drawn in the z=0 plane.
+
+    Parameters
+    ----------
+    points : array_like, shape (..., D), D in {1, 2, 3}
+
+    Returns
+    -------
+    ndarray, shape (..., 3), float64
+    """
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.shape[-1] == 3:
+        return arr
+    pad = [(0, 0)] * (arr.ndim - 1) + [(0, 3 - arr.shape[-1])]
+    return np.pad(arr, pad)
+
+
+def ramp_colors(values: FloatArray, lo: float, hi: float) -> FloatArray:
+    """Colours of ``values`` on the radius ramp between ``lo`` and ``hi``.
+
+    Parameters
+    ----------
+    values : ndarray, shape (M,)
+
+    Returns
+    -------
+    ndarray, shape (M, 4), RGBA in [0, 1]
+    """
+    span = hi - lo
+    u = np.clip((values - lo) / span, 0.0, 1.0) if span > 0 else np.full(values.shape, 0.5)
+    stops = np.linspace(0.0, 1.0, len(_RAMP))
+    return np.stack([np.interp(u, stops, _RAMP[:, c]) for c in range(4)], axis=-1)
+
+
+def mark_stride(n_sections: int) -> int:
+    """Section stride that draws about :data:`TARGET_MARKS` rings and frames."""
+    return max(1, n_sections // TARGET_MARKS)
+
+
+@dataclass(frozen=True)
+class ModelGeometry:
+    """Review geometry of one fitted model version (all 3-D, float64 unless noted).
+
+    Attributes
+    ----------
+    version : int
+    dim : int
+        Dimension of the canal (2-D canals are drawn at z=0).
+    directrix : (N, 3)
+    radii, arclength : (N,)
+    vertices, vertex_normals : (V, 3)
+        ``canal.mesh(n_angles=MESH_ANGLES)``.
+    faces : (F, 3) uint32
+    vertex_colors : (V, 4)
+        Radius ramp, RGBA in [0, 1].
+    rings : (R, K, 3)
+        Cross-section rings at a stride, each closed (last point repeats the first).
+    frame_origins : (S, 3)
+    frame_vectors : (S, A, 3)
+        Tangent, normal (and binormal in 3-D) per drawn frame, scaled for display.
+    """
+
+    version: int
+    dim: int
+    directrix: FloatArray
+    radii: FloatArray
+    arclength: FloatArray
+    vertices: FloatArray
+    vertex_normals: FloatArray
+    faces: NDArray[np.uint32]
+    vertex_colors: FloatArray
+    rings: FloatArray
+    frame_origins: FloatArray
+    frame_vectors: FloatArray
+
+    @property
+    def n_sections(self) -> int:
+        """Number of sections N."""
+        return int(self.directrix.shape[0])
+
+
+def model_geometry(version: int, canal: Any) -> ModelGeometry:
+    """The review geometry of ``canal`` (slow: builds the mesh; call it off the request path)."""
+    dim = int(canal.dim)
+    directrix = points3d(canal.directrix)
+    radii = np.asarray(canal.radii, dtype=np.float64)
+    mesh = canal.mesh(n_angles=MESH_ANGLES)
+    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+    # Colour each vertex by its distance to the directrix: the local radius of the surface,
+    # exact for any section kind and independent of how canal_core orders mesh vertices.
+    distance, _ = cKDTree(directrix).query(vertices)
+    colors = ramp_colors(distance, float(radii.min()), float(radii.max()))
+
+    stride = mark_stride(directrix.shape[0])
+    idx = np.arange(0, directrix.shape[0], stride)
+    if idx[-1] != directrix.shape[0] - 1:
+        idx = np.append(idx, directrix.shape[0] - 1)
+    centres, r = directrix[idx], radii[idx]
+    normals = points3d(canal.normals)[idx]
+    tangents = points3d(canal.tangents)[idx]
+    if dim == 3 and canal.binormals is not None:
+        binormals = points3d(canal.binormals)[idx]
+        theta = np.linspace(0.0, 2.0 * np.pi, RING_POINTS + 1)
+        # Circle of the section's largest boundary distance in its normal plane: the section
+        # itself for circle canals, its bounding circle for the other kinds.
+        rings = centres[:, None, :] + r[:, None, None] * (
+            np.cos(theta)[None, :, None] * normals[:, None, :]
+            + np.sin(theta)[None, :, None] * binormals[:, None, :])
+        axes = np.stack([tangents, normals, binormals], axis=1)
+    else:
+        # A 2-D section is an interval across the strip.
+        rings = np.stack([centres - r[:, None] * normals, centres + r[:, None] * normals], axis=1)
+        axes = np.stack([tangents, normals], axis=1)
+    scale = float(np.median(radii)) if np.median(radii) > 0 else 0.05 * float(
+        np.asarray(canal.arclength)[-1] or 1.0)
+    return ModelGeometry(
+        version=int(version), dim=dim, directrix=directrix, radii=radii,
+        arclength=np.asarray(canal.arclength, dtype=np.float64),
+        vertices=vertices,
+        vertex_normals=np.ascontiguousarray(mesh.normals, dtype=np.float64),
+        faces=np.ascontiguousarray(mesh.faces, dtype=np.uint32),
+        vertex_colors=colors, rings=rings, frame_origins=centres, frame_vectors=axes * scale,
+    )

@@ -1,0 +1,269 @@
+"""The MCAP side of a skill's recording: one Writer per segment, Foxglove messages, merge, repair.
+
+Topics (all JSON, see :mod:`.foxglove` for the schemas)::
+
+    /tf                        foxglove.FrameTransform   world -> canal (per segment),
+                                                          canal -> robot/<name> (live)
+    /canal/demos               foxglove.SceneUpdate      demo/<id> line; deletions on removal
+    /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames
+    /canal/model_info          canal.ModelInfo           version, radii and arclength arrays
+    /canal/reproductions       foxglove.SceneUpdate      reproduction/latest line and start
+    /canal/reproduction_result canal.ReproductionResult  eta, inside, ...
+    /live/<robot>/pose         foxglove.PoseInFrame
+    /live/<robot>/target       foxglove.PoseInFrame
+    /live/<robot>/state        canal.TrackerState        progress, eta, inside, done
+
+Files are chunked and zstd-compressed with message indexes and a summary. A segment's chunk
+is closed at every recorder flush, so a crash loses at most one flush interval.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.writer import CompressionType, Writer
+
+from . import foxglove as fx
+from .events import LiveBatch, ReproductionView
+from .geometry import ModelGeometry
+
+CHUNK_SIZE = 1024 * 1024
+LIBRARY = "canal-recorder"
+_DEMO_COLOR = (0.35, 0.55, 0.95, 1.0)
+_DIRECTRIX_COLOR = (0.1, 0.1, 0.1, 1.0)
+_RING_COLOR = (0.2, 0.2, 0.2, 0.8)
+_AXIS_COLORS = np.array([[0.9, 0.2, 0.2, 1.0], [0.2, 0.8, 0.2, 1.0], [0.2, 0.3, 0.95, 1.0]])
+_INSIDE_COLOR = (0.1, 0.75, 0.3, 1.0)
+_OUTSIDE_COLOR = (0.95, 0.5, 0.1, 1.0)
+
+
+def _open_writer(path: Path) -> tuple[IO[bytes], Writer]:
+    stream = open(path, "wb")
+    writer = Writer(stream, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+    writer.start(profile="", library=LIBRARY)
+    return stream, writer
+
+
+class _Channels:
+    """Schema and channel ids of one Writer, registered on first use."""
+
+    def __init__(self, writer: Writer) -> None:
+        self._writer = writer
+        self._schemas: dict[tuple[str, str, bytes], int] = {}
+        self._channels: dict[tuple[str, int, str], int] = {}
+
+    def channel(self, topic: str, schema_name: str, *, schema_encoding: str = "jsonschema",
+                schema_data: bytes | None = None, message_encoding: str = "json") -> int:
+        data = fx.schema_bytes(schema_name) if schema_data is None else schema_data
+        skey = (schema_name, schema_encoding, data)
+        sid = self._schemas.get(skey)
+        if sid is None:
+            sid = self._writer.register_schema(schema_name, schema_encoding, data)
+            self._schemas[skey] = sid
+        ckey = (topic, sid, message_encoding)
+        cid = self._channels.get(ckey)
+        if cid is None:
+            cid = self._writer.register_channel(topic, message_encoding, sid)
+            self._channels[ckey] = cid
+        return cid
+
+
+class McapSegment:
+    """One open MCAP segment of a skill's recording (used by the writer thread only)."""
+
+    def __init__(self, path: Path, t_ns: int) -> None:
+        self.path = path
+        self._stream, self._writer = _open_writer(path)
+        self._channels = _Channels(self._writer)
+        self._dirty = False
+        self._write("/tf", "foxglove.FrameTransform", t_ns,
+                    fx.frame_transform(t_ns, fx.WORLD_FRAME, fx.CANAL_FRAME))
+
+    # ---- events -----------------------------------------------------------------------------
+
+    def demo_added(self, t_ns: int, demo_id: int, points: np.ndarray, label: str | None) -> None:
+        """A demo/<id> line entity; ``points`` (T, 3)."""
+        ent = fx.entity(t_ns, f"demo/{demo_id}", lines=[fx.line(points, _DEMO_COLOR)],
+                        metadata={"demo_id": demo_id, "label": label or "",
+                                  "n_samples": len(points)})
+        self._write("/canal/demos", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
+
+    def demo_removed(self, t_ns: int, demo_id: int) -> None:
+        """Delete the demo/<id> entity."""
+        self._write("/canal/demos", "foxglove.SceneUpdate", t_ns,
+                    fx.scene_update(deletions=[(t_ns, f"demo/{demo_id}")]))
+
+    def model(self, t_ns: int, geo: ModelGeometry) -> None:
+        """Mesh, directrix, rings and frames of one model version (replacing the previous)."""
+        meta = {"version": geo.version, "n_sections": geo.n_sections}
+        n_axes = geo.frame_vectors.shape[1]
+        tails = np.repeat(geo.frame_origins, n_axes, axis=0)
+        heads = tails + geo.frame_vectors.reshape(-1, 3)
+        segments = np.stack([tails, heads], axis=1).reshape(-1, 3)
+        axis_colors = np.repeat(np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1)), 2, axis=0)
+        # Rings as one LINE_LIST: consecutive ring points pair up into segments.
+        ring_segments = np.stack([geo.rings[:, :-1], geo.rings[:, 1:]], axis=2).reshape(-1, 3)
+        entities = [
+            fx.entity(t_ns, "canal/mesh", metadata=meta, triangle_lists=[
+                fx.triangles(geo.vertices, geo.faces, geo.vertex_colors)]),
+            fx.entity(t_ns, "canal/directrix", metadata=meta,
+                      lines=[fx.line(geo.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
+            fx.entity(t_ns, "canal/rings", metadata=meta, lines=[
+                fx.line(ring_segments, _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST)]),
+            fx.entity(t_ns, "canal/frames", metadata=meta, lines=[
+                fx.line(segments, _DIRECTRIX_COLOR, thickness=2.0, kind=fx.LINE_LIST,
+                        colors=axis_colors)]),
+        ]
+        self._write("/canal/model", "foxglove.SceneUpdate", t_ns, fx.scene_update(entities))
+        self._write("/canal/model_info", "canal.ModelInfo", t_ns, fx.plain(
+            t_ns, version=geo.version, n_sections=geo.n_sections, radii=geo.radii,
+            arclength=geo.arclength))
+
+    def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
+        """The latest reproduction's trajectory (green inside, orange outside) and result."""
+        rgba = _INSIDE_COLOR if rep.inside else _OUTSIDE_COLOR
+        ent = fx.entity(t_ns, "reproduction/latest", lines=[
+            fx.line(rep.positions, rgba, thickness=3.0),
+            fx.line(np.stack([rep.start, rep.positions[0]]), rgba, thickness=8.0)],
+            metadata={"model_version": rep.version, "inside": rep.inside, "eta": rep.eta})
+        self._write("/canal/reproductions", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
+        x, y, z = rep.start.tolist()
+        self._write("/canal/reproduction_result", "canal.ReproductionResult", t_ns, fx.plain(
+            t_ns, model_version=rep.version, eta=rep.eta, inside=rep.inside,
+            projected=rep.projected, section_index=rep.section_index,
+            start={"x": x, "y": y, "z": z}, n_points=len(rep.positions)))
+
+    def live(self, batch: LiveBatch) -> None:
+        """Pose, target, tracker state and robot frame of each sample."""
+        pose_topic, target_topic = f"/live/{batch.robot}/pose", f"/live/{batch.robot}/target"
+        state_topic, frame = f"/live/{batch.robot}/state", f"robot/{batch.robot}"
+        rows = zip(batch.t_ns.tolist(), batch.position.tolist(), batch.target.tolist(),
+                   batch.progress.tolist(), batch.eta.tolist(), batch.section_index.tolist(),
+                   batch.inside.tolist(), batch.done.tolist(), strict=True)
+        # One message per sample and topic is what MCAP is: the loop is over messages.
+        for t, pos, tgt, progress, eta, section, inside, done in rows:
+            self._write(pose_topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, pos))
+            self._write(target_topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, tgt))
+            self._write(state_topic, "canal.TrackerState", t, fx.plain(
+                t, robot=batch.robot, progress=progress, eta=eta, section_index=section,
+                inside=inside, done=done))
+            self._write("/tf", "foxglove.FrameTransform", t,
+                        fx.frame_transform(t, fx.CANAL_FRAME, frame, pos))
+
+    # ---- file -------------------------------------------------------------------------------
+
+    def flush(self) -> None:
+        """Close the open chunk and push it to the OS (a crash keeps everything before)."""
+        if self._dirty:
+            self._writer.flush()
+            self._dirty = False
+
+    def close(self) -> None:
+        """Write the summary and close the file."""
+        try:
+            self._writer.finish()
+        finally:
+            self._stream.close()
+
+    def abandon(self) -> None:
+        """Close the file without finishing it (after a write error)."""
+        with contextlib.suppress(Exception):
+            self._stream.close()
+
+    def _write(self, topic: str, schema_name: str, t_ns: int, data: bytes) -> None:
+        cid = self._channels.channel(topic, schema_name)
+        self._writer.add_message(cid, log_time=t_ns, data=data, publish_time=t_ns)
+        self._dirty = True
+
+
+# ---- whole files ----------------------------------------------------------------------------
+
+def empty_mcap(path: Path, t_ns: int) -> None:
+    """A finished MCAP with only the world -> canal frame (a skill with nothing recorded)."""
+    McapSegment(path, t_ns).close()
+
+
+def recovered_messages(stream: IO[bytes]) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Messages of an MCAP that may end mid-record (a crashed writer), in file order.
+
+    Reads linearly with the non-seeking reader (an unfinished file has no summary) and stops
+    quietly at the first record the crash cut short.
+    """
+    messages = NonSeekingReader(stream, validate_crcs=True).iter_messages(log_time_order=False)
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except Exception:  # EndOfFile, a short struct read, a CRC error: where the crash cut
+            return
+        yield item
+
+
+def _copy(messages: Iterable[tuple[Schema | None, Channel, Message]], out: Writer,
+          channels: _Channels) -> int:
+    n = 0
+    for schema, channel, message in messages:
+        cid = channels.channel(
+            channel.topic, schema.name if schema else "",
+            schema_encoding=schema.encoding if schema else "",
+            schema_data=schema.data if schema else b"",
+            message_encoding=channel.message_encoding)
+        out.add_message(cid, log_time=message.log_time, data=message.data,
+                        publish_time=message.publish_time, sequence=message.sequence)
+        n += 1
+    return n
+
+
+def merge_mcap(inputs: list[Path], out: Path, *, recover: bool = False) -> int:
+    """Write the messages of ``inputs`` (in order) to one finished MCAP; returns the count.
+
+    Parameters
+    ----------
+    inputs : list of Path
+        Finished segments, or with ``recover=True`` possibly unfinished ones.
+    out : Path
+        Written atomically (temporary file, then rename).
+    """
+    tmp = out.with_name(out.name + ".tmp")
+    stream, writer = _open_writer(tmp)
+    try:
+        channels = _Channels(writer)
+        n = 0
+        for path in inputs:
+            with open(path, "rb") as f:
+                if recover:
+                    n += _copy(recovered_messages(f), writer, channels)
+                else:
+                    n += _copy(make_reader(f).iter_messages(log_time_order=False), writer, channels)
+        writer.finish()
+        stream.flush()
+        os.fsync(stream.fileno())
+    except BaseException:
+        stream.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    stream.close()
+    tmp.replace(out)
+    return n
+
+
+def summary_counts(path: Path) -> dict[str, Any]:
+    """Channels, schemas and message counts per topic from a finished file's summary."""
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    if summary is None:
+        return {"topics": {}, "schemas": {}}
+    counts = summary.statistics.channel_message_counts if summary.statistics else {}
+    return {
+        "topics": {c.topic: counts.get(cid, 0) for cid, c in summary.channels.items()},
+        "schemas": {c.topic: summary.schemas[c.schema_id].name
+                    for c in summary.channels.values() if c.schema_id},
+    }

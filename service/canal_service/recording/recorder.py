@@ -1,0 +1,536 @@
+"""``Recorder``: the service's review recorder (one Rerun + one MCAP recording per skill).
+
+Callers (request handlers, the live bridge) only enqueue; a single background writer thread
+owns every file. See docs/recording.md for the layout, flush interval, crash guarantees,
+memory bound and drop policy.
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import logging
+import os
+import shutil
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .events import (
+    ControlEvent,
+    DemoAdded,
+    DemoRemoved,
+    LiveSample,
+    ModelFitted,
+    ReproductionMade,
+    Rotate,
+    SkillDeleted,
+    Stop,
+    live_batches,
+    reproduction_view,
+)
+from .geometry import model_geometry, points3d
+from .layout import KINDS, SkillDir, skill_dirname, skill_dirs
+from .mcap_log import McapSegment, empty_mcap, merge_mcap
+from .rerun_log import RerunSegment, cli_env, empty_rrd, merge_rrd
+
+log = logging.getLogger("canal_service.recording")
+
+EXPORTS = ".exports"
+RERUN_CONFIG = ".rerun"
+
+
+class _SkillState:
+    """The open segment of one skill (writer thread only)."""
+
+    def __init__(self, skill: str, sdir: SkillDir) -> None:
+        self.skill = skill
+        self.dir = sdir
+        self.segment: int | None = None
+        self.rerun: RerunSegment | None = None
+        self.mcap: McapSegment | None = None
+        self.last_write = time.monotonic()
+        # Written to the open segment since its last successful flush: lost if it fails.
+        self.pending_events = 0
+        self.pending_live = 0
+
+
+class Recorder:
+    """Per-skill review recordings (``.rrd`` for Rerun, ``.mcap`` for Foxglove).
+
+    Parameters
+    ----------
+    root : Path
+        Folder of all recordings (one sub-folder per skill). One Recorder per root.
+    enabled : bool
+        False makes every record method a no-op and exports raise ``RuntimeError``.
+    flush_interval_s : float
+        How often open segments are pushed to the OS; a crash loses at most this much.
+    live_max_hz : float or None
+        Live samples kept per (skill, robot) per second (None keeps every sample).
+    live_queue_size : int
+        Live samples waiting for the writer; beyond it the oldest is dropped (counted).
+    event_queue_size : int
+        Other events waiting for the writer; beyond it new events are dropped (counted).
+    idle_close_s : float
+        A skill's segment idle this long is closed (finished files, no open threads).
+    export_timeout_s : float
+        How long an export waits for the writer before exporting what is closed on disk.
+    """
+
+    def __init__(self, root: Path, *, enabled: bool = True, flush_interval_s: float = 1.0,
+                 live_max_hz: float | None = 100.0, live_queue_size: int = 20_000,
+                 event_queue_size: int = 1_000, idle_close_s: float = 60.0,
+                 export_timeout_s: float = 30.0) -> None:
+        self.root = Path(root)
+        self.enabled = enabled
+        self.flush_interval_s = float(flush_interval_s)
+        self.idle_close_s = float(idle_close_s)
+        self.export_timeout_s = float(export_timeout_s)
+        self._events: deque[ControlEvent] = deque()
+        self._event_cap = int(event_queue_size)
+        self._live: deque[LiveSample] = deque(maxlen=int(live_queue_size))
+        self._live_lock = threading.Lock()
+        self._live_last: dict[tuple[str, str], tuple[int, bool, bool]] = {}
+        self._period_ns = int(1e9 / live_max_hz) if live_max_hz else 0
+        self._wake = threading.Event()
+        self._state_lock = threading.Lock()
+        self._skill_locks: dict[str, threading.Lock] = {}
+        self._errors: dict[str, str] = {}
+        self._skills: dict[str, _SkillState] = {}
+        self._rerun_env: dict[str, str] | None = None
+        self.dropped_events = 0
+        self.dropped_live = 0
+        self.decimated_live = 0
+        self.written_live = 0
+        self._closed = not enabled
+        self._thread: threading.Thread | None = None
+        if enabled:
+            self._thread = threading.Thread(target=self._run, name="canal-recorder", daemon=True)
+            self._thread.start()
+            atexit.register(self.close)
+
+    # ---- record methods: enqueue only, never raise ----------------------------------------
+
+    def demo_added(self, skill: str, dim: int, demo_id: int, positions: Any, timestamps: Any,
+                   label: str | None) -> None:
+        """A demonstration was stored: positions (T, D), timestamps (T,) or None."""
+        if self._closed:
+            return
+        try:
+            ts = None if timestamps is None else np.array(timestamps, dtype=np.float64)
+            self._put(DemoAdded(time.time_ns(), skill, int(demo_id),
+                                np.array(positions, dtype=np.float64, ndmin=2),
+                                ts, None if label is None else str(label)))
+        except Exception:
+            self._caller_error("demo_added")
+
+    def demo_removed(self, skill: str, demo_id: int) -> None:
+        """A demonstration was deleted (cleared in the recording from now on)."""
+        if self._closed:
+            return
+        try:
+            self._put(DemoRemoved(time.time_ns(), skill, int(demo_id)))
+        except Exception:
+            self._caller_error("demo_removed")
+
+    def model_fitted(self, skill: str, version: int, canal: Any) -> None:
+        """A model version was fitted (geometry is built on the writer thread)."""
+        if self._closed:
+            return
+        try:
+            self._put(ModelFitted(time.time_ns(), skill, int(version), canal))
+        except Exception:
+            self._caller_error("model_fitted")
+
+    def reproduction(self, skill: str, version: int, result: Any) -> None:
+        """A reproduction was computed with model ``version``."""
+        if self._closed:
+            return
+        try:
+            self._put(ReproductionMade(time.time_ns(), skill, int(version), result))
+        except Exception:
+            self._caller_error("reproduction")
+
+    def live(self, skill: str, robot: str, position: Any, target: Any,
+             t_ns: int | None = None) -> None:
+        """One live tracker step: robot ``position`` (D,) and the ``TrackerTarget``.
+
+        Kept at most ``live_max_hz`` per (skill, robot); a sample whose ``inside`` or
+        ``done`` flag differs from the last kept sample is always kept.
+        """
+        if self._closed:
+            return
+        try:
+            t = time.time_ns() if t_ns is None else int(t_ns)
+            inside, done = bool(target.inside), bool(target.done)
+            key = (skill, robot)
+            with self._live_lock:
+                last = self._live_last.get(key)
+                if (last is not None and 0 <= t - last[0] < self._period_ns
+                        and last[1] == inside and last[2] == done):
+                    self.decimated_live += 1
+                    return
+                self._live_last[key] = (t, inside, done)
+                if len(self._live) == self._live.maxlen:
+                    self.dropped_live += 1  # the deque drops its oldest sample on append
+                self._live.append(LiveSample(
+                    skill, robot, t, np.asarray(position, dtype=np.float64).tolist(),
+                    np.asarray(target.target, dtype=np.float64).tolist(),
+                    float(target.progress), float(target.eta), int(target.section_index),
+                    inside, done))
+        except Exception:
+            self._caller_error("live")
+
+    def skill_deleted(self, skill: str) -> None:
+        """The skill is gone: its recording is deleted."""
+        if self._closed:
+            return
+        try:
+            with self._live_lock:
+                for key in [k for k in self._live_last if k[0] == skill]:
+                    del self._live_last[key]
+            self._put(SkillDeleted(time.time_ns(), skill))
+        except Exception:
+            self._caller_error("skill_deleted")
+
+    # ---- exports ----------------------------------------------------------------------------
+
+    def export_rrd(self, skill: str) -> Path:
+        """A finished ``.rrd`` snapshot of the skill's recording; the caller deletes it."""
+        return self._export(skill, "rrd")
+
+    def export_mcap(self, skill: str) -> Path:
+        """A finished ``.mcap`` snapshot of the skill's recording; the caller deletes it."""
+        return self._export(skill, "mcap")
+
+    def _export(self, skill: str, kind: str) -> Path:
+        if not self.enabled:
+            raise RuntimeError("recording is disabled")
+        rotate = Rotate(skill)
+        if not self._closed:
+            # Never dropped: the writer closes the open segment after every event queued
+            # before this one, so the snapshot holds everything recorded up to now.
+            self._events.append(rotate)
+            self._wake.set()
+            if not rotate.done.wait(self.export_timeout_s):
+                self._note("export", f"writer did not answer within {self.export_timeout_s:g}"
+                           " s; exported the closed segments only")
+        exports = self.root / EXPORTS
+        exports.mkdir(parents=True, exist_ok=True)
+        out = exports / f"{uuid.uuid4().hex}-{skill_dirname(skill)}.{kind}"
+        sdir = SkillDir.of(self.root, skill)
+        with self._skill_lock(skill):
+            segments = sdir.closed_segments(kind)
+            if not segments:
+                if kind == "rrd":
+                    empty_rrd(out, str(uuid.uuid4()), skill)
+                else:
+                    empty_mcap(out, time.time_ns())
+                return out
+            if len(segments) > 1:
+                merged = sdir.closed_path(segments[0].first, segments[-1].last, kind)
+                self._merge([s.path for s in segments], merged, kind)
+                for seg in segments:
+                    seg.path.unlink(missing_ok=True)  # covered by the merged range
+                source = merged
+            else:
+                source = segments[0].path
+            # Closed files never change (they are only replaced by rename), so a hard link
+            # is a consistent snapshot at no copying cost.
+            try:
+                os.link(source, out)
+            except OSError:
+                shutil.copyfile(source, out)
+        return out
+
+    def _merge(self, inputs: list[Path], out: Path, kind: str, *, recover: bool = False) -> None:
+        if kind == "rrd":
+            merge_rrd(inputs, out, self._cli_env(), recover=recover)
+        else:
+            merge_mcap(inputs, out, recover=recover)
+
+    def _cli_env(self) -> dict[str, str]:
+        if self._rerun_env is None:
+            self._rerun_env = cli_env(self.root / RERUN_CONFIG)
+        return self._rerun_env
+
+    # ---- state --------------------------------------------------------------------------------
+
+    def health(self) -> dict[str, Any]:
+        """``{"status": "ok"|"degraded", "detail", "queued", "dropped", ...}``."""
+        with self._state_lock:
+            errors = dict(self._errors)
+        if self.enabled and not self._closed and (self._thread is None
+                                                  or not self._thread.is_alive()):
+            errors["writer"] = "writer thread is not running"
+        return {
+            "status": "degraded" if errors else "ok",
+            "detail": "; ".join(f"{k}: {v}" for k, v in sorted(errors.items())) or (
+                None if self.enabled else "recording disabled"),
+            "queued": len(self._events) + len(self._live),
+            "dropped": self.dropped_events + self.dropped_live,
+            "decimated": self.decimated_live,
+            "live_written": self.written_live,
+        }
+
+    def close(self) -> None:
+        """Write everything queued, finish every file and stop the writer."""
+        if self._thread is None or not self._thread.is_alive():
+            self._closed = True
+            return
+        if not self._closed:
+            self._closed = True
+            atexit.unregister(self.close)
+            self._events.append(Stop())
+            self._wake.set()
+        self._thread.join(timeout=60)
+
+    # ---- caller-side helpers ----------------------------------------------------------------
+
+    def _put(self, event: ControlEvent) -> None:
+        if len(self._events) >= self._event_cap:
+            self.dropped_events += 1
+            self._note("queue", f"event queue full ({self._event_cap}); "
+                       f"{self.dropped_events} events dropped")
+            return
+        self._events.append(event)
+        self._wake.set()
+
+    def _caller_error(self, method: str) -> None:
+        self.dropped_events += 1
+        log.exception("recorder.%s could not queue its event", method)
+
+    def _note(self, key: str, detail: str) -> None:
+        with self._state_lock:
+            self._errors[key] = detail
+
+    def _clear(self, key: str) -> None:
+        with self._state_lock:
+            self._errors.pop(key, None)
+
+    def _skill_lock(self, skill: str) -> threading.Lock:
+        with self._state_lock:
+            return self._skill_locks.setdefault(skill, threading.Lock())
+
+    # ---- writer thread ------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            self._recover_all()
+        except Exception as exc:
+            self._note("recovery", f"{type(exc).__name__}: {exc}")
+        next_flush = time.monotonic() + self.flush_interval_s
+        while True:
+            self._wake.wait(max(0.0, next_flush - time.monotonic()))
+            self._wake.clear()
+            try:
+                if self._drain_events():
+                    break
+                if time.monotonic() >= next_flush:
+                    self._drain_live()
+                    self._flush_all()
+                    next_flush = time.monotonic() + self.flush_interval_s
+            except Exception as exc:  # the writer must outlive any bug in one event
+                log.exception("recorder writer loop")
+                self._note("writer", f"{type(exc).__name__}: {exc}")
+        self._drain_live()
+        for state in list(self._skills.values()):
+            self._close_segment(state)
+
+    def _drain_events(self) -> bool:
+        """Handle queued events; True when asked to stop."""
+        while True:
+            try:
+                event = self._events.popleft()
+            except IndexError:
+                self._clear("queue")
+                return False
+            if isinstance(event, Stop):
+                return True
+            try:
+                self._handle(event)
+            except Exception as exc:
+                log.exception("recorder could not record %s", type(event).__name__)
+                self.dropped_events += 1
+                self._note(getattr(event, "skill", "writer"), f"{type(exc).__name__}: {exc}")
+            finally:
+                if isinstance(event, Rotate):
+                    event.done.set()
+
+    def _handle(self, event: ControlEvent) -> None:
+        if isinstance(event, DemoAdded):
+            pts = points3d(event.positions)
+            self._write(event.skill, event.t_ns,
+                        lambda r: r.demo_added(event.t_ns, event.demo_id, pts, event.positions,
+                                               event.timestamps, event.label),
+                        lambda m: m.demo_added(event.t_ns, event.demo_id, pts, event.label))
+        elif isinstance(event, DemoRemoved):
+            self._write(event.skill, event.t_ns,
+                        lambda r: r.demo_removed(event.t_ns, event.demo_id),
+                        lambda m: m.demo_removed(event.t_ns, event.demo_id))
+        elif isinstance(event, ModelFitted):
+            geo = model_geometry(event.version, event.canal)
+            self._write(event.skill, event.t_ns, lambda r: r.model(event.t_ns, geo),
+                        lambda m: m.model(event.t_ns, geo))
+        elif isinstance(event, ReproductionMade):
+            rep = reproduction_view(event.version, event.result)
+            self._write(event.skill, event.t_ns, lambda r: r.reproduction(event.t_ns, rep),
+                        lambda m: m.reproduction(event.t_ns, rep))
+        elif isinstance(event, Rotate):
+            self._drain_live()
+            state = self._skills.get(event.skill)
+            if state is not None:
+                self._close_segment(state)
+            self._recover(SkillDir.of(self.root, event.skill))
+        elif isinstance(event, SkillDeleted):
+            self._drain_live()
+            state = self._skills.pop(event.skill, None)
+            if state is not None:
+                self._abandon(state)
+            with self._skill_lock(event.skill):
+                SkillDir.of(self.root, event.skill).remove()
+            self._clear(event.skill)
+
+    def _write(self, skill: str, t_ns: int, to_rerun: Callable[[RerunSegment], None],
+               to_mcap: Callable[[McapSegment], None], *, n_live: int = 0) -> None:
+        """Log one event (or ``n_live`` live samples) to both files of the skill."""
+        state = self._open(skill, t_ns)
+        try:
+            assert state.rerun is not None and state.mcap is not None
+            to_rerun(state.rerun)
+            to_mcap(state.mcap)
+        except Exception:
+            self._abandon(state)
+            raise
+        state.last_write = time.monotonic()
+        if n_live:
+            state.pending_live += n_live
+            self.written_live += n_live
+        else:
+            state.pending_events += 1
+
+    def _open(self, skill: str, t_ns: int) -> _SkillState:
+        state = self._skills.get(skill)
+        if state is None:
+            state = self._skills[skill] = _SkillState(skill, SkillDir.of(self.root, skill))
+        if state.rerun is not None:
+            return state
+        sdir = state.dir
+        sdir.ensure()
+        n = sdir.next_segment()
+        rerun = RerunSegment(sdir.open_path(n, "rrd"), sdir.recording_id(), skill,
+                             blueprint=not sdir.closed_segments("rrd"))
+        try:
+            mcap = McapSegment(sdir.open_path(n, "mcap"), t_ns)
+        except Exception:
+            rerun.abandon()
+            raise
+        state.segment, state.rerun, state.mcap = n, rerun, mcap
+        return state
+
+    def _drain_live(self) -> None:
+        n = len(self._live)
+        if n == 0:
+            return
+        pop = self._live.popleft
+        samples = [pop() for _ in range(n)]
+        for skill, batches in live_batches(samples).items():
+            for batch in batches:
+                try:
+                    self._write(skill, int(batch.t_ns[0]), lambda r, b=batch: r.live(b),
+                                lambda m, b=batch: m.live(b), n_live=len(batch))
+                except Exception as exc:
+                    log.exception("recorder could not record live samples of %s", skill)
+                    self.dropped_live += len(batch)
+                    self._note(skill, f"{type(exc).__name__}: {exc}")
+
+    def _flush_all(self) -> None:
+        now = time.monotonic()
+        for state in list(self._skills.values()):
+            if state.rerun is None or state.mcap is None:
+                continue
+            try:
+                state.rerun.flush()
+                state.mcap.flush()
+            except Exception as exc:
+                log.exception("recorder could not flush %s", state.skill)
+                self._note(state.skill, f"{type(exc).__name__}: {exc}")
+                self._abandon(state)
+                continue
+            state.pending_events = state.pending_live = 0
+            self._clear(state.skill)
+            if now - state.last_write > self.idle_close_s:
+                self._close_segment(state)
+
+    def _close_segment(self, state: _SkillState) -> None:
+        """Finish the open segment and rename it closed (segment n covers n..n)."""
+        if state.rerun is None or state.mcap is None or state.segment is None:
+            return
+        n, sdir = state.segment, state.dir
+        rerun, mcap = state.rerun, state.mcap
+        state.rerun = state.mcap = state.segment = None
+        try:
+            rerun.close()
+            mcap.close()
+            os.replace(sdir.open_path(n, "mcap"), sdir.closed_path(n, n, "mcap"))
+        except Exception as exc:
+            log.exception("recorder could not close a segment of %s", state.skill)
+            self._note(state.skill, f"{type(exc).__name__}: {exc}")
+            rerun.abandon()
+            mcap.abandon()
+            return
+        # The open .rrd is a run of flushed streams; merged, it has one footer and index.
+        try:
+            self._merge([sdir.open_path(n, "rrd")], sdir.closed_path(n, n, "rrd"), "rrd")
+            sdir.open_path(n, "rrd").unlink()
+        except Exception as exc:
+            log.exception("recorder could not merge a segment of %s", state.skill)
+            self._note(state.skill, f"{type(exc).__name__}: {exc}")
+
+    def _abandon(self, state: _SkillState) -> None:
+        """Drop the open segment after a write error; its files are recovered later."""
+        # Whatever reached the segment since its last good flush may be lost: count it.
+        self.dropped_events += state.pending_events
+        self.dropped_live += state.pending_live
+        self.written_live -= state.pending_live
+        state.pending_events = state.pending_live = 0
+        if state.rerun is not None:
+            state.rerun.abandon()
+        if state.mcap is not None:
+            state.mcap.abandon()
+        state.rerun = state.mcap = state.segment = None
+
+    # ---- crash recovery -----------------------------------------------------------------------
+
+    def _recover_all(self) -> None:
+        """Finish the segments a crashed process left open; drop stale export snapshots."""
+        shutil.rmtree(self.root / EXPORTS, ignore_errors=True)
+        for path in skill_dirs(self.root):
+            self._recover(SkillDir(path))
+
+    def _recover(self, sdir: SkillDir) -> None:
+        """Turn every open segment of ``sdir`` that no writer owns into a closed one."""
+        owned = {s.segment for s in self._skills.values() if s.dir.path == sdir.path}
+        for kind in KINDS:
+            for n, path in sdir.open_segments(kind):
+                if n in owned:
+                    continue
+                if path.stat().st_size == 0:
+                    path.unlink()
+                    continue
+                try:
+                    self._merge([path], sdir.closed_path(n, n, kind), kind, recover=True)
+                    path.unlink()
+                except OSError as exc:  # e.g. disk full: keep the file and retry later
+                    self._note(f"recovery {path.name}", f"{type(exc).__name__}: {exc}")
+                except Exception as exc:
+                    with contextlib.suppress(OSError):
+                        path.rename(path.with_name(path.name + ".broken"))
+                    self._note(f"recovery {path.name}", f"unreadable, kept as .broken: {exc}")

@@ -1,0 +1,254 @@
+"""The Rerun side of a skill's recording: one RecordingStream per segment, blueprint, CLI tools.
+
+Entities and timelines::
+
+    demos/<id>/path         LineStrips3D       wall_time
+    demos/<id>/info         AnyValues          wall_time   demo_id, label, n_samples
+    demos/<id>/position     Scalars            sample (+ demo_time when timestamps were given)
+    demos/<id>              Clear(recursive)   wall_time   on removal
+    model/directrix         LineStrips3D       wall_time, model_version
+    model/mesh              Mesh3D             wall_time, model_version (normals, radius colours)
+    model/rings             LineStrips3D       wall_time, model_version
+    model/frames            Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
+    model/info              AnyValues          wall_time, model_version
+    radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
+    reproductions/path      LineStrips3D       wall_time, model_version
+    reproductions/start     Points3D           wall_time, model_version
+    reproductions/eta       Scalars            wall_time
+    reproductions/inside    Scalars (0/1)      wall_time
+    live/<robot>/pose       Points3D           wall_time
+    live/<robot>/target     Points3D           wall_time
+    live/<robot>/progress   Scalars            wall_time
+    live/<robot>/eta        Scalars            wall_time
+
+Every segment of one skill shares the skill's recording id, so merged segments are one
+recording. The first segment carries the default blueprint.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from .events import LiveBatch, ReproductionView
+from .geometry import FloatArray, ModelGeometry
+
+APP_ID = "canal"
+_DEMO_COLOR = (90, 140, 240, 255)
+_DIRECTRIX_COLOR = (30, 30, 30, 255)
+_RING_COLOR = (60, 60, 60, 200)
+_AXIS_COLORS = np.array([[230, 50, 50, 255], [50, 200, 50, 255], [50, 80, 240, 255]], np.uint8)
+_INSIDE_COLOR = (25, 190, 75, 255)
+_OUTSIDE_COLOR = (240, 130, 25, 255)
+_POSE_COLOR = (220, 40, 160, 255)
+_TARGET_COLOR = (40, 200, 220, 255)
+
+
+def review_blueprint() -> rrb.Blueprint:
+    """3-D view of demos, canal, reproductions and live poses; plots of radii and progress."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="Canal", origin="/", contents=[
+                "+ /demos/*/path", "+ /model/**", "+ /reproductions/path",
+                "+ /reproductions/start", "+ /live/*/pose", "+ /live/*/target"]),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="Radius per section (timeline: section)",
+                                   origin="/radius"),
+                rrb.TimeSeriesView(name="Live progress and eta", origin="/live",
+                                   contents=["+ /live/*/progress", "+ /live/*/eta"]),
+                rrb.TimeSeriesView(name="Reproductions: eta, inside", origin="/reproductions",
+                                   contents=["+ /reproductions/eta", "+ /reproductions/inside"]),
+            ),
+            column_shares=[2, 1],
+        ),
+        rrb.TimePanel(timeline="wall_time"),
+    )
+
+
+def _ns(t_ns: int) -> np.datetime64:
+    return np.datetime64(int(t_ns), "ns")
+
+
+def _entity(part: str) -> str:
+    return rr.escape_entity_path_part(part)
+
+
+class RerunSegment:
+    """One open ``.rrd`` segment of a skill's recording (used by the writer thread only).
+
+    The SDK encodes into an in-memory binary stream; :meth:`flush` appends what it encoded to
+    the file as one complete RRD stream (header .. footer). The open file is therefore a
+    concatenation of complete streams: every flushed part is readable after a crash
+    (``rerun rrd verify --check-footers false``), and file I/O errors surface here, in Python,
+    instead of in the SDK's file sink (whose ``disconnect()`` can hang once its writer thread
+    died of an I/O error). Closing merges the parts into one file with a single footer.
+    """
+
+    def __init__(self, path: Path, recording_id: str, skill: str, *, blueprint: bool) -> None:
+        self.path = path
+        self._file = open(path, "wb")
+        self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
+        self._stream = self.rec.binary_stream()
+        if blueprint:
+            self.rec.send_blueprint(review_blueprint(), make_active=False, make_default=True)
+        self.rec.send_recording_name(skill)
+        self._dirty = True
+
+    def _at(self, t_ns: int, version: int | None = None) -> None:
+        self._dirty = True
+        # Timelines are sticky per stream: reset so one event's model_version never leaks
+        # onto the next event's rows.
+        self.rec.reset_time()
+        self.rec.set_time("wall_time", timestamp=_ns(t_ns))
+        if version is not None:
+            self.rec.set_time("model_version", sequence=version)
+
+    # ---- events -----------------------------------------------------------------------------
+
+    def demo_added(self, t_ns: int, demo_id: int, points: FloatArray, positions: FloatArray,
+                   timestamps: FloatArray | None, label: str | None) -> None:
+        """Path (3-D), per-sample coordinates and id/label of a demonstration."""
+        base = f"demos/{demo_id}"
+        self._at(t_ns)
+        self.rec.log(f"{base}/path", rr.LineStrips3D(
+            [points], colors=[_DEMO_COLOR], labels=[f"demo {demo_id} {label or ''}".strip()]))
+        self.rec.log(f"{base}/info", rr.AnyValues(demo_id=demo_id, label=label or "",
+                                                  n_samples=len(points)))
+        dim = positions.shape[1]
+        self.rec.log(f"{base}/position", rr.SeriesLines(names=list("xyz"[:dim])), static=True)
+        indexes = [rr.TimeColumn("sample", sequence=np.arange(len(positions)))]
+        if timestamps is not None:
+            indexes.append(rr.TimeColumn("demo_time", duration=timestamps - timestamps[0]))
+        self.rec.send_columns(f"{base}/position", indexes=indexes,
+                              columns=rr.Scalars.columns(scalars=positions))
+
+    def demo_removed(self, t_ns: int, demo_id: int) -> None:
+        """Clear the demonstration from this time on."""
+        self._at(t_ns)
+        self.rec.log(f"demos/{demo_id}", rr.Clear(recursive=True))
+
+    def model(self, t_ns: int, geo: ModelGeometry) -> None:
+        """Directrix, mesh, rings, frames and radius profile of one model version."""
+        self._at(t_ns, geo.version)
+        self.rec.log("model/directrix", rr.LineStrips3D([geo.directrix], colors=[_DIRECTRIX_COLOR]))
+        self.rec.log("model/mesh", rr.Mesh3D(
+            vertex_positions=geo.vertices, triangle_indices=geo.faces,
+            vertex_normals=geo.vertex_normals, vertex_colors=geo.vertex_colors.astype(np.float32)))
+        self.rec.log("model/rings", rr.LineStrips3D(list(geo.rings), colors=[_RING_COLOR]))
+        n_axes = geo.frame_vectors.shape[1]
+        self.rec.log("model/frames", rr.Arrows3D(
+            origins=np.repeat(geo.frame_origins, n_axes, axis=0),
+            vectors=geo.frame_vectors.reshape(-1, 3),
+            colors=np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
+        self.rec.log("model/info", rr.AnyValues(version=geo.version, n_sections=geo.n_sections))
+        radius = f"radius/v{geo.version}"
+        self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
+        self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
+            geo.n_sections))], columns=rr.Scalars.columns(scalars=geo.radii))
+
+    def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
+        """Start, trajectory, eta and inside flag of one reproduction."""
+        rgba = _INSIDE_COLOR if rep.inside else _OUTSIDE_COLOR
+        self._at(t_ns, rep.version)
+        self.rec.log("reproductions/path", rr.LineStrips3D([rep.positions], colors=[rgba]))
+        self.rec.log("reproductions/start", rr.Points3D([rep.start], colors=[rgba], radii=[-4.0]))
+        self._at(t_ns)
+        self.rec.log("reproductions/eta", rr.Scalars(rep.eta))
+        self.rec.log("reproductions/inside", rr.Scalars(float(rep.inside)))
+
+    def live(self, batch: LiveBatch) -> None:
+        """Pose, target, progress and eta of a robot's samples, one columnar send each."""
+        self._dirty = True
+        base = f"live/{_entity(batch.robot)}"
+        index = [rr.TimeColumn("wall_time", timestamp=batch.t_ns.astype("datetime64[ns]"))]
+        self.rec.send_columns(f"{base}/pose", indexes=index, columns=rr.Points3D.columns(
+            positions=batch.position, colors=np.tile(_POSE_COLOR, (len(batch), 1))))
+        self.rec.send_columns(f"{base}/target", indexes=index, columns=rr.Points3D.columns(
+            positions=batch.target, colors=np.tile(_TARGET_COLOR, (len(batch), 1))))
+        self.rec.send_columns(f"{base}/progress", indexes=index,
+                              columns=rr.Scalars.columns(scalars=batch.progress))
+        self.rec.send_columns(f"{base}/eta", indexes=index,
+                              columns=rr.Scalars.columns(scalars=batch.eta))
+
+    # ---- file -------------------------------------------------------------------------------
+
+    def flush(self, timeout_s: float = 5.0) -> None:
+        """Append everything logged since the last flush to the file, as one RRD stream."""
+        if not self._dirty:
+            return
+        data = self._stream.read(flush=True, flush_timeout_sec=timeout_s)
+        if data:
+            self._file.write(data)
+        self._file.flush()
+        self._dirty = False
+
+    def close(self) -> None:
+        """Flush and close the file (still a concatenation: see :func:`merge_rrd`)."""
+        try:
+            self.flush()
+        finally:
+            self._file.close()
+            self.rec.disconnect()
+
+    def abandon(self) -> None:
+        """Close after a write error, without raising (what reached the file stays)."""
+        with contextlib.suppress(Exception):
+            self._file.close()
+        with contextlib.suppress(Exception):
+            self.rec.disconnect()
+
+
+def empty_rrd(path: Path, recording_id: str, skill: str) -> None:
+    """A finished ``.rrd`` holding only the blueprint (a skill with nothing recorded)."""
+    RerunSegment(path, recording_id, skill, blueprint=True).close()  # one stream: one footer
+
+
+# ---- the rerun CLI (shipped in the rerun-sdk wheel) ------------------------------------------
+
+def rerun_cli() -> list[str]:
+    """Command that runs the ``rerun`` binary of the installed rerun-sdk."""
+    import rerun_cli
+
+    exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform == "win32" else "rerun")
+    if exe.exists():
+        return [str(exe)]
+    return [sys.executable, "-m", "rerun_cli"]
+
+
+def cli_env(config_home: Path) -> dict[str, str]:
+    """Environment for our ``rerun`` subprocesses with analytics off.
+
+    Rerun's documented switch is ``rerun analytics disable``, which writes
+    ``$XDG_CONFIG_HOME/rerun/analytics.json``; we point the subprocesses at a config home of
+    our own so the user's config is never touched.
+    """
+    env = dict(os.environ, XDG_CONFIG_HOME=str(config_home))
+    if not (config_home / "rerun" / "analytics.json").exists():
+        config_home.mkdir(parents=True, exist_ok=True)
+        subprocess.run([*rerun_cli(), "analytics", "disable"], env=env, capture_output=True,
+                       timeout=60, check=False)
+    return env
+
+
+def merge_rrd(inputs: list[Path], out: Path, env: dict[str, str], *, recover: bool = False) -> None:
+    """Merge ``.rrd`` files into one finished file (footer written), atomically.
+
+    With ``recover=True`` an input cut short by a crash contributes what it holds.
+    """
+    tmp = out.with_name(out.name + ".tmp")
+    cmd = [*rerun_cli(), "rrd", "merge", *(str(p) for p in inputs), "-o", str(tmp)]
+    if recover:
+        cmd.insert(cmd.index("merge") + 1, "--continue-on-error")
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600, check=False)
+    if proc.returncode != 0 or not tmp.exists():
+        tmp.unlink(missing_ok=True)
+        raise RuntimeError(f"rerun rrd merge failed ({proc.returncode}): {proc.stderr[-500:]}")
+    tmp.replace(out)
+

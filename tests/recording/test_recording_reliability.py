@@ -1,0 +1,117 @@
+"""Recording never fails a caller: bounded queues, counted drops, degraded health on disk errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from canal_service.recording import Recorder
+from recording_helpers import mcap_counts, mcap_messages
+
+HERE = Path(__file__).parent
+
+
+def _live(rec: Recorder, canal: Any, path: np.ndarray, n: int, t0: int) -> list[Any]:
+    tracker = canal.tracker()
+    targets = []
+    for k in range(n):
+        position = path[k * len(path) // n]
+        target = tracker.step(position)
+        targets.append(target)
+        rec.live("pour", "ur5", position, target, t_ns=t0 + k * 1_000_000)
+    return targets
+
+
+def test_live_queue_is_bounded_and_drops_the_oldest(tmp_path: Path, demos3: list[np.ndarray],
+                                                    canal3: Any) -> None:
+    # A long flush interval keeps the writer from draining during the burst: a stalled disk.
+    rec = Recorder(tmp_path / "rec", flush_interval_s=60, live_max_hz=None, live_queue_size=100)
+    t0 = time.time_ns()
+    _live(rec, canal3, demos3[0], 5000, t0)
+    health = rec.health()
+    assert health["queued"] == 100
+    assert health["dropped"] == 4900
+    rec.close()
+    assert rec.written_live == 100
+    path = rec.export_mcap("pour")
+    assert mcap_counts(path)["/live/ur5/pose"] == 100
+    first = mcap_messages(path, "/live/ur5/pose")[0]["timestamp"]
+    assert first["sec"] * 10**9 + first["nsec"] == t0 + 4900 * 1_000_000  # the newest were kept
+
+
+def test_live_decimation_keeps_the_rate_and_every_transition(
+        tmp_path: Path, demos3: list[np.ndarray], canal3: Any) -> None:
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, live_max_hz=100.0)
+    t0 = time.time_ns()
+    far = demos3[0] + np.where(np.arange(len(demos3[0]))[:, None] % 20 < 10, 0.0, 5.0)
+    targets = _live(rec, canal3, far, 1000, t0)
+    rec.close()
+    states = mcap_messages(rec.export_mcap("pour"), "/live/ur5/state")
+    assert len(states) == rec.written_live and rec.written_live + rec.decimated_live == 1000
+    t = np.array([s["timestamp"]["sec"] * 10**9 + s["timestamp"]["nsec"] for s in states])
+    flags = np.array([(s["inside"], s["done"]) for s in states])
+    flips = int(np.count_nonzero(np.diff([(x.inside, x.done) for x in targets], axis=0).any(axis=1)))
+    assert flips > 0
+    assert 100 <= len(states) <= 100 + flips + 1
+    kept_gaps = np.diff(t)[(flags[1:] == flags[:-1]).all(axis=1)]
+    assert kept_gaps.min() >= 10_000_000  # 100 Hz between samples that changed nothing
+
+
+def test_bad_calls_never_raise_and_are_counted(recorder: Recorder) -> None:
+    recorder.live("pour", "ur5", None, object())
+    recorder.demo_added("pour", 3, "not-an-id", [[0, 0, 0]], None, None)
+    recorder.model_fitted("pour", 1, object())  # fails on the writer thread
+    recorder.export_mcap("pour")  # waits for the writer
+    health = recorder.health()
+    assert health["dropped"] == 3
+    assert health["status"] == "degraded" and "pour" in health["detail"]
+
+
+def test_a_broken_root_degrades_health_and_callers_go_on(tmp_path: Path,
+                                                         demos3: list[np.ndarray]) -> None:
+    root = tmp_path / "not-a-folder"
+    root.write_text("a file where the recordings folder should be")
+    rec = Recorder(root, flush_interval_s=0.1)
+    try:
+        for j in range(5):
+            rec.demo_added("pour", 3, j, demos3[0], None, None)
+        deadline = time.monotonic() + 10
+        while rec.health()["dropped"] < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        health = rec.health()
+    finally:
+        rec.close()
+    assert health["status"] == "degraded"
+    assert health["dropped"] == 5 and "pour" in health["detail"]
+
+
+@pytest.mark.skipif(not hasattr(os, "setrlimit") and sys.platform != "linux",
+                    reason="needs RLIMIT_FSIZE")
+def test_disk_full_degrades_health_and_never_fails_a_call(tmp_path: Path) -> None:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run([sys.executable, str(HERE / "disk_full_child.py"), str(tmp_path / "rec")],
+                          capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert report["raised"] == 0
+    assert report["health"]["status"] == "degraded"
+    assert "File too large" in report["health"]["detail"]
+    assert report["health"]["dropped"] > 0
+
+
+def test_a_disabled_recorder_records_nothing(tmp_path: Path, demos3: list[np.ndarray]) -> None:
+    rec = Recorder(tmp_path / "rec", enabled=False)
+    rec.demo_added("pour", 3, 1, demos3[0], None, None)
+    assert rec.health() == {"status": "ok", "detail": "recording disabled", "queued": 0,
+                            "dropped": 0, "decimated": 0, "live_written": 0}
+    with pytest.raises(RuntimeError):
+        rec.export_mcap("pour")
+    rec.close()
+    assert not (tmp_path / "rec").exists()
