@@ -32,6 +32,9 @@ class Mesh:
     Attributes
     ----------
     vertices : array, shape (V, 3)
+        Ring-major: in 3-D, vertex ``i * K + k`` is section i at angle 2 pi k / K (K angles
+        per ring), then the two cap centres when capped; in 2-D, vertices ``2 i`` and
+        ``2 i + 1`` are the lower and upper ends of section i.
     faces : array of int, shape (F, 3)
         Counter-clockwise seen from outside.
     normals : array, shape (V, 3)

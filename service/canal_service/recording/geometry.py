@@ -26,7 +26,6 @@ _RAMP = np.array([
 ])
 #: About this many rings and frames are drawn along the canal, whatever its sample count.
 TARGET_MARKS = 20
-RING_POINTS = 32
 MESH_ANGLES = 32
 
 
@@ -128,21 +127,20 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
     idx = np.arange(0, directrix.shape[0], stride)
     if idx[-1] != directrix.shape[0] - 1:
         idx = np.append(idx, directrix.shape[0] - 1)
-    centres, r = directrix[idx], radii[idx]
+    centres = directrix[idx]
     normals = points3d(canal.normals)[idx]
     tangents = points3d(canal.tangents)[idx]
+    n = directrix.shape[0]
     if dim == 3 and canal.binormals is not None:
         binormals = points3d(canal.binormals)[idx]
-        theta = np.linspace(0.0, 2.0 * np.pi, RING_POINTS + 1)
-        # Circle of the section's largest boundary distance in its normal plane: the section
-        # itself for circle canals, its bounding circle for the other kinds.
-        rings = centres[:, None, :] + r[:, None, None] * (
-            np.cos(theta)[None, :, None] * normals[:, None, :]
-            + np.sin(theta)[None, :, None] * binormals[:, None, :])
+        # The mesh is ring-major (canal_core.surface.Mesh): its rings are the true section
+        # boundaries for every kind (circle, mec, ellipse, spline); close each loop.
+        ring = vertices[: n * MESH_ANGLES].reshape(n, MESH_ANGLES, 3)[idx]
+        rings = np.concatenate([ring, ring[:, :1]], axis=1)
         axes = np.stack([tangents, normals, binormals], axis=1)
     else:
-        # A 2-D section is an interval across the strip.
-        rings = np.stack([centres - r[:, None] * normals, centres + r[:, None] * normals], axis=1)
+        # A 2-D section is the interval [lower, upper] across the strip (vertices 2i, 2i+1).
+        rings = vertices.reshape(n, 2, 3)[idx]
         axes = np.stack([tangents, normals], axis=1)
     scale = float(np.median(radii)) if np.median(radii) > 0 else 0.05 * float(
         np.asarray(canal.arclength)[-1] or 1.0)
