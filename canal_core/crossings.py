@@ -26,6 +26,11 @@ NEAR_WINDOW = 4
 MID_WINDOW = 32
 
 
+def crosses_plane(before: FloatArray, after: FloatArray) -> np.ndarray:
+    """Whether a segment whose ends have signed plane distances ``before``/``after`` meets the plane."""
+    return np.asarray((before == 0.0) | (np.sign(before) != np.sign(after)))
+
+
 def _crossings_in_window(
     aligned: FloatArray,
     centres: FloatArray,
@@ -50,7 +55,7 @@ def _crossings_in_window(
 
     lo, hi = dist[:, :-1], dist[:, 1:]
     moves = cols[:, 1:] != cols[:, :-1]  # clipped windows repeat the end sample
-    crosses = moves & ((lo == 0.0) | (np.sign(lo) != np.sign(hi)))
+    crosses = moves & crosses_plane(lo, hi)
     # Prefer the crossing segment whose centre is nearest the section's own index.
     distance_to_centre = np.abs(offsets[:-1] + 0.5)
     score = np.where(crosses, distance_to_centre[None, :], np.inf)

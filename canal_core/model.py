@@ -181,7 +181,9 @@ class Canal:
         ``tol`` is relative: eta <= 1 + tol, and at the two ends an axial offset up to
         tol times the largest radius.
         """
-        loc = self.locate(points)
+        return self._inside(self.locate(points), tol)
+
+    def _inside(self, loc: Location, tol: float) -> BoolArray:
         axial_tol = tol * float(self.radii.max(initial=0.0))
         reach = np.where(loc.axial < 0.0, self.end_depths[0], self.end_depths[1]) + axial_tol
         return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
@@ -200,7 +202,7 @@ class Canal:
         check_choice(outside, ("project", "raise"), "outside")
         loc = located_points(point[None, :], self.directrix, self.tangents, self.basis, self.sections)
         eta = float(loc.eta[0])
-        inside = bool(self.contains(point[None, :])[0])
+        inside = bool(self._inside(loc, CONTAINS_TOLERANCE)[0])
         if outside == "raise" and not inside:
             raise OutsideCanalError(
                 f"expected start inside the canal, got eta={eta:.4g} at section {int(loc.index[0])}"
@@ -443,12 +445,10 @@ def fit(
     crossings = plane_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the
     # end section by its projected end sample, so the extruded ends hold the whole demo.
-    first = aligned[:, 0] - ((aligned[:, 0] - centres[0]) @ tangents[0])[:, None] * tangents[0]
-    behind = (aligned[:, 0] - centres[0]) @ tangents[0] < 0.0
-    crossings[0, behind] = first[behind]
-    last = aligned[:, -1] - ((aligned[:, -1] - centres[-1]) @ tangents[-1])[:, None] * tangents[-1]
-    past = (aligned[:, -1] - centres[-1]) @ tangents[-1] > 0.0
-    crossings[-1, past] = last[past]
+    for end, outward in ((0, -1.0), (-1, 1.0)):
+        offset = (aligned[:, end] - centres[end]) @ tangents[end]
+        beyond = outward * offset > 0.0
+        crossings[end, beyond] = aligned[beyond, end] - offset[beyond, None] * tangents[end]
     basis = section_basis(normals, binormals)
     coords = in_plane_coordinates(crossings, centres, basis)
     if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):

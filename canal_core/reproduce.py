@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
+from .crossings import crosses_plane
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
@@ -58,10 +59,6 @@ class Location:
     direction: FloatArray
     eta: FloatArray
     axial: FloatArray
-
-    @property
-    def interior(self) -> BoolArray:
-        return np.asarray(self.axial == 0.0)
 
 
 def section_basis(normals: FloatArray, binormals: FloatArray | None) -> FloatArray:
@@ -148,7 +145,7 @@ def located_points(
     # planes may all lie on one side of it and no sign change would be seen.
     dist[np.abs(dist) <= 1e-12 * (1.0 + np.abs(centres).max())] = 0.0
     lo, hi = dist[:, :-1], dist[:, 1:]
-    crossing = (lo == 0.0) | (hi == 0.0) | (np.sign(lo) != np.sign(hi))
+    crossing = crosses_plane(lo, hi) | (hi == 0.0)
     pt, sec = np.nonzero(crossing)
     denom = lo[pt, sec] - hi[pt, sec]
     alpha = np.divide(lo[pt, sec], denom, out=np.zeros_like(denom), where=denom != 0.0)
@@ -239,7 +236,7 @@ def bracketing_sections(
     lower = np.clip(approx_index[:, None] + offsets[None, :], 0, n - 2)  # (M, W)
     dist = np.einsum("md,mwd->mw", samples, tangents[lower]) - plane[lower]
     dist_next = np.einsum("md,mwd->mw", samples, tangents[lower + 1]) - plane[lower + 1]
-    crossing = (dist == 0.0) | (np.sign(dist) != np.sign(dist_next))
+    crossing = crosses_plane(dist, dist_next)
     score = np.where(crossing, np.abs(offsets + 0.5)[None, :], np.inf)
     best = np.argmin(score, axis=1)
     rows = np.arange(samples.shape[0])
