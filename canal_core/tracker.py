@@ -14,15 +14,18 @@ once, vectorised, from the last index to the end.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
-from .reproduce import ratio, unit_directions
 from .validation import FloatArray
 
 WINDOW = 16
+
+# On the directrix eta = 0 and any direction gives the same point (as unit_directions does).
+_DEFAULT_DIRECTIONS = {1: np.array([1.0]), 2: np.array([1.0, 0.0])}
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,8 +81,8 @@ def tracker_geometry(
 def _first_crossing(dist: FloatArray) -> int:
     """Index of the first sign change in ``dist`` (between k and k + 1), or -1."""
     change = (dist[:-1] == 0.0) | ((dist[:-1] > 0.0) != (dist[1:] > 0.0))
-    hits = np.flatnonzero(change)
-    return int(hits[0]) if hits.size else -1
+    first = int(change.argmax()) if change.size else 0
+    return first if change.size and change[first] else -1
 
 
 def tracker_step(
@@ -102,6 +105,12 @@ def tracker_step(
     target : TrackerTarget
     last_index : int
         Updated state, never smaller than the one given.
+
+    Notes
+    -----
+    This runs once per live pose (up to kHz per robot), so it is written for small-array
+    overhead rather than elegance: one window product, scalar arithmetic in Python floats,
+    and one boundary lookup for the two located sections and the target section together.
     """
     g = geometry
     n = g.centres.shape[0]
@@ -120,33 +129,37 @@ def tracker_step(
     else:  # behind the window: hold the last section, never go back
         index = lo
     index = max(min(index, n - 2), 0)
-    d0 = g.tangents[index] @ position - g.offsets[index]
-    d1 = g.tangents[index + 1] @ position - g.offsets[index + 1] if n > 1 else d0
-    alpha = float(np.clip(d0 / (d0 - d1), 0.0, 1.0)) if d0 != d1 else 0.0
-
     upper = min(index + 1, n - 1)
-    q = (1.0 - alpha) * (g.basis[index] @ (position - g.centres[index])) + alpha * (
-        g.basis[upper] @ (position - g.centres[upper])
+    d0 = float(g.tangents[index] @ position - g.offsets[index])
+    d1 = float(g.tangents[upper] @ position - g.offsets[upper]) if n > 1 else d0
+    alpha = min(max(d0 / (d0 - d1), 0.0), 1.0) if d0 != d1 else 0.0
+
+    pair_q = np.einsum("nkd,nd->nk", g.basis[index : upper + 1], position - g.centres[index : upper + 1])
+    q = (1.0 - alpha) * pair_q[0] + alpha * pair_q[-1]
+    norm = math.sqrt(float(q @ q))
+    direction = q / norm if norm > 0.0 else _DEFAULT_DIRECTIONS[q.shape[0]]
+
+    target_index = min(index + max(lookahead, 1), n - 1)
+    reach3 = boundary_distance(
+        g.sections, np.array([index, upper, target_index]), direction[None, :].repeat(3, axis=0)
     )
-    norm, direction = unit_directions(q[None, :])
-    pair = np.array([index, upper])
-    reach_pair = boundary_distance(g.sections, pair, np.repeat(direction, 2, axis=0))
-    reach = (1.0 - alpha) * reach_pair[0] + alpha * reach_pair[1]
-    eta = float(ratio(norm, np.array([reach]))[0])
+    reach = (1.0 - alpha) * float(reach3[0]) + alpha * float(reach3[1])
+    if reach > 0.0:
+        eta = norm / reach
+    else:
+        eta = math.inf if norm > 0.0 else 0.0
     behind_start = index == 0 and d0 < 0.0
     past_end = index == n - 2 and d1 > 0.0
     inside = bool(eta <= 1.0 + 1e-9 and not behind_start and not past_end)
 
-    target_index = min(index + max(lookahead, 1), n - 1)
-    reach_target = boundary_distance(g.sections, np.array([target_index]), direction)[0]
-    target = g.centres[target_index] + min(eta, 1.0) * reach_target * (direction[0] @ g.basis[target_index])
+    target = g.centres[target_index] + (min(eta, 1.0) * float(reach3[2])) * (direction @ g.basis[target_index])
     last = n - 1
     # "Reached" up to a millionth of the mean section spacing: a robot converging on the
     # last target approaches its plane geometrically and would otherwise never cross it.
-    done = bool(g.tangents[last] @ position - g.offsets[last] >= -g.done_tolerance)
+    done = bool(float(g.tangents[last] @ position) - float(g.offsets[last]) >= -g.done_tolerance)
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
     return (
-        TrackerTarget(target, float(progress), eta, index, inside, done),
+        TrackerTarget(target, float(progress), float(eta), index, inside, done),
         max(last_index, index),
     )
 
