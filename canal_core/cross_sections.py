@@ -67,10 +67,12 @@ class CrossSections:
 
     kind: str
     params: dict[str, FloatArray]
-    _derived: dict[str, FloatArray] = field(default_factory=dict, init=False, repr=False)
+    # Arrays computed from params once (spline second derivatives need a linear solve per
+    # section). Passed in only by this module, when the params they depend on are unchanged.
+    _derived: dict[str, FloatArray] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
-        if self.kind == "spline":
+        if self.kind == "spline" and "second" not in self._derived:
             self._derived["second"] = periodic_spline_second_derivatives(
                 self.params["knot_angles"], self.params["knot_radii"]
             )
@@ -440,7 +442,9 @@ def spline_sections(coords: FloatArray) -> CrossSections:
     reach = boundary_distance(sections, rows, unit)
     ratio = np.divide(rho, reach, out=np.zeros_like(rho), where=reach > 0)
     scale = np.maximum(ratio.reshape(n_sec, n).max(axis=1), 1.0)
-    return CrossSections("spline", {"knot_angles": knots, "knot_radii": radii, "scale": scale})
+    return CrossSections(
+        "spline", {"knot_angles": knots, "knot_radii": radii, "scale": scale}, dict(sections._derived)
+    )
 
 
 # ---------------------------------------------------------------------------------------
@@ -546,4 +550,5 @@ def scaled_sections(sections: CrossSections, scale: FloatArray) -> CrossSections
         p[key] *= scale if key == "radius" else scale[:, None]
     elif sections.kind == "spline":
         p["scale"] *= scale
+        return CrossSections("spline", p, dict(sections._derived))  # knots unchanged
     return CrossSections(sections.kind, p)
