@@ -37,7 +37,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-body-bytes", type=int,
                    help="request size limit (CANAL_MAX_BODY_BYTES, default 64 MiB)")
     p.add_argument("--log-level", help="uvicorn log level (CANAL_LOG_LEVEL, default info)")
+    add_zenoh_arguments(p)
     return p
+
+
+def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
+    """The live bridge's flags (shared with ``python -m canal_service.bridge``)."""
+    g = p.add_argument_group("live bridge (Zenoh)")
+    g.add_argument("--zenoh-config", type=Path, metavar="FILE",
+                   help="a standard Zenoh JSON5 config file, used unchanged (CANAL_ZENOH_CONFIG)")
+    g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                   help="listen endpoint; repeatable (CANAL_ZENOH_LISTEN, JSON list, "
+                        "default tcp/127.0.0.1:7447)")
+    g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                   help="connect endpoint, e.g. a zenohd router; repeatable (CANAL_ZENOH_CONNECT)")
+    g.add_argument("--zenoh-prefix", help="key expression prefix (CANAL_ZENOH_PREFIX, default canal)")
+    g.add_argument("--no-zenoh", action="store_true",
+                   help="do not run the live bridge (CANAL_ZENOH_ENABLED=false)")
 
 
 def settings_from_args(argv: Sequence[str] | None = None) -> Settings:
@@ -45,10 +61,12 @@ def settings_from_args(argv: Sequence[str] | None = None) -> Settings:
     args = build_parser().parse_args(argv)
     overrides: dict[str, Any] = {
         key: value for key, value in vars(args).items()
-        if value is not None and key != "no_recordings"
+        if value is not None and key not in ("no_recordings", "no_zenoh")
     }
     if args.no_recordings:
         overrides["recordings_enabled"] = False
+    if args.no_zenoh:
+        overrides["zenoh_enabled"] = False
     return Settings(**overrides)
 
 

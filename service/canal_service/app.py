@@ -51,6 +51,17 @@ def make_recorder(settings: Settings) -> RecorderLike | None:
     return recorder
 
 
+def make_bridge(settings: Settings, service: CanalService) -> Any | None:
+    """The live Zenoh bridge (not started yet), or None when disabled."""
+    if not settings.zenoh_enabled:
+        return None
+    from .bridge import Bridge, BridgeOptions
+
+    bridge = Bridge(service, BridgeOptions.from_settings(settings))
+    service.bridge_health = bridge.health
+    return bridge
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the app: migrate the database now, open the recorder in the lifespan."""
     settings = settings or Settings()
@@ -59,13 +70,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     db.migrate()
     metrics = Metrics()
     service = CanalService(db, metrics, cache_size=settings.model_cache_size)
+    bridge = make_bridge(settings, service)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         service.recorder = await run_in_threadpool(make_recorder, settings)
+        if bridge is not None:
+            # A bridge that cannot start (port taken) leaves the REST API up; /healthz says so.
+            await run_in_threadpool(bridge.start)
         try:
             yield
         finally:
+            if bridge is not None:
+                await run_in_threadpool(bridge.close)
             recorder, service.recorder = service.recorder, None
             if recorder is not None:
                 await run_in_threadpool(recorder.close)
@@ -81,6 +98,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.service = service
     app.state.metrics = metrics
+    app.state.bridge = bridge
     install_error_handlers(app)
     app.include_router(health.router)
     app.include_router(api_router)

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 
+_LIVE_BUCKETS = (2.5e-5, 5e-5, 7.5e-5, 1e-4, 1.5e-4, 2e-4, 3e-4, 5e-4, 1e-3, 2.5e-3, 5e-3, 0.01,
+                 0.05)
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
 
 
@@ -30,3 +32,24 @@ class Metrics:
                                      buckets=_LATENCY_BUCKETS, registry=r)
         self.reproductions = Counter("canal_reproductions_total", "Reproductions computed",
                                      ["inside"], registry=r)
+        # live bridge (canal_service.bridge)
+        self.live_poses = Counter("canal_live_poses_total", "Poses received by the live bridge",
+                                  registry=r)
+        self.live_targets = Counter("canal_live_targets_total",
+                                    "Targets published (answers, including error statuses)",
+                                    registry=r)
+        self.live_coalesced = Counter("canal_live_poses_coalesced_total",
+                                      "Poses not answered because a newer pose of the same "
+                                      "stream was queued (overload policy)", registry=r)
+        self.live_errors = Counter("canal_live_errors_total",
+                                   "Live answers with a status other than ok, by status key",
+                                   ["status"], registry=r)
+        self.live_streams = Gauge("canal_live_streams", "Active (skill, robot) pose streams",
+                                  registry=r)
+        self.live_step_seconds = Histogram("canal_live_step_seconds",
+                                           "Bridge time per pose: dequeue to target published",
+                                           buckets=_LIVE_BUCKETS, registry=r)
+        self.live_up = Gauge("canal_live_bridge_up", "1 while the live Zenoh bridge runs",
+                             registry=r)
+        self.live_model_switches = Counter("canal_live_model_switches_total",
+                                           "Streams moved to a newer model version", registry=r)

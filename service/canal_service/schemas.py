@@ -234,4 +234,6 @@ class HealthOut(BaseModel):
     status: Literal["ok", "degraded"]
     database: str
     recorder: dict[str, Any]
+    bridge: dict[str, Any] = Field(default_factory=lambda: {"status": "disabled"},
+                                   description="The live Zenoh bridge (status ok|down|disabled).")
     version: str

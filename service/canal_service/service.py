@@ -12,7 +12,7 @@ import re
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -87,6 +87,10 @@ class CanalService:
         self.metrics = metrics
         self.recorder = recorder
         self.cache = CanalCache(cache_size)
+        # Called as listener(skill, version, canal) after each fit commits (the live bridge).
+        self.fit_listeners: list[Callable[[str, int, Any], None]] = []
+        # The live bridge's health(), when one runs in this process.
+        self.bridge_health: Callable[[], dict[str, Any]] | None = None
 
     # ---- recorder ---------------------------------------------------------------------------
 
@@ -256,6 +260,11 @@ class CanalService:
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
         self._record("model_fitted", name, model[1].version, canal)
+        for listener in list(self.fit_listeners):
+            try:
+                listener(name, model[1].version, canal)
+            except Exception:
+                log.exception("fit listener failed")
         return model[1]
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
@@ -415,10 +424,18 @@ class CanalService:
                 recorder = {"status": "degraded", "detail": f"health() failed: {exc}"}
             if recorder.get("status") != "ok":
                 status = "degraded"
+        bridge: dict[str, Any] = {"status": "disabled"}
+        if self.bridge_health is not None:
+            try:
+                bridge = dict(self.bridge_health())
+            except Exception as exc:
+                bridge = {"status": "down", "detail": f"health() failed: {exc}"}
+            # A bridge that is down does not make the REST API unhealthy (it still serves);
+            # watch bridge.status or canal_live_bridge_up for the live path.
         from . import __version__
 
         return schemas.HealthOut(status=status, database=database,  # type: ignore[arg-type]
-                                 recorder=recorder, version=__version__)
+                                 recorder=recorder, bridge=bridge, version=__version__)
 
 
 _INDEXED_FIELD = re.compile(r"^(demos|timestamps)\[(\d+)\]")

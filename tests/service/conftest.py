@@ -59,7 +59,7 @@ def make_demo() -> Callable[..., np.ndarray]:
 @pytest.fixture
 def settings(tmp_path: Path) -> Settings:
     """Embedded defaults in a temp data folder, recordings off (tests that want them say so)."""
-    return Settings(data_dir=tmp_path / "data", recordings_enabled=False)
+    return Settings(data_dir=tmp_path / "data", recordings_enabled=False, zenoh_enabled=False)
 
 
 @pytest.fixture
@@ -202,9 +202,9 @@ def postgres_server() -> Iterator[PostgresServer]:
 def any_db_settings(request: pytest.FixtureRequest, tmp_path: Path) -> Settings:
     """Settings on SQLite, and on PostgreSQL when a server can be started here."""
     if request.param == "sqlite":
-        return Settings(data_dir=tmp_path / "data", recordings_enabled=False)
+        return Settings(data_dir=tmp_path / "data", recordings_enabled=False, zenoh_enabled=False)
     server: PostgresServer = request.getfixturevalue("postgres_server")
-    return Settings(data_dir=tmp_path / "data", recordings_enabled=False,
+    return Settings(data_dir=tmp_path / "data", recordings_enabled=False, zenoh_enabled=False,
                     database_url=server.new_database())
 
 

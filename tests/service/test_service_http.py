@@ -58,7 +58,7 @@ def _raw_post(port: int, path: str, headers: list[str], body_chunks: list[bytes]
 
 
 def test_body_over_the_limit_is_413_and_nothing_stored(tmp_path: Path) -> None:
-    settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, max_body_bytes=10_000)
+    settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, zenoh_enabled=False, max_body_bytes=10_000)
     with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as http:
         http.post("/skills", json={"name": "pour", "dim": 3})
         big = {"positions": demo_positions(0, n=2000).tolist()}
@@ -89,7 +89,7 @@ def test_default_limit_is_64_mib() -> None:
 
 
 def test_bearer_token_on_every_route_but_health(tmp_path: Path) -> None:
-    settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, token="s3cret")
+    settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, zenoh_enabled=False, token="s3cret")
     with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as http:
         assert http.get("/healthz").status_code == 200
         for method, path in [("GET", "/skills"), ("POST", "/skills"), ("GET", "/metrics"),
@@ -110,11 +110,11 @@ def test_bearer_token_on_every_route_but_health(tmp_path: Path) -> None:
 
 def test_cors_off_by_default_and_on_when_configured(tmp_path: Path) -> None:
     origin = {"origin": "http://localhost:5173", "access-control-request-method": "GET"}
-    off = Settings(data_dir=tmp_path / "a", recordings_enabled=False)
+    off = Settings(data_dir=tmp_path / "a", recordings_enabled=False, zenoh_enabled=False)
     with LiveServer(create_app(off)) as server:
         r = httpx.options(f"{server.url}/skills", headers=origin)
         assert "access-control-allow-origin" not in r.headers
-    on = Settings(data_dir=tmp_path / "b", recordings_enabled=False,
+    on = Settings(data_dir=tmp_path / "b", recordings_enabled=False, zenoh_enabled=False,
                   cors_origins=["http://localhost:5173"])
     with LiveServer(create_app(on)) as server:
         r = httpx.options(f"{server.url}/skills", headers=origin)

@@ -16,8 +16,8 @@ pytestmark = pytest.mark.postgres
 
 def test_two_replicas_share_one_database(postgres_server: PostgresServer, tmp_path) -> None:
     url = postgres_server.new_database()
-    a = create_app(Settings(data_dir=tmp_path / "a", database_url=url, recordings_enabled=False))
-    b = create_app(Settings(data_dir=tmp_path / "b", database_url=url, recordings_enabled=False))
+    a = create_app(Settings(data_dir=tmp_path / "a", database_url=url, recordings_enabled=False, zenoh_enabled=False))
+    b = create_app(Settings(data_dir=tmp_path / "b", database_url=url, recordings_enabled=False, zenoh_enabled=False))
     with TestClient(a) as ca, TestClient(b) as cb:
         assert ca.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
         assert cb.post("/skills", json={"name": "pour", "dim": 3}).status_code == 409

@@ -24,7 +24,7 @@ def test_recordings_disabled_is_a_clean_404(client: TestClient, skill: str) -> N
 def test_recording_exports(tmp_path: Path) -> None:
     pytest.importorskip("canal_service.recording",
                         reason="canal_service.recording (the Recorder) is not importable yet")
-    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True)
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
     with TestClient(create_app(settings)) as c:
         health = c.get("/healthz").json()
         assert health["recorder"]["status"] in ("ok", "degraded")

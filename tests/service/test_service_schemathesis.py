@@ -30,7 +30,7 @@ def _seeded_app() -> object:
     # (its from_fixture loader does not work with pytest 9).
     data_dir = Path(tempfile.mkdtemp(prefix="canal-schemathesis-"))
     atexit.register(shutil.rmtree, data_dir, ignore_errors=True)
-    app = create_app(Settings(data_dir=data_dir, recordings_enabled=False))
+    app = create_app(Settings(data_dir=data_dir, recordings_enabled=False, zenoh_enabled=False))
     with TestClient(app) as c:
         c.post("/skills", json={"name": "pour", "dim": 3})
         for j in range(3):

@@ -40,6 +40,33 @@ class Settings(BaseSettings):
     model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
     log_level: str = "info"
 
+    # ---- live bridge over Zenoh (docs/live.md) ----
+    zenoh_enabled: bool = Field(True, description="Run the live Zenoh bridge with the service.")
+    zenoh_listen: list[str] = Field(
+        default_factory=lambda: ["tcp/127.0.0.1:7447"],
+        description="Zenoh endpoints to listen on (ignored when zenoh_config is set).",
+    )
+    zenoh_connect: list[str] = Field(
+        default_factory=list,
+        description="Zenoh endpoints to connect to, e.g. a zenohd router (ignored with zenoh_config).",
+    )
+    zenoh_config: Path | None = Field(
+        None, description="A standard Zenoh JSON5 config file, used unchanged (TLS, ACL, routers)."
+    )
+    zenoh_prefix: str = Field("canal", min_length=1, description="First chunk of every key.")
+    zenoh_queue_capacity: int = Field(4096, ge=16, description="Pose channel capacity (samples).")
+    zenoh_coalesce_backlog: int = Field(
+        16, ge=1, description="Per stream: above this many queued poses, answer only the newest."
+    )
+    zenoh_idle_s: float = Field(30.0, gt=0, description="Forget a stream after this long silent.")
+    zenoh_refresh_s: float = Field(
+        2.0, gt=0, description="How often the bridge re-checks each skill's latest model version."
+    )
+    zenoh_lookahead: int = Field(
+        2, ge=1, description="Tracker lookahead in sections (2: the target lies beyond the next "
+        "section plane, so a robot that lags behind its target still crosses it)."
+    )
+
     @field_validator("token")
     @classmethod
     def _blank_token_is_none(cls, value: SecretStr | None) -> SecretStr | None:

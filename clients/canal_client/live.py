@@ -1,0 +1,251 @@
+"""Robot side of the live protocol: stream poses to Canal's Zenoh bridge, get targets back.
+
+.. code-block:: python
+
+    from canal_client.live import PoseStreamer
+
+    with PoseStreamer("pour", robot="arm1", endpoint="tcp/127.0.0.1:7447") as ps:
+        seq = ps.send([0.0, 0.02, 0.0], restart=True)
+        answer = ps.wait_for(seq, timeout=0.1)      # a wire.Target
+        if answer is not None and answer.usable:
+            move_to(answer.target)
+
+Targets arrive on a Zenoh FIFO channel and are read by the streamer's own thread (Zenoh's
+callback threads never run user code); ``on_target`` is called from that thread.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import orjson
+import zenoh
+
+from . import wire
+
+_ENC_JSON = zenoh.Encoding.APPLICATION_JSON
+_ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
+
+
+class LiveError(RuntimeError):
+    """The bridge could not be reached or refused a request; ``body`` is its JSON error."""
+
+    def __init__(self, message: str, body: Any = None) -> None:
+        super().__init__(message)
+        self.body = body
+
+
+def client_config(endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
+                  zenoh_config: str | Path | None = None) -> zenoh.Config:
+    """A peer config connecting to ``endpoint`` with multicast scouting off, or the user's
+    Zenoh JSON5 file unchanged."""
+    if zenoh_config is not None:
+        return zenoh.Config.from_file(str(zenoh_config))
+    endpoints = [endpoint] if isinstance(endpoint, str) else list(endpoint)
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", "[]")
+    config.insert_json5("connect/endpoints", orjson.dumps(endpoints).decode())
+    return config
+
+
+def _reply_body(reply: Any) -> tuple[bool, Any]:
+    ok = reply.ok
+    if ok is not None:
+        return True, orjson.loads(ok.payload.to_bytes())
+    err = reply.err
+    try:
+        return False, orjson.loads(err.payload.to_bytes())
+    except Exception:
+        return False, {"error": {"type": "unknown", "message": err.payload.to_string()}}
+
+
+def query_json(session: Any, key: str, body: Any = None, timeout: float = 5.0) -> Any:
+    """One Zenoh query answered with JSON; LiveError on an error reply or no reply."""
+    payload = None if body is None else orjson.dumps(body)
+    replies = session.get(key, payload=payload, encoding=_ENC_JSON if payload else None,
+                          timeout=timeout)
+    for reply in replies:
+        ok, data = _reply_body(reply)
+        if ok:
+            return data
+        err = data.get("error", {}) if isinstance(data, dict) else {}
+        raise LiveError(f"{key}: {err.get('type')}: {err.get('message')}", data)
+    raise LiveError(f"{key}: no answer within {timeout} s (is the bridge running?)")
+
+
+class PoseStreamer:
+    """One robot's pose stream for one skill.
+
+    Parameters
+    ----------
+    skill, robot : str
+        Key chunks of the stream (``{prefix}/{skill}/{robot}/pose``).
+    endpoint : str or list of str
+        Where the bridge listens (ignored when ``zenoh_config`` is given).
+    zenoh_config : path, optional
+        A standard Zenoh JSON5 config file, used unchanged (routers, TLS, ACL).
+    prefix : str
+    encoding : "binary" | "json"
+    on_target : callable, optional
+        Called with every :class:`~canal_client.wire.Target`, from the streamer's thread.
+    session : zenoh.Session, optional
+        Use this session instead of opening one (it is not closed by :meth:`close`).
+    connect_timeout : float
+        How long to wait for the bridge's pose subscriber to be reachable.
+    """
+
+    def __init__(self, skill: str, robot: str = "robot", *,
+                 endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
+                 zenoh_config: str | Path | None = None, prefix: str = "canal",
+                 encoding: str = "binary",
+                 on_target: Callable[[wire.Target], None] | None = None,
+                 session: Any = None, connect_timeout: float = 5.0) -> None:
+        if encoding not in ("binary", "json"):
+            raise ValueError(f"expected encoding 'binary' or 'json', got {encoding!r}")
+        self.keys = wire.keys(skill, robot, prefix)
+        self.encoding = encoding
+        self.on_target = on_target
+        self._own_session = session is None
+        self.session = zenoh.open(client_config(endpoint, zenoh_config)) if session is None \
+            else session
+        self._cond = threading.Condition()
+        self._latest: wire.Target | None = None
+        self._answers: dict[int, wire.Target] = {}
+        self._seq = 0
+        self._closed = False
+        self._thread: threading.Thread | None = None
+        try:
+            self._sub = self.session.declare_subscriber(self.keys.target,
+                                                        zenoh.handlers.FifoChannel(1024))
+            self._pub = self.session.declare_publisher(
+                self.keys.pose, encoding=_ENC_JSON if encoding == "json" else _ENC_BINARY,
+                express=True, congestion_control=zenoh.CongestionControl.BLOCK)
+            deadline = time.monotonic() + connect_timeout
+            while not self._pub.matching_status:
+                if time.monotonic() > deadline:
+                    raise LiveError(f"no Canal bridge subscribes to {self.keys.pose} "
+                                    f"(waited {connect_timeout} s)")
+                time.sleep(0.005)
+            self._thread = threading.Thread(target=self._receive, name="canal-pose-streamer",
+                                            daemon=True)
+            self._thread.start()
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- poses and targets ------------------------------------------------------------------
+
+    def send(self, position: Sequence[float], orientation: Sequence[float] | None = None,
+             t: float | None = None, *, restart: bool = False) -> int:
+        """Publish a pose; returns its seq (answered by the target with the same seq)."""
+        seq = self._seq
+        self._seq += 1
+        if self.encoding == "json":
+            self._pub.put(wire.encode_pose_json(seq, position, orientation, t, restart))
+        else:
+            self._pub.put(wire.encode_pose(seq, position, orientation, t, restart))
+        return seq
+
+    def send_raw(self, payload: bytes, *, json: bool = False) -> None:
+        """Publish bytes as they are (for tests of malformed input)."""
+        self._pub.put(payload, encoding=_ENC_JSON if json else _ENC_BINARY)
+
+    @property
+    def next_seq(self) -> int:
+        """The seq the next :meth:`send` will use."""
+        return self._seq
+
+    def latest(self) -> wire.Target | None:
+        """The most recent target received, or None."""
+        return self._latest
+
+    def wait_for(self, seq: int, timeout: float = 1.0) -> wire.Target | None:
+        """The target answering ``seq`` (or a later one, if the bridge coalesced), or None
+        after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                answer = self._answers.pop(seq, None)
+                if answer is not None:
+                    return answer
+                latest = self._latest
+                if latest is not None and latest.seq is not None and latest.seq > seq:
+                    return latest
+                left = deadline - time.monotonic()
+                if left <= 0 or self._closed:
+                    return None
+                self._cond.wait(left)
+
+    def _receive(self) -> None:
+        recv = self._sub.handler.recv
+        while True:
+            try:
+                sample = recv()
+            except Exception:
+                return
+            try:
+                answer = wire.decode_any_target(str(sample.encoding), sample.payload.to_bytes())
+            except wire.WireError:
+                continue
+            with self._cond:
+                self._latest = answer
+                if answer.seq is not None:
+                    self._answers[answer.seq] = answer
+                    if len(self._answers) > 256:  # nobody waits for old answers
+                        for k in sorted(self._answers)[:128]:
+                            del self._answers[k]
+                self._cond.notify_all()
+            if self.on_target is not None:
+                self.on_target(answer)
+
+    # ---- model and demonstrations -----------------------------------------------------------
+
+    def model(self, timeout: float = 5.0) -> dict[str, Any]:
+        """The skill's latest model (the REST body of ``models/latest?serialized=true``)."""
+        return query_json(self.session, self.keys.model, timeout=timeout)  # type: ignore[no-any-return]
+
+    def start_demo(self, label: str | None = None, timeout: float = 5.0) -> dict[str, Any]:
+        """Begin capturing this stream's poses, from the next :meth:`send` on."""
+        return query_json(self.session, self.keys.demo_start,  # type: ignore[no-any-return]
+                          {"from_seq": self._seq, "label": label}, timeout)
+
+    def stop_demo(self, timeout: float = 10.0) -> dict[str, Any]:
+        """Store the captured poses as a new demonstration: ``{"id", "n_points", "checksum"}``."""
+        return query_json(self.session, self.keys.demo_stop,  # type: ignore[no-any-return]
+                          {"last_seq": self._seq - 1}, timeout)
+
+    # ---- lifecycle --------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Undeclare everything and close the session if this streamer opened it."""
+        if self._closed:
+            return
+        self._closed = True
+        with self._cond:
+            self._cond.notify_all()
+        for name in ("_sub", "_pub"):
+            entity = getattr(self, name, None)
+            if entity is not None:
+                try:
+                    entity.undeclare()
+                except Exception:
+                    pass
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        if self._own_session:
+            self.session.close()
+
+    def __enter__(self) -> PoseStreamer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+__all__ = ["LiveError", "PoseStreamer", "client_config", "query_json"]

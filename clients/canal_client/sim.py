@@ -1,0 +1,174 @@
+"""A simulated robot for the live bridge: start anywhere, chase Canal's targets, get pushed.
+
+``run_sim("pour")`` opens a :class:`~canal_client.live.PoseStreamer`, picks a random start
+inside the canal (from the model queryable) unless given one, and then at ``rate_hz``:
+publishes its position, waits for the target answering it (or keeps the latest one), and
+moves toward the target with a first-order lag (``x += min(gain * dt, 1) * (target - x)``)
+or a critically damped PD lag (``a = gain * (target - x) - 2 * sqrt(gain) * v``). A push
+displaces the robot instantly by an offset, at a time (seconds since start, a number) or at a
+progress (a string like ``"50%"``). It stops when Canal says ``done`` or after ``timeout_s``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import wire
+from .live import PoseStreamer
+
+Push = tuple[float | str, Sequence[float]]
+
+
+@dataclass
+class SimResult:
+    """What happened in one simulated run."""
+
+    reached_end: bool
+    all_inside: bool
+    n_steps: int
+    positions: np.ndarray  # (n_steps, D): every pose sent
+    targets: list[wire.Target]  # the answer used at each step (None-free: missing answers skipped)
+    inside: np.ndarray  # (n_steps,) bool: the bridge's inside (or done) flag per answered pose
+    min_eta: float
+    max_eta: float
+    duration: float
+    start: np.ndarray
+    model_version: int | None = None
+    statuses: dict[str, int] = field(default_factory=dict)
+    missed: int = 0  # poses whose answer did not arrive in time
+    pushes_done: int = 0
+
+
+def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
+                          max_fraction: float = 0.6) -> np.ndarray:
+    """A random point well inside the canal, in its first ``max_fraction`` of sections."""
+    import canal_core
+
+    canal = canal_core.Canal.from_dict(model["serialized"])
+    n = canal.n_sections
+    for _ in range(200):
+        i = int(rng.integers(0, max(int(max_fraction * (n - 1)), 1)))
+        if canal.dim == 3:
+            angle = rng.uniform(0.0, 2.0 * math.pi)
+            direction = math.cos(angle) * canal.normals[i] + math.sin(angle) * canal.binormals[i]
+        else:
+            direction = canal.normals[i] * rng.choice([-1.0, 1.0])
+        point = canal.directrix[i] + rng.uniform(0.0, 0.6) * canal.radii[i] * direction
+        if bool(canal.contains(point[None, :])[0]):
+            return np.asarray(point, dtype=np.float64)
+    return np.asarray(canal.directrix[0], dtype=np.float64)
+
+
+def _push_due(when: float | str, elapsed: float, progress: float) -> bool:
+    if isinstance(when, str):
+        text = when.strip()
+        value = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
+        return progress >= value
+    return elapsed >= float(when)
+
+
+def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = None,
+            rate_hz: float = 100.0, lag: str = "first-order", gain: float | None = None,
+            pushes: Sequence[Push] = (), timeout_s: float = 60.0,
+            endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
+            zenoh_config: str | Path | None = None, prefix: str = "canal",
+            encoding: str = "binary", seed: int | None = None,
+            session: Any = None) -> SimResult:
+    """Run one simulated robot on ``skill`` until Canal says done or ``timeout_s`` passes.
+
+    ``gain`` defaults to ``0.5 * rate_hz`` (1/s) for the first-order lag and to
+    ``(0.2 * rate_hz) ** 2`` (1/s^2) for the PD lag.
+    """
+    if lag not in ("first-order", "pd"):
+        raise ValueError(f"expected lag 'first-order' or 'pd', got {lag!r}")
+    if rate_hz <= 0:
+        raise ValueError(f"expected rate_hz > 0, got {rate_hz}")
+    dt = 1.0 / rate_hz
+    if gain is None:
+        gain = 0.5 * rate_hz if lag == "first-order" else (0.2 * rate_hz) ** 2
+    rng = np.random.default_rng(seed)
+    pending = [(when, np.asarray(offset, dtype=np.float64)) for when, offset in pushes]
+    with PoseStreamer(skill, robot, endpoint=endpoint, zenoh_config=zenoh_config,
+                      prefix=prefix, encoding=encoding, session=session) as ps:
+        model = ps.model() if start is None else None
+        x = random_interior_start(model, rng) if model is not None else np.asarray(
+            start, dtype=np.float64)
+        x0 = x.copy()
+        v = np.zeros_like(x)
+        positions: list[np.ndarray] = []
+        targets: list[wire.Target] = []
+        inside: list[bool] = []
+        statuses: dict[str, int] = {}
+        missed = pushes_done = 0
+        reached = False
+        progress = 0.0
+        version = None
+        answer: wire.Target | None = None
+        wait = max(2.0 * dt, 0.05)
+        t0 = time.monotonic()
+        next_tick = t0
+        while True:
+            elapsed = time.monotonic() - t0
+            if elapsed > timeout_s:
+                break
+            for k, (when, offset) in enumerate(pending):
+                if offset is not None and _push_due(when, elapsed, progress):
+                    x = x + offset
+                    pending[k] = (when, None)  # type: ignore[assignment]
+                    pushes_done += 1
+            seq = ps.send(x, t=elapsed, restart=not positions)
+            positions.append(x.copy())
+            got = ps.wait_for(seq, wait)
+            if got is None:
+                missed += 1
+            else:
+                answer = got
+                targets.append(got)
+                statuses[got.status] = statuses.get(got.status, 0) + 1
+                inside.append(bool(got.inside or got.done))
+                progress = got.progress
+                version = got.model_version
+                if got.done:
+                    reached = True
+                    break
+            if answer is not None and answer.usable and answer.target is not None:
+                goal = np.asarray(answer.target)
+                if lag == "first-order":
+                    x = x + min(gain * dt, 1.0) * (goal - x)
+                else:
+                    v = v + dt * (gain * (goal - x) - 2.0 * math.sqrt(gain) * v)
+                    x = x + dt * v
+            next_tick += dt
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_tick = time.monotonic()
+        duration = time.monotonic() - t0
+    etas = [t.eta for t in targets if t.eta is not None]
+    return SimResult(
+        reached_end=reached,
+        all_inside=bool(inside) and all(inside),
+        n_steps=len(positions),
+        positions=np.array(positions),
+        targets=targets,
+        inside=np.array(inside, dtype=bool),
+        min_eta=min(etas) if etas else math.nan,
+        max_eta=max(etas) if etas else math.nan,
+        duration=duration,
+        start=x0,
+        model_version=version,
+        statuses=statuses,
+        missed=missed,
+        pushes_done=pushes_done,
+    )
+
+
+__all__ = ["Push", "SimResult", "random_interior_start", "run_sim"]

@@ -1,0 +1,485 @@
+"""The live wire protocol between a robot and Canal's Zenoh bridge (stdlib + orjson only).
+
+Robots import this module without the service: it names the key expressions and encodes and
+decodes the two messages, a *pose* (robot -> Canal) and a *target* (Canal -> robot).
+
+Key expressions (``prefix`` defaults to ``canal``; ``skill`` and ``robot`` are single chunks,
+no ``/``, ``*``, ``$``, ``?`` or ``#``)::
+
+    {prefix}/{skill}/{robot}/pose          robot -> Canal   put, one pose per sample
+    {prefix}/{skill}/{robot}/target        Canal -> robot   put, one answer per pose
+    {prefix}/{skill}/model                 queryable: latest model, JSON (= REST body of
+                                           GET /skills/{skill}/models/latest?serialized=true)
+    {prefix}/{skill}/{robot}/demo/start    queryable: begin capturing this stream's poses
+    {prefix}/{skill}/{robot}/demo/stop     queryable: store them as a new demonstration;
+                                           the reply is {"id", "n_points", "checksum"}
+
+Encoding is chosen by the Zenoh encoding of the sample: ``application/json`` (or
+``text/json``) is JSON, anything else is the binary layout below (a default-encoded payload
+whose first byte is ``{`` is read as JSON too). Canal answers in the encoding the pose came
+in.
+
+Binary layout, version 1, little-endian, no padding. Every message starts with a 12-byte
+header ``<BBBBQ``:
+
+====== ======= ===========================================================================
+offset type    field
+====== ======= ===========================================================================
+0      uint8   version (1)
+1      uint8   kind: 1 pose, 2 target
+2      uint8   flags (per kind, below)
+3      uint8   dim D: number of position coordinates (2 or 3; 0 in a target without one)
+4      uint64  seq: the pose's sequence number / the seq of the pose a target answers
+====== ======= ===========================================================================
+
+Pose (kind 1) after the header: ``D x float64`` position, then ``4 x float64`` orientation
+quaternion (x, y, z, w) if flag 0x01, then ``float64`` timestamp in seconds if flag 0x02.
+Flag 0x04 (restart) tells Canal to re-locate the robot in the canal instead of continuing
+from the section reached so far (send it on the first pose of a new run). A 3-D pose
+without extras is 36 bytes.
+
+Target (kind 2) after the header: ``<iiddH`` = int32 model version (-1 none), int32 section
+index (-1 none), float64 progress in [0, 1], float64 eta (NaN when none), uint16 status
+code; then ``D x float64`` target position; then, if flag 0x08, ``uint16`` length and that
+many bytes of UTF-8 message. Target flags: 0x01 inside, 0x02 done, 0x04 seq is known (not
+set when the pose could not be read), 0x08 has message. A 3-D target is 62 bytes.
+
+JSON pose::
+
+    {"seq": 17, "position": [x, y, z], "orientation": [qx, qy, qz, qw]?, "t": 1.25?,
+     "restart": false?}
+
+JSON target::
+
+    {"v": 1, "seq": 17, "status": "ok", "target": [x, y, z], "progress": 0.41, "eta": 0.3,
+     "section": 82, "inside": true, "done": false, "model_version": 3, "message": null}
+
+``seq`` is null when the pose could not be read; ``target``, ``eta``, ``section`` and
+``model_version`` are null when there is none. JSON has no NaN: a JSON pose with NaN is
+not JSON (nor is a number that overflows to infinity) and is answered ``bad_payload``.
+
+Status keys (code, key, whether the target is usable):
+
+==== ================= ====== ================================================================
+code key               target meaning
+==== ================= ====== ================================================================
+0    ok                yes    inside the canal (or done)
+1    outside_canal     yes    the pose is outside the canal; the target is on the boundary of
+                              the section ahead, the way back in
+16   bad_payload       no     not a pose: garbage, truncated, wrong version/kind, missing fields
+17   wrong_dimension   no     D differs from the skill's dimension
+18   non_finite        no     NaN or infinity in the position, orientation or time
+19   unknown_skill     no     no skill of that name
+20   no_model          no     the skill has no fitted model yet
+21   internal_error    no     a bug; logged by the service
+==== ================= ====== ================================================================
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import orjson
+
+VERSION = 1
+KIND_POSE = 1
+KIND_TARGET = 2
+MAX_DIM = 16
+
+POSE_ORIENTATION = 0x01
+POSE_TIME = 0x02
+POSE_RESTART = 0x04
+
+TARGET_INSIDE = 0x01
+TARGET_DONE = 0x02
+TARGET_SEQ = 0x04
+TARGET_MESSAGE = 0x08
+
+SEQ_MAX = 2**64 - 1
+
+HEADER = struct.Struct("<BBBBQ")
+TARGET_BODY = struct.Struct("<iiddH")
+_U16 = struct.Struct("<H")
+
+STATUS_CODES: dict[str, int] = {
+    "ok": 0,
+    "outside_canal": 1,
+    "bad_payload": 16,
+    "wrong_dimension": 17,
+    "non_finite": 18,
+    "unknown_skill": 19,
+    "no_model": 20,
+    "internal_error": 21,
+}
+STATUS_KEYS: dict[int, str] = {code: key for key, code in STATUS_CODES.items()}
+USABLE = frozenset({"ok", "outside_canal"})
+
+JSON_ENCODING = "application/json"
+BINARY_ENCODING = "application/octet-stream"
+
+
+class WireError(ValueError):
+    """A message that cannot be read; ``key`` is the status key to answer with."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
+# ---- key expressions ----------------------------------------------------------------------------
+
+_BAD_CHUNK = frozenset("/*$?#")
+
+
+def check_chunk(name: str, what: str) -> str:
+    """``name`` if it is a valid single key-expression chunk, else ValueError."""
+    if not name or any(c in _BAD_CHUNK for c in name):
+        raise ValueError(f"expected {what} without '/', '*', '$', '?' or '#', got {name!r}")
+    return name
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one (skill, robot) stream."""
+
+    prefix: str
+    skill: str
+    robot: str
+
+    @property
+    def pose(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}/pose"
+
+    @property
+    def target(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}/target"
+
+    @property
+    def model(self) -> str:
+        return f"{self.prefix}/{self.skill}/model"
+
+    @property
+    def demo_start(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}/demo/start"
+
+    @property
+    def demo_stop(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}/demo/stop"
+
+
+def keys(skill: str, robot: str = "robot", prefix: str = "canal") -> Keys:
+    """The key expressions for ``skill`` and ``robot`` under ``prefix``."""
+    return Keys(prefix.rstrip("/"), check_chunk(skill, "skill"), check_chunk(robot, "robot"))
+
+
+def model_key(skill: str, prefix: str = "canal") -> str:
+    """``{prefix}/{skill}/model``."""
+    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/model"
+
+
+def pose_wildcard(prefix: str = "canal") -> str:
+    """What the bridge subscribes to: every stream's poses."""
+    return f"{prefix.rstrip('/')}/*/*/pose"
+
+
+# ---- messages -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A robot pose: ``position`` (D floats), optional quaternion (x, y, z, w) and time (s)."""
+
+    seq: int
+    position: tuple[float, ...]
+    orientation: tuple[float, float, float, float] | None = None
+    t: float | None = None
+    restart: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """Canal's answer to one pose. ``target`` is None when ``status`` is an error."""
+
+    seq: int | None
+    status: str
+    target: tuple[float, ...] | None = None
+    progress: float = 0.0
+    eta: float | None = None
+    section: int | None = None
+    inside: bool = False
+    done: bool = False
+    model_version: int | None = None
+    message: str | None = None
+
+    @property
+    def usable(self) -> bool:
+        """Whether ``target`` can be moved to (status ok or outside_canal)."""
+        return self.status in USABLE
+
+
+_pose_structs: dict[tuple[int, int], struct.Struct] = {}
+_target_structs: dict[int, struct.Struct] = {}
+
+
+def _pose_struct(dim: int, flags: int) -> struct.Struct:
+    key = (dim, flags & (POSE_ORIENTATION | POSE_TIME))
+    s = _pose_structs.get(key)
+    if s is None:
+        fmt = f"<BBBBQ{dim}d"
+        if flags & POSE_ORIENTATION:
+            fmt += "4d"
+        if flags & POSE_TIME:
+            fmt += "d"
+        s = _pose_structs[key] = struct.Struct(fmt)
+    return s
+
+
+def _target_struct(dim: int) -> struct.Struct:
+    s = _target_structs.get(dim)
+    if s is None:
+        s = _target_structs[dim] = struct.Struct(f"<BBBBQiiddH{dim}d")
+    return s
+
+
+for _d in (2, 3):
+    for _f in range(4):
+        _pose_struct(_d, _f)
+    _target_struct(_d)
+_target_struct(0)
+
+_isfinite = math.isfinite
+
+
+def _all_finite(values: Any) -> bool:
+    for v in values:
+        if not _isfinite(v):
+            return False
+    return True
+
+
+# ---- binary -------------------------------------------------------------------------------------
+
+
+def encode_pose(seq: int, position: Any, orientation: Any = None, t: float | None = None,
+                restart: bool = False) -> bytes:
+    """A pose in the binary layout."""
+    flags = (POSE_ORIENTATION if orientation is not None else 0) | (
+        POSE_TIME if t is not None else 0) | (POSE_RESTART if restart else 0)
+    position = [float(v) for v in position]
+    values = position
+    if orientation is not None:
+        values = values + [float(v) for v in orientation]
+    if t is not None:
+        values = [*values, float(t)]
+    return _pose_struct(len(position), flags).pack(VERSION, KIND_POSE, flags, len(position),
+                                                  seq, *values)
+
+
+def _check_header(data: bytes, kind: int) -> tuple[int, int, int]:
+    if len(data) < HEADER.size:
+        raise WireError("bad_payload", f"expected at least {HEADER.size} bytes, got {len(data)}")
+    version, got_kind, flags, dim, seq = HEADER.unpack_from(data)
+    if version != VERSION:
+        raise WireError("bad_payload", f"expected protocol version {VERSION}, got {version}")
+    if got_kind != kind:
+        raise WireError("bad_payload", f"expected message kind {kind}, got {got_kind}")
+    return flags, dim, seq
+
+
+def decode_pose(data: bytes) -> Pose:
+    """A binary pose; WireError (bad_payload, non_finite) when it cannot be used."""
+    flags, dim, seq = _check_header(data, KIND_POSE)
+    if not 1 <= dim <= MAX_DIM:
+        raise WireError("bad_payload", f"expected a dimension in 1..{MAX_DIM}, got {dim}")
+    s = _pose_struct(dim, flags)
+    if len(data) != s.size:
+        raise WireError("bad_payload", f"expected {s.size} bytes for this pose, got {len(data)}")
+    values = s.unpack(data)
+    position = values[5 : 5 + dim]
+    orientation = values[5 + dim : 9 + dim] if flags & POSE_ORIENTATION else None
+    t = values[-1] if flags & POSE_TIME else None
+    if not _all_finite(values[5:]):
+        raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
+    return Pose(seq, position, orientation, t, bool(flags & POSE_RESTART))  # type: ignore[arg-type]
+
+
+def encode_target(answer: Target) -> bytes:
+    """A target in the binary layout."""
+    position = answer.target or ()
+    dim = len(position)
+    flags = (TARGET_INSIDE if answer.inside else 0) | (TARGET_DONE if answer.done else 0)
+    if answer.seq is not None:
+        flags |= TARGET_SEQ
+    message = answer.message.encode("utf-8")[:65535] if answer.message else b""
+    if message:
+        flags |= TARGET_MESSAGE
+    data = _target_struct(dim).pack(
+        VERSION, KIND_TARGET, flags, dim, 0 if answer.seq is None else answer.seq,
+        -1 if answer.model_version is None else answer.model_version,
+        -1 if answer.section is None else answer.section, answer.progress,
+        math.nan if answer.eta is None else answer.eta, STATUS_CODES[answer.status], *position)
+    if message:
+        data += _U16.pack(len(message)) + message
+    return data
+
+
+def pack_target(seq: int, status: int, target: Any, progress: float, eta: float, section: int,
+                inside: bool, done: bool, model_version: int) -> bytes:
+    """Fast path for the bridge: a usable target, no message, ``target`` a (D,) sequence."""
+    flags = TARGET_SEQ | (TARGET_INSIDE if inside else 0) | (TARGET_DONE if done else 0)
+    dim = len(target)
+    return _target_struct(dim).pack(VERSION, KIND_TARGET, flags, dim, seq, model_version,
+                                    section, progress, eta, status, *target)
+
+
+def decode_target(data: bytes) -> Target:
+    """A binary target; WireError when it cannot be read."""
+    flags, dim, seq = _check_header(data, KIND_TARGET)
+    s = _target_struct(dim)
+    if len(data) < s.size:
+        raise WireError("bad_payload", f"expected {s.size} bytes for this target, got {len(data)}")
+    values = s.unpack_from(data)
+    version, section, progress, eta, code = values[5:10]
+    message = None
+    if flags & TARGET_MESSAGE:
+        (n,) = _U16.unpack_from(data, s.size)
+        message = bytes(data[s.size + 2 : s.size + 2 + n]).decode("utf-8", "replace")
+    return Target(
+        seq=seq if flags & TARGET_SEQ else None,
+        status=STATUS_KEYS.get(code, f"code_{code}"),
+        target=tuple(values[10:]) if dim else None,
+        progress=progress,
+        eta=None if math.isnan(eta) else eta,
+        section=None if section < 0 else section,
+        inside=bool(flags & TARGET_INSIDE),
+        done=bool(flags & TARGET_DONE),
+        model_version=None if version < 0 else version,
+        message=message,
+    )
+
+
+# ---- JSON ---------------------------------------------------------------------------------------
+
+
+def encode_pose_json(seq: int, position: Any, orientation: Any = None, t: float | None = None,
+                     restart: bool = False) -> bytes:
+    """A pose as JSON."""
+    body: dict[str, Any] = {"seq": seq, "position": [float(v) for v in position]}
+    if orientation is not None:
+        body["orientation"] = [float(v) for v in orientation]
+    if t is not None:
+        body["t"] = float(t)
+    if restart:
+        body["restart"] = True
+    return orjson.dumps(body)
+
+
+def _numbers(value: Any, field: str, n: int | None = None) -> tuple[float, ...]:
+    if not isinstance(value, list) or (n is not None and len(value) != n):
+        raise WireError("bad_payload", f"expected {field} as a list of {n or 'D'} numbers")
+    for v in value:
+        if type(v) is not float and type(v) is not int:
+            raise WireError("bad_payload", f"expected numbers in {field}, got {v!r}")
+    return tuple(float(v) for v in value)
+
+
+def decode_pose_json(data: bytes) -> Pose:
+    """A JSON pose; WireError (bad_payload, non_finite) when it cannot be used."""
+    try:
+        body = orjson.loads(data)
+    except orjson.JSONDecodeError as exc:
+        raise WireError("bad_payload", f"expected JSON: {exc}") from None
+    if not isinstance(body, dict):
+        raise WireError("bad_payload", "expected a JSON object")
+    seq = body.get("seq")
+    if type(seq) is not int or not 0 <= seq <= SEQ_MAX:
+        raise WireError("bad_payload", "expected 'seq', an integer in [0, 2**64)")
+    if "position" not in body:
+        raise WireError("bad_payload", "expected 'position'")
+    position = _numbers(body["position"], "position")
+    if not 1 <= len(position) <= MAX_DIM:
+        raise WireError("bad_payload", f"expected 1..{MAX_DIM} coordinates in 'position'")
+    orientation = body.get("orientation")
+    if orientation is not None:
+        orientation = _numbers(orientation, "orientation", 4)
+    t = body.get("t")
+    if t is not None and type(t) is not float and type(t) is not int:
+        raise WireError("bad_payload", "expected 't' as a number of seconds")
+    if not _all_finite(position) or (orientation is not None and not _all_finite(orientation)) or (
+            t is not None and not _isfinite(t)):
+        raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
+    return Pose(seq, position, orientation, None if t is None else float(t),
+                bool(body.get("restart", False)))
+
+
+def target_json(answer: Target) -> bytes:
+    """A target as JSON."""
+    return orjson.dumps({
+        "v": VERSION, "seq": answer.seq, "status": answer.status,
+        "target": None if answer.target is None else list(answer.target),
+        "progress": answer.progress, "eta": answer.eta, "section": answer.section,
+        "inside": answer.inside, "done": answer.done, "model_version": answer.model_version,
+        "message": answer.message,
+    })
+
+
+def pack_target_json(seq: int, status: str, target: Any, progress: float, eta: float,
+                     section: int, inside: bool, done: bool, model_version: int) -> bytes:
+    """Fast path for the bridge (see :func:`pack_target`)."""
+    return orjson.dumps({
+        "v": VERSION, "seq": seq, "status": status, "target": target, "progress": progress,
+        "eta": eta, "section": section, "inside": inside, "done": done,
+        "model_version": model_version, "message": None,
+    }, option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+def decode_target_json(data: bytes) -> Target:
+    """A JSON target; WireError when it cannot be read."""
+    try:
+        body = orjson.loads(data)
+    except orjson.JSONDecodeError as exc:
+        raise WireError("bad_payload", f"expected JSON: {exc}") from None
+    if not isinstance(body, dict) or "status" not in body:
+        raise WireError("bad_payload", "expected a JSON target object")
+    target = body.get("target")
+    return Target(
+        seq=body.get("seq"), status=str(body["status"]),
+        target=None if target is None else tuple(float(v) for v in target),
+        progress=float(body.get("progress") or 0.0), eta=body.get("eta"),
+        section=body.get("section"), inside=bool(body.get("inside")),
+        done=bool(body.get("done")), model_version=body.get("model_version"),
+        message=body.get("message"),
+    )
+
+
+# ---- either -------------------------------------------------------------------------------------
+
+
+def is_json(encoding: str, data: bytes) -> bool:
+    """Whether a payload with this Zenoh encoding (its string form) is JSON."""
+    if encoding.startswith(("application/json", "text/json")):
+        return True
+    return encoding.startswith("zenoh/bytes") and data[:1] == b"{"
+
+
+def decode_any_target(encoding: str, data: bytes) -> Target:
+    """A target in either encoding, chosen by the sample's encoding string."""
+    return decode_target_json(data) if is_json(encoding, data) else decode_target(data)
+
+
+def decode_any_pose(encoding: str, data: bytes) -> Pose:
+    """A pose in either encoding, chosen by the sample's encoding string."""
+    return decode_pose_json(data) if is_json(encoding, data) else decode_pose(data)
+
+
+__all__ = [
+    "BINARY_ENCODING", "JSON_ENCODING", "STATUS_CODES", "STATUS_KEYS", "VERSION", "Keys",
+    "Pose", "Target", "WireError", "decode_any_pose", "decode_any_target", "decode_pose",
+    "decode_pose_json", "decode_target", "decode_target_json", "encode_pose",
+    "encode_pose_json", "encode_target", "is_json", "keys", "model_key", "pack_target",
+    "pack_target_json", "pose_wildcard", "target_json",
+]

@@ -1,0 +1,73 @@
+"""Helpers for the live bridge tests (a module of its own: several test folders have a
+conftest.py, so ``from conftest import`` would be ambiguous)."""
+
+from __future__ import annotations
+
+import socket
+import warnings
+
+import numpy as np
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient
+
+from canal_service.core.config import Settings
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now (never 7447)."""
+    while True:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        if port != 7447:
+            return port
+
+
+def arc(j: int, n: int = 60, dim: int = 3, seed: int = 0) -> np.ndarray:
+    """A smooth arc, shifted per demonstration so the canal has a real radius."""
+    rng = np.random.default_rng(seed + j)
+    t = np.linspace(0.0, 1.0, n)
+    offset = 0.03 * (j - 1.5)
+    x = t
+    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
+    if dim == 2:
+        return np.column_stack([x, y])
+    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
+    return np.column_stack([x, y, z])
+
+
+def make_skill(client: TestClient, name: str, dim: int = 3, fit: bool = True,
+               n_samples: int = 100, scale: float = 1.0) -> None:
+    """A skill with four arc demonstrations, fitted unless told not to."""
+    r = client.post("/skills", json={"name": name, "dim": dim})
+    assert r.status_code == 201, r.text
+    for j in range(4):
+        r = client.post(f"/skills/{name}/demonstrations",
+                        json={"positions": (scale * arc(j, dim=dim)).tolist()})
+        assert r.status_code == 201, r.text
+    if fit:
+        r = client.post(f"/skills/{name}/fit", json={"n_samples": n_samples})
+        assert r.status_code == 201, r.text
+
+
+def metric(client: TestClient, name: str, labels: str = "") -> float:
+    """One sample of /metrics (0 when absent)."""
+    wanted = f"{name}{{{labels}}}" if labels else name
+    for line in client.get("/metrics").text.splitlines():
+        if line.startswith(wanted + " "):
+            return float(line.split()[-1])
+    return 0.0
+
+
+class Live:
+    """The running app: REST client, Zenoh endpoint, settings."""
+
+    def __init__(self, client: TestClient, endpoint: str, settings: Settings) -> None:
+        self.client = client
+        self.endpoint = endpoint
+        self.settings = settings
+
+    def metric(self, name: str, labels: str = "") -> float:
+        return metric(self.client, name, labels)

@@ -1,0 +1,126 @@
+"""Bad input on the live path: every case answered with its documented status, counted in
+/metrics, and a good stream keeps being served."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from canal_client import wire
+from canal_client.live import PoseStreamer
+
+pytestmark = pytest.mark.timeout(60)
+
+GOOD = wire.encode_pose(1, [0.1, 0.05, 0.01])
+
+CASES = [
+    ("garbage", b"\xde\xad\xbe\xef garbage bytes", False, "bad_payload"),
+    ("empty", b"", False, "bad_payload"),
+    ("truncated", GOOD[:-5], False, "bad_payload"),
+    ("too long", GOOD + b"\x00", False, "bad_payload"),
+    ("wrong version", bytes([9]) + GOOD[1:], False, "bad_payload"),
+    ("wrong kind", GOOD[:1] + bytes([2]) + GOOD[2:], False, "bad_payload"),
+    ("nan", wire.encode_pose(1, [0.1, float("nan"), 0.0]), False, "non_finite"),
+    ("inf time", wire.encode_pose(1, [0.1, 0.0, 0.0], t=float("inf")), False, "non_finite"),
+    ("2-D on a 3-D skill", wire.encode_pose(1, [0.1, 0.0]), False, "wrong_dimension"),
+    ("json not json", b"{not json", True, "bad_payload"),
+    ("json nan", b'{"seq": 1, "position": [NaN, 0, 0]}', True, "bad_payload"),
+    ("json missing position", b'{"seq": 1}', True, "bad_payload"),
+    ("json missing seq", b'{"position": [0.1, 0, 0]}', True, "bad_payload"),
+    ("json strings", b'{"seq": 1, "position": ["a", 0, 0]}', True, "bad_payload"),
+    ("json array", b"[1, 2, 3]", True, "bad_payload"),
+    ("json huge", b'{"seq": 1, "position": [1e999, 0, 0]}', True, "bad_payload"),
+    ("json 4-D", b'{"seq": 1, "position": [0.1, 0, 0, 0]}', True, "wrong_dimension"),
+]
+
+
+def test_malformed_payloads_are_answered_and_counted(live):
+    with PoseStreamer("arc3", "good", endpoint=live.endpoint) as good, \
+            PoseStreamer("arc3", "bad", endpoint=live.endpoint, session=good.session) as bad:
+        x = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"][0])
+        for name, payload, as_json, status in CASES:
+            before = live.metric("canal_live_errors_total", f'status="{status}"')
+            bad.send_raw(payload, json=as_json)
+            # the good stream is served while the bad one misbehaves
+            seq = good.send(x)
+            answer = good.wait_for(seq, 1.0)
+            assert answer is not None and answer.status == "ok", name
+            x = x + 0.5 * (np.array(answer.target) - x)
+            got = _wait_status(bad)
+            assert got.status == status, (name, got)
+            assert got.target is None and not got.usable and got.message, name
+            if as_json:
+                assert got.seq in (None, 1), name
+            assert live.metric("canal_live_errors_total", f'status="{status}"') == before + 1, name
+            bad._latest = None
+    assert live.client.get("/healthz").json()["bridge"]["status"] == "ok"
+
+
+def _wait_status(ps, timeout=1.0):
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        latest = ps.latest()
+        if latest is not None:
+            return latest
+        time.sleep(0.002)
+    raise AssertionError("no answer")
+
+
+def test_answers_use_the_pose_encoding(live):
+    with PoseStreamer("arc3", "enc-j", endpoint=live.endpoint, encoding="json") as ps:
+        ps.send_raw(b"\x01\x01", json=False)  # binary garbage -> binary answer
+        assert _wait_status(ps).status == "bad_payload"
+    # and the JSON status answer has the documented JSON fields
+    import zenoh
+
+    with PoseStreamer("arc3", "enc-raw", endpoint=live.endpoint) as ps:
+        got = []
+        sub = ps.session.declare_subscriber(ps.keys.target, lambda s: got.append(
+            (str(s.encoding), s.payload.to_bytes())))
+        ps.send_raw(b'{"seq": 5}', json=True)
+        _wait_status(ps)
+        sub.undeclare()
+    encoding, body = got[0]
+    assert encoding.startswith("application/json")
+    import orjson
+
+    doc = orjson.loads(body)
+    assert doc["status"] == "bad_payload" and doc["target"] is None and doc["v"] == 1
+    assert set(doc) == {"v", "seq", "status", "target", "progress", "eta", "section", "inside",
+                        "done", "model_version", "message"}
+    assert zenoh  # the raw subscriber above is a plain Zenoh session
+
+
+@pytest.mark.parametrize(("skill", "status"), [("no-such-skill", "unknown_skill"),
+                                               ("empty", "no_model")])
+def test_unknown_skill_and_skill_without_model(live, skill, status):
+    before = live.metric("canal_live_errors_total", f'status="{status}"')
+    for encoding in ("binary", "json"):
+        with PoseStreamer(skill, f"r-{encoding}", endpoint=live.endpoint,
+                          encoding=encoding) as ps:
+            seq = ps.send([0.1, 0.0, 0.0])
+            answer = ps.wait_for(seq, 1.0)
+            assert answer is not None and answer.status == status and answer.seq == seq
+            assert answer.target is None and answer.message
+    assert live.metric("canal_live_errors_total", f'status="{status}"') == before + 2
+
+
+def test_far_outside_pose_gets_a_way_back(live):
+    before = live.metric("canal_live_errors_total", 'status="outside_canal"')
+    with PoseStreamer("arc3", "lost", endpoint=live.endpoint) as ps:
+        answer = ps.wait_for(ps.send([0.5, 40.0, -30.0], restart=True), 1.0)
+    assert answer is not None and answer.status == "outside_canal"
+    assert answer.usable and not answer.inside and answer.eta > 1.0
+    assert np.linalg.norm(np.array(answer.target) - [0.5, 0.3, 0.05]) < 0.5  # on the canal
+    assert live.metric("canal_live_errors_total", 'status="outside_canal"') == before + 1
+
+
+def test_binary_target_layout_is_documented_size():
+    answer = wire.Target(3, "ok", (1.0, 2.0, 3.0), 0.5, 0.1, 4, True, False, 2)
+    data = wire.encode_target(answer)
+    assert len(data) == 62 and struct.unpack_from("<BBBBQ", data) == (1, 2, 0x05, 3, 3)
+    assert wire.decode_target(data) == answer
+    assert len(wire.encode_pose(0, [1.0, 2.0, 3.0])) == 36

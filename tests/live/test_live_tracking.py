@@ -1,0 +1,195 @@
+"""Live reactive reproduction end to end: sim robots over real Zenoh against the real app."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from canal_client.live import PoseStreamer
+from canal_client.sim import run_sim
+from canal_service.metrics import Metrics
+from canal_service.schemas import FitRequest
+from canal_service.service import CanalService
+from canal_service.storage import Database
+from live_helpers import make_skill
+
+import canal_core
+
+pytestmark = pytest.mark.timeout(60)
+
+
+def canal_of(live, skill: str) -> canal_core.Canal:
+    body = live.client.get(f"/skills/{skill}/models/latest", params={"serialized": True}).json()
+    return canal_core.Canal.from_dict(body["serialized"])
+
+
+@pytest.mark.parametrize("encoding", ["binary", "json"])
+def test_sim_from_random_starts_reaches_the_end_inside(live, encoding):
+    canal = canal_of(live, "arc3")
+    seeds = range(5) if encoding == "binary" else range(2)
+    for seed in seeds:
+        r = run_sim("arc3", robot=f"sim-{encoding}", rate_hz=1000.0, seed=seed, timeout_s=10.0,
+                    endpoint=live.endpoint, encoding=encoding)
+        assert r.reached_end, (seed, r.n_steps, r.statuses)
+        assert r.all_inside, (seed, r.statuses)
+        assert r.statuses == {"ok": len(r.targets)}
+        assert bool(canal.contains(r.start[None])[0])
+        assert canal.contains(r.positions).all(), seed
+        assert r.missed == 0
+        assert r.targets[-1].done and r.targets[-1].progress == 1.0
+        progress = np.array([t.progress for t in r.targets])
+        assert (np.diff(progress) >= 0).all()  # never goes back
+
+
+def test_push_midway_is_recovered(live):
+    canal = canal_of(live, "arc3")
+    start = canal.directrix[0]
+    offset = 3.0 * float(canal.radii.max()) * canal.normals[canal.n_sections // 2]
+    r = run_sim("arc3", robot="pushed", start=start, rate_hz=1000.0, timeout_s=10.0,
+                pushes=[("40%", offset)], endpoint=live.endpoint)
+    assert r.pushes_done == 1
+    assert r.reached_end, r.statuses
+    assert r.statuses.get("outside_canal", 0) >= 1  # pushed out, told so
+    outside = np.flatnonzero(~r.inside)
+    assert outside.size and outside[-1] < len(r.inside) - 10  # back inside well before the end
+    assert r.inside[-10:].all()
+    # the target the robot got right after the push leads back in (towards the canal)
+    first_out = r.targets[outside[0]]
+    assert first_out.usable and first_out.target is not None and first_out.eta > 1.0
+
+
+def test_pd_lag_reaches_the_end(live):
+    r = run_sim("arc2", robot="pd", rate_hz=1000.0, lag="pd", seed=3, timeout_s=10.0,
+                endpoint=live.endpoint)
+    assert r.reached_end and r.all_inside, r.statuses
+
+
+def test_two_robots_on_two_skills_do_not_interfere(live):
+    results = {}
+
+    def go(skill, robot, seed):
+        results[skill] = run_sim(skill, robot=robot, rate_hz=1000.0, seed=seed, timeout_s=10.0,
+                                 endpoint=live.endpoint)
+
+    threads = [threading.Thread(target=go, args=("arc3", "left", 1)),
+               threading.Thread(target=go, args=("arc2", "right", 2))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(20)
+    a, b = results["arc3"], results["arc2"]
+    assert a.reached_end and a.all_inside and a.positions.shape[1] == 3
+    assert b.reached_end and b.all_inside and b.positions.shape[1] == 2
+    assert all(len(t.target) == 3 for t in a.targets)
+    assert all(len(t.target) == 2 for t in b.targets)
+    assert canal_of(live, "arc3").contains(a.positions).all()
+    assert canal_of(live, "arc2").contains(b.positions).all()
+
+
+def test_model_queryable_is_the_rest_body(live):
+    with PoseStreamer("arc3", "q", endpoint=live.endpoint) as ps:
+        body = ps.model()
+    rest = live.client.get("/skills/arc3/models/latest", params={"serialized": True}).json()
+    assert body == rest
+
+
+def test_live_demo_capture_stores_what_was_streamed(live):
+    rng = np.random.default_rng(7)
+    positions = np.cumsum(rng.uniform(0.001, 0.01, size=(40, 3)), axis=0) + rng.random(3)
+    quats = rng.normal(size=(40, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    times = 0.01 * np.arange(40) + 0.123456789
+    before = live.metric("canal_demonstrations_stored_total", 'source="zenoh"')
+    with PoseStreamer("arc3", "teacher", endpoint=live.endpoint) as ps:
+        ps.send(positions[0] + 5.0)  # before start: not part of the demo
+        ps.start_demo(label="by hand")
+        for p, q, t in zip(positions, quats, times, strict=True):
+            ps.send(p, q, t)
+        created = ps.stop_demo()
+        ps.send(positions[-1] + 5.0)  # after stop: not part of it either
+    assert created["n_points"] == 40
+    demo = live.client.get(f"/skills/arc3/demonstrations/{created['id']}").json()
+    assert demo["source"] == "zenoh" and demo["label"] == "by hand"
+    assert np.array_equal(np.array(demo["positions"]), positions)  # bit-exact
+    assert np.array_equal(np.array(demo["timestamps"]), times)
+    assert np.array_equal(np.array(demo["orientations"]), quats)
+    assert live.metric("canal_demonstrations_stored_total", 'source="zenoh"') == before + 1
+    live.client.delete(f"/skills/arc3/demonstrations/{created['id']}")
+
+
+def test_live_demo_capture_json_and_bad_demo(live):
+    pts = np.column_stack([np.linspace(0, 1, 10), np.linspace(0, 0.5, 10)])
+    with PoseStreamer("empty2", "t", endpoint=live.endpoint, encoding="json") as ps:
+        live.client.post("/skills", json={"name": "empty2", "dim": 2})
+        ps.start_demo()
+        for p in pts:
+            ps.send(p)
+        created = ps.stop_demo()
+        demo = live.client.get(f"/skills/empty2/demonstrations/{created['id']}").json()
+        assert np.array_equal(np.array(demo["positions"]), pts)
+        # too short: the service's own validation answers, nothing stored
+        ps.start_demo()
+        ps.send(pts[0])
+        from canal_client.live import LiveError
+
+        with pytest.raises(LiveError) as err:
+            ps.stop_demo()
+        assert err.value.body["error"]["type"] == "invalid_input"
+        with pytest.raises(LiveError):
+            ps.stop_demo()  # nothing being captured
+    assert live.client.get("/skills/empty2").json()["n_demonstrations"] == 1
+
+
+def _stream_until(ps, x, canal, steps, gain=0.5):
+    answers = []
+    for _ in range(steps):
+        a = ps.wait_for(ps.send(x), 1.0)
+        assert a is not None
+        answers.append(a)
+        if a.done:
+            break
+        x = x + gain * (np.array(a.target) - x)
+    return x, answers
+
+
+def test_model_switch_on_refit_mid_stream(live, tmp_path):
+    make_skill_name = "switch"
+    make_skill(live.client, make_skill_name, 3)
+    canal = canal_of(live, make_skill_name)
+    switches = live.metric("canal_live_model_switches_total")
+    with PoseStreamer(make_skill_name, "r", endpoint=live.endpoint) as ps:
+        x, first = _stream_until(ps, canal.directrix[0].copy(), canal, 60)
+        assert {a.model_version for a in first} == {1}
+        mid = first[-1].progress
+        # a refit through REST: the fit hook switches the stream at once
+        assert live.client.post(f"/skills/{make_skill_name}/fit",
+                                json={"n_samples": 150}).status_code == 201
+        x, second = _stream_until(ps, x, canal, 3)
+        assert second[0].model_version == 2
+        assert second[0].progress >= mid - 0.05  # re-located, not reset to the start
+        # a refit by another replica (its own service on the same database): periodic check
+        other = CanalService(Database(live.settings.resolved_database_url), Metrics())
+        other.fit(make_skill_name, FitRequest(n_samples=120))
+        deadline = time.monotonic() + 5.0
+        version = 2
+        while version != 3 and time.monotonic() < deadline:
+            x, more = _stream_until(ps, x, canal, 1)
+            version = more[-1].model_version
+            time.sleep(0.02)
+        assert version == 3
+        x, rest = _stream_until(ps, x, canal, 2000)
+        assert rest[-1].done and all(a.status == "ok" for a in rest)
+        other.db.dispose()
+    assert live.metric("canal_live_model_switches_total") >= switches + 2
+
+
+def test_recorder_hears_live_steps(live):
+    run_sim("arc3", robot="recorded", rate_hz=1000.0, seed=11, timeout_s=10.0,
+            endpoint=live.endpoint)
+    recorder = live.client.app.state.service.recorder
+    assert recorder is not None
+    health = live.client.get("/healthz").json()
+    assert health["recorder"]["status"] == "ok"
+    assert health["bridge"]["status"] == "ok" and health["bridge"]["streams"] >= 1
