@@ -1,0 +1,369 @@
+"""``canal`` end to end: every command on real files against a real service on loopback."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from canal_client import CanalClient
+from canal_live import (
+    MCAP_MAGIC,
+    RRD_MAGIC,
+    LiveService,
+    closed_port_url,
+    demo_positions,
+    free_port,
+    write_demo_files,
+)
+from click.testing import Result
+from mcap.reader import make_reader
+
+Run = Callable[..., Result]  # the `run` fixture (conftest.py)
+
+
+def make_fitted(service: LiveService, name: str, n: int = 4) -> None:
+    with CanalClient(service.url) as c:
+        c.create_skill(name)
+        for j in range(n):
+            c.add_demo(name, demo_positions(j))
+        c.fit(name, n_samples=30)
+
+
+def test_skill_create_list_show_delete(run: Run, unique_name: Callable[[str], str]) -> None:
+    name = unique_name("pour")
+    r = run("skill", "create", name, "--dim", "2", "--description", "pour water")
+    assert r.exit_code == 0, r.output
+    assert f"created skill {name} (2-D)" in r.stdout
+
+    r = run("skill", "list")
+    assert r.exit_code == 0 and name in r.stdout and "pour water" in r.stdout
+    r = run("--json", "skill", "list")
+    listed = {s["name"]: s for s in json.loads(r.stdout)}
+    assert listed[name]["dim"] == 2 and listed[name]["n_demonstrations"] == 0
+
+    r = run("skill", "show", name)
+    assert r.exit_code == 0 and "not fitted yet" in r.stdout and "2-D" in r.stdout
+    shown = json.loads(run("--json", "skill", "show", name).stdout)
+    assert shown["skill"]["name"] == name and shown["models"] == []
+
+    # a duplicate is the service's 409, printed, exit 1
+    r = run("skill", "create", name)
+    assert r.exit_code == 1 and r.stderr.startswith("error: ") and name in r.stderr
+
+    # delete asks first; "n" aborts and keeps the skill
+    r = run("skill", "delete", name, input="n\n")
+    assert r.exit_code == 1 and "Aborted" in r.output
+    assert run("skill", "show", name).exit_code == 0
+    r = run("skill", "delete", name, "--yes")
+    assert r.exit_code == 0 and f"deleted skill {name}" in r.stdout
+    r = run("skill", "show", name)
+    assert r.exit_code == 1
+    assert r.stderr.strip() == f"error: no skill named '{name}' (field: name)"
+    assert r.stdout == "" and "Traceback" not in r.output
+
+
+def test_demo_add_files_and_a_folder_with_a_bad_file(
+        run: Run, unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    name = unique_name("demos")
+    assert run("skill", "create", name).exit_code == 0
+    files = write_demo_files(tmp_path / "demos")
+
+    # one file of each format, given by name
+    r = run("demo", "add", name, str(files["csv"]), str(files["npy"]), "--label", "given")
+    assert r.exit_code == 0, r.output
+    assert "a_demo.csv: id " in r.stdout and "b_demo.npy: id " in r.stdout
+    r = run("--json", "demo", "add", name, str(files["mcap"]), "--topic", "/ee_pose")
+    assert r.exit_code == 0, r.output
+    [added] = json.loads(r.stdout)
+    assert added["n_points"] == 40 and added["file"].endswith("d_demo.mcap")
+
+    # a folder: every supported file in name order, one broken; the others are still added
+    (tmp_path / "demos" / "c_broken.csv").write_text("x,y,z\n1,2\n")
+    (tmp_path / "demos" / "notes.txt").write_text("not a demonstration")
+    r = run("demo", "add", name, str(tmp_path / "demos"))
+    assert r.exit_code == 1
+    order = [line.split(":")[0] for line in r.stdout.splitlines() if ": id " in line]
+    assert order == ["a_demo.csv", "b_demo.npy", "c_demo.json", "d_demo.mcap"]
+    broken = tmp_path / "demos" / "c_broken.csv"
+    assert f"error: {broken}: " in r.stderr and "notes.txt" not in r.output
+    assert "added 4 of 5 demonstrations" in r.stdout
+
+    r = run("--json", "demo", "list", name)
+    demos = json.loads(r.stdout)
+    assert len(demos) == 7
+    assert [d["source"] for d in demos] == ["csv", "npy", "mcap", "csv", "npy", "json", "mcap"]
+    assert demos[0]["label"] == "given" and demos[0]["has_timestamps"]
+    r = run("demo", "list", name)
+    assert r.exit_code == 0 and "given" in r.stdout and "mcap" in r.stdout
+
+    # rm: every id is tried; an unknown one is reported and makes the exit code 1
+    ids = [str(d["id"]) for d in demos[:2]]
+    r = run("demo", "rm", name, ids[0], "999999", ids[1])
+    assert r.exit_code == 1
+    assert f"removed demonstration {ids[0]}" in r.stdout
+    assert f"removed demonstration {ids[1]}" in r.stdout
+    assert "error: demonstration 999999: " in r.stderr
+    assert len(json.loads(run("--json", "demo", "list", name).stdout)) == 5
+
+
+def test_demo_add_errors(run: Run, unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    files = write_demo_files(tmp_path)
+    r = run("demo", "add", "no-such-skill", str(files["csv"]))
+    assert r.exit_code == 1 and "no skill named 'no-such-skill'" in r.stderr
+    name = unique_name("bad")
+    run("skill", "create", name)
+    bad = tmp_path / "nan.csv"
+    bad.write_text("x,y,z\n0,0,0\n1,nan,0\n2,0,0\n3,0,0\n")
+    r = run("demo", "add", name, str(bad))
+    assert r.exit_code == 1 and r.stderr.startswith(f"error: {bad}: ")
+    assert "finite" in r.stderr or "nan" in r.stderr.lower()
+    odd = tmp_path / "demo.xyz"
+    odd.write_text("1,2,3\n")
+    r = run("demo", "add", name, str(odd), str(tmp_path / "missing.csv"))
+    assert r.exit_code == 1
+    assert f"error: {odd}: unsupported file type" in r.stderr
+    assert f"error: {tmp_path / 'missing.csv'}: no such file" in r.stderr
+    # a 2-D file into a 3-D skill: the service's message names the field
+    two_d = write_demo_files(tmp_path / "2d", dim=2)
+    r = run("demo", "add", name, str(two_d["npy"]))
+    assert r.exit_code == 1 and "(field: " in r.stderr
+
+
+def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
+                                    unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    name = unique_name("fit")
+    run("skill", "create", name)
+    r = run("fit", name)
+    assert r.exit_code == 1 and "error: " in r.stderr  # no demonstrations yet (409)
+    for j in range(4):
+        np.save(tmp_path / f"d{j}.npy", demo_positions(j))
+    assert run("demo", "add", name, str(tmp_path)).exit_code == 0
+
+    r = run("fit", name, "--cross-section", "mec", "--samples", "25")
+    assert r.exit_code == 0, r.output
+    assert f"fitted {name}: version 1" in r.stdout and "25 mec sections" in r.stdout
+    ids = [str(d["id"]) for d in json.loads(run("--json", "demo", "list", name).stdout)]
+    r = run("--json", "fit", name, "--cross-section", "spline", "--frames", "frenet",
+            "--alignment", "dtw", "--directrix", "mean", "--samples", "20",
+            "--demo", ids[0], "--demo", ids[1], "--demo", ids[2])
+    assert r.exit_code == 0, r.output
+    model = json.loads(r.stdout)
+    assert model["version"] == 2 and model["demo_ids"] == [int(i) for i in ids[:3]]
+    assert model["options"]["frames"] == "frenet" and model["options"]["alignment"] == "dtw"
+    r = run("fit", name, "--cross-section", "hexagon")
+    assert r.exit_code == 2 and "hexagon" in r.output
+
+    with CanalClient(service.url) as c:
+        expected = c.reproduce(name, [0.0, 0.01, 0.0], model=1).positions
+    for suffix in ("csv", "npy", "json"):
+        out = tmp_path / "out" / f"traj.{suffix}"
+        r = run("reproduce", name, "--start", "0,0.01,0", "--model", "1", "--out", str(out))
+        assert r.exit_code == 0, r.output
+        assert "start inside" in r.stdout and f"wrote {out}" in r.stdout
+        if suffix == "csv":
+            assert out.read_text().splitlines()[0] == "x,y,z"
+            got = np.loadtxt(out, delimiter=",", skiprows=1)
+        elif suffix == "npy":
+            got = np.load(out)
+        else:
+            doc = json.loads(out.read_text())
+            got = np.asarray(doc["positions"])
+            assert doc["inside"] is True and doc["model_version"] == 1
+        assert got.shape == expected.shape and np.allclose(got, expected)
+
+    r = run("--json", "reproduce", name, "--start", "-0.05,5,0")
+    doc = json.loads(r.stdout)
+    assert r.exit_code == 0 and doc["projected"] is True and doc["inside"] is False
+    r = run("reproduce", name, "--start", "0,5,0", "--outside", "raise")
+    assert r.exit_code == 1 and "(field: start)" in r.stderr
+    for bad in ("1,2", "a,b,c", "1,2,3,4"):
+        r = run("reproduce", name, "--start", bad)
+        assert r.exit_code == (1 if bad == "1,2" else 2), r.output  # 1,2: the service's 422
+    r = run("reproduce", name, "--start", "0,0,0", "--out", str(tmp_path / "t.txt"))
+    assert r.exit_code == 2 and ".csv, .npy or .json" in r.output
+
+
+def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[str], str],
+                         tmp_path: Path) -> None:
+    name = unique_name("rec")
+    make_fitted(service, name)
+    rrd, mcap = tmp_path / "x" / "rec.rrd", tmp_path / "rec.mcap"
+    r = run("export", name, "--rrd", str(rrd), "--mcap", str(mcap))
+    assert r.exit_code == 0, r.output
+    assert f"wrote {rrd}" in r.stdout and f"wrote {mcap}" in r.stdout
+    assert rrd.read_bytes().startswith(RRD_MAGIC)
+    assert mcap.read_bytes().startswith(MCAP_MAGIC)
+    with mcap.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    assert {c.topic for c in summary.channels.values()}
+
+    # neither flag: both, named after the skill, in the working folder
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        r = run("--json", "export", name)
+    finally:
+        os.chdir(cwd)
+    assert json.loads(r.stdout) == {"rrd": f"{name}.rrd", "mcap": f"{name}.mcap"}
+    assert (tmp_path / f"{name}.rrd").stat().st_size > 0
+
+    r = run("view", name, "--no-open")
+    assert r.exit_code == 0, r.output
+    cached = tmp_path / "cache" / f"{name}.rrd"
+    assert f"recording saved to {cached}" in r.stdout
+    assert "open it with: " in r.stdout and str(cached) in r.stdout.splitlines()[1]
+    assert cached.read_bytes().startswith(RRD_MAGIC)
+    # without a display nothing is spawned, even without --no-open
+    r = run("--json", "view", name, env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    doc = json.loads(r.stdout)
+    if sys.platform.startswith("linux"):
+        assert doc["opened"] is False and doc["command"].endswith(str(cached))
+
+    r = run("export", "no-such-skill", "--rrd", str(tmp_path / "n.rrd"))
+    assert r.exit_code == 1 and not (tmp_path / "n.rrd").exists()
+
+
+def test_unreachable_service_exit_code_3(run: Run) -> None:
+    url = closed_port_url()
+    for args in (("skill", "list"), ("demo", "list", "x"), ("fit", "x"),
+                 ("reproduce", "x", "--start", "0,0,0"), ("view", "x", "--no-open")):
+        r = run(*args, url=url)
+        assert r.exit_code == 3, (args, r.output)
+        assert f"cannot reach the Canal service at {url}" in r.stderr
+        assert "canal serve" in r.stderr and "Traceback" not in r.output
+
+
+def test_token_is_sent(tmp_path: Path) -> None:
+    from canal_client.cli import app
+    from typer.testing import CliRunner
+
+    with LiveService(tmp_path / "data", token="s3cret") as live:
+        env = {"CANAL_URL": live.url, "CANAL_TOKEN": ""}
+        r = CliRunner().invoke(app, ["skill", "list"], env=env)
+        assert r.exit_code == 1 and "(field: Authorization)" in r.stderr
+        r = CliRunner().invoke(app, ["--token", "s3cret", "skill", "create", "t"], env=env)
+        assert r.exit_code == 0, r.output
+        r = CliRunner().invoke(app, ["skill", "list"], env={**env, "CANAL_TOKEN": "s3cret"})
+        assert r.exit_code == 0 and "t" in r.stdout
+
+
+def test_real_process_entry_point(service: LiveService, unique_name: Callable[[str], str],
+                                  tmp_path: Path) -> None:
+    name = unique_name("proc")
+    np.save(tmp_path / "d.npy", demo_positions(0))
+    cmd = [sys.executable, "-m", "canal_client.cli", "--url", service.url]
+    env = {**os.environ, "CANAL_TOKEN": ""}
+    p = subprocess.run([*cmd, "skill", "create", name], capture_output=True, text=True,
+                       timeout=60, env=env)
+    assert p.returncode == 0 and f"created skill {name}" in p.stdout, p.stderr
+    p = subprocess.run([*cmd, "--json", "demo", "add", name, str(tmp_path / "d.npy")],
+                       capture_output=True, text=True, timeout=60, env=env)
+    assert p.returncode == 0 and json.loads(p.stdout)[0]["n_points"] == 40, p.stderr
+    p = subprocess.run([*cmd, "skill", "show", "missing-skill"], capture_output=True,
+                       text=True, timeout=60, env=env)
+    assert p.returncode == 1 and "error: no skill named 'missing-skill'" in p.stderr
+    assert "Traceback" not in p.stderr
+    p = subprocess.run([sys.executable, "-m", "canal_client.cli", "--url", closed_port_url(),
+                        "skill", "list"], capture_output=True, text=True, timeout=60, env=env)
+    assert p.returncode == 3 and "Traceback" not in p.stderr
+    assert "hint: start the service with 'canal serve'" in p.stderr
+    script = Path(sys.executable).with_name("canal")  # [project.scripts] canal, when installed
+    if script.exists():
+        p = subprocess.run([str(script), "--url", service.url, "--json", "skill", "show", name],
+                           capture_output=True, text=True, timeout=60, env=env)
+        assert p.returncode == 0 and json.loads(p.stdout)["skill"]["n_demonstrations"] == 1
+
+
+def test_serve_forwards_the_service_flags(tmp_path: Path) -> None:
+    port = free_port()
+    env = {**os.environ, "CANAL_TOKEN": ""}
+    cmd = [sys.executable, "-m", "canal_client.cli", "serve", "--port", str(port),
+           "--data-dir", str(tmp_path / "data"), "--no-recordings", "--no-zenoh",
+           "--log-level", "warning"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert proc.poll() is None, proc.communicate()[1][-2000:]
+            try:
+                health = httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=2).json()
+                break
+            except httpx.TransportError:
+                assert time.monotonic() < deadline, "canal serve did not start"
+                time.sleep(0.2)
+        assert health["status"] == "ok" and health["recorder"]["status"] == "disabled"
+        assert (tmp_path / "data" / "canal.sqlite3").exists()
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=30)
+    p = subprocess.run([sys.executable, "-m", "canal_client.cli", "serve", "--help"],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0 and "--data-dir" in p.stdout and "--max-body-bytes" in p.stdout
+
+
+def test_usage_errors_exit_2(run: Run) -> None:
+    r = run("skill", "create")
+    assert r.exit_code == 2
+    r = run("reproduce", "x")
+    assert r.exit_code == 2 and "--start" in r.output
+    r = run("nonsense")
+    assert r.exit_code == 2
+
+
+@pytest.mark.parametrize("args", [("demo", "add", "s", "--help"), ("sim", "--help")])
+def test_help(run: Run, args: tuple[str, ...]) -> None:
+    r = run(*args)
+    assert r.exit_code == 0 and "Usage" in r.stdout
+
+
+def test_sim_drives_a_robot_to_the_end(unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    pytest.importorskip("canal_client.sim", reason="canal_client.sim is not importable yet")
+    from canal_client.cli import app
+    from typer.testing import CliRunner
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with LiveService(tmp_path / "data", zenoh_enabled=True, zenoh_listen=[endpoint]) as live:
+        name = unique_name("sim")
+        make_fitted(live, name)
+        env = {"CANAL_URL": live.url, "CANAL_TOKEN": ""}
+        r = CliRunner().invoke(app, ["--json", "sim", name, "--endpoint", endpoint,
+                                     "--start", "0,0.01,0", "--rate", "50", "--timeout", "30",
+                                     "--push", "0.2:0,0.01,0"], env=env)
+        assert r.exit_code == 0, r.output
+        result = json.loads(r.stdout)
+        assert result["reached_end"] is True and result["all_inside"] is True
+        assert result["n_steps"] > 0 and result["min_eta"] <= result["max_eta"]
+        r = CliRunner().invoke(app, ["sim", name, "--endpoint", endpoint, "--push", "x"],
+                               env=env)
+        assert r.exit_code == 2 and "--push" in r.output
+
+
+def test_view_opens_the_viewer_when_there_is_a_display(
+        run: Run, service: LiveService, unique_name: Callable[[str], str],
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    import canal_client.cli as cli
+
+    name = unique_name("view")
+    make_fitted(service, name)
+    spawned: list[list[str]] = []
+    monkeypatch.setattr(cli, "_spawn_detached", spawned.append)
+    monkeypatch.setattr(cli, "rerun_command", lambda: ["/opt/rerun"])
+    r = run("view", name, env={"DISPLAY": ":0"})
+    assert r.exit_code == 0, r.output
+    cached = tmp_path / "cache" / f"{name}.rrd"
+    assert spawned == [["/opt/rerun", str(cached)]] and "opened" in r.stdout
+    r = run("view", name, "--no-open", env={"DISPLAY": ":0"})
+    assert len(spawned) == 1 and f"open it with: /opt/rerun {cached}" in r.stdout
+    monkeypatch.setattr(cli, "rerun_command", lambda: None)
+    r = run("view", name, env={"DISPLAY": ":0"})
+    assert len(spawned) == 1 and "pip install rerun-sdk" in r.stdout
+    assert f"open it with: rerun {cached}" in r.stdout

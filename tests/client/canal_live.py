@@ -1,0 +1,116 @@
+"""Shared by the client and CLI tests: a real uvicorn serving the Canal service on a free
+loopback port, and demonstration files in every accepted format."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import uvicorn
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from mcap.writer import CompressionType, Writer
+
+os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
+
+RRD_MAGIC = b"RRF2"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def closed_port_url() -> str:
+    """A loopback URL where nothing listens (the port was free a moment ago)."""
+    return f"http://127.0.0.1:{free_port()}"
+
+
+class LiveService:
+    """The Canal service under uvicorn on 127.0.0.1 in a background thread."""
+
+    def __init__(self, data_dir: Path, **settings: Any) -> None:
+        # Recordings and the Zenoh bridge only when a test asks (the bridge's default listen
+        # port is shared by every process on this machine).
+        settings.setdefault("recordings_enabled", False)
+        settings.setdefault("zenoh_enabled", False)
+        self.settings = Settings(data_dir=data_dir, **settings)
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        config = uvicorn.Config(create_app(self.settings), host="127.0.0.1", port=self.port,
+                                log_level="warning", lifespan="on")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> LiveService:
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.01)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(15)
+
+
+# ---- data -------------------------------------------------------------------------------------
+
+
+def demo_positions(j: int, n: int = 40, dim: int = 3) -> np.ndarray:
+    """A smooth arc shifted a little per demonstration, so the canal has a real radius."""
+    rng = np.random.default_rng(100 + j)
+    t = np.linspace(0.0, 1.0, n)
+    offset = 0.02 * (j - 1.5)
+    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
+    if dim == 2:
+        return np.column_stack([t, y])
+    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
+    return np.column_stack([t, y, z])
+
+
+def foxglove_pose_mcap(positions: np.ndarray, topic: str = "/ee_pose") -> bytes:
+    """An MCAP file with one foxglove.PoseInFrame (JSON) message per sample."""
+    buf = io.BytesIO()
+    writer = Writer(buf, compression=CompressionType.ZSTD)
+    writer.start()
+    schema_id = writer.register_schema(name="foxglove.PoseInFrame", encoding="jsonschema",
+                                       data=json.dumps({"type": "object"}).encode())
+    channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+    for i, p in enumerate(positions):
+        pos = {"x": float(p[0]), "y": float(p[1]), "z": float(p[2]) if len(p) > 2 else 0.0}
+        payload = {"timestamp": {"sec": 100 + i, "nsec": 0}, "frame_id": "base",
+                   "pose": {"position": pos, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}
+        writer.add_message(channel, log_time=i, publish_time=i, data=json.dumps(payload).encode())
+    writer.finish()
+    return buf.getvalue()
+
+
+def write_demo_files(folder: Path, dim: int = 3) -> dict[str, Path]:
+    """One demonstration per format (csv with time column, npy, json, mcap) in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    p = [demo_positions(j, dim=dim) for j in range(4)]
+    t = np.linspace(0.0, 2.0, len(p[0]))
+    files = {"csv": folder / "a_demo.csv", "npy": folder / "b_demo.npy",
+             "json": folder / "c_demo.json", "mcap": folder / "d_demo.mcap"}
+    cols = "t,x,y,z" if dim == 3 else "t,x,y"
+    np.savetxt(files["csv"], np.column_stack([t, p[0]]), delimiter=",", header=cols,
+               comments="", fmt="%.17g")
+    np.save(files["npy"], p[1])
+    files["json"].write_text(json.dumps({"positions": p[2].tolist(), "timestamps": t.tolist()}))
+    if dim == 3:
+        files["mcap"].write_bytes(foxglove_pose_mcap(p[3]))
+    else:
+        del files["mcap"]
+    return files

@@ -1,0 +1,156 @@
+"""Every error class, from a real answer of a real service (or a closed port)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from canal_client import (
+    ApiError,
+    AsyncCanalClient,
+    BadRequestError,
+    CanalClient,
+    ConflictError,
+    ConnectionFailedError,
+    InvalidInputError,
+    NotFoundError,
+    OutsideCanalError,
+    PayloadTooLargeError,
+    ServerError,
+    UnauthorizedError,
+    UnsupportedMediaTypeError,
+)
+from canal_client.errors import error_from_response
+from canal_client.rest import _Request
+from canal_live import LiveService, closed_port_url, demo_positions
+
+
+def test_not_found_and_conflict(client: CanalClient, unique_name: Callable[[str], str]) -> None:
+    with pytest.raises(NotFoundError) as info:
+        client.get_skill("no-such-skill")
+    e = info.value
+    assert (e.status, e.type, e.field) == (404, "not_found", "name")
+    assert "no-such-skill" in e.message and str(e) == f"{e.message} (field: name)"
+    with pytest.raises(NotFoundError):
+        client.add_demo("no-such-skill", demo_positions(0))
+
+    name = unique_name("dup")
+    client.create_skill(name)
+    with pytest.raises(ConflictError) as dup:
+        client.create_skill(name)
+    assert dup.value.status == 409 and dup.value.type == "conflict" and name in str(dup.value)
+    with pytest.raises(ConflictError):  # fit with no demonstrations
+        client.fit(name)
+    with pytest.raises(NotFoundError):
+        client.get_demo(name, 12345)
+
+
+def test_invalid_input_names_the_field(client: CanalClient,
+                                       unique_name: Callable[[str], str]) -> None:
+    name = unique_name("nan")
+    client.create_skill(name)
+    bad = demo_positions(0)
+    bad[1, 0] = math.nan
+    with pytest.raises(InvalidInputError) as info:
+        client.add_demo(name, bad)
+    e = info.value
+    assert (e.status, e.type, e.field) == (422, "invalid_input", "positions[1][0]")
+    assert "finite" in e.message and e.details
+    assert str(e).endswith("(field: positions[1][0])")
+    with pytest.raises(InvalidInputError) as dim:
+        client.add_demo(name, demo_positions(0, dim=2))
+    assert dim.value.field is not None
+    assert client.get_skill(name).n_demonstrations == 0  # nothing stored
+
+
+def test_outside_canal_raise(client: CanalClient, fitted: str) -> None:
+    with pytest.raises(OutsideCanalError) as info:
+        client.reproduce(fitted, [0.0, 5.0, 0.0], outside="raise")
+    assert isinstance(info.value, InvalidInputError)
+    assert info.value.status == 422 and info.value.type == "outside_canal"
+    assert info.value.field == "start"
+
+
+def test_bad_upload_and_media_type(client: CanalClient, unique_name: Callable[[str], str],
+                                   tmp_path: Path) -> None:
+    name = unique_name("bad")
+    client.create_skill(name)
+    garbage = tmp_path / "broken.npy"
+    garbage.write_bytes(b"this is not numpy")
+    with pytest.raises(BadRequestError) as info:
+        client.upload_demo_file(name, garbage)
+    assert info.value.status == 400 and info.value.type == "bad_upload"
+    raw = _Request("POST", f"/skills/{name}/demonstrations", lambda r: r, body=b"x",
+                   content_type="text/plain")
+    with pytest.raises(UnsupportedMediaTypeError) as media:
+        client._call(raw)
+    assert media.value.status == 415 and media.value.field == "Content-Type"
+
+
+def test_payload_too_large(tmp_path: Path) -> None:
+    with LiveService(tmp_path / "data", max_body_bytes=4000) as live, \
+            CanalClient(live.url) as c:
+        c.create_skill("big")
+        with pytest.raises(PayloadTooLargeError) as info:
+            c.add_demo("big", demo_positions(0, n=300))
+        assert info.value.status == 413 and info.value.type == "payload_too_large"
+        assert c.get_skill("big").n_demonstrations == 0
+
+
+def test_token(tmp_path: Path) -> None:
+    with LiveService(tmp_path / "data", token="s3cret") as live:
+        with CanalClient(live.url) as anonymous:
+            assert anonymous.health().status == "ok"  # /healthz never needs the token
+            with pytest.raises(UnauthorizedError) as info:
+                anonymous.list_skills()
+            assert info.value.status == 401 and info.value.field == "Authorization"
+        with CanalClient(live.url, token="wrong") as wrong, pytest.raises(UnauthorizedError):
+            wrong.create_skill("x")
+        with CanalClient(live.url, token="s3cret") as good:
+            assert good.create_skill("x").name == "x"
+            assert [s.name for s in good.list_skills()] == ["x"]
+
+
+def test_recordings_off_is_not_found(tmp_path: Path) -> None:
+    with LiveService(tmp_path / "data") as live, CanalClient(live.url) as c:
+        c.create_skill("s")
+        target = tmp_path / "s.rrd"
+        with pytest.raises(NotFoundError) as info:
+            c.download_recording("s", "rrd", target)
+        assert info.value.type == "disabled"
+        assert not target.exists() and list(tmp_path.glob("*.part")) == []
+
+
+def test_unreachable_server() -> None:
+    url = closed_port_url()
+    with CanalClient(url, timeout=5) as c, pytest.raises(ConnectionFailedError) as info:
+        c.health()
+    assert url in str(info.value) and info.value.url == url
+
+    async def scenario() -> None:
+        async with AsyncCanalClient(url, timeout=5) as ac:
+            await ac.list_skills()
+
+    with pytest.raises(ConnectionFailedError):
+        asyncio.run(scenario())
+
+
+def test_error_parsing_fallbacks() -> None:
+    e = error_from_response(502, b"<html>Bad gateway</html>")
+    assert isinstance(e, ServerError) and e.type == "http_502" and "Bad gateway" in str(e)
+    e = error_from_response(418, '{"detail": "teapot"}')
+    assert type(e) is ApiError and str(e) == "teapot" and e.field is None
+    e = error_from_response(422, '{"error": {"type": "degenerate_canal", "field": null, '
+                                 '"message": "flat"}}')
+    assert isinstance(e, InvalidInputError) and e.type == "degenerate_canal" and str(e) == "flat"
+
+
+def test_numpy_arguments_are_checked_locally(client: CanalClient) -> None:
+    with pytest.raises(ValueError, match="positions"):
+        client.add_demo("anything", np.zeros(5))
+    with pytest.raises(ValueError, match="start"):
+        client.reproduce("anything", np.zeros((2, 3)))

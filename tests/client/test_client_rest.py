@@ -1,0 +1,176 @@
+"""CanalClient and AsyncCanalClient against a real service over loopback HTTP."""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+from collections.abc import Callable
+from pathlib import Path
+
+import canal_client
+import canal_client.rest
+import numpy as np
+import pytest
+from canal_client import AsyncCanalClient, CanalClient, Reproduction
+from canal_live import RRD_MAGIC, LiveService, demo_positions, write_demo_files
+from mcap.reader import make_reader
+
+import canal_core
+
+
+def sha(positions: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(positions, dtype="<f8").tobytes()).hexdigest()
+
+
+def test_skills_demos_models_round_trip(client: CanalClient,
+                                        unique_name: Callable[[str], str]) -> None:
+    assert client.health().status == "ok"
+    name = unique_name("pour")
+    skill = client.create_skill(name, dim=3, description="pour water")
+    assert (skill.name, skill.dim, skill.description) == (name, 3, "pour water")
+    assert skill.latest_model_version is None and skill.created_at is not None
+
+    # numpy in: positions, timestamps and orientations
+    p0 = demo_positions(0)
+    t0 = np.linspace(0.0, 1.0, len(p0))
+    q0 = np.tile([0.0, 0.0, 0.0, 1.0], (len(p0), 1))
+    created = client.add_demo(name, p0, timestamps=t0, orientations=q0, label="first")
+    assert created.n_points == len(p0) and created.checksum == sha(p0)
+    # nested lists in
+    created_list = client.add_demo(name, demo_positions(1).tolist())
+    assert created_list.checksum == sha(demo_positions(1))
+
+    # numpy out
+    back = client.get_demo(name, created.id)
+    assert isinstance(back.positions, np.ndarray) and back.positions.dtype == np.float64
+    assert np.array_equal(back.positions, p0) and np.array_equal(back.timestamps, t0)
+    assert np.array_equal(back.orientations, q0)
+    assert back.label == "first" and back.source == "json" and back.has_orientations
+
+    summaries = client.list_demos(name)
+    assert [d.id for d in summaries] == [created.id, created_list.id]
+    assert client.get_skill(name).n_demonstrations == 2
+
+    model = client.fit(name, cross_section="mec", n_samples=25)
+    assert model.version == 1 and model.section_kind == "mec"
+    assert model.options["n_samples"] == 25 and model.options["frames"] == "rmf"
+    client.add_demo(name, demo_positions(2))
+    model2 = client.fit(name, demo_ids=[created.id, created_list.id])
+    assert model2.version == 2 and model2.demo_ids == [created.id, created_list.id]
+    assert [m.version for m in client.list_models(name)] == [2, 1]
+
+    full = client.get_model(name, 1)
+    assert full.directrix.shape == (25, 3) and full.radii.shape == (25,)
+    assert full.bounds.shape == (2, 3) and full.tangents.shape == (25, 3)
+    assert full.serialized is None
+    assert client.get_model(name, serialized=True).serialized is not None
+
+    client.delete_demo(name, created.id)
+    assert [d.id for d in client.list_demos(name)] != [] and \
+        created.id not in [d.id for d in client.list_demos(name)]
+    client.delete_skill(name)
+    assert name not in [s.name for s in client.list_skills()]
+
+
+def test_list_skills_reads_every_page(client: CanalClient, unique_name: Callable[[str], str],
+                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    names = [unique_name("paged") for _ in range(5)]
+    for n in names:
+        client.create_skill(n, dim=2)
+    monkeypatch.setattr(canal_client.rest, "PAGE_SIZE", 2)
+    listed = [s.name for s in client.list_skills()]
+    assert set(names) <= set(listed) and len(listed) == len(set(listed))
+    assert listed == sorted(listed)
+
+
+def test_upload_every_file_format(client: CanalClient, unique_name: Callable[[str], str],
+                                  tmp_path: Path) -> None:
+    name = unique_name("files")
+    client.create_skill(name)
+    files = write_demo_files(tmp_path)
+    sources = {}
+    for fmt, path in files.items():
+        created = client.upload_demo_file(name, path, label=f"from {fmt}",
+                                          topic="/ee_pose" if fmt == "mcap" else None)
+        demo = client.get_demo(name, created.id)
+        sources[fmt] = demo.source
+        assert demo.label == f"from {fmt}" and demo.positions.shape == (40, 3)
+    assert sources == {"csv": "csv", "npy": "npy", "json": "json", "mcap": "mcap"}
+    # format= overrides the suffix
+    odd = tmp_path / "demo.dat"
+    odd.write_bytes(files["npy"].read_bytes())
+    assert client.upload_demo_file(name, odd, format="npy").n_points == 40
+    with pytest.raises(ValueError, match="unsupported"):
+        client.upload_demo_file(name, odd)
+
+
+def test_canal_mesh_and_reproductions(client: CanalClient, fitted: str) -> None:
+    canal = client.get_canal(fitted)
+    assert isinstance(canal, canal_core.Canal)
+    start = np.array([0.0, 0.01, 0.0])
+    r = client.reproduce(fitted, start)
+    assert isinstance(r, Reproduction) and r.model_version == 1
+    assert r.positions.shape[1] == 3 and r.inside and not r.projected
+    # the local canal gives the same trajectory as the service
+    assert np.allclose(canal.reproduce(start), r.positions)
+    assert client.get_canal(fitted, 1).to_dict() == canal.to_dict()
+
+    far = client.reproduce(fitted, [0.0, 5.0, 0.0], model=1)
+    assert not far.inside and far.projected
+    many = client.reproduce_many(fitted, np.array([[0.0, 0.0, 0.0], [0.0, 0.02, 0.0]]))
+    assert len(many) == 2 and all(m.positions.shape[1] == 3 for m in many)
+
+    ply = client.mesh(fitted, format="ply", n_angles=8)
+    assert ply.startswith(b"ply")
+    assert client.mesh(fitted, 1, format="obj", caps=True).lstrip().startswith((b"v ", b"#"))
+
+
+def test_recordings_download(client: CanalClient, fitted: str, tmp_path: Path) -> None:
+    client.reproduce(fitted, [0.0, 0.0, 0.0])
+    rrd = client.download_recording(fitted, "rrd", tmp_path / "out" / "skill.rrd")
+    assert rrd == tmp_path / "out" / "skill.rrd" and rrd.read_bytes().startswith(RRD_MAGIC)
+    mcap = client.download_recording(fitted, "mcap", tmp_path / "skill.mcap")
+    with mcap.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.channels and summary.statistics.message_count > 0
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["out", "skill.mcap", "skill.rrd"]
+
+
+def test_async_client(service: LiveService, unique_name: Callable[[str], str],
+                      tmp_path: Path) -> None:
+    name = unique_name("async")
+    files = write_demo_files(tmp_path)
+
+    async def scenario() -> None:
+        async with AsyncCanalClient(service.url) as c:
+            assert (await c.health()).status == "ok"
+            await c.create_skill(name, dim=3)
+            ids = [(await c.add_demo(name, demo_positions(j))).id for j in range(2)]
+            ids.append((await c.upload_demo_file(name, files["csv"])).id)
+            ids.append((await c.upload_demo_file(name, files["json"], label="j")).id)
+            assert [d.id for d in await c.list_demos(name)] == ids
+            assert np.array_equal((await c.get_demo(name, ids[0])).positions, demo_positions(0))
+            model = await c.fit(name, cross_section="ellipse", n_samples=20)
+            assert model.section_kind == "ellipse"
+            assert [m.version for m in await c.list_models(name)] == [1]
+            assert (await c.get_model(name)).directrix.shape == (20, 3)
+            canal = await c.get_canal(name)
+            r = await c.reproduce(name, [0.0, 0.0, 0.0])
+            assert np.allclose(canal.reproduce(np.zeros(3)), r.positions)
+            assert len(await c.reproduce_many(name, [[0, 0, 0], [0, 0.01, 0]])) == 2
+            assert (await c.mesh(name)).startswith(b"ply")
+            path = await c.download_recording(name, "mcap", tmp_path / "a.mcap")
+            assert path.stat().st_size > 0
+            with pytest.raises(canal_client.NotFoundError):
+                await c.get_skill(name + "-missing")
+            await c.delete_demo(name, ids[0])
+            assert name in [s.name for s in await c.list_skills()]
+            await c.delete_skill(name)
+
+    asyncio.run(scenario())
+
+
+def test_lazy_robot_side_names_do_not_break_import() -> None:
+    assert "PoseStreamer" in canal_client.__all__ and "run_sim" in dir(canal_client)
+    with pytest.raises(AttributeError):
+        _ = canal_client.no_such_name  # type: ignore[attr-defined]
