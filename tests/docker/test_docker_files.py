@@ -291,7 +291,9 @@ def test_service_starts_with_the_compose_environment(
         assert health["status"] == "ok"
         assert health["recorder"]["status"] == "ok"
         assert health["bridge"]["status"] == "ok", health  # connected to the router
-        assert health["bridge"].get("mode", "client") == "client"
+        assert health["bridge"]["mode"] == "client"
+        # a client listens nowhere; the per-mode defaults of the config must not leak through
+        assert health["bridge"]["listen"] == [], health["bridge"]
         assert image_healthcheck(server.port).returncode == 0
     # ... and the healthcheck fails when nothing answers.
     assert image_healthcheck(free_port()).returncode != 0

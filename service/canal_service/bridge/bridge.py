@@ -166,9 +166,9 @@ class Bridge:
         """Open the session and start the threads; False (and state "down") when Zenoh fails."""
         try:
             config = zenoh_config(self.options)
-            self.listen = list(_config_value(config, "listen/endpoints") or [])
-            self.multicast_scouting = _config_value(config, "scouting/multicast/enabled")
             self.mode = _config_value(config, "mode")
+            self.listen = _per_mode(_config_value(config, "listen/endpoints"), self.mode)
+            self.multicast_scouting = _config_value(config, "scouting/multicast/enabled")
             self.session = zenoh.open(config)
         except Exception as exc:  # port taken, bad config file, ...
             self.state, self.detail = "down", f"{type(exc).__name__}: {exc}"
@@ -533,6 +533,13 @@ def _config_value(config: zenoh.Config, key: str) -> Any:
         return orjson.loads(config.get_json(key))
     except Exception:
         return None
+
+
+def _per_mode(endpoints: Any, mode: Any) -> list[str]:
+    """Endpoints as a list: Zenoh configs may give one list or a list per mode."""
+    if isinstance(endpoints, dict):
+        endpoints = endpoints.get(str(mode) if mode else "peer", [])
+    return [str(e) for e in endpoints] if isinstance(endpoints, list) else []
 
 
 def _reply_error(query: Any, key: str, message: str, field: str | None = None) -> None:
