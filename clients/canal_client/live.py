@@ -125,7 +125,7 @@ class PoseStreamer:
                                                         zenoh.handlers.FifoChannel(1024))
             self._pub = self.session.declare_publisher(
                 self.keys.pose, encoding=_ENC_JSON if encoding == "json" else _ENC_BINARY,
-                express=True, congestion_control=zenoh.CongestionControl.BLOCK)
+                express=False, congestion_control=zenoh.CongestionControl.BLOCK)
             deadline = time.monotonic() + connect_timeout
             while not self._pub.matching_status:
                 if time.monotonic() > deadline:
