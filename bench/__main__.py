@@ -1,17 +1,75 @@
-"""`python -m bench`: every benchmark that exists, one after the other (`--quick` passes through)."""
+"""`python -m bench [--quick]`: every benchmark, one after the other, then one summary table.
+
+Each script runs as its own subprocess (``--quick`` passes through) with ``CANAL_BENCH_SUMMARY``
+pointing at a JSON-lines file; scripts append their headline figures there (see
+:mod:`bench.common`), a script that writes none is fine. The summary table (figure, ours,
+peer in the same run, ours / peer) is printed and, on a full run (or ``--write``), written into
+BENCHMARKS.md between the summary-table markers. ``--only core,quality`` runs a subset.
+"""
 
 from __future__ import annotations
 
+import argparse
+import os
 import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
+try:
+    from bench.common import SUMMARY_ENV, read_summary, summary_markdown, write_block
+except ImportError:  # run as a file: bench/ is sys.path[0]
+    from common import SUMMARY_ENV, read_summary, summary_markdown, write_block
+
 HERE = Path(__file__).parent
-SCRIPTS = ["core.py", "service.py", "recording.py", "live.py", "quality.py"]
+SCRIPTS = ["core", "service", "recording", "live", "quality", "scale"]
+START, END = "<!-- summary-table:start -->", "<!-- summary-table:end -->"
+HEADING = "## Summary (`python -m bench`)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smoke-run sizes in every script")
+    parser.add_argument("--only", default="", help="comma-separated subset of " + ",".join(SCRIPTS))
+    parser.add_argument("--write", action="store_true",
+                        help="write the summary into BENCHMARKS.md even with --quick")
+    args = parser.parse_args(argv)
+    names = [n for n in args.only.split(",") if n] or SCRIPTS
+    unknown = set(names) - set(SCRIPTS)
+    if unknown:
+        parser.error(f"unknown benchmark(s): {', '.join(sorted(unknown))}")
+    status = []
+    with tempfile.TemporaryDirectory(prefix="canal-bench-summary-") as tmp:
+        summary = Path(tmp) / "summary.jsonl"
+        env = {**os.environ, SUMMARY_ENV: str(summary)}
+        t_all = time.perf_counter()
+        for name in names:
+            script = HERE / f"{name}.py"
+            if not script.exists():
+                status.append(f"{name}: not present, skipped")
+                continue
+            print(f"\n== bench/{name}.py ==", flush=True)
+            t0 = time.perf_counter()
+            rc = subprocess.run(
+                [sys.executable, str(script), *(["--quick"] if args.quick else [])], env=env
+            ).returncode
+            status.append(f"{name}: exit {rc}, {time.perf_counter() - t0:.0f} s")
+        total = time.perf_counter() - t_all
+        rows = read_summary(summary)
+    table = summary_markdown(rows)
+    caption = (
+        f"`python -m bench{' --quick' if args.quick else ''}`: {len(names)} benchmark(s), "
+        f"{total:.0f} s wall time on {os.cpu_count()} CPUs ({'; '.join(status)}). Peers are "
+        "measured in the same run on the same data (or are the issue's targets); ours / peer < 1 "
+        "is better where `better` is lower."
+    )
+    print(f"\n== summary ==\n{caption}\n\n{table}")
+    if args.write or (not args.quick and not args.only):
+        write_block(caption + "\n\n" + table, START, END, HEADING)
+        print("wrote BENCHMARKS.md")
+    return 1 if any("exit 0" not in s and "skipped" not in s for s in status) else 0
+
 
 if __name__ == "__main__":
-    for name in SCRIPTS:
-        script = HERE / name
-        if script.exists():
-            print(f"\n== bench/{name} ==", flush=True)
-            subprocess.run([sys.executable, str(script), *sys.argv[1:]], check=True)
+    sys.exit(main())

@@ -32,6 +32,11 @@ from canal_service.recording.rerun_log import RerunSegment
 
 import canal_core
 
+try:
+    from bench.common import summary_row, write_summary
+except ImportError:  # run as a file: bench/ is sys.path[0]
+    from common import summary_row, write_summary
+
 os.environ.setdefault("XDG_CONFIG_HOME", tempfile.mkdtemp(prefix="canal-bench-rerun-"))
 
 
@@ -202,6 +207,12 @@ def main() -> None:
         print(f"| {label:30} | {r['hz']:7.0f} | {r['poses']:7d} | {r['enqueue_us']:7.2f} | "
               f"{r['rrd_mb_per_min']:10.2f} | {r['mcap_mb_per_min']:11.2f} | "
               f"{r['dropped']:7d} | {r['rss_growth_mb']:7.1f} |")
+
+    write_summary("recording", [
+        summary_row("fit + recorder (median)", fit["fit_rec_ms"], "ms",
+                    "same fit without recorder", fit["fit_ms"]),
+        summary_row("recorder per live pose, caller side (1 kHz)", live[1]["enqueue_us"], "us"),
+    ])
 
 
 if __name__ == "__main__":

@@ -33,6 +33,11 @@ import httpx
 import numpy as np
 import orjson
 
+try:
+    from bench.common import summary_row, write_summary
+except ImportError:  # run as a file: bench/ is sys.path[0]
+    from common import summary_row, write_summary
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -229,6 +234,11 @@ def main(argv: list[str] | None = None) -> int:
             server.terminate()
             server.wait(10)
     print_table(rows)
+    summary = [summary_row(f"service {r.name}", r.rate, "1/s", "target", 200, better="higher")
+               for r in rows if r.target == ">= 200/s"]
+    summary += [summary_row(f"service {r.name} p99", r.pct(99), "ms", "target",
+                            float(r.target.split()[2])) for r in rows if r.target.startswith("p99")]
+    write_summary("service", summary)
     for problem in problems:
         print("PROBLEM:", problem)
     failed = problems or any(r.ok is False for r in rows)
