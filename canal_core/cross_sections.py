@@ -43,6 +43,10 @@ TWO_PI = 2.0 * np.pi
 
 #: Relative size (of the canal's largest offset) below which a length counts as zero.
 RELATIVE_FLOOR = 1e-9
+#: Smallest ellipse semi-axis, relative to the canal's largest offset. Khachiyan's scatter
+#: matrix has a condition number of about (size / floor)^2: 1e-9 made it singular in double
+#: precision for collinear crossings (two demos), 1e-6 keeps it near 1e12.
+ELLIPSE_RELATIVE_FLOOR = 1e-6
 #: Above this many points per section, the minimum enclosing circle is found per section
 #: with Welzl's algorithm instead of the vectorised enumeration of all pairs and triples.
 MEC_ENUMERATION_LIMIT = 13
@@ -510,13 +514,13 @@ def fitted_sections(coords: FloatArray, kind: str) -> CrossSections:
     """
     if coords.shape[2] == 1:
         return interval_sections(coords, symmetric=(kind == "circle"))
-    floor = RELATIVE_FLOOR * max(float(np.abs(coords).max(initial=0.0)), 1e-300)
+    size = max(float(np.abs(coords).max(initial=0.0)), 1e-300)
     if kind == "circle":
         return circle_sections(coords)
     if kind == "mec":
         return mec_sections(coords)
     if kind == "ellipse":
-        return ellipse_sections(coords, floor)
+        return ellipse_sections(coords, ELLIPSE_RELATIVE_FLOOR * size)
     if kind == "spline":
         return spline_sections(coords)
     raise ValueError(f"unknown cross-section kind {kind!r}")

@@ -404,9 +404,11 @@ def fit(
     """
     options = fit_options(cross_section, frames, alignment, directrix, n_samples)
     demos_, times_, dim = check_demonstrations(demos, timestamps)
-    if options.cross_section == "spline" and dim == 3 and len(demos_) < 3:
+    if options.cross_section in ("spline", "ellipse") and dim == 3 and len(demos_) < 3:
+        # Two crossings per plane fix one axis only: the other would be made up.
         raise InvalidInputError(
-            f"expected at least 3 demonstrations for spline cross-sections, got {len(demos_)}",
+            f"expected at least 3 demonstrations for {options.cross_section} cross-sections, "
+            f"got {len(demos_)}; use circle or mec with 2",
             field="cross_section",
         )
 

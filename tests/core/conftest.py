@@ -4,32 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from core_data import helix_demos, sleeve_demos, tube_demos
 
-from canal_core import datasets
-
-
-def tube_demos(radius: float = 0.5, n_demos: int = 6, n_points: int = 80) -> list[np.ndarray]:
-    """Straight lines along x on a circle of ``radius`` around the x axis."""
-    angles = np.linspace(0.0, 2.0 * np.pi, n_demos, endpoint=False)
-    x = np.linspace(0.0, 4.0, n_points)
-    return [np.column_stack([x, radius * np.cos(a) * np.ones_like(x), radius * np.sin(a) * np.ones_like(x)]) for a in angles]
-
-
-def helix_demos(offset: float = 0.05, n_demos: int = 5) -> list[np.ndarray]:
-    """Helices shifted radially and vertically around one helix."""
-    base = datasets.helix(300, turns=2.0, radius=1.0, pitch=0.8)
-    angles = np.linspace(0.0, 2.0 * np.pi, n_demos, endpoint=False)
-    return [base + offset * np.array([np.cos(a), np.sin(a), np.sin(a)]) for a in angles]
-
-
-def sleeve_demos(radius: float = 0.05, n_demos: int = 6) -> list[np.ndarray]:
-    """Helices spread evenly around one helix in its own normal planes (a true tube)."""
-    from canal_core.frames import rotation_minimizing_frames
-
-    base = datasets.helix(300, turns=2.0, radius=1.0, pitch=0.8)
-    _, n, b = rotation_minimizing_frames(base)
-    angles = np.linspace(0.0, 2.0 * np.pi, n_demos, endpoint=False) + 0.3
-    return [base + radius * (np.cos(a) * n + np.sin(a) * b) for a in angles]
+__all__ = ["helix_demos", "sleeve_demos", "tube_demos"]
 
 
 @pytest.fixture

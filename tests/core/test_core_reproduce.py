@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import helix_demos, sleeve_demos
+from core_data import helix_demos, sleeve_demos
 
 import canal_core
 from canal_core import OutsideCanalError, datasets

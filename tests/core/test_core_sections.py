@@ -6,7 +6,7 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from conftest import helix_demos, tube_demos
+from core_data import helix_demos, tube_demos
 
 import canal_core
 from canal_core import datasets

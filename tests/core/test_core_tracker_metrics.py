@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import sleeve_demos
+from core_data import sleeve_demos
 
 import canal_core
 from canal_core import datasets, metrics

@@ -74,9 +74,23 @@ def test_bad_options(option: str, value: object) -> None:
     assert err.value.field == option
 
 
-def test_spline_needs_three_demos() -> None:
-    with pytest.raises(InvalidInputError, match="at least 3 demonstrations"):
-        canal_core.fit(good()[:2], cross_section="spline")
+@pytest.mark.parametrize("kind", ["spline", "ellipse"])
+def test_spline_and_ellipse_need_three_demos(kind: str) -> None:
+    # Two demos fix one axis of a section; the ellipse used to crash (singular Khachiyan
+    # scatter) and would otherwise have a made-up minor axis.
+    with pytest.raises(InvalidInputError, match="at least 3 demonstrations") as err:
+        canal_core.fit(good()[:2], cross_section=kind)
+    assert err.value.field == "cross_section"
+
+
+def test_ellipse_with_collinear_crossings_is_thin_not_singular() -> None:
+    # Three demos in one plane: every section's crossings are collinear.
+    t = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([t, 0.3 * np.sin(np.pi * t) + dy, 0.0 * t]) for dy in (-0.02, 0.0, 0.02)]
+    canal = canal_core.fit(demos, cross_section="ellipse")
+    axes = canal.sections.params["axes"]
+    assert np.all(np.isfinite(axes)) and axes.min() > 0.0
+    assert canal.contains(np.vstack(demos)).mean() > 0.95
 
 
 def test_identical_demos_are_degenerate() -> None:
@@ -96,8 +110,9 @@ def test_zero_radius_sections_and_collinear_demos_do_not_crash() -> None:
     x = np.linspace(0, 1, 50)
     bump = np.sin(np.pi * x) * 0.1
     demos = [np.column_stack([x, bump, 0 * x]), np.column_stack([x, -bump, 0 * x])]
-    for kind in ("circle", "mec", "ellipse"):
-        canal = canal_core.fit(demos, cross_section=kind)
+    middle = np.column_stack([x, 0 * x, 0 * x])
+    for kind, ds in (("circle", demos), ("mec", demos), ("ellipse", [*demos, middle])):
+        canal = canal_core.fit(ds, cross_section=kind)
         assert np.isfinite(canal.radii).all()
         path = canal.reproduce([0.5, 0.05, 0.0])
         assert np.isfinite(path).all()

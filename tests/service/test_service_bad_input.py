@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import demo_positions
 from fastapi.testclient import TestClient
+from service_helpers import demo_positions
 
 GOOD = demo_positions(0, n=6).tolist()
 

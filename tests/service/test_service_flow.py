@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import demo_positions
 from fastapi.testclient import TestClient
+from service_helpers import demo_positions
 
 
 def test_full_session(any_db_client: TestClient) -> None:

@@ -15,7 +15,7 @@ import pytest
 from canal_service.__main__ import settings_from_args
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from conftest import LiveServer, demo_positions, free_port
+from service_helpers import LiveServer, demo_positions, free_port
 
 
 def test_smoke_over_real_http(live_server: LiveServer) -> None:

@@ -13,8 +13,8 @@ import pytest
 import trimesh
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from conftest import LiveServer, demo_positions
 from fastapi.testclient import TestClient
+from service_helpers import LiveServer, demo_positions
 
 
 def test_model_detail_and_serialized_round_trip(client: TestClient, fitted: str) -> None:

@@ -8,8 +8,8 @@ import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.storage import Database
-from conftest import PostgresServer, demo_positions
 from fastapi.testclient import TestClient
+from service_helpers import PostgresServer, demo_positions
 
 pytestmark = pytest.mark.postgres
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from conftest import demo_positions
 from fastapi.testclient import TestClient
+from service_helpers import demo_positions
 
 
 def test_recordings_disabled_is_a_clean_404(client: TestClient, skill: str) -> None:

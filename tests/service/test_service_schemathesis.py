@@ -14,9 +14,9 @@ from pathlib import Path
 import schemathesis
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from conftest import demo_positions
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
+from service_helpers import demo_positions
 
 MAX_EXAMPLES = 25
 

@@ -8,9 +8,9 @@ import json
 
 import numpy as np
 import pytest
-from conftest import demo_positions
 from fastapi.testclient import TestClient
 from mcap.writer import CompressionType, Writer
+from service_helpers import demo_positions
 
 POSE_STAMPED_MSGDEF = """std_msgs/Header header
 geometry_msgs/Pose pose

@@ -1,0 +1,109 @@
+"""Helpers shared by the service tests: demo data, a real uvicorn on loopback, a throwaway
+PostgreSQL cluster. A module of its own: every test folder has a conftest.py, so
+``from conftest import`` would be ambiguous."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import uvicorn
+
+
+def demo_positions(j: int, n: int = 50, dim: int = 3, seed: int = 0) -> np.ndarray:
+    """A smooth arc, shifted a little per demonstration so the canal has a real radius."""
+    rng = np.random.default_rng(seed + j)
+    t = np.linspace(0.0, 1.0, n)
+    offset = 0.02 * (j - 1.5)
+    x = t
+    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
+    if dim == 2:
+        return np.column_stack([x, y])
+    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
+    return np.column_stack([x, y, z])
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class LiveServer:
+    """uvicorn serving an app on 127.0.0.1 in a background thread."""
+
+    def __init__(self, app: Any) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        config = uvicorn.Config(app, host="127.0.0.1", port=self.port, log_level="warning",
+                                lifespan="on")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, daemon=True)
+
+    def __enter__(self) -> LiveServer:
+        self.thread.start()
+        deadline = time.monotonic() + 10
+        while not self.server.started:
+            if time.monotonic() > deadline or not self.thread.is_alive():
+                raise RuntimeError("uvicorn did not start")
+            time.sleep(0.01)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(10)
+
+
+class PostgresServer:
+    """A throwaway PostgreSQL cluster owned by the 'postgres' user (the server refuses root)."""
+
+    def __init__(self) -> None:
+        self.dir = Path(tempfile.mkdtemp(prefix="canal-pg-"))
+        self.port = free_port()
+        self.started = False
+
+    def _as_postgres(self, *cmd: str) -> subprocess.CompletedProcess[str]:
+        prefix: list[str] = []
+        if os.geteuid() == 0:
+            prefix = ["runuser", "-u", "postgres", "--"]
+        return subprocess.run([*prefix, *cmd], capture_output=True, text=True, timeout=60,
+                              check=True)
+
+    def start(self) -> None:
+        if os.geteuid() == 0:
+            shutil.chown(self.dir, "postgres", "postgres")
+        data = self.dir / "data"
+        self._as_postgres("initdb", "-D", str(data), "-A", "trust", "-U", "canal",
+                          "--no-sync")
+        self._as_postgres(
+            "pg_ctl", "-D", str(data), "-o",
+            f"-k {self.dir} -p {self.port} -h 127.0.0.1 -F", "-l", str(self.dir / "log"),
+            "-w", "start",
+        )
+        self.started = True
+
+    def stop(self) -> None:
+        if self.started:
+            with contextlib.suppress(Exception):
+                self._as_postgres("pg_ctl", "-D", str(self.dir / "data"), "-m", "fast", "-w",
+                                  "stop")
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def new_database(self) -> str:
+        import psycopg
+
+        name = f"t_{uuid.uuid4().hex[:12]}"
+        with psycopg.connect(f"postgresql://canal@127.0.0.1:{self.port}/postgres",
+                             autocommit=True) as conn:
+            conn.execute(f'CREATE DATABASE "{name}"')
+        return f"postgresql+psycopg://canal@127.0.0.1:{self.port}/{name}"
