@@ -22,8 +22,11 @@ from .validation import FloatArray
 
 #: Half-width of the cheap first search, in samples.
 NEAR_WINDOW = 4
-#: Half-width of the second search, in samples.
+#: Half-width of the second search, in samples; later searches double it up to the window.
 MID_WINDOW = 32
+#: Most (pair x window sample) entries searched at once: bounds the memory of a fit with
+#: many sections (N = 5,000 peaked at 865 MB in one block, now a few tens of MB).
+MAX_BLOCK = 1 << 20
 
 
 def crosses_plane(before: FloatArray, after: FloatArray) -> np.ndarray:
@@ -78,6 +81,29 @@ def _crossings_in_window(
     return points, found, reference
 
 
+def _blocked_crossings(
+    aligned: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    sections: np.ndarray,
+    demos: np.ndarray,
+    half_width: int,
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
+    """:func:`_crossings_in_window` over blocks of pairs of at most ``MAX_BLOCK`` entries."""
+    block = max(1, MAX_BLOCK // (2 * half_width + 1))
+    if sections.size <= block:
+        return _crossings_in_window(aligned, centres, tangents, sections, demos, half_width)
+    parts = [
+        _crossings_in_window(aligned, centres, tangents, sections[k : k + block], demos[k : k + block], half_width)
+        for k in range(0, sections.size, block)
+    ]
+    return (
+        np.concatenate([p[0] for p in parts]),
+        np.concatenate([p[1] for p in parts]),
+        np.concatenate([p[2] for p in parts]),
+    )
+
+
 def plane_crossings(
     aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0
 ) -> FloatArray:
@@ -105,15 +131,21 @@ def plane_crossings(
     wide = max(NEAR_WINDOW + 1, round(window * n_samples))
     # Widen the search only for the pairs that have not found a crossing yet: most pairs
     # cross within a few samples, the ends of the canal need the whole window.
-    widths = sorted({min(NEAR_WINDOW, wide), min(MID_WINDOW, wide), wide})
-    points, found, reference = _crossings_in_window(
+    # Widen the search only for the pairs that have not found a crossing yet: most pairs
+    # cross within a few samples, the ends of the canal need the whole window. Doubling the
+    # width finds the same (nearest-in-index) crossing as one wide search, at a cost that
+    # grows with how far each pair's crossing is rather than with N for every pending pair.
+    widths = [min(NEAR_WINDOW, wide), min(MID_WINDOW, wide)]
+    while widths[-1] < wide:
+        widths.append(min(2 * widths[-1], wide))
+    points, found, reference = _blocked_crossings(
         aligned, centres, tangents, sections, demos, widths[0]
     )
     pending = np.flatnonzero(~found)
-    for width in widths[1:]:
+    for width in sorted(set(widths[1:])):
         if pending.size == 0:
             break
-        far_points, far_found, _ = _crossings_in_window(
+        far_points, far_found, _ = _blocked_crossings(
             aligned, centres, tangents, sections[pending], demos[pending], width
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own

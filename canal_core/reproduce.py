@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
-from .crossings import crosses_plane
+from .crossings import MAX_BLOCK, crosses_plane
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
@@ -245,6 +245,24 @@ def bracketing_sections(
     return lower[rows, best], alpha, np.isfinite(score[rows, best])
 
 
+def _blocked_bracketing(
+    samples: FloatArray, approx_index: IntArray, tangents: FloatArray, plane: FloatArray, window: int
+) -> tuple[IntArray, FloatArray, BoolArray]:
+    """:func:`bracketing_sections` over blocks of at most ``MAX_BLOCK`` (sample x offset) entries."""
+    block = max(1, MAX_BLOCK // (2 * window))
+    if samples.shape[0] <= block:
+        return bracketing_sections(samples, approx_index, tangents, plane, window)
+    parts = [
+        bracketing_sections(samples[k : k + block], approx_index[k : k + block], tangents, plane, window)
+        for k in range(0, samples.shape[0], block)
+    ]
+    return (
+        np.concatenate([p[0] for p in parts]),
+        np.concatenate([p[1] for p in parts]),
+        np.concatenate([p[2] for p in parts]),
+    )
+
+
 def enclosing_scales(
     samples: FloatArray,
     approx_index: IntArray,
@@ -282,11 +300,15 @@ def enclosing_scales(
     plane = np.einsum("nd,nd->n", centres, tangents)
     # Most samples sit within a few sections of their phase: search there first, and
     # widen only for the rest.
-    index, alpha, found = bracketing_sections(samples, approx_index, tangents, plane, min(4, window))
-    if window > 4 and not found.all():
+    # Doubling the width finds the same nearest pair as one search of the whole window; each
+    # search runs over blocks of samples so that memory stays bounded for large N.
+    width = min(4, window)
+    index, alpha, found = _blocked_bracketing(samples, approx_index, tangents, plane, width)
+    while width < window and not found.all():
+        width = min(2 * width, window)
         miss = np.flatnonzero(~found)
-        index[miss], alpha[miss], found[miss] = bracketing_sections(
-            samples[miss], approx_index[miss], tangents, plane, window
+        index[miss], alpha[miss], found[miss] = _blocked_bracketing(
+            samples[miss], approx_index[miss], tangents, plane, width
         )
     # Only samples whose phase is at an end may be measured on the end sections.
     behind = ~found & (approx_index < window) & (samples @ tangents[0] - plane[0] < 0.0)
