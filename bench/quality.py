@@ -232,23 +232,28 @@ PEERS = {
     "DMP": (dmp_fit, dmp_reproduce),
     "ProMP": (promp_fit, promp_reproduce),
 }
-PAPER = "canal paper (Frenet, circle, mean)"
+PAPER = "canal paper (Frenet, circle, mean, raw frames)"
 DEFAULT = "canal circle, RMF (default)"
 # In 2-D the frame is the tangent and its left normal whatever `frames` says, and every
 # cross-section kind but circle is the same tight interval [lower, upper] (circle: symmetric).
+# "raw frames" = frame_smoothing=0: frames of the unsmoothed mean, as in the paper.
 METHODS_2D = {
-    "canal paper (circle, mean)": canal_method(cross_section="circle"),
+    "canal paper (circle, mean, raw frames)": canal_method(cross_section="circle", frame_smoothing=0.0),
+    "canal circle (default)": canal_method(cross_section="circle"),
     "canal interval (ellipse = mec = spline)": canal_method(cross_section="ellipse"),
     "canal circle, aligned by time stamps": canal_method(use_time=True, cross_section="circle"),
     **PEERS,
 }
 METHODS_3D = {
-    PAPER: canal_method(cross_section="circle", frames="frenet"),
+    PAPER: canal_method(cross_section="circle", frames="frenet", frame_smoothing=0.0),
+    "canal circle, RMF, raw frames": canal_method(cross_section="circle", frames="rmf",
+                                                  frame_smoothing=0.0),
+    "canal circle, Frenet, smoothed frames": canal_method(cross_section="circle", frames="frenet"),
     DEFAULT: canal_method(cross_section="circle", frames="rmf"),
     "canal mec, RMF": canal_method(cross_section="mec", frames="rmf"),
-    "canal ellipse, Frenet": canal_method(cross_section="ellipse", frames="frenet"),
+    "canal ellipse, RMF, raw frames": canal_method(cross_section="ellipse", frames="rmf",
+                                                   frame_smoothing=0.0),
     "canal ellipse, RMF": canal_method(cross_section="ellipse", frames="rmf"),
-    "canal spline, Frenet": canal_method(cross_section="spline", frames="frenet"),
     "canal spline, RMF": canal_method(cross_section="spline", frames="rmf"),
     **PEERS,
 }
@@ -367,15 +372,15 @@ def summary_rows(rows2, rows3) -> list[dict]:
     ours = "canal circle"
     for col, unit in (("fit ms", "ms"), ("repro ms", "ms")):
         for peer in ("GMR", "DMP", "ProMP"):
-            out.append(summary_row(f"{ours} {col[:-3]} time, LASA", mean(rows2, "canal paper (circle, mean)", col),
+            out.append(summary_row(f"{ours} {col[:-3]} time, LASA", mean(rows2, "canal circle (default)", col),
                                    unit, peer_name=peer, peer_value=mean(rows2, peer, col)))
     for peer in ("ProMP", "DMP", "GMR+offset"):
         out.append(summary_row("canal circle rmse, LASA leave-one-out",
-                               mean(rows2, "canal paper (circle, mean)", "rmse"), "mm",
+                               mean(rows2, "canal circle (default)", "rmse"), "mm",
                                peer_name=peer, peer_value=mean(rows2, peer, "rmse")))
     if rows3:
         out.append(summary_row("canal circle RMF rmse, 3-D sets", mean(rows3, DEFAULT, "rmse"),
-                               "1e-3", peer_name="paper (Frenet)",
+                               "1e-3", peer_name="paper (Frenet, raw frames)",
                                peer_value=mean(rows3, PAPER, "rmse")))
         out.append(summary_row("canal circle RMF rmse, 3-D sets", mean(rows3, DEFAULT, "rmse"),
                                "1e-3", peer_name="ProMP", peer_value=mean(rows3, "ProMP", "rmse")))

@@ -14,6 +14,15 @@ Three kinds:
 
 All return unit, mutually orthogonal vectors; 3-D frames are right-handed
 (``t x n = b``).
+
+Frames are computed on :func:`smoothed_curve` of the directrix, not on the directrix itself
+(``FitOptions.frame_smoothing``, a Gaussian of 2 % of the sections by default). The mean of
+noisy demonstrations wiggles from sample to sample; its finite-difference tangents swing,
+and even a rotation-minimising frame accumulates twist from those swings (about 27 degrees
+over one noisy Task I instance). The ratio rule keeps a start's direction fixed in the
+moving frame, so that twist turns straight into reproduction error: on the 3-D benchmark
+sets smoothing took the mean RMSE from 80 to 34 (x1e-3), with LASA (2-D) unchanged. The
+section centres stay on the unsmoothed directrix; only the planes' orientation is smoothed.
 """
 
 from __future__ import annotations
@@ -24,6 +33,37 @@ from .validation import FloatArray
 
 #: Relative size below which a tangent step or a curvature vector counts as zero.
 EPS = 1e-12
+
+
+def smoothed_curve(points: FloatArray, sigma: float) -> FloatArray:
+    """Gaussian-smoothed copy of a curve, for stable tangents on noisy directrices.
+
+    The ends are padded by point reflection (2 p_0 - p_k), which keeps a straight end
+    straight and its direction unchanged, where edge padding would bend it towards a stop.
+
+    Parameters
+    ----------
+    points : array, shape (N, D)
+    sigma : float
+        Standard deviation, in samples; 0 returns the points unchanged.
+
+    Returns
+    -------
+    smoothed : array, shape (N, D)
+    """
+    n = points.shape[0]
+    if sigma <= 0.0 or n < 3:
+        return points
+    k = min(max(1, int(np.ceil(4.0 * sigma))), n - 1)
+    padded = np.concatenate([2.0 * points[0] - points[k:0:-1], points, 2.0 * points[-1] - points[-2 : -k - 2 : -1]])
+    offsets = np.arange(-k, k + 1)
+    weights = np.exp(-0.5 * (offsets / sigma) ** 2)
+    weights /= weights.sum()
+    # Sum of shifted copies: (2k + 1) vectorised passes, k is a few samples.
+    out = np.zeros_like(points)
+    for w, o in zip(weights, offsets, strict=True):
+        out += w * padded[k + o : k + o + n]
+    return out
 
 
 def _normalised(vectors: FloatArray) -> tuple[FloatArray, np.ndarray]:

@@ -25,7 +25,7 @@ from .cross_sections import (
 from .crossings import in_plane_coordinates, plane_crossings
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
-from .frames import frenet_frames, planar_frames, rotation_minimizing_frames
+from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
 from .preprocess import STILL_TOLERANCE, cleaned_demonstration
 from .reproduce import (
     Location,
@@ -42,6 +42,7 @@ from .validation import (
     FloatArray,
     check_choice,
     check_demonstrations,
+    check_fraction,
     check_int,
     check_point,
     check_points,
@@ -67,6 +68,9 @@ class FitOptions:
     alignment: str = "spline"
     directrix: str = "mean"
     n_samples: int = 200
+    #: Gaussian smoothing of the curve the frames are computed on, as a fraction of
+    #: n_samples (0 = frames of the raw directrix, as in the paper). See canal_core.frames.
+    frame_smoothing: float = 0.02
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -320,7 +324,8 @@ class Canal:
                 sections=CrossSections(kind, params),
                 section_points=arr["section_points"],
                 end_depths=arr["end_depths"],
-                options=FitOptions(**data["options"]),
+                # Models saved before frame smoothing existed had frames of the raw directrix.
+                options=FitOptions(**{"frame_smoothing": 0.0, **data["options"]}),
             )
         except ModelFormatError:
             raise
@@ -352,6 +357,7 @@ def fit_options(
     alignment: str = "spline",
     directrix: str = "mean",
     n_samples: int = 200,
+    frame_smoothing: float = FitOptions.frame_smoothing,
 ) -> FitOptions:
     """Validated :class:`FitOptions`."""
     return FitOptions(
@@ -360,6 +366,7 @@ def fit_options(
         alignment=check_choice(alignment, ALIGNMENTS, "alignment"),
         directrix=check_choice(directrix, DIRECTRICES, "directrix"),
         n_samples=check_int(n_samples, 2, "n_samples", maximum=100_000),
+        frame_smoothing=check_fraction(frame_smoothing, "frame_smoothing"),
     )
 
 
@@ -372,6 +379,7 @@ def fit(
     directrix: str = "mean",
     n_samples: int = 200,
     still_tolerance: float = STILL_TOLERANCE,
+    frame_smoothing: float = FitOptions.frame_smoothing,
 ) -> Canal:
     """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
 
@@ -387,6 +395,10 @@ def fit(
     directrix : {"mean", "gmr"}
     n_samples : int
         N, the number of cross-sections.
+    frame_smoothing : float
+        Frames are computed on the directrix smoothed by a Gaussian of this fraction of N
+        (0.02 by default; 0 = the paper's frames of the raw directrix). See
+        :func:`canal_core.frames.smoothed_curve`.
     still_tolerance : float
         Head and tail samples within this fraction of the path length of the first/last
         sample are trimmed (see :mod:`canal_core.preprocess`).
@@ -402,7 +414,7 @@ def fit(
     DegenerateCanalError
         Every demonstration identical, or a directrix of zero length.
     """
-    options = fit_options(cross_section, frames, alignment, directrix, n_samples)
+    options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
     demos_, times_, dim = check_demonstrations(demos, timestamps)
     if options.cross_section in ("spline", "ellipse") and dim == 3 and len(demos_) < 3:
         # Two crossings per plane fix one axis only: the other would be made up.
@@ -436,13 +448,14 @@ def fit(
         raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
 
     binormals: FloatArray | None
+    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
     if dim == 2:
-        tangents, normals = planar_frames(centres)
+        tangents, normals = planar_frames(frame_curve)
         binormals = None
     elif options.frames == "frenet":
-        tangents, normals, binormals = frenet_frames(centres)
+        tangents, normals, binormals = frenet_frames(frame_curve)
     else:
-        tangents, normals, binormals = rotation_minimizing_frames(centres)
+        tangents, normals, binormals = rotation_minimizing_frames(frame_curve)
 
     crossings = plane_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the

@@ -187,3 +187,12 @@ def check_int(value: Any, minimum: int, field: str, maximum: int | None = None) 
         upper = "" if maximum is None else f" and <= {maximum}"
         raise InvalidInputError(f"expected {field} >= {minimum}{upper}, got {value}", field=field)
     return int(value)
+
+
+def check_fraction(value: Any, field: str, maximum: float = 0.25) -> float:
+    """Return ``value`` as a finite float in [0, maximum]."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidInputError(f"expected {field} as a number, got {type(value).__name__}", field=field)
+    if not np.isfinite(value) or value < 0.0 or value > maximum:
+        raise InvalidInputError(f"expected {field} in [0, {maximum}], got {value}", field=field)
+    return float(value)

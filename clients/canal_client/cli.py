@@ -424,6 +424,12 @@ def fit(
     directrix: Annotated[Directrix | None, typer.Option("--directrix")] = None,
     samples: Annotated[int | None, typer.Option("--samples", "-n", min=2, max=5000,
                                                 help="Sections along the canal.")] = None,
+    frame_smoothing: Annotated[float | None, typer.Option(
+        "--frame-smoothing", min=0.0, max=0.25,
+        help="Smooth the curve the frames are computed on (fraction of the sections; "
+             "0 = the paper's raw frames).")] = None,
+    by_time: Annotated[bool, typer.Option(
+        "--by-time", help="Align by the demos' time stamps instead of arc length.")] = False,
     demo: Annotated[list[int] | None, typer.Option(
         "--demo", help="Fit only these demonstration ids (repeat).")] = None,
 ) -> None:
@@ -434,6 +440,7 @@ def fit(
         model = c.fit(skill, cross_section=cross_section and cross_section.value,
                       frames=frames and frames.value, alignment=alignment and alignment.value,
                       directrix=directrix and directrix.value, n_samples=samples,
+                      frame_smoothing=frame_smoothing, by_time=by_time or None,
                       demo_ids=demo or None)
     if _opts(ctx).json:
         _print_json(model)

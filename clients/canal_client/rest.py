@@ -465,12 +465,13 @@ class CanalClient(_Base):
 
     def fit(self, skill: str, *, cross_section: str | None = None, frames: str | None = None,
             alignment: str | None = None, directrix: str | None = None,
-            n_samples: int | None = None, demo_ids: Iterable[int] | None = None) -> ModelSummary:
+            n_samples: int | None = None, frame_smoothing: float | None = None,
+            by_time: bool | None = None, demo_ids: Iterable[int] | None = None) -> ModelSummary:
         """Fit a new model version; options left ``None`` take the service's defaults."""
         return self._call(_fit(skill, dict(
             cross_section=cross_section, frames=frames, alignment=alignment,
-            directrix=directrix, n_samples=n_samples,
-            demo_ids=None if demo_ids is None else list(demo_ids))))
+            directrix=directrix, n_samples=n_samples, frame_smoothing=frame_smoothing,
+            by_time=by_time, demo_ids=None if demo_ids is None else list(demo_ids))))
 
     def list_models(self, skill: str) -> list[ModelSummary]:
         """Every model version of a skill, newest first."""
@@ -620,12 +621,13 @@ class AsyncCanalClient(_Base):
     async def fit(self, skill: str, *, cross_section: str | None = None,
                   frames: str | None = None, alignment: str | None = None,
                   directrix: str | None = None, n_samples: int | None = None,
+                  frame_smoothing: float | None = None, by_time: bool | None = None,
                   demo_ids: Iterable[int] | None = None) -> ModelSummary:
         """See :meth:`CanalClient.fit`."""
         return await self._call(_fit(skill, dict(
             cross_section=cross_section, frames=frames, alignment=alignment,
-            directrix=directrix, n_samples=n_samples,
-            demo_ids=None if demo_ids is None else list(demo_ids))))
+            directrix=directrix, n_samples=n_samples, frame_smoothing=frame_smoothing,
+            by_time=by_time, demo_ids=None if demo_ids is None else list(demo_ids))))
 
     async def list_models(self, skill: str) -> list[ModelSummary]:
         """See :meth:`CanalClient.list_models`."""

@@ -143,6 +143,15 @@ class FitRequest(_In):
     alignment: Literal["spline", "dtw"] = "spline"
     directrix: Literal["mean", "gmr"] = "mean"
     n_samples: int = Field(200, ge=2, le=5000)
+    frame_smoothing: float = Field(
+        0.02, ge=0.0, le=0.25,
+        description="Frames are computed on the directrix smoothed by a Gaussian of this "
+                    "fraction of n_samples; 0 = the paper's raw frames.")
+    by_time: bool = Field(
+        False,
+        description="Align demonstrations by their timestamps (when every one has them) "
+                    "instead of by arc length. Arc length is the default: on LASA "
+                    "leave-one-out it follows held-out demos closer (BENCHMARKS.md).")
     demo_ids: list[Id] | None = Field(
         None, max_length=10000, description="Fit only these demonstrations (default: all)."
     )

@@ -242,11 +242,11 @@ class CanalService:
         demo_ids = [d[0] for d in loaded]
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
-        options = body.model_dump(exclude={"demo_ids"})
+        options = body.model_dump(exclude={"demo_ids", "by_time"})
+        timestamps = times if body.by_time and any(t is not None for t in times) else None
         started = time.perf_counter()
         try:
-            canal = canal_core.fit(positions, timestamps=None if all(t is None for t in times)
-                                   else times, **options)
+            canal = canal_core.fit(positions, timestamps=timestamps, **options)
         except canal_core.CanalError as exc:
             _name_demo_in(exc, demo_ids)
             # canal_core leaves the field empty when the set as a whole is at fault.
@@ -254,7 +254,7 @@ class CanalService:
             raise
         seconds = time.perf_counter() - started
         serialized = canal.to_dict()
-        used_options = canal.options.to_dict()
+        used_options = {**canal.options.to_dict(), "by_time": timestamps is not None}
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
         self.cache.put(model[0], canal)
         self.metrics.fits.inc()

@@ -153,11 +153,14 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     ids = [str(d["id"]) for d in json.loads(run("--json", "demo", "list", name).stdout)]
     r = run("--json", "fit", name, "--cross-section", "spline", "--frames", "frenet",
             "--alignment", "dtw", "--directrix", "mean", "--samples", "20",
-            "--demo", ids[0], "--demo", ids[1], "--demo", ids[2])
+            "--demo", ids[0], "--demo", ids[1], "--demo", ids[2], "--frame-smoothing", "0",
+            "--by-time")
     assert r.exit_code == 0, r.output
     model = json.loads(r.stdout)
     assert model["version"] == 2 and model["demo_ids"] == [int(i) for i in ids[:3]]
     assert model["options"]["frames"] == "frenet" and model["options"]["alignment"] == "dtw"
+    assert model["options"]["frame_smoothing"] == 0.0
+    assert model["options"]["by_time"] is False  # .npy demos without a time column
     r = run("fit", name, "--cross-section", "hexagon")
     assert r.exit_code == 2 and "hexagon" in r.output
 

@@ -120,7 +120,44 @@ def test_options_are_recorded() -> None:
     canal = canal_core.fit(datasets.task_one(), alignment="dtw", directrix="gmr", n_samples=80)
     assert canal.options.to_dict() == {
         "cross_section": "circle", "frames": "rmf", "alignment": "dtw", "directrix": "gmr", "n_samples": 80,
+        "frame_smoothing": 0.02,
     }
     assert canal.directrix.shape == (80, 3)
     for demo in datasets.task_one():
         assert canal.contains(demo, tol=2e-2).mean() > 0.95
+
+
+def test_models_saved_before_frame_smoothing_load_as_unsmoothed() -> None:
+    data = canal_core.fit(datasets.task_one(n_points=40), n_samples=40).to_dict()
+    old = {**data, "options": {k: v for k, v in data["options"].items() if k != "frame_smoothing"}}
+    assert canal_core.Canal.from_dict(old).options.frame_smoothing == 0.0
+
+
+@pytest.mark.parametrize("value", [-0.1, 0.5, float("nan"), "x", True])
+def test_bad_frame_smoothing_names_the_field(value: object) -> None:
+    with pytest.raises(canal_core.InvalidInputError) as err:
+        canal_core.fit(datasets.task_one(), frame_smoothing=value)
+    assert err.value.field == "frame_smoothing"
+
+
+def test_smoothed_frames_do_not_twist_on_noisy_demos() -> None:
+    # Noisy demos around a straight line: the true canal has no reason to twist, but the
+    # finite-difference tangents of the noisy mean swing, and the raw frames pick up twist.
+    # A start off the directrix should keep its offset direction (here +y).
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 1.0, 200)
+    demos = [np.column_stack([x, 0.03 * np.cos(a) + 0 * x, 0.03 * np.sin(a) + 0 * x])
+             + 0.004 * rng.standard_normal((200, 3)) for a in np.linspace(0, 2 * np.pi, 7)[:-1]]
+    start = np.array([0.0, 0.02, 0.0])
+
+    def end_offset(smoothing: float) -> np.ndarray:
+        canal = canal_core.fit(demos, frame_smoothing=smoothing)
+        path = canal.reproduce(start)
+        return path[-1, 1:] - canal.directrix[-1, 1:]
+
+    def angle(v: np.ndarray) -> float:
+        return float(np.degrees(abs(np.arctan2(v[1], v[0]))))
+
+    raw, smooth = angle(end_offset(0.0)), angle(end_offset(0.02))
+    assert smooth < 10.0, smooth
+    assert smooth < raw, (smooth, raw)

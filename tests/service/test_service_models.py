@@ -86,12 +86,21 @@ def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> No
         ids.append(client.post(f"/skills/{skill}/demonstrations", json=body).json()["id"])
     r = client.post(f"/skills/{skill}/fit", json={
         "demo_ids": ids[:2], "alignment": "dtw", "directrix": "mean", "frames": "frenet",
-        "cross_section": "mec", "n_samples": 30})
+        "cross_section": "mec", "n_samples": 30, "by_time": True, "frame_smoothing": 0.0})
     assert r.status_code == 201, r.text
     m = r.json()
     assert m["demo_ids"] == ids[:2] and m["n_demos"] == 2 and m["section_kind"] == "mec"
     assert m["options"] == {"cross_section": "mec", "frames": "frenet", "alignment": "dtw",
-                            "directrix": "mean", "n_samples": 30}
+                            "directrix": "mean", "n_samples": 30, "frame_smoothing": 0.0,
+                            "by_time": True}
+    # By default demonstrations are aligned by arc length, even when they carry time stamps.
+    default = client.post(f"/skills/{skill}/fit", json={"demo_ids": ids[:2], "n_samples": 30})
+    assert default.json()["options"]["by_time"] is False
+    timed = client.post(f"/skills/{skill}/fit",
+                        json={"demo_ids": ids[:2], "n_samples": 30, "by_time": True})
+    a = client.get(f"/skills/{skill}/models/{default.json()['version']}").json()["directrix"]
+    b = client.get(f"/skills/{skill}/models/{timed.json()['version']}").json()["directrix"]
+    assert not np.allclose(a, b)
     assert client.post(f"/skills/{skill}/fit").status_code == 201  # no body: all defaults
 
 
