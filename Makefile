@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run example test lint bench clean
+.PHONY: run example walkthrough figure test lint bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -18,6 +18,12 @@ run: $(STAMP)
 
 example: $(STAMP)
 	$(PY) examples/quickstart.py
+
+walkthrough: $(STAMP)
+	$(PY) examples/walkthrough.py
+
+figure: $(STAMP)
+	$(PY) examples/render_figure.py
 
 lint: $(STAMP)
 	$(PY) -m ruff check canal_core service clients tests bench examples
