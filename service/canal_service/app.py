@@ -47,7 +47,8 @@ def make_recorder(settings: Settings) -> RecorderLike | None:
     os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
     root = settings.resolved_recordings_dir
     root.mkdir(parents=True, exist_ok=True)
-    recorder: RecorderLike = Recorder(root, enabled=True)
+    recorder: RecorderLike = Recorder(root, enabled=True,
+                                      live_max_hz=settings.recordings_live_hz or None)
     return recorder
 
 

@@ -30,6 +30,10 @@ class Settings(BaseSettings):
         None, description="Where the recorder writes; default is data_dir/recordings."
     )
     recordings_enabled: bool = True
+    recordings_live_hz: float = Field(
+        100.0, ge=0.0,
+        description="Live poses kept in the recordings per (skill, robot) stream and second; "
+                    "changes of the inside/done flags are always kept; 0 keeps every pose.")
     token: SecretStr | None = Field(
         None, description="When set, every route except /healthz needs 'Authorization: Bearer ...'."
     )
