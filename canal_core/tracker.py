@@ -2,14 +2,25 @@
 
 The paper's reproduction is time-independent: the next point depends only on where the
 robot is. :func:`tracker_step` makes that reactive. Each call locates the live position in
-a small window of sections ahead of the last one reached (amortised O(1)), recomputes eta and
-the direction from the live position (so a push changes the plan at once), and answers with
+a small window of sections ahead of the last one reached (amortised O(1)) and answers with
 the ratio-rule point ``lookahead`` sections ahead.
+
+The ratio (eta) and in-plane direction the target is built from are the tracker's *plan*.
+A real robot lags behind its target and cuts corners; recomputing the plan from the live
+position at every step turns that lag into a drift (on a helix whose sections are spaced
+about one canal radius apart, a first-order robot started at eta = 0.09 drifted out of the
+canal within 25 sections). So the plan is kept while the live position stays within
+``replan_tolerance`` (25 % of the local boundary distance) of where the plan puts it, and
+the target pulls the robot back onto it; a larger deviation (a push, a new start) replaces
+the plan by the live position's eta (at most ``MAX_PLAN_ETA``) and direction at once.
+``TrackerTarget.eta`` always reports the live position's ratio.
 
 Progress never goes back: the window starts one section behind the last index reached, so
 a curve that comes back close to itself cannot pull the robot to an earlier section. If the
 robot is not found in the window (it was pushed far ahead), the sections ahead are searched
-once, vectorised, from the last index to the end.
+once, vectorised, and the bracketing pair whose centre is nearest the robot is taken (the
+first plane crossed could be a later turn of a helix). "Done" is only reported at the last
+pair of sections, not anywhere in the last plane's half-space.
 """
 
 from __future__ import annotations
@@ -23,6 +34,12 @@ from .cross_sections import CrossSections, boundary_distance
 from .validation import FloatArray
 
 WINDOW = 16
+#: The plan is kept while the live position is within this fraction of the local section's
+#: boundary distance from it (see the module docstring).
+REPLAN_TOLERANCE = 0.25
+#: Largest planned ratio: positions nearer the boundary (or outside) are planned at this
+#: eta, leaving a lagging robot a margin. Offline reproduction keeps the exact ratio.
+MAX_PLAN_ETA = 0.9
 
 # On the directrix eta = 0 and any direction gives the same point (as unit_directions does).
 _DEFAULT_DIRECTIONS = {1: np.array([1.0]), 2: np.array([1.0, 0.0])}
@@ -57,6 +74,25 @@ class TrackerTarget:
 
 
 @dataclass(frozen=True, eq=False)
+class TrackerState:
+    """What a stream's tracker remembers between steps.
+
+    Attributes
+    ----------
+    index : int
+        Section reached so far (never decreases).
+    eta : float or None
+        Planned ratio; None until the first step (or after a reset).
+    direction : array, shape (D - 1,), or None
+        Planned unit in-plane direction.
+    """
+
+    index: int = 0
+    eta: float | None = None
+    direction: FloatArray | None = None
+
+
+@dataclass(frozen=True, eq=False)
 class TrackerGeometry:
     """Arrays the tracker reads, precomputed once per model."""
 
@@ -86,34 +122,42 @@ def _first_crossing(dist: FloatArray) -> int:
 
 
 def tracker_step(
-    geometry: TrackerGeometry, last_index: int, position: FloatArray, lookahead: int = 1
-) -> tuple[TrackerTarget, int]:
+    geometry: TrackerGeometry,
+    state: TrackerState,
+    position: FloatArray,
+    lookahead: int = 1,
+    replan_tolerance: float = REPLAN_TOLERANCE,
+) -> tuple[TrackerTarget, TrackerState]:
     """One reactive step.
 
     Parameters
     ----------
     geometry : TrackerGeometry
-    last_index : int
-        Section reached so far (the tracker's state).
+    state : TrackerState
+        The stream's state after the previous step (``TrackerState(index)`` to start).
     position : array, shape (D,)
         Live position.
     lookahead : int
         Sections ahead of the located one to aim at (>= 1).
+    replan_tolerance : float
+        Largest distance between the live position and the plan, as a fraction of the local
+        section's boundary distance, that still keeps the plan (0 = replan every step).
 
     Returns
     -------
     target : TrackerTarget
-    last_index : int
-        Updated state, never smaller than the one given.
+    state : TrackerState
+        Updated state; its index is never smaller than the one given.
 
     Notes
     -----
     This runs once per live pose (up to kHz per robot), so it is written for small-array
     overhead rather than elegance: one window product, scalar arithmetic in Python floats,
-    and one boundary lookup for the two located sections and the target section together.
+    and one boundary lookup for every section and direction it needs.
     """
     g = geometry
     n = g.centres.shape[0]
+    last_index = state.index
     lo = max(last_index - 1, 0)
     hi = min(last_index + WINDOW, n - 1)
     dist = g.tangents[lo : hi + 1] @ position - g.offsets[lo : hi + 1]
@@ -121,9 +165,7 @@ def tracker_step(
     if hit >= 0:
         index = lo + hit
     elif dist[-1] > 0.0 and hi < n - 1:  # pushed ahead of the window: search forward once
-        ahead = g.tangents[hi:] @ position - g.offsets[hi:]
-        hit = _first_crossing(ahead)
-        index = hi + hit if hit >= 0 else n - 2
+        index = _nearest_crossing_ahead(g, hi, position)
     elif dist[-1] > 0.0:  # past the last plane
         index = n - 2
     else:  # behind the window: hold the last section, never go back
@@ -138,47 +180,92 @@ def tracker_step(
     q = (1.0 - alpha) * pair_q[0] + alpha * pair_q[-1]
     norm = math.sqrt(float(q @ q))
     direction = q / norm if norm > 0.0 else _DEFAULT_DIRECTIONS[q.shape[0]]
-
     target_index = min(index + max(lookahead, 1), n - 1)
-    reach3 = boundary_distance(
-        g.sections, np.array([index, upper, target_index]), direction[None, :].repeat(3, axis=0)
-    )
-    reach = (1.0 - alpha) * float(reach3[0]) + alpha * float(reach3[1])
+    rows = np.array([index, upper, target_index])
+    planned = state.direction is not None and state.eta is not None
+    if planned:
+        # One lookup for the live direction and the planned one at the three sections.
+        reach6 = boundary_distance(
+            g.sections, np.tile(rows, 2), np.repeat(np.array([direction, state.direction]), 3, axis=0)
+        )
+    else:
+        reach6 = boundary_distance(g.sections, rows, direction[None, :].repeat(3, axis=0))
+    reach = (1.0 - alpha) * float(reach6[0]) + alpha * float(reach6[1])
     if reach > 0.0:
         eta = norm / reach
     else:
         eta = math.inf if norm > 0.0 else 0.0
+
+    # Plan a margin inside the boundary: a lagging robot asked to ride the boundary itself
+    # hovers just outside it (a first-order robot settles about 0.05 in eta off its plan).
+    plan_eta, plan_direction, plan_reach = min(eta, MAX_PLAN_ETA), direction, float(reach6[2])
+    if planned:
+        assert state.eta is not None and state.direction is not None
+        ref_reach = (1.0 - alpha) * float(reach6[3]) + alpha * float(reach6[4])
+        gap = q - (state.eta * ref_reach) * state.direction
+        deviation = math.sqrt(float(gap @ gap))
+        if deviation <= replan_tolerance * max(reach, ref_reach):
+            plan_eta, plan_direction, plan_reach = state.eta, state.direction, float(reach6[5])
+
     behind_start = index == 0 and d0 < 0.0
     past_end = index == n - 2 and d1 > 0.0
     inside = bool(eta <= 1.0 + 1e-9 and not behind_start and not past_end)
-
-    target = g.centres[target_index] + (min(eta, 1.0) * float(reach3[2])) * (direction @ g.basis[target_index])
+    target = g.centres[target_index] + (plan_eta * plan_reach) * (plan_direction @ g.basis[target_index])
     last = n - 1
     # "Reached" up to a millionth of the mean section spacing: a robot converging on the
     # last target approaches its plane geometrically and would otherwise never cross it.
-    done = bool(float(g.tangents[last] @ position) - float(g.offsets[last]) >= -g.done_tolerance)
+    # Only at the last pair of sections: elsewhere the last plane's half-space can hold
+    # earlier parts of the canal (a helix, a loop).
+    done = bool(
+        index >= n - 2
+        and float(g.tangents[last] @ position) - float(g.offsets[last]) >= -g.done_tolerance
+    )
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
     return (
         TrackerTarget(target, float(progress), float(eta), index, inside, done),
-        max(last_index, index),
+        TrackerState(max(last_index, index), plan_eta, plan_direction),
     )
+
+
+def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:
+    """Among the plane pairs from ``start`` on that bracket ``position``, the one nearest it."""
+    n = g.centres.shape[0]
+    ahead = g.tangents[start:] @ position - g.offsets[start:]
+    change = (ahead[:-1] == 0.0) | ((ahead[:-1] > 0.0) != (ahead[1:] > 0.0))
+    hits = np.flatnonzero(change)
+    if hits.size == 0:
+        return n - 2
+    gaps = np.linalg.norm(g.centres[start + hits] - position, axis=1)
+    return int(start + hits[int(np.argmin(gaps))])
 
 
 class Tracker:
     """Stateful wrapper around :func:`tracker_step` for one live stream."""
 
-    def __init__(self, geometry: TrackerGeometry, lookahead: int = 1) -> None:
+    def __init__(
+        self, geometry: TrackerGeometry, lookahead: int = 1, replan_tolerance: float = REPLAN_TOLERANCE
+    ) -> None:
         self.geometry = geometry
         self.lookahead = lookahead
-        self.index = 0
+        self.replan_tolerance = replan_tolerance
+        self.state = TrackerState()
+
+    @property
+    def index(self) -> int:
+        """Section reached so far."""
+        return self.state.index
 
     def step(self, position: FloatArray) -> TrackerTarget:
         """Next target for the live ``position``, shape (D,)."""
-        target, self.index = tracker_step(
-            self.geometry, self.index, np.asarray(position, dtype=np.float64), self.lookahead
+        target, self.state = tracker_step(
+            self.geometry,
+            self.state,
+            np.asarray(position, dtype=np.float64),
+            self.lookahead,
+            self.replan_tolerance,
         )
         return target
 
     def reset(self, index: int = 0) -> None:
-        """Start over (e.g. a new run, or a new model version)."""
-        self.index = index
+        """Start over from section ``index`` with no plan (a new run, or a new model version)."""
+        self.state = TrackerState(index)

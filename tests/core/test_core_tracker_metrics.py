@@ -119,3 +119,55 @@ def test_preprocessing_drops_repeats_and_still_ends() -> None:
     np.testing.assert_array_equal(cleaned, moving)
     s = normalised_arc_length(cleaned)
     assert s[0] == 0.0 and s[-1] == 1.0 and (np.diff(s) > 0).all()
+
+
+def helix_canal() -> canal_core.Canal:
+    # Two turns, sections spaced about one canal radius apart: corner cutting is large.
+    rng = np.random.default_rng(0)
+    return canal_core.fit([datasets.helix(200) + 0.03 * rng.standard_normal(3) for _ in range(5)])
+
+
+def test_tracker_is_not_done_in_the_last_planes_half_space_on_an_earlier_turn() -> None:
+    canal = helix_canal()
+    # Section 120 is most of a turn before the end, yet in front of the last plane.
+    tracker = canal.tracker(lookahead=2)
+    tracker.reset(120)
+    answer = tracker.step(canal.directrix[120])
+    assert canal.tangents[-1] @ (canal.directrix[120] - canal.directrix[-1]) > 0.5
+    assert not answer.done and answer.progress < 0.7
+
+
+@pytest.mark.parametrize("gain", [0.2, 0.5])
+def test_a_lagging_robot_keeps_its_ratio_on_a_tight_helix(gain: float) -> None:
+    # Replanning from the live position at every step let corner cutting drift a robot
+    # started at eta ~0.1 out of this canal within 25 sections.
+    canal = helix_canal()
+    for fraction in (0.1, 0.5):
+        start = canal.directrix[55] + fraction * canal.radii[55] * canal.normals[55]
+        tracker = canal.tracker(lookahead=2)
+        tracker.reset(55)
+        x, answers = start, []
+        for _ in range(2000):
+            answers.append(tracker.step(x))
+            if answers[-1].done:
+                break
+            x = x + gain * (answers[-1].target - x)
+        assert answers[-1].done and answers[-1].section_index >= canal.n_sections - 2
+        assert all(a.inside for a in answers)
+        assert abs(answers[-1].eta - answers[0].eta) < 0.1
+
+
+def test_a_push_replans_from_where_the_robot_is() -> None:
+    canal = canal_core.fit(sleeve_demos(), n_samples=200)
+    tracker = canal.tracker(lookahead=2)
+    x = canal.directrix[0] + 0.2 * canal.radii[0] * canal.normals[0]
+    for _ in range(60):
+        x = x + 0.5 * (tracker.step(x).target - x)
+    planned = tracker.state.eta
+    # a small nudge (well under the replan tolerance) is pulled back to the plan...
+    tracker.step(x + 0.02 * canal.radii[60] * canal.normals[60])
+    assert tracker.state.eta == planned
+    # ...a real push becomes the new plan
+    pushed = x + 0.6 * canal.radii[60] * canal.binormals[60]
+    answer = tracker.step(pushed)
+    assert tracker.state.eta != planned and abs(tracker.state.eta - min(answer.eta, 0.9)) < 1e-12
