@@ -181,15 +181,23 @@ def tracker_step(
     norm = math.sqrt(float(q @ q))
     direction = q / norm if norm > 0.0 else _DEFAULT_DIRECTIONS[q.shape[0]]
     target_index = min(index + max(lookahead, 1), n - 1)
-    rows = np.array([index, upper, target_index])
     planned = state.direction is not None and state.eta is not None
-    if planned:
+    if g.sections.kind == "circle":
+        # The default kind: the boundary distance does not depend on the direction.
+        radius = g.sections.params["radius"]
+        r3 = (float(radius[index]), float(radius[upper]), float(radius[target_index]))
+        reach6: tuple[float, ...] | FloatArray = r3 + r3
+    elif planned:
         # One lookup for the live direction and the planned one at the three sections.
         reach6 = boundary_distance(
-            g.sections, np.tile(rows, 2), np.repeat(np.array([direction, state.direction]), 3, axis=0)
+            g.sections,
+            np.array([index, upper, target_index] * 2),
+            np.repeat(np.array([direction, state.direction]), 3, axis=0),
         )
     else:
-        reach6 = boundary_distance(g.sections, rows, direction[None, :].repeat(3, axis=0))
+        reach6 = boundary_distance(
+            g.sections, np.array([index, upper, target_index]), direction[None, :].repeat(3, axis=0)
+        )
     reach = (1.0 - alpha) * float(reach6[0]) + alpha * float(reach6[1])
     if reach > 0.0:
         eta = norm / reach
