@@ -8,7 +8,7 @@ Curves, for circle and ellipse cross-sections, on noisy shifted 3-D helix demos:
 * demos per skill n = 2 ... 200, 200 points each, N = 200 sections (the default);
 * points per demo T = 100 ... 10,000, n = 10 demos, N = 200 sections (the default);
 * points per demo T = 100 ... 5,000, n = 10 demos, N = T sections (the finest canal the
-  service accepts; N = 10,000 took 46 s and a 10.9 GB peak once, so it is not in the run).
+  service accepts; N = 10,000 now takes ~1.2 s and 68 MB, but stays out of the run to keep it short).
 
 fit ms: best of up to 3 fits (fewer when one takes seconds); peak MB: ``tracemalloc`` peak
 during one more fit (numpy allocations included; measured apart from the timing, which
@@ -40,7 +40,7 @@ except ImportError:  # run as a file: bench/ is sys.path[0]
 KINDS = ("circle", "ellipse")
 DEMOS = (2, 5, 10, 20, 50, 100, 200)
 POINTS = (100, 300, 1000, 3000, 10000)
-#: N = T sections: up to the service's n_samples cap (5,000); N = 10,000 needs ~11 GB, see docs/scale.md.
+#: N = T sections: up to the service's n_samples cap (5,000).
 FINE_POINTS = (100, 300, 1000, 3000, 5000)
 QUICK_DEMOS = (2, 10, 50)
 QUICK_POINTS = (100, 1000)
