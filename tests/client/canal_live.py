@@ -6,16 +6,13 @@ from __future__ import annotations
 import io
 import json
 import os
-import socket
-import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import uvicorn
 from canal_service.app import create_app
 from canal_service.core.config import Settings
+from canal_testing import LiveServer, free_port
 from mcap.writer import CompressionType, Writer
 
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
@@ -24,18 +21,12 @@ RRD_MAGIC = b"RRF2"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def closed_port_url() -> str:
     """A loopback URL where nothing listens (the port was free a moment ago)."""
     return f"http://127.0.0.1:{free_port()}"
 
 
-class LiveService:
+class LiveService(LiveServer):
     """The Canal service under uvicorn on 127.0.0.1 in a background thread."""
 
     def __init__(self, data_dir: Path, **settings: Any) -> None:
@@ -44,25 +35,7 @@ class LiveService:
         settings.setdefault("recordings_enabled", False)
         settings.setdefault("zenoh_enabled", False)
         self.settings = Settings(data_dir=data_dir, **settings)
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(create_app(self.settings), host="127.0.0.1", port=self.port,
-                                log_level="warning", lifespan="on")
-        self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, daemon=True)
-
-    def __enter__(self) -> LiveService:
-        self.thread.start()
-        deadline = time.monotonic() + 20
-        while not self.server.started:
-            if time.monotonic() > deadline or not self.thread.is_alive():
-                raise RuntimeError("uvicorn did not start")
-            time.sleep(0.01)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.server.should_exit = True
-        self.thread.join(15)
+        super().__init__(create_app(self.settings))
 
 
 # ---- data -------------------------------------------------------------------------------------

@@ -17,7 +17,8 @@ with warnings.catch_warnings():
 
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from live_helpers import Live, free_port, make_skill
+from canal_testing import free_port
+from live_helpers import Live, make_skill
 
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
 

@@ -3,7 +3,6 @@ conftest.py, so ``from conftest import`` would be ambiguous)."""
 
 from __future__ import annotations
 
-import socket
 import warnings
 
 import numpy as np
@@ -13,16 +12,6 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from canal_service.core.config import Settings
-
-
-def free_port() -> int:
-    """A TCP port free on 127.0.0.1 right now (never 7447)."""
-    while True:
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.bind(("127.0.0.1", 0))
-            port = int(s.getsockname()[1])
-        if port != 7447:
-            return port
 
 
 def arc(j: int, n: int = 60, dim: int = 3, seed: int = 0) -> np.ndarray:

@@ -21,7 +21,8 @@ from canal_service.__main__ import settings_from_args
 from canal_service.app import create_app
 from canal_service.bridge import BridgeOptions, zenoh_config
 from canal_service.core.config import Settings
-from live_helpers import free_port, make_skill
+from canal_testing import free_port
+from live_helpers import make_skill
 
 pytestmark = pytest.mark.timeout(60)
 

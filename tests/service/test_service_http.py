@@ -15,7 +15,8 @@ import pytest
 from canal_service.__main__ import settings_from_args
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from service_helpers import LiveServer, demo_positions, free_port
+from canal_testing import LiveServer, free_port
+from service_helpers import demo_positions
 
 
 def test_smoke_over_real_http(live_server: LiveServer) -> None:
