@@ -22,18 +22,9 @@ from canal_core import datasets
 from canal_core.cross_sections import boundary_distance
 
 try:
-    from bench.common import summary_row, write_summary
+    from bench.common import best_of, summary_row, write_summary
 except ImportError:  # run as a file: bench/ is sys.path[0]
-    from common import summary_row, write_summary
-
-
-def best_of(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    from common import best_of, summary_row, write_summary
 
 
 def naive_reproduce(canal: canal_core.Canal, start: np.ndarray) -> np.ndarray:

@@ -16,6 +16,8 @@ stop short of the mean) contributes its sample nearest the plane, projected onto
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from .validation import FloatArray
@@ -81,6 +83,21 @@ def _crossings_in_window(
     return points, found, reference
 
 
+def in_row_blocks(
+    compute: Callable[[slice], tuple[np.ndarray, ...]], n_rows: int, row_cost: int
+) -> tuple[np.ndarray, ...]:
+    """``compute`` over slices of rows holding at most ``MAX_BLOCK`` entries, concatenated.
+
+    ``compute(rows)`` returns arrays whose first axis follows the rows; ``row_cost`` is the
+    number of entries one row makes ``compute`` allocate (its search window).
+    """
+    block = max(1, MAX_BLOCK // row_cost)
+    if n_rows <= block:
+        return compute(slice(None))
+    parts = [compute(slice(k, k + block)) for k in range(0, n_rows, block)]
+    return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
+
+
 def _blocked_crossings(
     aligned: FloatArray,
     centres: FloatArray,
@@ -90,18 +107,12 @@ def _blocked_crossings(
     half_width: int,
 ) -> tuple[FloatArray, np.ndarray, FloatArray]:
     """:func:`_crossings_in_window` over blocks of pairs of at most ``MAX_BLOCK`` entries."""
-    block = max(1, MAX_BLOCK // (2 * half_width + 1))
-    if sections.size <= block:
-        return _crossings_in_window(aligned, centres, tangents, sections, demos, half_width)
-    parts = [
-        _crossings_in_window(aligned, centres, tangents, sections[k : k + block], demos[k : k + block], half_width)
-        for k in range(0, sections.size, block)
-    ]
-    return (
-        np.concatenate([p[0] for p in parts]),
-        np.concatenate([p[1] for p in parts]),
-        np.concatenate([p[2] for p in parts]),
+    points, found, reference = in_row_blocks(
+        lambda rows: _crossings_in_window(aligned, centres, tangents, sections[rows], demos[rows], half_width),
+        sections.size,
+        2 * half_width + 1,
     )
+    return points, found, reference
 
 
 def plane_crossings(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
-from .crossings import MAX_BLOCK, crosses_plane
+from .crossings import crosses_plane, in_row_blocks
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
@@ -249,18 +249,12 @@ def _blocked_bracketing(
     samples: FloatArray, approx_index: IntArray, tangents: FloatArray, plane: FloatArray, window: int
 ) -> tuple[IntArray, FloatArray, BoolArray]:
     """:func:`bracketing_sections` over blocks of at most ``MAX_BLOCK`` (sample x offset) entries."""
-    block = max(1, MAX_BLOCK // (2 * window))
-    if samples.shape[0] <= block:
-        return bracketing_sections(samples, approx_index, tangents, plane, window)
-    parts = [
-        bracketing_sections(samples[k : k + block], approx_index[k : k + block], tangents, plane, window)
-        for k in range(0, samples.shape[0], block)
-    ]
-    return (
-        np.concatenate([p[0] for p in parts]),
-        np.concatenate([p[1] for p in parts]),
-        np.concatenate([p[2] for p in parts]),
+    index, alpha, found = in_row_blocks(
+        lambda rows: bracketing_sections(samples[rows], approx_index[rows], tangents, plane, window),
+        samples.shape[0],
+        2 * window,
     )
+    return index, alpha, found
 
 
 def enclosing_scales(
