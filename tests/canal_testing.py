@@ -1,5 +1,5 @@
 """Test support shared by every test folder (on ``sys.path`` through pytest's ``pythonpath``):
-free loopback ports and a real uvicorn serving an app on 127.0.0.1."""
+free loopback ports, a real uvicorn serving an app on 127.0.0.1, and arc demonstrations."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 import uvicorn
 
 ZENOH_DEFAULT_PORT = 7447
@@ -47,3 +48,16 @@ class LiveServer:
     def __exit__(self, *exc: object) -> None:
         self.server.should_exit = True
         self.thread.join(15)
+
+
+def arc_demo(j: int, n: int, dim: int = 3, seed: int = 0, spread: float = 0.02) -> np.ndarray:
+    """A smooth arc, shifted by ``spread`` per demonstration so the canal has a real radius."""
+    rng = np.random.default_rng(seed + j)
+    t = np.linspace(0.0, 1.0, n)
+    offset = spread * (j - 1.5)
+    x = t
+    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
+    if dim == 2:
+        return np.column_stack([x, y])
+    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
+    return np.column_stack([x, y, z])

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from canal_testing import LiveServer, free_port
+from canal_testing import LiveServer, arc_demo, free_port
 from mcap.writer import CompressionType, Writer
 
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
@@ -42,15 +42,8 @@ class LiveService(LiveServer):
 
 
 def demo_positions(j: int, n: int = 40, dim: int = 3) -> np.ndarray:
-    """A smooth arc shifted a little per demonstration, so the canal has a real radius."""
-    rng = np.random.default_rng(100 + j)
-    t = np.linspace(0.0, 1.0, n)
-    offset = 0.02 * (j - 1.5)
-    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
-    if dim == 2:
-        return np.column_stack([t, y])
-    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
-    return np.column_stack([t, y, z])
+    """A smooth arc shifted by 0.02 per demonstration (its own noise seeds)."""
+    return arc_demo(j, n, dim, seed=100, spread=0.02)
 
 
 def foxglove_pose_mcap(positions: np.ndarray, topic: str = "/ee_pose") -> bytes:

@@ -12,19 +12,12 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from canal_service.core.config import Settings
+from canal_testing import arc_demo
 
 
 def arc(j: int, n: int = 60, dim: int = 3, seed: int = 0) -> np.ndarray:
-    """A smooth arc, shifted per demonstration so the canal has a real radius."""
-    rng = np.random.default_rng(seed + j)
-    t = np.linspace(0.0, 1.0, n)
-    offset = 0.03 * (j - 1.5)
-    x = t
-    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
-    if dim == 2:
-        return np.column_stack([x, y])
-    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
-    return np.column_stack([x, y, z])
+    """A smooth arc, shifted by 0.03 per demonstration."""
+    return arc_demo(j, n, dim, seed, spread=0.03)
 
 
 def make_skill(client: TestClient, name: str, dim: int = 3, fit: bool = True,

@@ -13,22 +13,14 @@ import uuid
 from pathlib import Path
 
 import numpy as np
-from canal_testing import LiveServer, free_port
+from canal_testing import LiveServer, arc_demo, free_port
 
 __all__ = ["LiveServer", "PostgresServer", "demo_positions", "free_port"]
 
 
 def demo_positions(j: int, n: int = 50, dim: int = 3, seed: int = 0) -> np.ndarray:
-    """A smooth arc, shifted a little per demonstration so the canal has a real radius."""
-    rng = np.random.default_rng(seed + j)
-    t = np.linspace(0.0, 1.0, n)
-    offset = 0.02 * (j - 1.5)
-    x = t
-    y = 0.3 * np.sin(np.pi * t) + offset + 0.002 * rng.standard_normal(n)
-    if dim == 2:
-        return np.column_stack([x, y])
-    z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
-    return np.column_stack([x, y, z])
+    """A smooth arc, shifted by 0.02 per demonstration."""
+    return arc_demo(j, n, dim, seed, spread=0.02)
 
 
 class PostgresServer:
