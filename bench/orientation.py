@@ -39,7 +39,12 @@ from scipy.spatial.transform import Rotation
 import canal_core
 from canal_core.alignment import spline_parameter
 from canal_core.model import kept_rows
-from canal_core.orientation import aligned_orientations, angles_between, carried_orientations, start_offset
+from canal_core.orientation import (
+    aligned_orientations,
+    angles_between,
+    carried_orientations,
+    start_offset,
+)
 
 try:
     from bench.common import summary_row, write_summary
