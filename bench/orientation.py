@@ -47,9 +47,9 @@ from canal_core.orientation import (
 )
 
 try:
-    from bench.common import summary_row, write_summary
+    from bench.common import best_of, summary_row, write_summary
 except ImportError:  # run as a file: bench/ is sys.path[0]
-    from common import summary_row, write_summary
+    from common import best_of, summary_row, write_summary
 
 ROOT = Path(__file__).resolve().parent.parent
 UR5E = [ROOT.parent / "shared" / "data" / "ur5e_lab_demos.npz", ROOT / "tests" / "data" / "ur5e_lab_demos.npz"]
@@ -138,6 +138,21 @@ def table(name: str, results: dict[str, list[np.ndarray]]) -> list[str]:
     return lines
 
 
+def cost_table(data: tuple[list[np.ndarray], list[np.ndarray]]) -> list[str]:
+    """Fit and reproduce with orientation against the same calls without (best of 5, ms)."""
+    demos, quats = data
+    rows = ["| call (N = 200) | positions only ms | with orientation ms | ratio |", "|---|---|---|---|"]
+    plain_fit = best_of(lambda: canal_core.fit(demos, n_samples=N), 5)
+    pose_fit = best_of(lambda: canal_core.fit(demos, orientations=quats, n_samples=N), 5)
+    plain = canal_core.fit(demos, n_samples=N)
+    pose = canal_core.fit(demos, orientations=quats, n_samples=N)
+    plain_rep = best_of(lambda: plain.reproduce_detailed(demos[0][0]), 20)
+    pose_rep = best_of(lambda: pose.reproduce_detailed(demos[0][0], start_orientation=quats[0][0]), 20)
+    for name, a, b in (("fit", plain_fit, pose_fit), ("reproduce_detailed", plain_rep, pose_rep)):
+        rows.append(f"| {name} | {1e3 * a:.2f} | {1e3 * b:.2f} | {b / a:.2f} |")
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 synthetic instances instead of 5")
@@ -165,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         "deg", peer_name="phase-wise mean", peer_value=float(np.median(np.concatenate(merged[METHODS[1]]))),
         better="lower"))
     print("\n".join(lines))
+    print("\n" + "\n".join(cost_table(real if real is not None else pour_demos(0))))
     write_summary("orientation", summary)
     return 0
 

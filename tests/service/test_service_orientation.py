@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import httpx
 import numpy as np
 import pytest
 from canal_client import CanalClient
+from canal_client.cli import app
 from canal_testing import LiveServer
 from scipy.spatial.transform import Rotation
 from service_helpers import demo_positions
+from typer.testing import CliRunner
 
 
 def demo_orientations(j: int, n: int = 50) -> np.ndarray:
@@ -109,3 +113,24 @@ def test_client_and_cli_paths(live_server: LiveServer) -> None:
         assert all(m.orientations is not None for m in many)
         with pytest.raises(Exception, match="start_orientation"):
             client.reproduce("pour", demo_positions(0)[0], start_orientation=[0, 0, 0, 2])
+
+
+def test_cli_start_orientation_writes_quaternion_columns(live_server: LiveServer, tmp_path: Path) -> None:
+    with httpx.Client(base_url=live_server.url) as http:
+        _upload(http, "pour", [True] * 4)
+        assert http.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+    env = {"CANAL_URL": live_server.url, "CANAL_TOKEN": "", "CANAL_CACHE_DIR": str(tmp_path / "c"),
+           "COLUMNS": "200"}
+    start = ",".join(str(v) for v in demo_positions(0)[0])
+    out = tmp_path / "path.csv"
+    result = CliRunner().invoke(app, ["reproduce", "pour", "-s", start, "--start-orientation",
+                                      "0,0,0,1", "-o", str(out)], env=env)
+    assert result.exit_code == 0, result.output
+    assert "with orientations" in result.output
+    table = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert out.read_text().splitlines()[0] == "x,y,z,qx,qy,qz,qw"
+    assert table.shape[1] == 7 and np.allclose(table[0, 3:], [0, 0, 0, 1])
+    assert np.allclose(np.linalg.norm(table[:, 3:], axis=1), 1.0)
+    bad = CliRunner().invoke(app, ["reproduce", "pour", "-s", start, "--start-orientation", "0,0,1"],
+                             env=env)
+    assert bad.exit_code != 0 and "qx,qy,qz,qw" in bad.output
