@@ -23,7 +23,7 @@ except ImportError:  # run as a file: bench/ is sys.path[0]
     from common import SUMMARY_ENV, read_summary, summary_markdown, write_block
 
 HERE = Path(__file__).parent
-SCRIPTS = ["core", "service", "recording", "live", "quality", "scale"]
+SCRIPTS = ["core", "service", "recording", "live", "quality", "scale", "orientation"]
 START, END = "<!-- summary-table:start -->", "<!-- summary-table:end -->"
 HEADING = "## Summary (`python -m bench`)"
 

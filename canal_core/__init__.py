@@ -6,6 +6,7 @@ Surfaces". Quick use::
     import canal_core
     canal = canal_core.fit(demos, cross_section="ellipse")
     canal.reproduce(start)        # (N', D) trajectory by the ratio rule
+    canal_core.fit(demos, orientations=quats).reproduce_detailed(start, start_orientation=q)
     canal.contains(points)        # (M,) bool
     canal.mesh()                  # Mesh(vertices, faces, normals)
     canal_core.Canal.from_dict(canal.to_dict())
@@ -21,6 +22,7 @@ from .errors import (
     OutsideCanalError,
 )
 from .model import Canal, FitOptions, Reproduction, fit, fit_options
+from .orientation import OrientationModel
 from .surface import Mesh
 from .tracker import Tracker, TrackerTarget
 
@@ -35,6 +37,7 @@ __all__ = [
     "InvalidInputError",
     "Mesh",
     "ModelFormatError",
+    "OrientationModel",
     "OutsideCanalError",
     "Reproduction",
     "Tracker",

@@ -64,6 +64,47 @@ def resampled_demonstrations(
     )
 
 
+def dtw_parameters(
+    demos: list[FloatArray],
+    timestamps: list[FloatArray | None],
+    n_samples: int,
+    band: float = 0.1,
+) -> FloatArray:
+    """Each demonstration's spline parameter matched to every reference sample by DTW.
+
+    Each demonstration is first resampled to ``n_samples`` (so DTW sees evenly spaced
+    samples), then warped onto the reference (the mean of the resampled set). For every
+    reference sample, the demonstration's matched indices are averaged into one fractional
+    index, a monotone map from the reference to the demonstration's parameter.
+
+    Parameters
+    ----------
+    demos : list of arrays, each shape (T_j, D)
+    timestamps : list of (array, shape (T_j,)) or None
+    n_samples : int
+    band : float
+        Sakoe-Chiba half-width as a fraction of ``n_samples``.
+
+    Returns
+    -------
+    parameters : array, shape (n, N)
+        Values in [0, 1], non-decreasing along each row, 0 first and 1 last.
+    """
+    u = np.linspace(0.0, 1.0, n_samples)
+    resampled = np.stack([demonstration_spline(d, t)(u) for d, t in zip(demos, timestamps, strict=True)])
+    reference = resampled.mean(axis=0)
+    width = max(1, round(band * n_samples))
+    parameters = np.empty((len(demos), n_samples))
+    for j in range(len(demos)):
+        i_ref, i_demo = dtw_path(reference, resampled[j], band=width)
+        counts = np.bincount(i_ref, minlength=n_samples)
+        mean_index = np.bincount(i_ref, weights=i_demo, minlength=n_samples) / counts
+        # Averaging keeps the map monotone; pin the ends so every demo spans its whole path.
+        mean_index[0], mean_index[-1] = 0.0, n_samples - 1.0
+        parameters[j] = mean_index / (n_samples - 1)
+    return parameters
+
+
 def dtw_aligned_demonstrations(
     demos: list[FloatArray],
     timestamps: list[FloatArray | None],
@@ -72,10 +113,8 @@ def dtw_aligned_demonstrations(
 ) -> FloatArray:
     """Align demonstrations by DTW against their spline-aligned mean.
 
-    Each demonstration is first resampled to ``n_samples`` (so DTW sees evenly spaced
-    samples), then warped onto the reference (the mean of the resampled set). For every
-    reference sample, the demonstration's matched indices are averaged into one fractional
-    index; that monotone map resamples the demonstration's spline.
+    Each demonstration's spline is resampled at the parameters :func:`dtw_parameters` matched
+    to the reference samples.
 
     Parameters
     ----------
@@ -89,17 +128,10 @@ def dtw_aligned_demonstrations(
     -------
     aligned : array, shape (n, N, D)
     """
-    u = np.linspace(0.0, 1.0, n_samples)
-    splines = [demonstration_spline(d, t) for d, t in zip(demos, timestamps, strict=True)]
-    resampled = np.stack([s(u) for s in splines])
-    reference = resampled.mean(axis=0)
-    width = max(1, round(band * n_samples))
-    aligned = np.empty_like(resampled)
-    for j, spline in enumerate(splines):
-        i_ref, i_demo = dtw_path(reference, resampled[j], band=width)
-        counts = np.bincount(i_ref, minlength=n_samples)
-        mean_index = np.bincount(i_ref, weights=i_demo, minlength=n_samples) / counts
-        # Averaging keeps the map monotone; pin the ends so every demo spans its whole path.
-        mean_index[0], mean_index[-1] = 0.0, n_samples - 1.0
-        aligned[j] = spline(mean_index / (n_samples - 1))
-    return aligned
+    parameters = dtw_parameters(demos, timestamps, n_samples, band)
+    return np.stack(
+        [
+            demonstration_spline(d, t)(p)
+            for d, t, p in zip(demos, timestamps, parameters, strict=True)
+        ]
+    )

@@ -13,7 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from .alignment import dtw_aligned_demonstrations, resampled_demonstrations, spline_parameter
+from .alignment import (
+    dtw_aligned_demonstrations,
+    dtw_parameters,
+    resampled_demonstrations,
+    spline_parameter,
+)
 from .cross_sections import (
     KINDS,
     KINDS_3D,
@@ -26,7 +31,8 @@ from .crossings import in_plane_coordinates, plane_crossings
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
-from .preprocess import STILL_TOLERANCE, cleaned_demonstration
+from .orientation import OrientationModel, fitted_orientations
+from .preprocess import STILL_TOLERANCE, cleaned_demonstration, mask_of_new_samples, moving_range
 from .reproduce import (
     Location,
     enclosing_scales,
@@ -40,12 +46,15 @@ from .validation import (
     MIN_POINTS,
     BoolArray,
     FloatArray,
+    IntArray,
     check_choice,
+    check_demonstration_orientations,
     check_demonstrations,
     check_fraction,
     check_int,
     check_point,
     check_points,
+    check_quaternion,
 )
 
 FORMAT = "canal-model"
@@ -93,6 +102,13 @@ class Reproduction:
         Section the start was located at.
     projected : bool
         True when the start's ratio exceeded 1 and was clamped to the boundary.
+    orientations : array, shape (N', 4), or None
+        One unit quaternion [qx, qy, qz, qw] per position when the canal learned orientation
+        (see :mod:`canal_core.orientation`): the start orientation (or its section's mean),
+        then the rotational ratio rule. Hemisphere-continuous.
+    orientation_eta : float or None
+        The start orientation's angle from its section mean over the section's spread,
+        before clamping to 1 (None without a start orientation or orientation model).
     """
 
     positions: FloatArray
@@ -101,6 +117,8 @@ class Reproduction:
     eta: float
     section_index: int
     projected: bool
+    orientations: FloatArray | None = None
+    orientation_eta: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,6 +140,8 @@ class Canal:
         by the mean's tangent); the canal's end sections are extruded along t by these
         depths so that every demonstrated point is inside the canal.
     options : FitOptions
+    orientation : OrientationModel or None
+        Per-section mean orientation and spread, when every demonstration had orientations.
     """
 
     directrix: FloatArray
@@ -133,6 +153,7 @@ class Canal:
     section_points: FloatArray
     end_depths: FloatArray = field(default_factory=lambda: np.zeros(2))
     options: FitOptions = field(default_factory=FitOptions)
+    orientation: OrientationModel | None = None
 
     # -- derived ---------------------------------------------------------------------
     @property
@@ -146,6 +167,10 @@ class Canal:
     @property
     def n_demos(self) -> int:
         return int(self.section_points.shape[1])
+
+    @property
+    def has_orientation(self) -> bool:
+        return self.orientation is not None
 
     @property
     def section_kind(self) -> str:
@@ -192,7 +217,9 @@ class Canal:
         reach = np.where(loc.axial < 0.0, self.end_depths[0], self.end_depths[1]) + axial_tol
         return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
 
-    def reproduce_detailed(self, start: Any, outside: str = "project") -> Reproduction:
+    def reproduce_detailed(
+        self, start: Any, outside: str = "project", start_orientation: Any = None
+    ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
 
         Parameters
@@ -201,9 +228,15 @@ class Canal:
         outside : {"project", "raise"}
             For a start outside the canal: clamp its ratio to 1 (the boundary) and say so in
             ``projected``, or raise :class:`OutsideCanalError`.
+        start_orientation : array_like, shape (4,), optional
+            Unit quaternion [qx, qy, qz, qw] of the start pose. Its offset from the start
+            section's mean orientation is carried by the rotational ratio rule
+            (:mod:`canal_core.orientation`). Checked always, used only when the canal has an
+            orientation model; without it the orientations are the section means.
         """
         point = check_point(start, self.dim, "start")
         check_choice(outside, ("project", "raise"), "outside")
+        quat = None if start_orientation is None else check_quaternion(start_orientation)
         loc = located_points(point[None, :], self.directrix, self.tangents, self.basis, self.sections)
         eta = float(loc.eta[0])
         inside = bool(self._inside(loc, CONTAINS_TOLERANCE)[0])
@@ -217,6 +250,9 @@ class Canal:
         path = ratio_rule_positions(
             first, min(eta, 1.0), loc.direction[0], self.directrix, self.basis, self.sections
         )
+        orientations, orientation_eta = None, None
+        if self.orientation is not None:
+            orientations, orientation_eta = self.orientation.reproduced(int(loc.index[0]), first, quat)
         return Reproduction(
             positions=np.vstack([point, path]),
             start=point,
@@ -224,6 +260,8 @@ class Canal:
             eta=min(eta, 1.0),
             section_index=int(loc.index[0]),
             projected=eta > 1.0,
+            orientations=orientations,
+            orientation_eta=orientation_eta,
         )
 
     def reproduce(self, start: Any) -> FloatArray:
@@ -233,9 +271,11 @@ class Canal:
     def tracker(self, lookahead: int = 1) -> Tracker:
         """A reactive tracker for one live stream (see :mod:`canal_core.tracker`)."""
         check_int(lookahead, 1, "lookahead")
-        return Tracker(
-            tracker_geometry(self.directrix, self.tangents, self.basis, self.sections), lookahead
+        geometry = tracker_geometry(
+            self.directrix, self.tangents, self.basis, self.sections,
+            orientations=None if self.orientation is None else self.orientation.means,
         )
+        return Tracker(geometry, lookahead)
 
     def mesh(self, n_angles: int = 32, caps: bool = False, envelope: bool = False) -> Mesh:
         """The canal surface as a triangle mesh.
@@ -282,6 +322,8 @@ class Canal:
             "sections": self.sections.to_dict(),
             "section_points": self.section_points.tolist(),
             "end_depths": self.end_depths.tolist(),
+            # Absent in models saved before orientation existed; None when not learned.
+            "orientation": None if self.orientation is None else self.orientation.to_dict(),
         }
 
     @classmethod
@@ -315,6 +357,10 @@ class Canal:
                     raise ModelFormatError(f"expected {key} of shape {shape}, got {arr[key].shape}", field=key)
             if any(v.shape[0] != n for v in params.values()):
                 raise ModelFormatError(f"expected {n} cross-sections in every parameter", field="sections")
+            raw_orientation = data.get("orientation")
+            orientation = (
+                None if raw_orientation is None else OrientationModel.from_dict(raw_orientation, n)
+            )
             return cls(
                 directrix=arr["directrix"],
                 tangents=arr["tangents"],
@@ -326,6 +372,7 @@ class Canal:
                 end_depths=arr["end_depths"],
                 # Models saved before frame smoothing existed had frames of the raw directrix.
                 options=FitOptions(**{"frame_smoothing": 0.0, **data["options"]}),
+                orientation=orientation,
             )
         except ModelFormatError:
             raise
@@ -380,6 +427,7 @@ def fit(
     n_samples: int = 200,
     still_tolerance: float = STILL_TOLERANCE,
     frame_smoothing: float = FitOptions.frame_smoothing,
+    orientations: Any = None,
 ) -> Canal:
     """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
 
@@ -402,6 +450,11 @@ def fit(
     still_tolerance : float
         Head and tail samples within this fraction of the path length of the first/last
         sample are trimmed (see :mod:`canal_core.preprocess`).
+    orientations : sequence of array_like, each shape (T_j, 4), optional
+        Unit quaternions [qx, qy, qz, qw], one per position of each demo (q and -q alike).
+        When given, the canal also learns a mean orientation and a spread per section on the
+        positions' alignment (:mod:`canal_core.orientation`). Rows dropped with the position
+        repeats and still ends are dropped here too.
 
     Returns
     -------
@@ -416,6 +469,7 @@ def fit(
     """
     options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
     demos_, times_, dim = check_demonstrations(demos, timestamps)
+    quats_ = None if orientations is None else check_demonstration_orientations(orientations, demos_)
     if options.cross_section in ("spline", "ellipse") and dim == 3 and len(demos_) < 3:
         # Two crossings per plane fix one axis only: the other would be made up.
         raise InvalidInputError(
@@ -480,6 +534,9 @@ def fit(
     sections = scaled_sections(
         sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
     )
+    orientation = None
+    if quats_ is not None:
+        orientation = _fitted_orientation(demos_, times_, quats_, positions, times, options, still_tolerance)
     return Canal(
         end_depths=end_depths(samples, phase, centres, tangents),
         directrix=centres,
@@ -490,4 +547,36 @@ def fit(
         sections=sections,
         section_points=coords,
         options=options,
+        orientation=orientation,
     )
+
+
+def kept_rows(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> IntArray:
+    """Indices of the rows :func:`canal_core.preprocess.cleaned_demonstration` keeps, shape (T',).
+
+    Orientations are cleaned by the same rows as the positions they belong to.
+    """
+    kept = np.flatnonzero(mask_of_new_samples(positions))
+    return np.asarray(kept[moving_range(positions[kept], tolerance)], dtype=np.int64)
+
+
+def _fitted_orientation(
+    demos: list[FloatArray],
+    timestamps: list[FloatArray | None],
+    quaternions: list[FloatArray],
+    positions: list[FloatArray],
+    times: list[FloatArray | None],
+    options: FitOptions,
+    tolerance: float,
+) -> OrientationModel:
+    """The orientation model on the same alignment as the positions."""
+    rows = [kept_rows(d, tolerance) for d in demos]
+    parameters = [
+        spline_parameter(d[r], None if t is None else t[r])
+        for d, t, r in zip(demos, timestamps, rows, strict=True)
+    ]
+    if options.alignment == "dtw":
+        at = dtw_parameters(positions, times, options.n_samples)
+    else:
+        at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(demos), options.n_samples))
+    return fitted_orientations([q[r] for q, r in zip(quaternions, rows, strict=True)], parameters, at)

@@ -63,6 +63,9 @@ class TrackerTarget:
         Whether the live position is inside the canal.
     done : bool
         Whether the live position has reached the last cross-section.
+    orientation : array, shape (4,), or None
+        Orientation to hold at the target, unit quaternion [qx, qy, qz, qw]: the mean
+        orientation of the target's section when the canal learned orientation.
     """
 
     target: FloatArray
@@ -71,6 +74,7 @@ class TrackerTarget:
     section_index: int
     inside: bool
     done: bool
+    orientation: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,15 +106,25 @@ class TrackerGeometry:
     offsets: FloatArray  # (N,) t_i . c_i
     sections: CrossSections
     done_tolerance: float
+    orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
 
 
 def tracker_geometry(
-    centres: FloatArray, tangents: FloatArray, basis: FloatArray, sections: CrossSections
+    centres: FloatArray,
+    tangents: FloatArray,
+    basis: FloatArray,
+    sections: CrossSections,
+    orientations: FloatArray | None = None,
 ) -> TrackerGeometry:
-    """Precompute the plane offsets t_i . c_i used by every step."""
+    """Precompute the plane offsets t_i . c_i used by every step.
+
+    ``orientations`` (N, 4), the canal's section mean orientations, makes every target carry
+    the one of its section.
+    """
     spacing = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).mean()) if len(centres) > 1 else 0.0
     return TrackerGeometry(
-        centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing
+        centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
+        orientations,
     )
 
 
@@ -230,7 +244,10 @@ def tracker_step(
     )
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
     return (
-        TrackerTarget(target, float(progress), float(eta), index, inside, done),
+        TrackerTarget(
+            target, float(progress), float(eta), index, inside, done,
+            None if g.orientations is None else g.orientations[target_index],
+        ),
         TrackerState(max(last_index, index), plan_eta, plan_direction),
     )
 

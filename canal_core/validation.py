@@ -196,3 +196,86 @@ def check_fraction(value: Any, field: str, maximum: float = 0.25) -> float:
     if not np.isfinite(value) or value < 0.0 or value > maximum:
         raise InvalidInputError(f"expected {field} in [0, {maximum}], got {value}", field=field)
     return float(value)
+
+
+#: Largest | |q| - 1 | accepted for a unit quaternion before it is renormalised. Robot
+#: drivers often send float32 quaternions, renormalised loosely; 1e-3 accepts those and still
+#: catches Euler angles, rotation vectors or unnormalised garbage.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+def check_quaternions(
+    value: Any, n_rows: int | None = None, field: str = "orientations"
+) -> FloatArray:
+    """Return ``value`` as finite unit quaternions [qx, qy, qz, qw] of shape (T, 4), normalised.
+
+    Parameters
+    ----------
+    value : array_like, shape (T, 4)
+    n_rows : int, optional
+        Required T (one orientation per position).
+    field : str
+        Name used in error messages; a bad row is named ``field[i]``.
+    """
+    array = _as_float_array(value, field)
+    rows = "T" if n_rows is None else str(n_rows)
+    if array.ndim != 2 or array.shape[1] != 4 or (n_rows is not None and array.shape[0] != n_rows):
+        raise InvalidInputError(
+            f"expected {field} of shape ({rows}, 4) as qx, qy, qz, qw rows, got {array.shape}",
+            field=field,
+        )
+    check_finite(array, field)
+    norms = np.linalg.norm(array, axis=1)
+    bad = np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InvalidInputError(
+            f"expected unit quaternions in {field} (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
+            f"got norm {norms[i]:.6g} at row {i}",
+            field=f"{field}[{i}]",
+        )
+    return np.asarray(array / norms[:, None])
+
+
+def check_quaternion(value: Any, field: str = "start_orientation") -> FloatArray:
+    """Return ``value`` as one finite unit quaternion [qx, qy, qz, qw], shape (4,), normalised."""
+    array = _as_float_array(value, field)
+    if array.shape != (4,):
+        raise InvalidInputError(
+            f"expected {field} of shape (4,) as qx, qy, qz, qw, got {array.shape}", field=field
+        )
+    check_finite(array[None, :], field)
+    norm = float(np.linalg.norm(array))
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise InvalidInputError(
+            f"expected {field} as a unit quaternion (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
+            f"got norm {norm:.6g}",
+            field=field,
+        )
+    return np.asarray(array / norm)
+
+
+def check_demonstration_orientations(orientations: Any, demos: list[FloatArray]) -> list[FloatArray]:
+    """Validate one (T_j, 4) quaternion array per demonstration; each comes back normalised.
+
+    Parameters
+    ----------
+    orientations : sequence of array_like, each shape (T_j, 4)
+        Unit quaternions [qx, qy, qz, qw], one per position of ``demos[j]``.
+    demos : list of arrays, each shape (T_j, D)
+        The checked demonstrations.
+    """
+    if isinstance(orientations, np.ndarray) and orientations.ndim == 3:
+        orientations = list(orientations)
+    if not isinstance(orientations, Sequence) or isinstance(orientations, str | bytes) or len(
+        orientations
+    ) != len(demos):
+        got = len(orientations) if isinstance(orientations, Sequence) else type(orientations).__name__
+        raise InvalidInputError(
+            f"expected orientations as a list of {len(demos)} (T_j, 4) arrays (one per demo), got {got}",
+            field="orientations",
+        )
+    return [
+        check_quaternions(q, d.shape[0], f"orientations[{j}]")
+        for j, (q, d) in enumerate(zip(orientations, demos, strict=True))
+    ]

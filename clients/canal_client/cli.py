@@ -163,6 +163,17 @@ def _parse_point(text: str, option: str = "--start") -> np.ndarray:
     return np.asarray(values, dtype=np.float64)
 
 
+def _parse_quaternion(text: str, option: str = "--start-orientation") -> np.ndarray:
+    try:
+        values = [float(v) for v in text.replace(" ", "").split(",") if v != ""]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not np.all(np.isfinite(values)):
+        raise typer.BadParameter(f"expected 4 comma-separated numbers qx,qy,qz,qw like 0,0,0,1, "
+                                 f"got {text!r}", param_hint=option)
+    return np.asarray(values, dtype=np.float64)
+
+
 def _time(value: datetime | None) -> str:
     return value.strftime("%Y-%m-%d %H:%M:%S") if value else ""
 
@@ -450,12 +461,16 @@ def fit(
               f"{model.fit_seconds:.3f} s")
 
 
-def _write_trajectory(path: Path, positions: np.ndarray, payload: Any) -> None:
+def _write_trajectory(path: Path, positions: np.ndarray, payload: Any,
+                      orientations: np.ndarray | None = None) -> None:
     suffix = path.suffix.lower()
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
         header = "x,y,z" if positions.shape[1] == 3 else "x,y"
-        np.savetxt(path, positions, delimiter=",", header=header, comments="", fmt="%.17g")
+        table = positions
+        if orientations is not None:
+            header, table = header + ",qx,qy,qz,qw", np.hstack([positions, orientations])
+        np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.17g")
     elif suffix == ".npy":
         np.save(path, positions)
     else:
@@ -475,17 +490,23 @@ def reproduce(
     outside: Annotated[Outside, typer.Option(
         "--outside", help="A start outside the canal: project it onto the canal, or refuse.")
     ] = Outside.project,
+    start_orientation: Annotated[str | None, typer.Option(
+        "--start-orientation", "-q",
+        help="qx,qy,qz,qw unit quaternion of the start pose (models with orientation carry it; "
+             "--out .csv then adds qx,qy,qz,qw columns).")] = None,
 ) -> None:
     """Reproduce a trajectory from a new start."""
     point = _parse_point(start)
+    quat = None if start_orientation is None else _parse_quaternion(start_orientation)
     if model != "latest" and not model.isdigit():
         raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with _client(ctx) as c:
-        r = c.reproduce(skill, point, model=model, outside=outside.value)
+        r = c.reproduce(skill, point, model=model, outside=outside.value,
+                        start_orientation=quat)
     if out_path is not None:
-        _write_trajectory(out_path, r.positions, r)
+        _write_trajectory(out_path, r.positions, r, r.orientations)
     if _opts(ctx).json:
         _print_json({**_plain(r), "out": None if out_path is None else str(out_path)})
         return
@@ -494,6 +515,11 @@ def reproduce(
     end = ", ".join(f"{v:.4g}" for v in r.positions[-1])
     out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}; "
               f"start {state} (eta {r.eta:.3f}, section {r.section_index}); ends at ({end})")
+    if r.orientations is not None:
+        last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])
+        out.print(f"with orientations; ends at qx,qy,qz,qw ({last})")
+    for note in r.notes:
+        out.print(f"note: {escape(note)}")
     if out_path is not None:
         out.print(f"wrote {escape(str(out_path))}")
 

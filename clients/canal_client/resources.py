@@ -6,7 +6,7 @@ Resources table) and nothing else.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
@@ -141,6 +141,8 @@ class ModelSummary:
     n_sections: int
     section_kind: str
     fit_seconds: float
+    #: Whether the model learned orientation (its reproductions carry quaternions).
+    has_orientation: bool
 
     @staticmethod
     def _fields(d: dict[str, Any]) -> dict[str, Any]:
@@ -148,7 +150,8 @@ class ModelSummary:
                     demo_ids=[int(i) for i in d["demo_ids"]], options=dict(d["options"]),
                     dim=int(d["dim"]), n_demos=int(d["n_demos"]),
                     n_sections=int(d["n_sections"]), section_kind=d["section_kind"],
-                    fit_seconds=float(d["fit_seconds"]))
+                    fit_seconds=float(d["fit_seconds"]),
+                    has_orientation=bool(d.get("has_orientation", False)))
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> ModelSummary:
@@ -194,7 +197,9 @@ class Reproduction:
     ``positions`` (N', D) ends on the canal's last section; ``start`` (D,) is the start that was
     asked for; ``inside`` whether it was inside the canal; ``eta`` its ratio to the section's
     boundary (0 on the directrix, 1 on the boundary); ``section_index`` the section it was
-    located at; ``projected`` whether it was moved onto the boundary first.
+    located at; ``projected`` whether it was moved onto the boundary first;
+    ``orientations`` (N', 4) unit quaternions qx, qy, qz, qw per position when the model has
+    orientation (else ``None``); ``notes`` what the service did that the request did not say.
     """
 
     positions: FloatArray
@@ -204,10 +209,14 @@ class Reproduction:
     section_index: int
     projected: bool
     model_version: int
+    orientations: FloatArray | None = None
+    notes: list[str] = field(default_factory=list)
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Reproduction:
         return cls(positions=_array(d["positions"]), start=_array(d["start"]),
                    inside=bool(d["inside"]), eta=float(d["eta"]),
                    section_index=int(d["section_index"]), projected=bool(d["projected"]),
-                   model_version=int(d["model_version"]))
+                   model_version=int(d["model_version"]),
+                   orientations=None if d.get("orientations") is None else _array(d["orientations"]),
+                   notes=[str(n) for n in d.get("notes") or []])

@@ -284,21 +284,31 @@ def _model_ref(model: Version) -> int | str:
     return model if model == "latest" else int(model)
 
 
-def _reproduce(skill: str, start: ArrayLike, model: Version,
-               outside: str) -> _Request[Reproduction]:
+def _with_orientation(payload: dict[str, Any], start_orientation: ArrayLike | None
+                      ) -> dict[str, Any]:
+    if start_orientation is not None:
+        payload["start_orientation"] = _point(start_orientation, "start_orientation")
+    return payload
+
+
+def _reproduce(skill: str, start: ArrayLike, model: Version, outside: str,
+               start_orientation: ArrayLike | None = None) -> _Request[Reproduction]:
     return _post_json(_skill_path(skill, "reproductions"),
-                      {"start": _point(start), "model": _model_ref(model), "outside": outside},
+                      _with_orientation({"start": _point(start), "model": _model_ref(model),
+                                         "outside": outside}, start_orientation),
                       _json_of(Reproduction.from_json))
 
 
-def _reproduce_many(skill: str, starts: ArrayLike, model: Version,
-                    outside: str) -> _Request[list[Reproduction]]:
+def _reproduce_many(skill: str, starts: ArrayLike, model: Version, outside: str,
+                    start_orientation: ArrayLike | None = None
+                    ) -> _Request[list[Reproduction]]:
     def read(resp: httpx.Response) -> list[Reproduction]:
         return [Reproduction.from_json(r) for r in resp.json()["reproductions"]]
 
     return _post_json(_skill_path(skill, "reproductions"),
-                      {"starts": _rows(starts, "starts"), "model": _model_ref(model),
-                       "outside": outside}, read)
+                      _with_orientation({"starts": _rows(starts, "starts"),
+                                         "model": _model_ref(model), "outside": outside},
+                                        start_orientation), read)
 
 
 def _recording_path(skill: str, kind: str) -> str:
@@ -495,17 +505,21 @@ class CanalClient(_Base):
     # -- reproductions --
 
     def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                  outside: str = "project") -> Reproduction:
+                  outside: str = "project", start_orientation: ArrayLike | None = None
+                  ) -> Reproduction:
         """Reproduce from ``start`` (D,). A start outside the canal is projected onto it
         (``outside="project"``) or refused with :class:`~canal_client.errors.OutsideCanalError`
-        (``outside="raise"``)."""
-        return self._call(_reproduce(skill, start, model, outside))
+        (``outside="raise"``). ``start_orientation`` (4,) qx, qy, qz, qw: the start pose's
+        orientation, carried along when the model has orientation (``result.orientations``);
+        a model without it ignores it and says so in ``result.notes``."""
+        return self._call(_reproduce(skill, start, model, outside, start_orientation))
 
     def reproduce_many(self, skill: str, starts: ArrayLike, *,
-                       model: Version = "latest", outside: str = "project"
-                       ) -> list[Reproduction]:
-        """Reproduce from each start (at most 1000) in one request, in order."""
-        return self._call(_reproduce_many(skill, starts, model, outside))
+                       model: Version = "latest", outside: str = "project",
+                       start_orientation: ArrayLike | None = None) -> list[Reproduction]:
+        """Reproduce from each start (at most 1000) in one request, in order
+        (``start_orientation`` is used for every start)."""
+        return self._call(_reproduce_many(skill, starts, model, outside, start_orientation))
 
     # -- recordings --
 
@@ -650,15 +664,17 @@ class AsyncCanalClient(_Base):
         return await self._call(_mesh(skill, version, format, n_angles, caps, envelope))
 
     async def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                        outside: str = "project") -> Reproduction:
+                        outside: str = "project", start_orientation: ArrayLike | None = None
+                        ) -> Reproduction:
         """See :meth:`CanalClient.reproduce`."""
-        return await self._call(_reproduce(skill, start, model, outside))
+        return await self._call(_reproduce(skill, start, model, outside, start_orientation))
 
     async def reproduce_many(self, skill: str, starts: ArrayLike, *,
-                             model: Version = "latest", outside: str = "project"
-                             ) -> list[Reproduction]:
+                             model: Version = "latest", outside: str = "project",
+                             start_orientation: ArrayLike | None = None) -> list[Reproduction]:
         """See :meth:`CanalClient.reproduce_many`."""
-        return await self._call(_reproduce_many(skill, starts, model, outside))
+        return await self._call(_reproduce_many(skill, starts, model, outside,
+                                                start_orientation))
 
     async def download_recording(self, skill: str, kind: RecordingKind,
                                  path: str | os.PathLike[str]) -> Path:

@@ -155,6 +155,11 @@ class FitRequest(_In):
     demo_ids: list[Id] | None = Field(
         None, max_length=10000, description="Fit only these demonstrations (default: all)."
     )
+    orientation: bool = Field(
+        True,
+        description="Learn the orientation along the canal when every demonstration has "
+                    "orientations (false: positions only). The model's options say whether "
+                    "it was learned.")
 
 
 class ModelSummary(BaseModel):
@@ -169,6 +174,9 @@ class ModelSummary(BaseModel):
     n_sections: int
     section_kind: str
     fit_seconds: float
+    has_orientation: bool = Field(
+        False, description="Whether the model learned orientation (every demo had "
+                           "orientations): reproductions then answer one quaternion per position.")
 
 
 class Frames(BaseModel):
@@ -211,6 +219,11 @@ class ReproductionRequest(_In):
         description="A start outside the canal is projected onto it (200, inside=false, "
         "projected=true), or refused with 422 when 'raise'.",
     )
+    start_orientation: list[float] | None = Field(
+        None, min_length=4, max_length=4, examples=[[0.0, 0.0, 0.0, 1.0]],
+        description="Unit quaternion qx, qy, qz, qw of the start pose (used for every start of "
+                    "a batch). Its offset from the canal's mean orientation is carried along; "
+                    "a model without orientation ignores it and says so in 'notes'.")
 
     @model_validator(mode="after")
     def _one_of_start_or_starts(self) -> ReproductionRequest:
@@ -229,6 +242,13 @@ class ReproductionOut(BaseModel):
     section_index: int
     projected: bool
     model_version: int
+    orientations: list[list[float]] | None = Field(
+        None, description="(N', 4) unit quaternions qx, qy, qz, qw, one per position, when the "
+                          "model has orientation; null otherwise.")
+    notes: list[str] = Field(
+        default_factory=list,
+        description="What the service did that the request did not say, e.g. "
+                    "'model has no orientation: start_orientation ignored'.")
 
 
 class ReproductionBatchOut(BaseModel):

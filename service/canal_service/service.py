@@ -242,11 +242,16 @@ class CanalService:
         demo_ids = [d[0] for d in loaded]
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
-        options = body.model_dump(exclude={"demo_ids", "by_time"})
+        options = body.model_dump(exclude={"demo_ids", "by_time", "orientation"})
         timestamps = times if body.by_time and any(t is not None for t in times) else None
+        quats = [d[3] for d in loaded]
+        # Orientation is learned only when every demo has it: a mean over some demos would
+        # not be the skill's.
+        orientations = quats if body.orientation and all(q is not None for q in quats) else None
         started = time.perf_counter()
         try:
-            canal = canal_core.fit(positions, timestamps=timestamps, **options)
+            canal = canal_core.fit(positions, timestamps=timestamps, orientations=orientations,
+                                   **options)
         except canal_core.CanalError as exc:
             _name_demo_in(exc, demo_ids)
             # canal_core leaves the field empty when the set as a whole is at fault.
@@ -254,7 +259,8 @@ class CanalService:
             raise
         seconds = time.perf_counter() - started
         serialized = canal.to_dict()
-        used_options = {**canal.options.to_dict(), "by_time": timestamps is not None}
+        used_options = {**canal.options.to_dict(), "by_time": timestamps is not None,
+                        "orientation": bool(canal.has_orientation)}
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
         self.cache.put(model[0], canal)
         self.metrics.fits.inc()
@@ -293,6 +299,7 @@ class CanalService:
             options=dict(row.options), dim=dim,
             n_demos=len(row.demo_ids) if n_demos is None else n_demos,
             n_sections=row.n_sections, section_kind=row.section_kind, fit_seconds=row.fit_seconds,
+            has_orientation=bool(dict(row.options).get("orientation", False)),
         )
 
     def list_models(self, name: str, offset: int, limit: int) -> schemas.Page[schemas.ModelSummary]:
@@ -375,13 +382,19 @@ class CanalService:
             if len(start) != dim:
                 raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(start)}",
                                    field=field)
+        notes = []
+        start_orientation = body.start_orientation
+        if start_orientation is not None and not canal.has_orientation:
+            notes.append("model has no orientation: start_orientation ignored")
+            start_orientation = None
         results = []
         for start, field in zip(starts, fields, strict=True):
             try:
                 result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
-                                                  outside=body.outside)
+                                                  outside=body.outside,
+                                                  start_orientation=start_orientation)
             except canal_core.CanalError as exc:
-                exc.field = field
+                exc.field = exc.field if exc.field == "start_orientation" else field
                 raise
             results.append(result)
         outs = []
@@ -392,7 +405,8 @@ class CanalService:
                 positions=_tolist(result.positions), start=_tolist(result.start),
                 inside=bool(result.inside), eta=float(result.eta),
                 section_index=int(result.section_index), projected=bool(result.projected),
-                model_version=found_version,
+                model_version=found_version, orientations=_tolist(result.orientations),
+                notes=notes + _orientation_notes(canal, result, start_orientation),
             ))
         if body.start is not None:
             return outs[0]
@@ -436,6 +450,20 @@ class CanalService:
 
         return schemas.HealthOut(status=status, database=database,  # type: ignore[arg-type]
                                  recorder=recorder, bridge=bridge, version=__version__)
+
+
+def _orientation_notes(canal: Any, result: Any, start_orientation: Any) -> list[str]:
+    """Say how the orientations were made when the request could not tell."""
+    if not canal.has_orientation:
+        return []
+    if start_orientation is None:
+        return ["no start_orientation: orientations are the canal's mean orientation"]
+    ratio = result.orientation_eta
+    if ratio is not None and ratio > 1.0:
+        return [f"start_orientation is {ratio:.3g} times the demonstrations' largest angle from "
+                "the mean at its section: its offset is carried as far as the demonstrations "
+                "kept theirs, outside what was demonstrated"]
+    return []
 
 
 _INDEXED_FIELD = re.compile(r"^(demos|timestamps)\[(\d+)\]")

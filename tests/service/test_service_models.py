@@ -92,7 +92,7 @@ def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> No
     assert m["demo_ids"] == ids[:2] and m["n_demos"] == 2 and m["section_kind"] == "mec"
     assert m["options"] == {"cross_section": "mec", "frames": "frenet", "alignment": "dtw",
                             "directrix": "mean", "n_samples": 30, "frame_smoothing": 0.0,
-                            "by_time": True}
+                            "by_time": True, "orientation": False}
     # By default demonstrations are aligned by arc length, even when they carry time stamps.
     default = client.post(f"/skills/{skill}/fit", json={"demo_ids": ids[:2], "n_samples": 30})
     assert default.json()["options"]["by_time"] is False
