@@ -333,3 +333,25 @@ def test_bootstrap_lifespan_runs_the_real_apps_lifespan(tmp_path: Path) -> None:
         service = boot.app.state.service
         assert service.recorder is not None
     assert service.recorder is None  # closed by the real lifespan's exit
+
+
+# ---- license and citation ------------------------------------------------------------------
+
+
+def test_license_and_citation_agree_with_the_package() -> None:
+    import tomllib
+
+    import yaml
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == "MIT"
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License\n")
+    cff = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert cff["cff-version"] == "1.2.0" and cff["type"] == "software"
+    assert cff["license"] == project["license"] and cff["version"] == project["version"]
+    for entry in (cff, cff["preferred-citation"], *cff["references"]):
+        assert entry["title"] and entry["authors"], entry
+    paper = cff["preferred-citation"]
+    assert paper["title"] == ("Encoding Demonstrations and Learning New Trajectories using "
+                              "Canal Surfaces")
+    assert [a["family-names"] for a in paper["authors"]] == ["Ahmadzadeh", "Chernova"]
