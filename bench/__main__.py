@@ -4,7 +4,10 @@ Each script runs as its own subprocess (``--quick`` passes through) with ``CANAL
 pointing at a JSON-lines file; scripts append their headline figures there (see
 :mod:`bench.common`), a script that writes none is fine. The summary table (figure, ours,
 peer in the same run, ours / peer) is printed and, on a full run (or ``--write``), written into
-BENCHMARKS.md between the summary-table markers. ``--only core,quality`` runs a subset.
+BENCHMARKS.md between the summary-table markers, with the pictures :mod:`bench.plots` draws from
+the same rows (quality against the peers, fit time against N, live latency against the echo):
+into docs/img/bench/ on a full run, else into ``--plots DIR`` or a temporary folder whose path
+is printed (``--no-plots`` skips them). ``--only core,quality`` runs a subset.
 """
 
 from __future__ import annotations
@@ -18,12 +21,15 @@ import time
 from pathlib import Path
 
 try:
-    from bench.common import SUMMARY_ENV, read_summary, summary_markdown, write_block
+    from bench.common import BENCHMARKS, SUMMARY_ENV, read_summary, summary_markdown, write_block
+    from bench.plots import markdown_images, write_plots
 except ImportError:  # run as a file: bench/ is sys.path[0]
-    from common import SUMMARY_ENV, read_summary, summary_markdown, write_block
+    from common import BENCHMARKS, SUMMARY_ENV, read_summary, summary_markdown, write_block
+    from plots import markdown_images, write_plots
 
 HERE = Path(__file__).parent
-SCRIPTS = ["core", "service", "recording", "live", "quality", "scale", "orientation"]
+SCRIPTS = ["core", "service", "recording", "live", "quality", "scale", "orientation", "startup"]
+PLOTS_DIR = HERE.parent / "docs" / "img" / "bench"
 START, END = "<!-- summary-table:start -->", "<!-- summary-table:end -->"
 HEADING = "## Summary (`python -m bench`)"
 
@@ -34,6 +40,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only", default="", help="comma-separated subset of " + ",".join(SCRIPTS))
     parser.add_argument("--write", action="store_true",
                         help="write the summary into BENCHMARKS.md even with --quick")
+    parser.add_argument("--plots", type=Path, default=None,
+                        help="folder for the PNGs (default: docs/img/bench/ when BENCHMARKS.md "
+                             "is written, else a temporary folder)")
+    parser.add_argument("--no-plots", action="store_true", help="draw no PNGs")
     args = parser.parse_args(argv)
     names = [n for n in args.only.split(",") if n] or SCRIPTS
     unknown = set(names) - set(SCRIPTS)
@@ -65,8 +75,18 @@ def main(argv: list[str] | None = None) -> int:
         "is better where `better` is lower."
     )
     print(f"\n== summary ==\n{caption}\n\n{table}")
-    if args.write or (not args.quick and not args.only):
-        write_block(caption + "\n\n" + table, START, END, HEADING)
+    write_md = args.write or (not args.quick and not args.only)
+    images = ""
+    if not args.no_plots:
+        out = args.plots or (PLOTS_DIR if write_md else
+                             Path(tempfile.mkdtemp(prefix="canal-bench-plots-")))
+        written = write_plots(rows, out)
+        for path, _ in written:
+            print(f"wrote {path}")
+        if written and write_md and out.resolve().is_relative_to(BENCHMARKS.parent.resolve()):
+            images = "\n\n" + markdown_images(written, BENCHMARKS.parent)
+    if write_md:
+        write_block(caption + "\n\n" + table + images, START, END, HEADING)
         print("wrote BENCHMARKS.md")
     return 1 if any("exit 0" not in s and "skipped" not in s for s in status) else 0
 

@@ -221,8 +221,8 @@ def main(argv: list[str] | None = None) -> int:
             deadline = time.monotonic() + 30
             while True:
                 try:
-                    httpx.get(f"{url}/healthz", timeout=1)
-                    break
+                    if httpx.get(f"{url}/healthz", timeout=1).status_code == 200:
+                        break  # 503 "starting" while the app loads
                 except httpx.TransportError:
                     if server.poll() is not None or time.monotonic() > deadline:
                         print("service did not start", file=sys.stderr)

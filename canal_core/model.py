@@ -155,6 +155,22 @@ class Canal:
     options: FitOptions = field(default_factory=FitOptions)
     orientation: OrientationModel | None = None
 
+    # -- one-line summaries (the dataclass repr would print every array) ---------------
+    def _summary_numbers(self) -> tuple[float, float, float]:
+        length = float(self.arclength[-1] - self.arclength[0]) if self.arclength.size else 0.0
+        radii = self.radii
+        return length, float(radii.min()), float(radii.max())
+
+    def __repr__(self) -> str:
+        length, r_min, r_max = self._summary_numbers()
+        return (f"Canal(dim={self.dim}, sections={self.n_sections}, kind={self.section_kind!r}, "
+                f"demos={self.n_demos}, length={length:.4g}, radius={r_min:.4g}..{r_max:.4g})")
+
+    def __str__(self) -> str:
+        length, r_min, r_max = self._summary_numbers()
+        return (f"{self.dim}-D canal: {self.n_sections} {self.section_kind} sections from "
+                f"{self.n_demos} demos, length {length:.4g}, radius {r_min:.4g} to {r_max:.4g}")
+
     # -- derived ---------------------------------------------------------------------
     @property
     def dim(self) -> int:

@@ -48,7 +48,7 @@ HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
   canal fit SKILL [--cross-section ...]   fit a new model version
   canal reproduce SKILL --start x,y,z     a new trajectory (--out traj.csv)
   canal export SKILL [--rrd F] [--mcap F] download the review recordings
-  canal view SKILL                        open the recording in the Rerun viewer
+  canal view SKILL [--web]                open the recording in the Rerun viewer
   canal sim SKILL                         drive a simulated robot (Zenoh)
 
 Global options go before the command: canal --url http://host:8000 --token T skill list
@@ -284,6 +284,12 @@ def _demo_table(demos: list[Any]) -> Table:
     return table
 
 
+def cli_wording(message: str) -> str:
+    """The service's message in this command's words: the REST query parameter ``?topic=``
+    is the ``--topic`` flag here."""
+    return message.replace("?topic=", "--topic")
+
+
 def _expand(paths: list[Path]) -> tuple[list[Path], bool]:
     """Files as given; a folder stands for its supported files (not recursive), sorted.
     Also whether a folder held none (reported, and makes the exit code 1)."""
@@ -342,11 +348,13 @@ def demo_add(
                     if isinstance(exc, ConnectionFailedError | RequestTimeoutError):
                         raise
                     failed = True
-                    error = ({"type": exc.type, "field": exc.field, "message": exc.message,
-                              "status": exc.status} if isinstance(exc, ApiError)
+                    error = ({"type": exc.type, "field": exc.field,
+                              "message": cli_wording(exc.message), "status": exc.status}
+                             if isinstance(exc, ApiError)
                              else {"type": "client", "field": None, "message": str(exc)})
                     results.append({"file": str(f), "error": error})
-                    progress.console.print(f"[red]error:[/red] {escape(f'{f}: {exc}')}")
+                    progress.console.print(
+                        f"[red]error:[/red] {escape(f'{f}: {cli_wording(str(exc))}')}")
                 else:
                     results.append({"file": str(f), "id": created.id,
                                     "n_points": created.n_points, "checksum": created.checksum})
@@ -598,12 +606,19 @@ def _spawn_detached(cmd: list[str]) -> None:
 def view(
     ctx: typer.Context,
     skill: str,
+    web: Annotated[bool, typer.Option(
+        "--web", help="Open it in a browser: Rerun's web viewer, served by the service "
+                      "(GET /skills/SKILL/view).")] = False,
     no_open: Annotated[bool, typer.Option("--no-open",
-                                          help="Only download; print how to open it.")] = False,
+                                          help="Only download / print the link.")] = False,
 ) -> None:
     """Open the skill's recording in the Rerun viewer (downloaded to the cache folder,
-    $CANAL_CACHE_DIR or ~/.cache/canal). Without a viewer or a display, or with --no-open,
-    prints the file's path and the command that opens it."""
+    $CANAL_CACHE_DIR or ~/.cache/canal). With --web, print the service's web viewer link
+    for the skill and open it in a browser. Without a viewer, a browser or a display, or with
+    --no-open, prints the file's path (or the link) and how to open it."""
+    if web:
+        _view_web(ctx, skill, no_open)
+        return
     path = _cache_dir() / f"{skill}.rrd"
     with _client(ctx) as c:
         c.download_recording(skill, "rrd", path)
@@ -629,6 +644,31 @@ def view(
         out.print("(no Rerun viewer found: pip install rerun-sdk==0.41.0)")
 
 
+def _view_web(ctx: typer.Context, skill: str, no_open: bool) -> None:
+    """Check the skill can be viewed (exists, recordings on), then print and open its link."""
+    import webbrowser
+    from urllib.parse import quote
+
+    opts = _opts(ctx)
+    link = f"{opts.url.rstrip('/')}/skills/{quote(skill, safe='')}/view"
+    with _client(ctx) as c:
+        c.get_skill(skill)
+        if (_health_json(opts).get("recorder") or {}).get("status") == "disabled":
+            _error("recordings are disabled on this service (started with --no-recordings), "
+                   "so there is nothing to view")
+            raise typer.Exit(EXIT_REFUSED)
+    opened = False
+    if not no_open and has_display():
+        with contextlib.suppress(webbrowser.Error):
+            opened = webbrowser.open(link)
+    if opts.json:
+        _print_json({"url": link, "opened": opened})
+        return
+    out.print(f"{'opened' if opened else 'open'} {escape(link)}"
+              + (" in your browser" if opened else " in a browser (Rerun's web viewer; the "
+                 "first visit copies the viewer's files out of rerun-sdk, a few seconds)"))
+
+
 # ---- simulation ------------------------------------------------------------------------------
 
 
@@ -642,20 +682,72 @@ class Encoding(StrEnum):
     json = "json"
 
 
-def _parse_push(text: str) -> tuple[float, np.ndarray]:
-    t_text, _, offset = text.partition(":")
+def _parse_push(text: str) -> tuple[float | str, np.ndarray]:
+    """``T:dx,dy[,dz]`` (seconds after the start) or ``P%:dx,dy[,dz]`` (progress along the canal)."""
+    when_text, _, offset = text.partition(":")
+    when_text = when_text.strip()
+    when: float | str
     try:
-        t = float(t_text)
+        value = float(when_text[:-1] if when_text.endswith("%") else when_text)
     except ValueError:
-        t = float("nan")
-    if not offset or not np.isfinite(t) or t < 0:
-        raise typer.BadParameter(f"expected T:dx,dy[,dz] like 1.5:0,0.05,0, got {text!r}",
+        value = float("nan")
+    if not offset or not np.isfinite(value) or value < 0 or (
+            when_text.endswith("%") and value > 100):
+        raise typer.BadParameter(f"expected T:dx,dy[,dz] (seconds) or P%:dx,dy[,dz] (progress) "
+                                 f"like 1.5:0,0.05,0 or 50%:0,0.05,0, got {text!r}",
                                  param_hint="--push")
-    return t, _parse_point(offset, "--push")
+    when = when_text if when_text.endswith("%") else value
+    return when, _parse_point(offset, "--push")
+
+
+def _health_json(opts: Options) -> dict[str, Any]:
+    """The service's /healthz document (also when it says 503 degraded: it still knows its
+    bridge)."""
+    import httpx
+
+    try:
+        response = httpx.get(opts.url.rstrip("/") + "/healthz", timeout=10.0)
+    except httpx.TimeoutException:
+        raise RequestTimeoutError(opts.url, 10.0) from None
+    except httpx.TransportError as exc:
+        raise ConnectionFailedError(opts.url, str(exc)) from None
+    try:
+        doc = response.json()
+    except ValueError:
+        doc = None
+    if not isinstance(doc, dict):
+        raise CanalClientError(f"{opts.url}/healthz did not answer like a Canal service "
+                               f"(HTTP {response.status_code})")
+    return doc
+
+
+def live_endpoint(health: dict[str, Any], url: str) -> tuple[list[str], str]:
+    """The Zenoh endpoints and key prefix a client should use, from the service's /healthz.
+
+    The bridge reports the endpoints it listens on; one bound to every interface
+    (``0.0.0.0`` / ``[::]``) is reached through the host of the service's URL."""
+    from urllib.parse import urlsplit
+
+    bridge = health.get("bridge") or {}
+    if bridge.get("status") in (None, "disabled"):
+        raise CanalClientError("the service at this --url runs no live bridge (started with "
+                               "--no-zenoh?); pass --endpoint to reach another one")
+    host = urlsplit(url).hostname or "127.0.0.1"
+    endpoints = []
+    for ep in bridge.get("listen") or []:
+        for wildcard in ("0.0.0.0", "[::]"):
+            if f"/{wildcard}:" in ep:
+                ep = ep.replace(f"/{wildcard}:", f"/{host}:")
+        endpoints.append(ep)
+    if not endpoints:
+        raise CanalClientError("the service's live bridge listens on no endpoint (it connects "
+                               "to a router?); pass --endpoint or --zenoh-config")
+    return endpoints, str(bridge.get("prefix") or "canal")
 
 
 _SIM_SUMMARY = ("reached_end", "all_inside", "n_steps", "duration", "min_eta", "max_eta",
-                "model_version", "start", "missed", "pushes_done", "statuses")
+                "model_version", "start", "missed", "pushes_done", "pushes_pending", "statuses",
+                "seed")
 
 
 def _eta(result: Any, which: str) -> float:
@@ -678,14 +770,21 @@ def sim(
     timeout: Annotated[float | None, typer.Option("--timeout", help="Give up after S s.")
                        ] = None,
     endpoint: Annotated[str | None, typer.Option(
-        "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447.")] = None,
+        "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 "
+                           "(default: the one the service's /healthz reports).")] = None,
+    prefix: Annotated[str | None, typer.Option(
+        "--prefix", help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
     zenoh_config: Annotated[Path | None, typer.Option("--zenoh-config",
                                                       help="Zenoh config file.")] = None,
     encoding: Annotated[Encoding | None, typer.Option("--encoding")] = None,
+    seed: Annotated[int | None, typer.Option(
+        "--seed", help="Seed of the random start (same seed, same start).")] = None,
 ) -> None:
-    """Drive a simulated robot along the skill's canal over Zenoh (the service's live
-    bridge must be on the same Zenoh network). Exit code 0 when the robot reached the end of
-    the canal and stayed inside it, 1 otherwise."""
+    """Drive a simulated robot along the skill's canal over Zenoh. The Zenoh endpoint and
+    key prefix come from the service at --url (its /healthz) unless --endpoint/--prefix or
+    --zenoh-config say otherwise. Exit code 0 when the robot reached the end of the canal and
+    stayed inside it, 1 otherwise; a push that never happened (the run ended first) is
+    reported on its own line."""
     pushes = [_parse_push(p) for p in push or []]
     point = _parse_point(start) if start is not None else None
     try:
@@ -693,15 +792,29 @@ def sim(
     except ImportError as exc:
         _error(f"the simulator is not available here: {exc}")
         raise typer.Exit(EXIT_REFUSED) from None
-    kwargs: dict[str, Any] = {"prefix": "canal", "pushes": pushes}
+    opts = _opts(ctx)
+    if (endpoint is None and zenoh_config is None) or prefix is None:
+        try:
+            found, found_prefix = live_endpoint(_health_json(opts), opts.url)
+        except CanalClientError as exc:
+            if endpoint is None and zenoh_config is None:
+                if isinstance(exc, ConnectionFailedError | RequestTimeoutError):
+                    raise _fail_unreachable(exc, opts.url) from None
+                _error(str(exc))
+                raise typer.Exit(EXIT_REFUSED) from None
+            found, found_prefix = [], "canal"  # --endpoint given: the service is optional
+        if endpoint is None and zenoh_config is None:
+            endpoint = ",".join(found)
+        prefix = prefix or found_prefix
+    kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed}
     for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
                        ("lag", lag.value if lag else None), ("gain", gain),
-                       ("timeout_s", timeout), ("endpoint", endpoint),
+                       ("timeout_s", timeout),
+                       ("endpoint", endpoint.split(",") if endpoint else None),
                        ("zenoh_config", str(zenoh_config) if zenoh_config else None),
                        ("encoding", encoding.value if encoding else None)):
         if value is not None:
             kwargs[key] = value
-    opts = _opts(ctx)
     try:
         result = sim_module.run_sim(skill, **kwargs)
     except ApiError as exc:
@@ -722,6 +835,8 @@ def sim(
             f"{'always inside' if result.all_inside else 'left the canal'}; "
             f"{result.n_steps} steps in {float(result.duration):.2f} s, "
             f"eta {_eta(result, 'min'):.3f}..{_eta(result, 'max'):.3f}")
+        for line in sim_module.describe_pending(result):
+            err.print(f"[yellow]note:[/yellow] {escape(line)}")
     if not ok:
         raise typer.Exit(EXIT_REFUSED)
 

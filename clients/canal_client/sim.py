@@ -44,6 +44,9 @@ class SimResult:
     statuses: dict[str, int] = field(default_factory=dict)
     missed: int = 0  # poses whose answer did not arrive in time
     pushes_done: int = 0
+    # Pushes still pending when the run ended (their time or progress was never reached).
+    pushes_pending: list[tuple[float | str, list[float]]] = field(default_factory=list)
+    seed: int | None = None
 
 
 def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
@@ -72,6 +75,23 @@ def _push_due(when: float | str, elapsed: float, progress: float) -> bool:
         value = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
         return progress >= value
     return elapsed >= float(when)
+
+
+def describe_pending(result: SimResult) -> list[str]:
+    """One line per push that never happened, saying why (for the CLI and logs)."""
+    lines = []
+    for when, offset in result.pushes_pending:
+        shown = ",".join(f"{v:g}" for v in offset)
+        at = f"progress {when}" if isinstance(when, str) else f"{float(when):g} s"
+        lines.append(f"push {at}:{shown} not applied: the run ended after "
+                     f"{result.duration:.2f} s at progress {_last_progress(result):.0%}; "
+                     f"push earlier (e.g. --push 0.2:{shown}) or by progress "
+                     f"(--push 50%:{shown})")
+    return lines
+
+
+def _last_progress(result: SimResult) -> float:
+    return float(result.targets[-1].progress) if result.targets else 0.0
 
 
 def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = None,
@@ -152,6 +172,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
             else:
                 next_tick = time.monotonic()
         duration = time.monotonic() - t0
+    left = [(when, [float(v) for v in offset]) for (when, _), (_, offset)
+            in zip(pushes, pending, strict=True) if offset is not None]
     etas = [t.eta for t in targets if t.eta is not None]
     return SimResult(
         reached_end=reached,
@@ -168,7 +190,9 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
         statuses=statuses,
         missed=missed,
         pushes_done=pushes_done,
+        pushes_pending=left,
+        seed=seed,
     )
 
 
-__all__ = ["Push", "SimResult", "random_interior_start", "run_sim"]
+__all__ = ["Push", "SimResult", "describe_pending", "random_interior_start", "run_sim"]

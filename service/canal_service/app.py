@@ -17,7 +17,7 @@ from .core.config import Settings
 from .errors import install_error_handlers
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, RequestMetrics
-from .routes import api_router, health
+from .routes import api_router, health, view
 from .service import CanalService, RecorderLike
 from .storage import Database
 
@@ -103,6 +103,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app)
     app.include_router(health.router)
     app.include_router(api_router)
+    app.include_router(view.router)
 
     # Added innermost first: metrics see every response, auth runs before the body is read,
     # the size limit wraps everything that reads a body.

@@ -103,8 +103,13 @@ def test_compose_services_volumes_and_images() -> None:
     assert "zenoh" in canal["depends_on"]
     assert "canal-data:/data" in canal["volumes"]
 
-    # Pinned images: a real 1.x tag of the Zenoh router, a major version of PostgreSQL.
-    assert re.fullmatch(r"eclipse/zenoh:1\.\d+\.\d+", services["zenoh"]["image"])
+    # Pinned images: the Zenoh router of the same release as the Python SDK the service runs
+    # (mixed 1.x patch releases interoperate, but a matching pair is what was tested), a
+    # major version of PostgreSQL.
+    from importlib.metadata import version
+
+    assert services["zenoh"]["image"] == f"eclipse/zenoh:{version('eclipse-zenoh')}"
+    assert "eclipse-zenoh==" + version("eclipse-zenoh") in pyproject_dependencies()
     assert re.fullmatch(r"postgres:1[5-9](\.\d+)?-alpine|postgres:1[5-9](\.\d+)?",
                         services["postgres"]["image"])
     assert "postgres-data:/var/lib/postgresql/data" in services["postgres"]["volumes"]
@@ -127,7 +132,60 @@ def test_compose_healthchecks() -> None:
     # canal's healthcheck comes from its image (Dockerfile HEALTHCHECK), not overridden here.
     assert "healthcheck" not in services["canal"]
     assert any(i == "HEALTHCHECK" for i, _ in dockerfile_instructions())
+    # zenohd: a TCP connect to the port its config listens on, inside its own container;
+    # canal starts once the router accepts connections.
+    zenoh_check = " ".join(services["zenoh"]["healthcheck"]["test"])
+    router = zenoh.Config.from_file(str(ROUTER_CONF))
+    listen = json.loads(router.get_json("listen/endpoints"))
+    port = listen[0].rsplit(":", 1)[1]
+    assert f"nc -z 127.0.0.1 {port}" in zenoh_check
+    assert services["canal"]["depends_on"]["zenoh"]["condition"] == "service_healthy"
 
+
+def pyproject_dependencies() -> list[str]:
+    import tomllib
+
+    doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    return [d.replace(" ", "") for d in doc["project"]["dependencies"]]
+
+
+def constraints() -> dict[str, str]:
+    pins = {}
+    for line in (DOCKER / "constraints.txt").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            name, sep, ver = line.partition("==")
+            assert sep, f"constraints.txt: expected name==version, got {line!r}"
+            pins[name.lower().replace("_", "-")] = ver
+    return pins
+
+
+def test_constraints_pin_every_runtime_dependency_as_tested() -> None:
+    """docker/constraints.txt is the working venv frozen: every runtime dependency (and what
+    they pull in) is pinned to the version this test suite runs with."""
+    from importlib.metadata import PackageNotFoundError, distribution, version
+
+    from packaging.requirements import Requirement
+
+    pins = constraints()
+    assert "canal-lfd" not in pins, "the project itself is built from the context, not pinned"
+    seen: set[str] = set()
+    todo = [Requirement(d) for d in pyproject_dependencies()]
+    while todo:  # the runtime closure, as installed here
+        req = todo.pop()
+        name = req.name.lower().replace("_", "-")
+        if name in seen or (req.marker is not None and not req.marker.evaluate()):
+            continue
+        seen.add(name)
+        try:
+            installed = version(name)
+        except PackageNotFoundError:
+            continue
+        assert pins.get(name) == installed, (name, pins.get(name), installed)
+        assert req.specifier.contains(installed, prereleases=True), (name, installed)
+        todo.extend(Requirement(r) for r in distribution(name).requires or []
+                    if "extra ==" not in r)
+    assert {"numpy", "scipy", "fastapi", "rerun-sdk", "eclipse-zenoh"} <= seen
 
 def test_compose_secrets_are_required_not_written_down() -> None:
     env = canal_environment({"CANAL_DB_PASSWORD": TEST_PASSWORD})
@@ -161,7 +219,8 @@ def test_compose_environment_names_are_settings() -> None:
     """Every CANAL_* variable the compose file sets is a Settings field (no silent typos)."""
     env = canal_environment({"CANAL_DB_PASSWORD": TEST_PASSWORD})
     fields = set(Settings.model_fields)
-    unknown = sorted(k for k in env if k.removeprefix("CANAL_").lower() not in fields)
+    unknown = sorted(k for k in env if k.startswith("CANAL_")
+                     and k.removeprefix("CANAL_").lower() not in fields)
     assert not unknown, f"compose sets variables Settings does not read: {unknown}"
 
 
@@ -290,7 +349,8 @@ def test_dockerfile_promises() -> None:
     text = DOCKERFILE.read_text()
     froms = [a for i, a in instructions if i == "FROM"]
     args = dict(a.split("=", 1) for i, a in instructions if i == "ARG" and "=" in a)
-    assert args["PYTHON_IMAGE"] == "python:3.11-slim"
+    # The tag for readers, the digest for Docker (which uses the digest when both are given).
+    assert re.fullmatch(r"python:3\.11-slim@sha256:[0-9a-f]{64}", args["PYTHON_IMAGE"])
     assert all(f.startswith("${PYTHON_IMAGE}") for f in froms)
 
     users = [a for i, a in instructions if i == "USER"]
@@ -301,7 +361,9 @@ def test_dockerfile_promises() -> None:
 
     assert re.search(r"pip install\b[^\n]*\s-e\b|--editable", text) is None
     assert "[dev]" not in text
-    assert re.search(r"pip install \.(\s|$)", text)
+    assert re.search(r"pip install -c constraints\.txt \.(\s|$)", text)
+    assert re.search(r"COPY docker/constraints\.txt \./constraints\.txt", text)
+    assert re.search(r'pip install --upgrade "pip==[0-9.]+"', text)  # pip pinned too
 
     exposed = " ".join(a for i, a in instructions if i == "EXPOSE").split()
     assert {"8000", "7447"} <= set(exposed)
@@ -310,6 +372,8 @@ def test_dockerfile_promises() -> None:
     assert json.loads(dict(instructions)["ENTRYPOINT"]) == ["python", "-m", "canal_service"]
     env = " ".join(a for i, a in instructions if i == "ENV")
     assert "CANAL_HOST=0.0.0.0" in env and "CANAL_DATA_DIR=/data" in env
+    assert "OPENBLAS_NUM_THREADS=1" in env
+    assert compose()["services"]["canal"]["environment"]["OPENBLAS_NUM_THREADS"] == "1"
     assert '"/data"' in dict(instructions)["VOLUME"]
 
 

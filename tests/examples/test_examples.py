@@ -140,3 +140,19 @@ def test_walkthrough_unreachable_service_is_a_clear_error(tmp_path: Path) -> Non
     assert result.returncode == 1
     assert result.stderr.startswith("error: ") and "127.0.0.1" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_quickstart_reproduces_from_starts_inside(tmp_path: Path) -> None:
+    """`make example`: every row reproduces from a start inside its canal (eta < 1), and the
+    output says what eta is and where the LASA starts come from."""
+    result = run_script("quickstart.py", tmp_path=tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    rows = [line for line in result.stdout.splitlines() if " N=" in line]
+    assert len(rows) >= 5
+    assert "eta: the start's ratio across its section" in result.stdout
+    for line in rows:
+        assert "inside=True" in line and "eta=1.000" not in line, line
+    if lasa_installed():
+        lasa = [line for line in rows if line.startswith("LASA")]
+        assert len(lasa) == 3
+        assert all("(given)" in line or "(moved inside" in line for line in lasa)
