@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .alignment import dtw_aligned_demonstrations, resampled_demonstrations, spline_parameter
+from .alignment import dtw_aligned_demonstrations, resampled_demonstrations
 from .cross_sections import (
     KINDS,
     KINDS_3D,
@@ -26,7 +26,7 @@ from .crossings import in_plane_coordinates, plane_crossings
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
-from .preprocess import STILL_TOLERANCE, cleaned_demonstration
+from .preprocess import STILL_TOLERANCE, prepared_samples
 from .reproduce import (
     Location,
     enclosing_scales,
@@ -37,7 +37,6 @@ from .reproduce import (
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
 from .tracker import Tracker, tracker_geometry
 from .validation import (
-    MIN_POINTS,
     BoolArray,
     FloatArray,
     check_choice,
@@ -388,7 +387,10 @@ def fit(
     demos : sequence of array_like, each shape (T_j, D)
         n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
     timestamps : sequence of (array_like, shape (T_j,) or None), optional
-        Strictly increasing; alignment is by time where given, else by arc length.
+        Seconds; alignment is by time where given, else by arc length. Raw logs are fine:
+        every demo goes through :func:`canal_core.preprocess.prepared_demonstration`
+        (repeats, rounding-level steps, glitches, still ends, equal or isolated
+        out-of-order stamps).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
     alignment : {"spline", "dtw"}
@@ -410,7 +412,8 @@ def fit(
     Raises
     ------
     InvalidInputError
-        Malformed demonstrations, timestamps or options.
+        Malformed demonstrations, timestamps or options, coordinates beyond +-1e15, a demo
+        that does not move; ``field`` names the demo (``demos[j]`` / ``timestamps[j]``).
     DegenerateCanalError
         Every demonstration identical, or a directrix of zero length.
     """
@@ -424,16 +427,12 @@ def fit(
             field="cross_section",
         )
 
-    cleaned = [cleaned_demonstration(d, t, still_tolerance) for d, t in zip(demos_, times_, strict=True)]
-    for j, (d, _) in enumerate(cleaned):
-        if d.shape[0] < MIN_POINTS:
-            raise InvalidInputError(
-                f"expected at least {MIN_POINTS} distinct moving samples in demos[{j}], got "
-                f"{d.shape[0]} after dropping repeats and still ends",
-                field=f"demos[{j}]",
-            )
-    positions = [d for d, _ in cleaned]
-    times = [t for _, t in cleaned]
+    prepared = [
+        prepared_samples(d, t, field=f"demos[{j}]", time_field=f"timestamps[{j}]", still_tolerance=still_tolerance)
+        for j, (d, t) in enumerate(zip(demos_, times_, strict=True))
+    ]
+    positions = [p.positions for p in prepared]
+    times = [p.timestamps for p in prepared]
 
     if options.alignment == "dtw":
         aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
@@ -472,9 +471,10 @@ def fit(
         )
     sections = fitted_sections(coords, options.cross_section)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
-    # Every sample the caller gave counts, the trimmed still ends and repeats included.
-    samples = np.vstack(demos_)
-    phase = np.concatenate([spline_parameter(d, t) for d, t in zip(demos_, times_, strict=True)])
+    # Every genuine sample counts, the trimmed still ends included (glitches do not); its
+    # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
+    samples = np.vstack([d[p.sample_rows] for d, p in zip(demos_, prepared, strict=True)])
+    phase = np.concatenate([p.sample_phase for p in prepared])
     approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
     window = max(8, options.n_samples // 50)
     sections = scaled_sections(
