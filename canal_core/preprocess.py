@@ -26,7 +26,7 @@ The stage only *selects* rows, it never invents values: every output row is an i
    kept at that resolution). With timestamps, the last sample of a repeat run that lasts
    longer than ``PAUSE_INTERVALS`` sampling intervals is kept too: the arm really paused,
    and a time spline must not overshoot across the pause.
-4. **Spikes.** Sample i is a glitch when it lies farther than ``SPIKE_FACTOR`` (8) times
+4. **Spikes.** Sample i is a glitch when it lies farther than ``SPIKE_FACTOR`` (4) times
    max(|x_{i+1} - x_{i-1}|, the median step around it) from the midpoint of its neighbours:
    the path leaves and comes straight back within one sample. Real motion cannot (for
    monotone sampling the deviation is at most half the neighbours' distance, and at a
@@ -68,7 +68,7 @@ TIME_TOLERANCE = 1e-9
 #: Most out-of-order samples repaired by dropping them, as a fraction of the samples (>= 1).
 MAX_TIME_REPAIRS = 0.01
 #: A sample is a glitch when it deviates from its neighbours' midpoint by this many steps.
-SPIKE_FACTOR = 8.0
+SPIKE_FACTOR = 4.0
 #: Half-width, in samples, of the window whose median step is the local step size.
 SPIKE_WINDOW = 5
 #: A repeat run longer than this many median sampling intervals is a pause (see step 3).

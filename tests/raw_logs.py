@@ -159,7 +159,7 @@ def raw_log(
     glitch_readings = rng.choice(moving[1:-1], size=min(glitches, max(0, moving.size - 2)), replace=False) if moving.size > 2 else np.array([], dtype=int)
     for g in glitch_readings:
         direction = rng.standard_normal(3)
-        readings[g] = readings[g] + rng.uniform(0.05, 0.4) * size * direction / np.linalg.norm(direction)
+        readings[g] = readings[g] + rng.uniform(0.15, 0.5) * size * direction / np.linalg.norm(direction)
 
     owner = np.cumsum(fresh) - 1  # the reading each row shows
     positions = readings[owner].copy()
