@@ -115,6 +115,100 @@ def _blocked_crossings(
     return points, found, reference
 
 
+#: Samples per block of the far search: each block is bounded by a ball, so a plane that
+#: misses the ball is crossed nowhere in the block.
+BLOCK = 16
+
+
+def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centres (n, nb, D) and radii (n, nb) of balls around samples bB..(b+1)B of each demo.
+
+    Block b holds the segments bB .. bB + B - 1 (both ends of each), ``nb = ceil((N-1)/B)``.
+    """
+    n_samples = aligned.shape[1]
+    n_blocks = max(1, -(-(n_samples - 1) // BLOCK))
+    idx = np.minimum(np.arange(n_blocks)[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
+    pts = aligned[:, idx]  # (n, nb, B + 1, D)
+    lo, hi = pts.min(axis=2), pts.max(axis=2)
+    return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
+
+
+def _far_crossings(
+    aligned: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    sections: np.ndarray,
+    demos: np.ndarray,
+    half_width: int,
+    balls: tuple[FloatArray, FloatArray],
+) -> tuple[FloatArray, np.ndarray]:
+    """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
+
+    Same answer as :func:`_crossings_in_window` with that width, at a cost that does not
+    depend on how far the crossing lies: the planes are tested against the block balls
+    (2W/B tests per pair), then only blocks the plane may cut are searched sample by sample,
+    nearest first, until no untested block could hold a nearer crossing.
+
+    Returns the points, shape (P, D), and whether a crossing was found, shape (P,).
+    """
+    n_samples, dim = aligned.shape[1], aligned.shape[2]
+    n_pairs = sections.size
+    t = tangents[sections]
+    plane = np.einsum("pd,pd->p", centres[sections], t)
+    seg_lo = np.maximum(0, sections - half_width)
+    seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
+    b_lo = seg_lo // BLOCK
+    n_k = int((seg_hi // BLOCK - b_lo).max(initial=0)) + 1
+    blocks = b_lo[:, None] + np.arange(n_k)[None, :]  # (P, K)
+    valid = blocks <= (seg_hi // BLOCK)[:, None]
+    blocks = np.minimum(blocks, balls[1].shape[1] - 1)
+    centre, radius = balls[0][demos[:, None], blocks], balls[1][demos[:, None], blocks]
+    offset = np.einsum("pkd,pd->pk", centre, t) - plane[:, None]
+    # Rounding slack: d is computed per sample, the test per ball.
+    slack = 1e-9 * radius + 1e-12 * (np.abs(plane)[:, None] + np.abs(offset) + radius)
+    cut = valid & (np.abs(offset) <= radius + slack)
+    # Smallest |s + 0.5 - i| over each block's segments inside the window.
+    first = np.maximum(blocks * BLOCK, seg_lo[:, None]) + 0.5 - sections[:, None]
+    last = np.minimum(blocks * BLOCK + BLOCK - 1, seg_hi[:, None]) + 0.5 - sections[:, None]
+    near = np.where((first <= 0.5) & (last >= -0.5), 0.5, np.minimum(np.abs(first), np.abs(last)))
+    key = np.where(cut, near, np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    best_score = np.full(n_pairs, np.inf)
+    best_seg = np.full(n_pairs, -1, dtype=np.int64)
+    pair = np.arange(n_pairs)
+    q = np.arange(BLOCK)
+    for r in range(n_k):
+        k = order[:, r]
+        k_key = key[pair, k]
+        active = np.flatnonzero(np.isfinite(k_key) & (k_key <= best_score))
+        if active.size == 0:
+            break
+        b = blocks[active, k[active]]
+        cols = np.minimum(b[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
+        dist = np.einsum("pwd,pd->pw", aligned[demos[active, None], cols], t[active]) - plane[active, None]
+        seg = b[:, None] * BLOCK + q[None, :]
+        inside = (seg >= seg_lo[active, None]) & (seg <= seg_hi[active, None])
+        crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
+        score = np.where(crosses, np.abs(seg + 0.5 - sections[active, None]), np.inf)
+        j = np.argmin(score, axis=1)
+        s_score, s_seg = score[np.arange(active.size), j], seg[np.arange(active.size), j]
+        better = (s_score < best_score[active]) | ((s_score == best_score[active]) & (s_seg < best_seg[active]))
+        best_score[active[better]] = s_score[better]
+        best_seg[active[better]] = s_seg[better]
+    found = np.isfinite(best_score)
+    points = np.zeros((n_pairs, dim))
+    if found.any():
+        f = np.flatnonzero(found)
+        cols = np.stack([best_seg[f], best_seg[f] + 1], axis=1)
+        x = aligned[demos[f, None], cols]  # (F, 2, D)
+        d = np.einsum("pwd,pd->pw", x, t[f]) - plane[f, None]
+        d0, d1 = d[:, 0], d[:, 1]
+        denom = d0 - d1
+        alpha = np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0)
+        points[f] = x[:, 0] + np.clip(alpha, 0.0, 1.0)[:, None] * (x[:, 1] - x[:, 0])
+    return points, found
+
+
 def plane_crossings(
     aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0
 ) -> FloatArray:
@@ -140,24 +234,21 @@ def plane_crossings(
     sections = np.repeat(np.arange(n_samples), n_demos)
     demos = np.tile(np.arange(n_demos), n_samples)
     wide = max(NEAR_WINDOW + 1, round(window * n_samples))
-    # Widen the search only for the pairs that have not found a crossing yet: most pairs
-    # cross within a few samples, the ends of the canal need the whole window.
-    # Widen the search only for the pairs that have not found a crossing yet: most pairs
-    # cross within a few samples, the ends of the canal need the whole window. Doubling the
-    # width finds the same (nearest-in-index) crossing as one wide search, at a cost that
-    # grows with how far each pair's crossing is rather than with N for every pending pair.
-    widths = [min(NEAR_WINDOW, wide), min(MID_WINDOW, wide)]
-    while widths[-1] < wide:
-        widths.append(min(2 * widths[-1], wide))
+    # Most pairs cross within a few samples of their own index: a dense search there.
     points, found, reference = _blocked_crossings(
-        aligned, centres, tangents, sections, demos, widths[0]
+        aligned, centres, tangents, sections, demos, min(NEAR_WINDOW, wide)
     )
     pending = np.flatnonzero(~found)
-    for width in sorted(set(widths[1:])):
-        if pending.size == 0:
-            break
-        far_points, far_found, _ = _blocked_crossings(
-            aligned, centres, tangents, sections[pending], demos[pending], width
+    if pending.size:
+        # The rest (demos ahead of or behind the mean's phase, common in raw logs) by the
+        # block search: its cost does not grow with how far the crossing lies.
+        balls = _block_balls(aligned)
+        far_points, far_found = in_row_blocks(
+            lambda rows: _far_crossings(
+                aligned, centres, tangents, sections[pending[rows]], demos[pending[rows]], wide, balls
+            ),
+            pending.size,
+            2 * (wide // BLOCK + 2) + 2 * (BLOCK + 1),
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
@@ -165,7 +256,6 @@ def plane_crossings(
         near_enough = np.linalg.norm(far_points - centres[sections[pending]], axis=1) <= reference[pending]
         take = far_found & near_enough
         points[pending[take]] = far_points[take]
-        pending = pending[~far_found]
     return points.reshape(n_samples, n_demos, -1)
 
 
