@@ -22,7 +22,7 @@ from .cross_sections import (
     scaled_sections,
     section_radii,
 )
-from .crossings import in_plane_coordinates, plane_crossings
+from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
@@ -456,7 +456,7 @@ def fit(
     else:
         tangents, normals, binormals = rotation_minimizing_frames(frame_curve)
 
-    crossings = plane_crossings(aligned, centres, tangents)
+    crossings, crossing_index = located_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the
     # end section by its projected end sample, so the extruded ends hold the whole demo.
     for end, outward in ((0, -1.0), (-1, 1.0)):
@@ -475,7 +475,12 @@ def fit(
     # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
     samples = np.vstack([d[p.sample_rows] for d, p in zip(demos_, prepared, strict=True)])
     phase = np.concatenate([p.sample_phase for p in prepared])
-    approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
+    # Each sample starts its search at the sections its demo crosses there (not at its own
+    # phase): demos ahead of or behind the mean are then found at once.
+    approx = np.rint(np.concatenate([
+        sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
+        for j, p in enumerate(prepared)
+    ])).astype(np.int64)
     window = max(8, options.n_samples // 50)
     sections = scaled_sections(
         sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
