@@ -141,20 +141,21 @@ def _block_keys(
     t: FloatArray,
     plane: FloatArray,
     ball_centres: FloatArray,
-    ball_radii: FloatArray,
+    reach: FloatArray,
     seg_lo: np.ndarray,
     seg_hi: np.ndarray,
 ) -> FloatArray:
     """Per pair and block of one demo, shape (P, nb): the smallest |s + 0.5 - i| of the
-    block's segments inside the window when the plane may cut the block's ball, else inf."""
+    block's segments inside the window when the plane may cut the block's ball (radius
+    plus rounding slack: ``reach``), else inf."""
     offset = t @ ball_centres.T - plane[:, None]  # (P, nb), one matrix product per demo
-    # Rounding slack: d is computed per sample, the test per ball.
-    slack = 1e-9 * ball_radii[None, :] + 1e-12 * (np.abs(plane)[:, None] + np.abs(offset) + ball_radii[None, :])
-    blocks = np.arange(ball_radii.size)[None, :]
-    first = np.maximum(blocks * BLOCK, seg_lo[:, None]) + 0.5 - sections[:, None]
-    last = np.minimum(blocks * BLOCK + BLOCK - 1, seg_hi[:, None]) + 0.5 - sections[:, None]
-    cut = (np.abs(offset) <= ball_radii[None, :] + slack) & (first <= last)
-    near = np.where((first <= 0.5) & (last >= -0.5), 0.5, np.minimum(np.abs(first), np.abs(last)))
+    start = np.arange(reach.size)[None, :] * BLOCK
+    first = np.maximum(start, seg_lo[:, None])
+    last = np.minimum(start + (BLOCK - 1), seg_hi[:, None])
+    cut = (np.abs(offset) <= reach[None, :]) & (first <= last)
+    i = sections[:, None] - 0.5
+    # min over s in [first, last] of |s + 0.5 - i|: 0.5 when the range holds i - 1 or i.
+    near = np.maximum(np.maximum(first - i, i - last), 0.5)
     return np.where(cut, near, np.inf)
 
 
@@ -183,10 +184,14 @@ def _far_crossings(
     plane = np.einsum("pd,pd->p", centres[sections], t)
     seg_lo = np.maximum(0, sections - half_width)
     seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
+    # Rounding slack: d is computed per sample, the test per ball; |t.c_i| and |t.m| are
+    # bounded by the largest norms of the directrix and of the ball centres.
+    bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(balls[0], axis=2).max())
+    reach = balls[1] * (1.0 + 1e-9) + 1e-12 * (balls[1] + bound)
     key = np.empty((n_pairs, balls[1].shape[1]))
     for j in np.unique(demos).tolist():
         rows = np.flatnonzero(demos == j)
-        key[rows] = _block_keys(sections[rows], t[rows], plane[rows], balls[0][j], balls[1][j],
+        key[rows] = _block_keys(sections[rows], t[rows], plane[rows], balls[0][j], reach[j],
                                 seg_lo[rows], seg_hi[rows])
     best_score = np.full(n_pairs, np.inf)
     best_seg = np.full(n_pairs, -1, dtype=np.int64)
