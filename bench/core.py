@@ -25,6 +25,7 @@ import math
 import sys
 import time
 import types
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +125,20 @@ def resampled_rows(positions: np.ndarray, rows: int = 1000) -> np.ndarray:
     return np.column_stack([np.interp(x, np.arange(positions.shape[0]), positions[:, d]) for d in range(3)])
 
 
+def interleaved_best(
+    ours: list[Callable[[], object]], theirs: list[Callable[[], object]], repeats: int, their_repeats: int
+) -> tuple[float, float, float, float]:
+    """Best wall times (s) of ours[0], ours[1], theirs[0], theirs[1], run in turn (nan if absent)."""
+    best = [math.inf] * 4
+    for r in range(repeats):
+        calls = list(ours) + (list(theirs) if r < their_repeats else [])
+        for k, call in enumerate(calls):
+            t0 = time.perf_counter()
+            call()
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return tuple(b if math.isfinite(b) else float("nan") for b in best)  # type: ignore[return-value]
+
+
 def raw_sets() -> list[tuple[str, list[np.ndarray]]]:
     """(name, demos) of raw 3-D logs, each demo resampled to 1,000 rows."""
     sys.path.insert(0, str(ROOT / "tests"))
@@ -149,11 +164,13 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
         print("  reference row skipped: canal_surface_algorithm.py not found (pass --reference PATH)")
     print(f"{'set':<26} {'fit ms':>8} {'ref fit ms':>11} {'ref/ours':>9} {'repro ms':>9} {'ref repro ms':>13} {'ref/ours':>9}")
     for name, demos in raw_sets():
-        fit_s = best_of(lambda: canal_core.fit(demos, n_samples=n), repeats)  # noqa: B023
         canal = canal_core.fit(demos, n_samples=n)
         start = canal.directrix[0] + 0.5 * canal.radii[0] * canal.normals[0]
-        rep_s = best_of(lambda: canal.reproduce(start), repeats)  # noqa: B023
-        ref_fit = ref_rep = float("nan")
+        ours: list[Callable[[], object]] = [
+            lambda: canal_core.fit(demos, n_samples=n),  # noqa: B023
+            lambda: canal.reproduce(start),  # noqa: B023
+        ]
+        theirs: list[Callable[[], object]] = []
         if reference is not None:
             prepared = [prepared_demonstration(d, field="d")[0] for d in demos]
             aligned = np.transpose(resampled_demonstrations(prepared, [None] * len(demos), n), (0, 2, 1))
@@ -163,9 +180,11 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
                 et, en, eb = ref.get_tnb(mean)
                 return mean, ref.get_canal_surface(mean, aligned, et), et, en, eb
 
-            ref_fit = best_of(ref_fit_once, max(1, repeats // 3))
             mean, radii, et, en, eb = ref_fit_once()
-            ref_rep = best_of(lambda: reference.get_rep_traj(start, [0, 1], mean, radii, et, en, eb), max(1, repeats // 3))  # noqa: B023
+            theirs = [ref_fit_once,
+                      lambda: reference.get_rep_traj(start, [0, 1], mean, radii, et, en, eb)]  # noqa: B023
+        # Interleaved, so both implementations see the same load on a shared machine.
+        fit_s, rep_s, ref_fit, ref_rep = interleaved_best(ours, theirs, repeats, max(3, repeats // 2))
         print(f"{name:<26} {1e3 * fit_s:>8.2f} {1e3 * ref_fit:>11.1f} {ref_fit / fit_s:>8.1f}x "
               f"{1e3 * rep_s:>9.3f} {1e3 * ref_rep:>13.2f} {ref_rep / rep_s:>8.0f}x")
         peer = None if reference is None else "LFD_Canal_Surface_Pkg"
