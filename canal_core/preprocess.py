@@ -27,7 +27,7 @@ The stage only *selects* rows, it never invents values: every output row is an i
    longer than ``PAUSE_INTERVALS`` sampling intervals is kept too: the arm really paused,
    and a time spline must not overshoot across the pause.
 4. **Spikes.** Sample i is a glitch when it lies farther than ``SPIKE_FACTOR`` (4) times
-   max(|x_{i+1} - x_{i-1}|, the median step around it) from the midpoint of its neighbours:
+   max(|x_{i+1} - x_{i-1}|, the median of the 5 steps around it) from the midpoint of its neighbours:
    the path leaves and comes straight back within one sample. Real motion cannot (for
    monotone sampling the deviation is at most half the neighbours' distance, and at a
    genuine reversal it is about one step). A glitch repeated by the poller is one sample
@@ -70,7 +70,7 @@ MAX_TIME_REPAIRS = 0.01
 #: A sample is a glitch when it deviates from its neighbours' midpoint by this many steps.
 SPIKE_FACTOR = 4.0
 #: Half-width, in samples, of the window whose median step is the local step size.
-SPIKE_WINDOW = 5
+SPIKE_WINDOW = 2
 #: A repeat run longer than this many median sampling intervals is a pause (see step 3).
 PAUSE_INTERVALS = 10.0
 #: Chords of the robust path length: at most this many, so jitter does not inflate it.
@@ -242,7 +242,8 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
         return spike
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)  # (n - 1,)
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
-    local = np.median(sliding_window_view(steps, width), axis=1)
+    # The median of 5 steps ignores the two large steps a glitch makes around itself.
+    local = np.partition(sliding_window_view(steps, width), width // 2, axis=1)[:, width // 2]
     # local step scale per sample: the window centred on it, clamped at the ends
     centre = np.clip(np.arange(n) - width // 2, 0, local.size - 1)
     scale = local[centre]

@@ -244,3 +244,22 @@ def test_plane_crossings_on_ur5e_lie_in_their_planes() -> None:
     points = plane_crossings(aligned, canal.directrix, canal.tangents)
     offset = np.einsum("ijd,id->ij", points - canal.directrix[:, None, :], canal.tangents)
     assert np.abs(offset).max() < 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(4, 40),
+    stamps=st.lists(st.floats(-1e12, 1e12, allow_nan=False) | st.sampled_from([0.0, 1.0, 1.0 + 2e-16]), min_size=40, max_size=40),
+    seed=st.integers(0, 2**16),
+)
+def test_any_finite_timestamps_are_repaired_or_refused_naming_them(n: int, stamps: list[float], seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    u = np.linspace(0.0, 1.0, n)
+    demo = np.column_stack([u, np.sin(3 * u), 0.1 * u]) + 1e-3 * rng.standard_normal((n, 3))
+    times = np.asarray(stamps[:n])
+    try:
+        canal = canal_core.fit([demo, demo + 0.01], timestamps=[times, np.linspace(0, 1, n)], n_samples=30)
+    except CanalError as exc:
+        assert exc.field in ("demos[0]", "timestamps[0]"), exc
+    else:
+        assert np.isfinite(canal.directrix).all()
