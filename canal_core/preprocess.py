@@ -26,12 +26,15 @@ The stage only *selects* rows, it never invents values: every output row is an i
    kept at that resolution). With timestamps, the last sample of a repeat run that lasts
    longer than ``PAUSE_INTERVALS`` sampling intervals is kept too: the arm really paused,
    and a time spline must not overshoot across the pause.
-4. **Spikes.** Sample i is a glitch when it lies farther than ``SPIKE_FACTOR`` (4) times
-   max(|x_{i+1} - x_{i-1}|, the median of the 5 steps around it) from the midpoint of its neighbours:
-   the path leaves and comes straight back within one sample. Real motion cannot (for
-   monotone sampling the deviation is at most half the neighbours' distance, and at a
-   genuine reversal it is about one step). A glitch repeated by the poller is one sample
-   after step 3. Two consecutive distinct glitch samples are not caught.
+4. **Spikes.** An excursion of m = 1..6 samples that leaves the path and comes back is a
+   glitch: its interior sample k is dropped when its distance from the midpoint of the
+   samples a and b around the excursion exceeds both ``CHORD_FACTOR`` (2) x |x_b - x_a|
+   and ``SPIKE_FACTOR`` (4) x (m + 1) / 2 local steps (median of the surrounding steps).
+   Real motion cannot: for monotone sampling that distance is at most half the chord, and
+   at a genuine reversal about (m + 1) / 2 steps. A glitch repeated by the poller is one
+   sample after step 3; a resampled glitch (with its ramps) spans a few. The test runs
+   again on what is left (up to 3 passes), which catches the partial ramps around a
+   removed glitch. Longer excursions are kept.
 5. **Still ends.** Head samples within ``STILL_TOLERANCE`` (1e-3) of the path length from the
    first sample are trimmed, likewise at the tail; one still sample is kept at each end.
 6. **Arc-length parameter** (no timestamps). Consecutive kept samples are made at least
@@ -67,10 +70,19 @@ MIN_RELATIVE_MOTION = 1e-9
 TIME_TOLERANCE = 1e-9
 #: Most out-of-order samples repaired by dropping them, as a fraction of the samples (>= 1).
 MAX_TIME_REPAIRS = 0.01
-#: A sample is a glitch when it deviates from its neighbours' midpoint by this many steps.
+#: A sample is a glitch when it deviates from its neighbours' midpoint by this many steps...
 SPIKE_FACTOR = 4.0
+#: ... and by this many times its neighbours' distance (monotone sampling: at most 1/2).
+CHORD_FACTOR = 2.0
 #: Half-width, in samples, of the window whose median step is the local step size.
 SPIKE_WINDOW = 2
+#: Longest excursion (in samples) caught as a glitch: resampling spreads one glitch reading
+#: over its ramps.
+MAX_GLITCH_RUN = 6
+#: Glitch detection passes (each on what the previous left).
+GLITCH_PASSES = 3
+#: Steps on each side of a longer excursion whose median is the local step there.
+GLITCH_SCALE_WINDOW = 5
 #: A repeat run longer than this many median sampling intervals is a pause (see step 3).
 PAUSE_INTERVALS = 10.0
 #: Chords of the robust path length: at most this many, so jitter does not inflate it.
@@ -235,34 +247,64 @@ def _repeat_mask(positions: FloatArray, tolerance: float) -> np.ndarray:
 
 
 def _spike_mask(positions: FloatArray) -> np.ndarray:
-    """True for single-sample glitches (step 4 of the module docstring)."""
+    """True for glitch samples (step 4 of the module docstring).
+
+    An excursion of m = 1..``MAX_GLITCH_RUN`` samples between samples a and b = a + m + 1:
+    interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
+    x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
+    5 steps around a single sample, of the ``2 * GLITCH_SCALE_WINDOW`` steps around a
+    longer excursion (a resampled glitch brings its own ramps).
+    """
     n = positions.shape[0]
     spike = np.zeros(n, dtype=bool)
     if n < 5:
         return spike
-    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)  # (n - 1,)
+    steps = np.sqrt(np.einsum("ij,ij->i", np.diff(positions, axis=0), np.diff(positions, axis=0)))
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
     # The median of 5 steps ignores the two large steps a glitch makes around itself.
     local = np.partition(sliding_window_view(steps, width), width // 2, axis=1)[:, width // 2]
-    # local step scale per sample: the window centred on it, clamped at the ends
     centre = np.clip(np.arange(n) - width // 2, 0, local.size - 1)
-    scale = local[centre]
-    mid = 0.5 * (positions[:-2] + positions[2:])
-    deviation = np.linalg.norm(positions[1:-1] - mid, axis=1)
-    chord = np.linalg.norm(positions[2:] - positions[:-2], axis=1)
-    spike[1:-1] = deviation > SPIKE_FACTOR * np.maximum(chord, scale[1:-1])
+    scale = local[centre]  # local step per sample, the window centred on it
+    for m in range(1, MAX_GLITCH_RUN + 1):
+        if n < m + 2:
+            break
+        a = np.arange(n - m - 1)
+        b = a + m + 1
+        mid = 0.5 * (positions[a] + positions[b])
+        chord = np.linalg.norm(positions[b] - positions[a], axis=1)
+        dev = np.stack([np.linalg.norm(positions[a + k] - mid, axis=1) for k in range(1, m + 1)], axis=1)
+        worst = dev.max(axis=1)
+        # cheap test first: the excursion comes back (small chord) but went far
+        cand = np.flatnonzero(worst > CHORD_FACTOR * chord)
+        if cand.size == 0:
+            continue
+        if m == 1:
+            step = scale[a[cand] + 1]
+        else:
+            lo = np.clip(a[cand] - GLITCH_SCALE_WINDOW, 0, None)
+            hi = np.minimum(b[cand] + GLITCH_SCALE_WINDOW, steps.size)
+            step = np.array([np.median(steps[i:j]) for i, j in zip(lo.tolist(), hi.tolist(), strict=True)])
+        limit = np.maximum(CHORD_FACTOR * chord[cand], SPIKE_FACTOR * 0.5 * (m + 1) * step)
+        flagged = dev[cand] > limit[:, None]  # (C, m): each interior sample on its own
+        rows, k = np.nonzero(flagged)
+        spike[a[cand][rows] + 1 + k] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
-    spike[0] = steps[0] > SPIKE_FACTOR * max(steps[1], scale[1]) * 2.0
-    spike[-1] = steps[-1] > SPIKE_FACTOR * max(steps[-2], scale[-2]) * 2.0
-    # A glitch also makes its neighbours look odd (their midpoint moves); keep the worst only.
-    both = spike[1:] & spike[:-1]
-    if both.any():
-        score = np.zeros(n)
-        score[1:-1] = deviation
-        lose = np.flatnonzero(both)
-        weaker = np.where(score[lose] < score[lose + 1], lose, lose + 1)
-        spike[weaker] = False
+    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], scale[1]) * 2.0
+    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], scale[-2]) * 2.0
     return spike
+
+
+def _glitch_mask(positions: FloatArray) -> np.ndarray:
+    """:func:`_spike_mask` repeated on what is left (at most ``GLITCH_PASSES`` times): once a
+    glitch's core is gone, the partial ramps a resampler left around it stand out in turn."""
+    glitch = np.zeros(positions.shape[0], dtype=bool)
+    for _ in range(GLITCH_PASSES):
+        left = np.flatnonzero(~glitch)
+        found = _spike_mask(positions[left])
+        if not found.any():
+            break
+        glitch[left[found]] = True
+    return glitch
 
 
 def _spaced_rows(positions: FloatArray, tolerance: float) -> IntArray:
@@ -379,7 +421,7 @@ def prepared_samples(
             keep[run_end[long]] = True
     exact_rows = rows
     rows, pts = rows[keep], pts[keep]
-    glitch = _spike_mask(pts)
+    glitch = _glitch_mask(pts)
     # Every exact-deduplicated row stands for the kept sample it merged into; rows merged
     # into a glitch are glitches too (a poller repeating one at rounding level).
     flagged = np.zeros(keep.size, dtype=bool)

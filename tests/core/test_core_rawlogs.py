@@ -263,3 +263,17 @@ def test_any_finite_timestamps_are_repaired_or_refused_naming_them(n: int, stamp
         assert exc.field in ("demos[0]", "timestamps[0]"), exc
     else:
         assert np.isfinite(canal.directrix).all()
+
+
+def test_a_glitch_spread_by_row_resampling_is_dropped_with_its_ramps() -> None:
+    # A glitch repeated by the poller, then the log linearly resampled by rows (as the issue's
+    # 1,000-row logs were): the glitch becomes a plateau with ramps; it used to stay in and
+    # shift the demo's arc-length phase.
+    u = np.linspace(0.0, 1.0, 300)
+    demo = np.column_stack([0.6 * u, 0.05 * np.sin(np.pi * u), 0.0 * u])
+    demo[150:154] = demo[150] + np.array([0.1, -0.13, -0.15])  # one reading, polled 4 times
+    x = np.linspace(0.0, demo.shape[0] - 1.0, 560)
+    resampled = np.column_stack([np.interp(x, np.arange(demo.shape[0]), demo[:, d]) for d in range(3)])
+    positions, _ = prepared_demonstration(resampled, field="d")
+    off_path = np.abs(positions[:, 2]) > 1e-9
+    assert not off_path.any(), positions[off_path]
