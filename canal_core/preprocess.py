@@ -252,8 +252,8 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     An excursion of m = 1..``MAX_GLITCH_RUN`` samples between samples a and b = a + m + 1:
     interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
     x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
-    5 steps around a single sample, of the ``2 * GLITCH_SCALE_WINDOW`` steps around a
-    longer excursion (a resampled glitch brings its own ramps).
+    5 steps around a single sample, of the 17 steps around a longer excursion (a resampled
+    glitch brings its own ramps).
     """
     n = positions.shape[0]
     spike = np.zeros(n, dtype=bool)
@@ -265,29 +265,33 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     local = np.partition(sliding_window_view(steps, width), width // 2, axis=1)[:, width // 2]
     centre = np.clip(np.arange(n) - width // 2, 0, local.size - 1)
     scale = local[centre]  # local step per sample, the window centred on it
+    wide_scale: FloatArray | None = None  # the same over 17 steps, for longer excursions
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
     for m in range(1, MAX_GLITCH_RUN + 1):
         if n < m + 2:
             break
-        a = np.arange(n - m - 1)
-        b = a + m + 1
-        mid = 0.5 * (positions[a] + positions[b])
-        chord = np.linalg.norm(positions[b] - positions[a], axis=1)
-        dev = np.stack([np.linalg.norm(positions[a + k] - mid, axis=1) for k in range(1, m + 1)], axis=1)
-        worst = dev.max(axis=1)
-        # cheap test first: the excursion comes back (small chord) but went far
-        cand = np.flatnonzero(worst > CHORD_FACTOR * chord)
+        a_all = np.arange(n - m - 1)
+        chord_all = np.linalg.norm(positions[a_all + m + 1] - positions[a_all], axis=1)
+        # Cheap test first: a sample that far from the midpoint makes the path between a and
+        # b at least twice that long (dev <= arc / 2), so most windows need no more.
+        cand = np.flatnonzero(arc[a_all + m + 1] - arc[a_all] > 2.0 * CHORD_FACTOR * chord_all)
         if cand.size == 0:
             continue
+        a, chord = a_all[cand], chord_all[cand]
+        b = a + m + 1
+        mid = 0.5 * (positions[a] + positions[b])
+        dev = np.stack([np.linalg.norm(positions[a + k] - mid, axis=1) for k in range(1, m + 1)], axis=1)
         if m == 1:
-            step = scale[a[cand] + 1]
+            step = scale[a + 1]
         else:
-            lo = np.clip(a[cand] - GLITCH_SCALE_WINDOW, 0, None)
-            hi = np.minimum(b[cand] + GLITCH_SCALE_WINDOW, steps.size)
-            step = np.array([np.median(steps[i:j]) for i, j in zip(lo.tolist(), hi.tolist(), strict=True)])
-        limit = np.maximum(CHORD_FACTOR * chord[cand], SPIKE_FACTOR * 0.5 * (m + 1) * step)
-        flagged = dev[cand] > limit[:, None]  # (C, m): each interior sample on its own
-        rows, k = np.nonzero(flagged)
-        spike[a[cand][rows] + 1 + k] = True
+            if wide_scale is None:
+                wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
+                rolling = np.partition(sliding_window_view(steps, wide), wide // 2, axis=1)[:, wide // 2]
+                wide_scale = rolling[np.clip(np.arange(n) - wide // 2, 0, rolling.size - 1)]
+            step = wide_scale[(a + b) // 2]
+        limit = np.maximum(CHORD_FACTOR * chord, SPIKE_FACTOR * 0.5 * (m + 1) * step)
+        rows, k = np.nonzero(dev > limit[:, None])  # each interior sample on its own
+        spike[a[rows] + 1 + k] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], scale[1]) * 2.0
     spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], scale[-2]) * 2.0
