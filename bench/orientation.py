@@ -38,13 +38,13 @@ from scipy.spatial.transform import Rotation
 
 import canal_core
 from canal_core.alignment import spline_parameter
-from canal_core.model import kept_rows
 from canal_core.orientation import (
     aligned_orientations,
     angles_between,
     carried_orientations,
     start_offset,
 )
+from canal_core.preprocess import prepared_rows
 
 try:
     from bench.common import best_of, summary_row, write_summary
@@ -91,7 +91,7 @@ def pour_demos(seed: int, n: int = 6, t: int = 300) -> tuple[list[np.ndarray], l
 
 def held_out_truth(demo: np.ndarray, quat: np.ndarray) -> np.ndarray:
     """Demo's orientation at N phases (arc length of its cleaned positions), shape (N, 4)."""
-    rows = kept_rows(demo)
+    rows = prepared_rows(demo, field="held-out demo")
     u = spline_parameter(demo[rows], None)
     return aligned_orientations([quat[rows]], [u], np.linspace(0.0, 1.0, N)[None, :])[0]
 

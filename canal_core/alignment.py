@@ -13,6 +13,9 @@ from scipy.interpolate import CubicSpline
 from .validation import FloatArray
 from .warping import dtw_path
 
+#: Smallest step of a warp, in reference samples (keeps every warp strictly increasing).
+MIN_WARP_STEP = 1e-6
+
 
 def normalised_arc_length(positions: FloatArray) -> FloatArray:
     """Cumulative arc length scaled to [0, 1].
@@ -20,7 +23,8 @@ def normalised_arc_length(positions: FloatArray) -> FloatArray:
     Parameters
     ----------
     positions : array, shape (T, D)
-        Consecutive rows must differ (see :func:`canal_core.preprocess.cleaned_demonstration`).
+        Consecutive rows must differ by more than rounding (see
+        :func:`canal_core.preprocess.prepared_demonstration`).
 
     Returns
     -------
@@ -38,9 +42,41 @@ def spline_parameter(positions: FloatArray, timestamps: FloatArray | None) -> Fl
     return (timestamps - timestamps[0]) / (timestamps[-1] - timestamps[0])
 
 
+def increasing_rows(parameter: FloatArray) -> np.ndarray:
+    """Mask keeping the rows where ``parameter`` rises above every earlier value, shape (T,).
+
+    Prepared demonstrations never lose a row here; this is the guarantee at the spline
+    itself, so no caller can hand scipy a stalled parameter (the rows dropped are
+    rounding-level repeats that :mod:`canal_core.preprocess` would have dropped).
+    """
+    keep = np.ones(parameter.shape[0], dtype=bool)
+    keep[1:] = parameter[1:] > np.maximum.accumulate(parameter)[:-1]
+    return keep
+
+
 def demonstration_spline(positions: FloatArray, timestamps: FloatArray | None) -> CubicSpline:
-    """Cubic spline through a demonstration over its parameter in [0, 1] (Section 4.1)."""
-    return CubicSpline(spline_parameter(positions, timestamps), positions, axis=0)
+    """Cubic spline through a demonstration over its parameter in [0, 1] (Section 4.1).
+
+    The parameter is strictly increasing by construction (:func:`increasing_rows`).
+    """
+    u = spline_parameter(positions, timestamps)
+    keep = increasing_rows(u)
+    if not keep[-1]:  # end exactly at 1: keep the last sample, drop the one it repeats
+        keep[np.flatnonzero(keep)[-1]] = False
+        keep[-1] = True
+    return CubicSpline(u[keep], positions[keep], axis=0)
+
+
+def strictly_increasing_warp(index: FloatArray, last: float) -> FloatArray:
+    """A non-decreasing warp from ``0`` to ``last`` made strictly increasing.
+
+    Each step is raised to at least ``MIN_WARP_STEP`` (a running maximum of
+    ``index - k * step``, plus ``k * step``), then the whole warp is scaled back into [0, last].
+    """
+    k = np.arange(index.size) * MIN_WARP_STEP
+    warp = np.maximum.accumulate(index - k) + k
+    warp -= warp[0]
+    return np.asarray(warp * (last / warp[-1]) if warp[-1] > 0 else np.linspace(0.0, last, index.size))
 
 
 def resampled_demonstrations(
@@ -101,7 +137,7 @@ def dtw_parameters(
         mean_index = np.bincount(i_ref, weights=i_demo, minlength=n_samples) / counts
         # Averaging keeps the map monotone; pin the ends so every demo spans its whole path.
         mean_index[0], mean_index[-1] = 0.0, n_samples - 1.0
-        parameters[j] = mean_index / (n_samples - 1)
+        parameters[j] = strictly_increasing_warp(mean_index, n_samples - 1.0) / (n_samples - 1)
     return parameters
 
 

@@ -43,12 +43,13 @@ def _crossings_in_window(
     sections: np.ndarray,
     demos: np.ndarray,
     half_width: int,
-) -> tuple[FloatArray, np.ndarray, FloatArray]:
+) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
     """Crossing points for (section, demo) pairs searched within ``half_width`` samples.
 
     Returns the points, shape (P, D), a mask, shape (P,), of pairs where a sign change
     was found (unfound pairs hold the window sample nearest the plane, projected onto it),
-    and the distance from c_i of that nearest sample, shape (P,).
+    the distance from c_i of that nearest sample, shape (P,), and the fractional sample
+    index of the crossing in the demo, shape (P,) (NaN where none was found).
     """
     n_samples = aligned.shape[1]
     offsets = np.arange(-half_width, half_width + 1)
@@ -74,13 +75,15 @@ def _crossings_in_window(
     x0 = aligned[demos, cols[pair, seg]]
     x1 = aligned[demos, cols[pair, seg + 1]]
     points = x0 + np.clip(alpha, 0.0, 1.0)[:, None] * (x1 - x0)
+    index = cols[pair, seg] + np.clip(alpha, 0.0, 1.0)
 
     nearest = np.argmin(np.abs(dist), axis=1)
     x = aligned[demos, cols[pair, nearest]]
     reference = np.linalg.norm(x - centres[sections], axis=1)
     miss = ~found
     points[miss] = x[miss] - dist[pair, nearest][miss, None] * tangents[sections[miss]]
-    return points, found, reference
+    index[miss] = np.nan
+    return points, found, reference, index
 
 
 def in_row_blocks(
@@ -105,14 +108,140 @@ def _blocked_crossings(
     sections: np.ndarray,
     demos: np.ndarray,
     half_width: int,
-) -> tuple[FloatArray, np.ndarray, FloatArray]:
+) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
     """:func:`_crossings_in_window` over blocks of pairs of at most ``MAX_BLOCK`` entries."""
-    points, found, reference = in_row_blocks(
+    points, found, reference, index = in_row_blocks(
         lambda rows: _crossings_in_window(aligned, centres, tangents, sections[rows], demos[rows], half_width),
         sections.size,
         2 * half_width + 1,
     )
-    return points, found, reference
+    return points, found, reference, index
+
+
+#: Samples per block of the far search: each block is bounded by a ball, so a plane that
+#: misses the ball is crossed nowhere in the block.
+BLOCK = 16
+
+
+def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centres (n, nb, D) and radii (n, nb) of balls around samples bB..(b+1)B of each demo.
+
+    Block b holds the segments bB .. bB + B - 1 (both ends of each), ``nb = ceil((N-1)/B)``.
+    """
+    n_samples = aligned.shape[1]
+    n_blocks = max(1, -(-(n_samples - 1) // BLOCK))
+    idx = np.minimum(np.arange(n_blocks)[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
+    pts = aligned[:, idx]  # (n, nb, B + 1, D)
+    lo, hi = pts.min(axis=2), pts.max(axis=2)
+    return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
+
+
+def _block_keys(
+    sections: np.ndarray,
+    t: FloatArray,
+    plane: FloatArray,
+    ball_centres: FloatArray,
+    reach: FloatArray,
+    seg_lo: np.ndarray,
+    seg_hi: np.ndarray,
+) -> FloatArray:
+    """Per pair and block of one demo, shape (P, nb): the smallest |s + 0.5 - i| of the
+    block's segments inside the window when the plane may cut the block's ball (radius
+    plus rounding slack: ``reach``), else inf."""
+    offset = t @ ball_centres.T - plane[:, None]  # (P, nb), one matrix product per demo
+    start = np.arange(reach.size)[None, :] * BLOCK
+    first = np.maximum(start, seg_lo[:, None])
+    last = np.minimum(start + (BLOCK - 1), seg_hi[:, None])
+    cut = (np.abs(offset) <= reach[None, :]) & (first <= last)
+    i = sections[:, None] - 0.5
+    # min over s in [first, last] of |s + 0.5 - i|: 0.5 when the range holds i - 1 or i.
+    near = np.maximum(np.maximum(first - i, i - last), 0.5)
+    return np.where(cut, near, np.inf)
+
+
+def _far_crossings(
+    aligned: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    sections: np.ndarray,
+    demos: np.ndarray,
+    half_width: int,
+    balls: tuple[FloatArray, FloatArray],
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
+    """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
+
+    Same answer as :func:`_crossings_in_window` with that width, at a cost that does not
+    depend on how far the crossing lies: the planes are tested against the block balls
+    (one matrix product per demo), then only blocks the plane may cut are searched sample
+    by sample, nearest first, until no untested block could hold a nearer crossing.
+
+    Returns the points, shape (P, D), whether a crossing was found, shape (P,), and its
+    fractional sample index in the demo, shape (P,) (NaN where none was found).
+    """
+    n_samples, dim = aligned.shape[1], aligned.shape[2]
+    n_pairs = sections.size
+    t = tangents[sections]
+    plane = np.einsum("pd,pd->p", centres[sections], t)
+    seg_lo = np.maximum(0, sections - half_width)
+    seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
+    # Rounding slack: d is computed per sample, the test per ball; |t.c_i| and |t.m| are
+    # bounded by the largest norms of the directrix and of the ball centres.
+    bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(balls[0], axis=2).max())
+    reach = balls[1] * (1.0 + 1e-9) + 1e-12 * (balls[1] + bound)
+    key = np.empty((n_pairs, balls[1].shape[1]))
+    for j in np.unique(demos).tolist():
+        rows = np.flatnonzero(demos == j)
+        key[rows] = _block_keys(sections[rows], t[rows], plane[rows], balls[0][j], reach[j],
+                                seg_lo[rows], seg_hi[rows])
+    best_score = np.full(n_pairs, np.inf)
+    best_seg = np.full(n_pairs, -1, dtype=np.int64)
+    q = np.arange(BLOCK)
+    active = np.arange(n_pairs)
+    while active.size:
+        # The two nearest blocks the plane may cut: the block just before the crossing is
+        # usually cut too (its last sample lies next to the plane), so one round finds most.
+        picked_pairs, picked_blocks = [], []
+        for _ in range(2):
+            k = np.argmin(key[active], axis=1)
+            k_key = key[active, k]
+            go = np.isfinite(k_key) & (k_key <= best_score[active])
+            picked_pairs.append(active[go])
+            picked_blocks.append(k[go])
+            key[active[go], k[go]] = np.inf  # searched
+        rows, b = np.concatenate(picked_pairs), np.concatenate(picked_blocks)
+        if rows.size == 0:
+            break
+        cols = np.minimum(b[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
+        dist = np.einsum("pwd,pd->pw", aligned[demos[rows, None], cols], t[rows]) - plane[rows, None]
+        seg = b[:, None] * BLOCK + q[None, :]
+        inside = (seg >= seg_lo[rows, None]) & (seg <= seg_hi[rows, None])
+        crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
+        score = np.where(crosses, np.abs(seg + 0.5 - sections[rows, None]), np.inf)
+        j = np.argmin(score, axis=1)
+        s_score, s_seg = score[np.arange(rows.size), j], seg[np.arange(rows.size), j]
+        # Lexicographic (score, segment) minimum: a pair may appear twice in ``rows``.
+        order = np.lexsort((s_seg, s_score))
+        rows, s_score, s_seg = rows[order], s_score[order], s_seg[order]
+        first = np.unique(rows, return_index=True)[1]
+        rows, s_score, s_seg = rows[first], s_score[first], s_seg[first]
+        better = (s_score < best_score[rows]) | ((s_score == best_score[rows]) & (s_seg < best_seg[rows]))
+        best_score[rows[better]] = s_score[better]
+        best_seg[rows[better]] = s_seg[better]
+        active = picked_pairs[0]
+    found = np.isfinite(best_score)
+    points = np.zeros((n_pairs, dim))
+    index = np.full(n_pairs, np.nan)
+    if found.any():
+        f = np.flatnonzero(found)
+        cols = np.stack([best_seg[f], best_seg[f] + 1], axis=1)
+        x = aligned[demos[f, None], cols]  # (F, 2, D)
+        d = np.einsum("pwd,pd->pw", x, t[f]) - plane[f, None]
+        d0, d1 = d[:, 0], d[:, 1]
+        denom = d0 - d1
+        alpha = np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0)
+        points[f] = x[:, 0] + np.clip(alpha, 0.0, 1.0)[:, None] * (x[:, 1] - x[:, 0])
+        index[f] = best_seg[f] + np.clip(alpha, 0.0, 1.0)
+    return points, found, index
 
 
 def plane_crossings(
@@ -136,28 +265,40 @@ def plane_crossings(
     crossings : array, shape (N, n, D)
         Points in the planes (t_i . (x - c_i) = 0 up to rounding).
     """
+    return located_crossings(aligned, centres, tangents, window)[0]
+
+
+def located_crossings(
+    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`plane_crossings` and where along each demo they lie.
+
+    Returns
+    -------
+    crossings : array, shape (N, n, D)
+    index : array, shape (N, n)
+        Fractional sample index in demo j of its crossing with plane i; NaN where the demo
+        contributes its nearest sample instead (no crossing taken).
+    """
     n_demos, n_samples, _ = aligned.shape
     sections = np.repeat(np.arange(n_samples), n_demos)
     demos = np.tile(np.arange(n_demos), n_samples)
     wide = max(NEAR_WINDOW + 1, round(window * n_samples))
-    # Widen the search only for the pairs that have not found a crossing yet: most pairs
-    # cross within a few samples, the ends of the canal need the whole window.
-    # Widen the search only for the pairs that have not found a crossing yet: most pairs
-    # cross within a few samples, the ends of the canal need the whole window. Doubling the
-    # width finds the same (nearest-in-index) crossing as one wide search, at a cost that
-    # grows with how far each pair's crossing is rather than with N for every pending pair.
-    widths = [min(NEAR_WINDOW, wide), min(MID_WINDOW, wide)]
-    while widths[-1] < wide:
-        widths.append(min(2 * widths[-1], wide))
-    points, found, reference = _blocked_crossings(
-        aligned, centres, tangents, sections, demos, widths[0]
+    # Most pairs cross within a few samples of their own index: a dense search there.
+    points, found, reference, index = _blocked_crossings(
+        aligned, centres, tangents, sections, demos, min(NEAR_WINDOW, wide)
     )
     pending = np.flatnonzero(~found)
-    for width in sorted(set(widths[1:])):
-        if pending.size == 0:
-            break
-        far_points, far_found, _ = _blocked_crossings(
-            aligned, centres, tangents, sections[pending], demos[pending], width
+    if pending.size:
+        # The rest (demos ahead of or behind the mean's phase, common in raw logs) by the
+        # block search: its cost does not grow with how far the crossing lies.
+        balls = _block_balls(aligned)
+        far_points, far_found, far_index = in_row_blocks(
+            lambda rows: _far_crossings(
+                aligned, centres, tangents, sections[pending[rows]], demos[pending[rows]], wide, balls
+            ),
+            pending.size,
+            balls[1].shape[1] + 2 * (BLOCK + 1),
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
@@ -165,8 +306,40 @@ def plane_crossings(
         near_enough = np.linalg.norm(far_points - centres[sections[pending]], axis=1) <= reference[pending]
         take = far_found & near_enough
         points[pending[take]] = far_points[take]
-        pending = pending[~far_found]
-    return points.reshape(n_samples, n_demos, -1)
+        index[pending[take]] = far_index[take]
+    return points.reshape(n_samples, n_demos, -1), index.reshape(n_samples, n_demos)
+
+
+def sections_of_samples(index: FloatArray, demo: int, sample_index: FloatArray) -> FloatArray:
+    """Section index, shape (M,), at fractional aligned sample indices of one demo.
+
+    Inverts the demo's crossings (section i is met at sample ``index[i, demo]``) by linear
+    interpolation, with unit slope beyond the first and last plane met; where the demo
+    met fewer than two planes, the sample index itself.
+    A demo ahead of or behind the mean's phase is thus placed at the sections it crosses,
+    not at its own index.
+
+    Parameters
+    ----------
+    index : array, shape (N, n)
+        From :func:`located_crossings`.
+    demo : int
+    sample_index : array, shape (M,)
+    """
+    met = np.flatnonzero(np.isfinite(index[:, demo]))
+    if met.size < 2:
+        return np.asarray(sample_index, dtype=np.float64)
+    at = index[met, demo]
+    order = np.argsort(at, kind="stable")
+    at, met = at[order], met[order].astype(np.float64)
+    k = np.asarray(sample_index, dtype=np.float64)
+    section = np.interp(k, at, met)
+    # Beyond the first / last plane it meets, the demo keeps its offset from there: a demo
+    # that met no plane near its start still sits at the first sections, not at the first met.
+    before, after = k < at[0], k > at[-1]
+    section[before] = met[0] - (at[0] - k[before])
+    section[after] = met[-1] + (k[after] - at[-1])
+    return np.asarray(np.clip(section, 0.0, index.shape[0] - 1.0))
 
 
 def in_plane_coordinates(

@@ -27,12 +27,12 @@ from .cross_sections import (
     scaled_sections,
     section_radii,
 )
-from .crossings import in_plane_coordinates, plane_crossings
+from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
 from .orientation import OrientationModel, fitted_orientations
-from .preprocess import STILL_TOLERANCE, cleaned_demonstration, mask_of_new_samples, moving_range
+from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples
 from .reproduce import (
     Location,
     enclosing_scales,
@@ -43,10 +43,8 @@ from .reproduce import (
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
 from .tracker import Tracker, tracker_geometry
 from .validation import (
-    MIN_POINTS,
     BoolArray,
     FloatArray,
-    IntArray,
     check_choice,
     check_demonstration_orientations,
     check_demonstrations,
@@ -452,7 +450,10 @@ def fit(
     demos : sequence of array_like, each shape (T_j, D)
         n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
     timestamps : sequence of (array_like, shape (T_j,) or None), optional
-        Strictly increasing; alignment is by time where given, else by arc length.
+        Seconds; alignment is by time where given, else by arc length. Raw logs are fine:
+        every demo goes through :func:`canal_core.preprocess.prepared_demonstration`
+        (repeats, rounding-level steps, glitches, still ends, equal or isolated
+        out-of-order stamps).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
     alignment : {"spline", "dtw"}
@@ -479,7 +480,8 @@ def fit(
     Raises
     ------
     InvalidInputError
-        Malformed demonstrations, timestamps or options.
+        Malformed demonstrations, timestamps or options, coordinates beyond +-1e15, a demo
+        that does not move; ``field`` names the demo (``demos[j]`` / ``timestamps[j]``).
     DegenerateCanalError
         Every demonstration identical, or a directrix of zero length.
     """
@@ -494,16 +496,12 @@ def fit(
             field="cross_section",
         )
 
-    cleaned = [cleaned_demonstration(d, t, still_tolerance) for d, t in zip(demos_, times_, strict=True)]
-    for j, (d, _) in enumerate(cleaned):
-        if d.shape[0] < MIN_POINTS:
-            raise InvalidInputError(
-                f"expected at least {MIN_POINTS} distinct moving samples in demos[{j}], got "
-                f"{d.shape[0]} after dropping repeats and still ends",
-                field=f"demos[{j}]",
-            )
-    positions = [d for d, _ in cleaned]
-    times = [t for _, t in cleaned]
+    prepared = [
+        prepared_samples(d, t, field=f"demos[{j}]", time_field=f"timestamps[{j}]", still_tolerance=still_tolerance)
+        for j, (d, t) in enumerate(zip(demos_, times_, strict=True))
+    ]
+    positions = [p.positions for p in prepared]
+    times = [p.timestamps for p in prepared]
 
     if options.alignment == "dtw":
         aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
@@ -527,7 +525,7 @@ def fit(
     else:
         tangents, normals, binormals = rotation_minimizing_frames(frame_curve)
 
-    crossings = plane_crossings(aligned, centres, tangents)
+    crossings, crossing_index = located_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the
     # end section by its projected end sample, so the extruded ends hold the whole demo.
     for end, outward in ((0, -1.0), (-1, 1.0)):
@@ -542,17 +540,23 @@ def fit(
         )
     sections = fitted_sections(coords, options.cross_section)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
-    # Every sample the caller gave counts, the trimmed still ends and repeats included.
-    samples = np.vstack(demos_)
-    phase = np.concatenate([spline_parameter(d, t) for d, t in zip(demos_, times_, strict=True)])
-    approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
+    # Every genuine sample counts, the trimmed still ends included (glitches do not); its
+    # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
+    samples = np.vstack([d[p.sample_rows] for d, p in zip(demos_, prepared, strict=True)])
+    phase = np.concatenate([p.sample_phase for p in prepared])
+    # Each sample starts its search at the sections its demo crosses there (not at its own
+    # phase): demos ahead of or behind the mean are then found at once.
+    approx = np.rint(np.concatenate([
+        sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
+        for j, p in enumerate(prepared)
+    ])).astype(np.int64)
     window = max(8, options.n_samples // 50)
     sections = scaled_sections(
         sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
     )
     orientation = None
     if quats_ is not None:
-        orientation = _fitted_orientation(demos_, times_, quats_, positions, times, options, still_tolerance)
+        orientation = _fitted_orientation(prepared, quats_, options)
     return Canal(
         end_depths=end_depths(samples, phase, centres, tangents),
         directrix=centres,
@@ -567,32 +571,19 @@ def fit(
     )
 
 
-def kept_rows(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> IntArray:
-    """Indices of the rows :func:`canal_core.preprocess.cleaned_demonstration` keeps, shape (T',).
-
-    Orientations are cleaned by the same rows as the positions they belong to.
-    """
-    kept = np.flatnonzero(mask_of_new_samples(positions))
-    return np.asarray(kept[moving_range(positions[kept], tolerance)], dtype=np.int64)
-
-
 def _fitted_orientation(
-    demos: list[FloatArray],
-    timestamps: list[FloatArray | None],
+    prepared: list[PreparedDemonstration],
     quaternions: list[FloatArray],
-    positions: list[FloatArray],
-    times: list[FloatArray | None],
     options: FitOptions,
-    tolerance: float,
 ) -> OrientationModel:
-    """The orientation model on the same alignment as the positions."""
-    rows = [kept_rows(d, tolerance) for d in demos]
-    parameters = [
-        spline_parameter(d[r], None if t is None else t[r])
-        for d, t, r in zip(demos, timestamps, rows, strict=True)
-    ]
+    """The orientation model on the same alignment as the positions.
+
+    Orientations follow the rows the preparation stage kept for their positions, at the
+    same spline parameter.
+    """
+    parameters = [spline_parameter(p.positions, p.timestamps) for p in prepared]
     if options.alignment == "dtw":
-        at = dtw_parameters(positions, times, options.n_samples)
+        at = dtw_parameters([p.positions for p in prepared], [p.timestamps for p in prepared], options.n_samples)
     else:
-        at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(demos), options.n_samples))
-    return fitted_orientations([q[r] for q, r in zip(quaternions, rows, strict=True)], parameters, at)
+        at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(prepared), options.n_samples))
+    return fitted_orientations([q[p.rows] for q, p in zip(quaternions, prepared, strict=True)], parameters, at)

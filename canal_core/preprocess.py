@@ -1,18 +1,118 @@
-"""Clean raw robot logs before alignment.
+"""Turn what robots record into what the method needs (one stage, before alignment).
 
-Polling recorders repeat samples (65-75 % of rows on some arms) and demonstrations start
-and end with the arm standing still. Repeats make arc length stall and still ends stretch
-time alignment, so both are removed before resampling.
+Raw kinesthetic logs are not curves: polling recorders repeat samples (65-75 % of rows on
+some arms), filters and resamplers leave steps at rounding level (1e-17 .. 1e-7), the arm
+stands still for seconds at both ends, clocks stamp two samples alike or step back, a
+glitch throws one sample far off, and demonstrations of one skill differ in length and rate.
+:func:`prepared_demonstration` is the one stage that handles all of it; :func:`canal_core.fit`
+and the service's upload validation both call it, so a demonstration that cannot be fitted
+is refused when it arrives, naming it.
+
+The stage only *selects* rows, it never invents values: every output row is an input row
+(:func:`prepared_rows` gives their indices, e.g. to carry orientations along). In order:
+
+1. **Scale.** Every coordinate must satisfy ``|x| <= MAX_COORDINATE`` (1e15): beyond that,
+   squares and products in the fit overflow (1e306 used to end in an HTTP 500). Units from
+   nanometres to kilometres fit comfortably; larger values are refused naming the sample.
+2. **Time** (when timestamps are given). Timestamps closer than ``TIME_TOLERANCE`` (1e-9) of
+   the demo's duration to the previous kept one are duplicates: the first is kept. A sample
+   whose timestamp steps back is dropped when removing it (or its predecessor, when that one
+   jumped ahead) leaves the neighbours in order; at most ``MAX_TIME_REPAIRS`` (1 %) of the
+   samples are repaired so. Anything else (a clock reset, logs glued together) is an
+   :class:`InvalidInputError` naming the demo and the sample.
+3. **Repeats.** A sample within ``NEAR_DUPLICATE_TOLERANCE`` (1e-6) of the demo's size (its
+   robust path length) from the previous sample is a repeat and dropped, unless the slow
+   drift since the last kept sample has itself reached that distance (so creeping motion is
+   kept at that resolution). With timestamps, the last sample of a repeat run that lasts
+   longer than ``PAUSE_INTERVALS`` sampling intervals is kept too: the arm really paused,
+   and a time spline must not overshoot across the pause.
+4. **Spikes.** An excursion of m = 1..6 samples that leaves the path and comes back is a
+   glitch: its interior sample k is dropped when its distance from the midpoint of the
+   samples a and b around the excursion exceeds both ``CHORD_FACTOR`` (2) x |x_b - x_a|
+   and ``SPIKE_FACTOR`` (4) x (m + 1) / 2 local steps (median of the surrounding steps).
+   Real motion cannot: for monotone sampling that distance is at most half the chord, and
+   at a genuine reversal about (m + 1) / 2 steps. A glitch repeated by the poller is one
+   sample after step 3; a resampled glitch (with its ramps) spans a few. The test runs
+   again on what is left (up to 3 passes), which catches the partial ramps around a
+   removed glitch. Longer excursions are kept.
+5. **Still ends.** Head samples within ``STILL_TOLERANCE`` (1e-3) of the path length from the
+   first sample are trimmed, likewise at the tail; one still sample is kept at each end.
+6. **Arc-length parameter** (no timestamps). Consecutive kept samples are made at least
+   ``NEAR_DUPLICATE_TOLERANCE / 2`` of the path length apart, so the cumulative arc length
+   is strictly increasing by construction and its normalisation cannot round two samples
+   together (the scipy "x must be strictly increasing" crash).
+
+Then at least ``MIN_POINTS`` samples must remain, else an :class:`InvalidInputError` says
+whether the demo never moves (identical points) or only stands still. The demo must also
+move by more than ``MIN_RELATIVE_MOTION`` (1e-9) of its coordinates' magnitude: a demo that
+only moves at rounding level is refused, not fitted.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from dataclasses import dataclass
 
-from .validation import FloatArray
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from .errors import InvalidInputError
+from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
 
 #: Fraction of a demonstration's path length below which a head/tail sample counts as "still".
 STILL_TOLERANCE = 1e-3
+#: Fraction of the path length below which two consecutive samples are the same sample.
+NEAR_DUPLICATE_TOLERANCE = 1e-6
+#: Largest absolute coordinate accepted (squares must not overflow anywhere in the fit).
+MAX_COORDINATE = 1e15
+#: Smallest motion accepted, as a fraction of the largest absolute coordinate.
+MIN_RELATIVE_MOTION = 1e-9
+#: Fraction of the duration below which two timestamps are the same instant.
+TIME_TOLERANCE = 1e-9
+#: Most out-of-order samples repaired by dropping them, as a fraction of the samples (>= 1).
+MAX_TIME_REPAIRS = 0.01
+#: A sample is a glitch when it deviates from its neighbours' midpoint by this many steps...
+SPIKE_FACTOR = 4.0
+#: ... and by this many times its neighbours' distance (monotone sampling: at most 1/2).
+CHORD_FACTOR = 2.0
+#: Half-width, in samples, of the window whose median step is the local step size.
+SPIKE_WINDOW = 2
+#: Longest excursion (in samples) caught as a glitch: resampling spreads one glitch reading
+#: over its ramps.
+MAX_GLITCH_RUN = 6
+#: Glitch detection passes (each on what the previous left).
+GLITCH_PASSES = 3
+#: Steps on each side of a longer excursion whose median is the local step there.
+GLITCH_SCALE_WINDOW = 5
+#: A repeat run longer than this many median sampling intervals is a pause (see step 3).
+PAUSE_INTERVALS = 10.0
+#: Chords of the robust path length: at most this many, so jitter does not inflate it.
+PATH_CHORDS = 256
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedDemonstration:
+    """The result of the preparation stage for one demonstration.
+
+    Attributes
+    ----------
+    rows : array of int, shape (T',)
+        Input rows kept for alignment, increasing.
+    positions : array, shape (T', D)
+    timestamps : array, shape (T',) or None
+        Strictly increasing when given.
+    sample_rows : array of int, shape (S,)
+        Every input row that is a genuine sample (not a glitch, an out-of-order stamp or an
+        exact repeat), still ends included: what the canal must contain.
+    sample_phase : array, shape (S,)
+        The alignment parameter in [0, 1] of each of those samples (0 before the moving
+        part, 1 after it).
+    """
+
+    rows: IntArray
+    positions: FloatArray
+    timestamps: FloatArray | None
+    sample_rows: IntArray
+    sample_phase: FloatArray
 
 
 def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
@@ -31,6 +131,20 @@ def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
     return keep
 
 
+def robust_path_length(positions: FloatArray) -> float:
+    """Path length measured on at most ``PATH_CHORDS`` chords (jitter does not add up).
+
+    Parameters
+    ----------
+    positions : array, shape (T, D)
+    """
+    stride = max(1, -(-(positions.shape[0] - 1) // PATH_CHORDS))
+    coarse = positions[::stride]
+    if (positions.shape[0] - 1) % stride:
+        coarse = np.vstack([coarse, positions[-1:]])
+    return float(np.linalg.norm(np.diff(coarse, axis=0), axis=1).sum())
+
+
 def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> slice:
     """Return the slice of samples between the still head and the still tail.
 
@@ -42,17 +156,365 @@ def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> s
     ----------
     positions : array, shape (T, D)
     tolerance : float
-        Fraction of the path length.
+        Fraction of the (robust) path length.
     """
-    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-    radius = tolerance * float(steps.sum())
+    radius = tolerance * robust_path_length(positions)
     if radius == 0.0:
         return slice(0, positions.shape[0])
     away_from_start = np.linalg.norm(positions - positions[0], axis=1) > radius
     away_from_end = np.linalg.norm(positions - positions[-1], axis=1) > radius
+    if not away_from_start.any():
+        return slice(0, positions.shape[0])
     first = int(np.argmax(away_from_start))
     last = positions.shape[0] - 1 - int(np.argmax(away_from_end[::-1]))
     return slice(max(first - 1, 0), min(last + 2, positions.shape[0]))
+
+
+def _time_order_rows(times: FloatArray, field: str) -> IntArray:
+    """Rows whose timestamps, in order, strictly increase (step 2 of the module docstring)."""
+    n = times.shape[0]
+    span = float(times.max() - times.min())
+    if not np.isfinite(span):
+        raise InvalidInputError(f"expected timestamps of {field} with a finite span, got {span}", field=field)
+    if span <= 0.0:
+        raise InvalidInputError(
+            f"expected timestamps of {field} to advance, got {n} equal values {float(times[0])!r}",
+            field=field,
+        )
+    rows = np.arange(n)
+    eps = TIME_TOLERANCE * span
+    budget = max(1, int(MAX_TIME_REPAIRS * n))
+    repaired = 0
+    # Each pass removes equal stamps and isolated out-of-order samples; a second pass only
+    # runs for what the first revealed.
+    for _ in range(4):
+        t = times[rows]
+        step = np.diff(t)
+        equal = np.flatnonzero(np.abs(step) <= eps) + 1
+        if equal.size:
+            rows = np.delete(rows, equal)
+            continue
+        back = np.flatnonzero(step < 0.0) + 1  # sample k steps back from k - 1
+        if back.size == 0:
+            return rows
+        drop = []
+        for k in back.tolist():
+            before = t[k - 2] if k >= 2 else -np.inf
+            after = t[k + 1] if k + 1 < t.size else np.inf
+            if t[k - 1] < after:
+                drop.append(k)  # k fell behind (a late sample)
+            elif before < t[k]:
+                drop.append(k - 1)  # k - 1 jumped ahead
+            else:
+                raise InvalidInputError(
+                    f"expected increasing timestamps in {field}, got {float(t[k])!r} after "
+                    f"{float(t[k - 1])!r} at sample {int(rows[k])}: time goes back for more "
+                    "than one sample (a clock reset or logs joined together)",
+                    field=field,
+                )
+        repaired += len(drop)
+        if repaired > budget:
+            k = int(back[0])
+            raise InvalidInputError(
+                f"expected increasing timestamps in {field}, got {repaired} samples out of order "
+                f"(first {float(t[k])!r} after {float(t[k - 1])!r} at sample {int(rows[k])}); "
+                f"at most {budget} are repaired by dropping them",
+                field=field,
+            )
+        rows = np.delete(rows, np.unique(drop))
+    t = times[rows]
+    if np.any(np.diff(t) <= eps):
+        k = int(np.argmax(np.diff(t) <= eps)) + 1
+        raise InvalidInputError(
+            f"expected increasing timestamps in {field}, got {float(t[k])!r} after "
+            f"{float(t[k - 1])!r} at sample {int(rows[k])}",
+            field=field,
+        )
+    return rows
+
+
+def _repeat_mask(positions: FloatArray, tolerance: float) -> np.ndarray:
+    """Keep a sample when it moved ``tolerance`` from its predecessor or the drift since
+    the last kept sample reached it (arc length crossed into a new bin of that width)."""
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    keep = np.ones(positions.shape[0], dtype=bool)
+    if tolerance <= 0.0:
+        keep[1:] = steps > 0.0
+        return keep
+    bins = np.floor(np.concatenate([[0.0], np.cumsum(steps)]) / tolerance)
+    keep[1:] = (steps >= tolerance) | (bins[1:] > bins[:-1])
+    return keep
+
+
+def _spike_mask(positions: FloatArray) -> np.ndarray:
+    """True for glitch samples (step 4 of the module docstring).
+
+    An excursion of m = 1..``MAX_GLITCH_RUN`` samples between samples a and b = a + m + 1:
+    interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
+    x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
+    5 steps around a single sample, of the 17 steps around a longer excursion (a resampled
+    glitch brings its own ramps).
+    """
+    n = positions.shape[0]
+    spike = np.zeros(n, dtype=bool)
+    if n < 5:
+        return spike
+    steps = np.sqrt(np.einsum("ij,ij->i", np.diff(positions, axis=0), np.diff(positions, axis=0)))
+    width = min(2 * SPIKE_WINDOW + 1, steps.size)
+    # The median of 5 steps ignores the two large steps a glitch makes around itself.
+    local = np.partition(sliding_window_view(steps, width), width // 2, axis=1)[:, width // 2]
+    centre = np.clip(np.arange(n) - width // 2, 0, local.size - 1)
+    scale = local[centre]  # local step per sample, the window centred on it
+    wide_scale: FloatArray | None = None  # the same over 17 steps, for longer excursions
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    for m in range(1, MAX_GLITCH_RUN + 1):
+        if n < m + 2:
+            break
+        a_all = np.arange(n - m - 1)
+        chord_all = np.linalg.norm(positions[a_all + m + 1] - positions[a_all], axis=1)
+        # Cheap test first: a sample that far from the midpoint makes the path between a and
+        # b at least twice that long (dev <= arc / 2), so most windows need no more.
+        cand = np.flatnonzero(arc[a_all + m + 1] - arc[a_all] > 2.0 * CHORD_FACTOR * chord_all)
+        if cand.size == 0:
+            continue
+        a, chord = a_all[cand], chord_all[cand]
+        b = a + m + 1
+        mid = 0.5 * (positions[a] + positions[b])
+        dev = np.stack([np.linalg.norm(positions[a + k] - mid, axis=1) for k in range(1, m + 1)], axis=1)
+        if m == 1:
+            step = scale[a + 1]
+        else:
+            if wide_scale is None:
+                wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
+                rolling = np.partition(sliding_window_view(steps, wide), wide // 2, axis=1)[:, wide // 2]
+                wide_scale = rolling[np.clip(np.arange(n) - wide // 2, 0, rolling.size - 1)]
+            step = wide_scale[(a + b) // 2]
+        limit = np.maximum(CHORD_FACTOR * chord, SPIKE_FACTOR * 0.5 * (m + 1) * step)
+        rows, k = np.nonzero(dev > limit[:, None])  # each interior sample on its own
+        spike[a[rows] + 1 + k] = True
+    # An end sample is a glitch when its step dwarfs the next one and the local steps.
+    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], scale[1]) * 2.0
+    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], scale[-2]) * 2.0
+    return spike
+
+
+def _glitch_mask(positions: FloatArray) -> np.ndarray:
+    """:func:`_spike_mask` repeated on what is left (at most ``GLITCH_PASSES`` times): once a
+    glitch's core is gone, the partial ramps a resampler left around it stand out in turn."""
+    glitch = np.zeros(positions.shape[0], dtype=bool)
+    for _ in range(GLITCH_PASSES):
+        left = np.flatnonzero(~glitch)
+        found = _spike_mask(positions[left])
+        if not found.any():
+            break
+        glitch[left[found]] = True
+    return glitch
+
+
+def _spaced_rows(positions: FloatArray, tolerance: float) -> IntArray:
+    """Indices of samples at least ``tolerance`` apart from the previous kept one (the first
+    and the last are kept): a strictly increasing arc length by construction."""
+    n = positions.shape[0]
+    rows = np.arange(n)
+    for _ in range(64):
+        chord = np.linalg.norm(np.diff(positions[rows], axis=0), axis=1)
+        short = chord < tolerance
+        if not short.any():
+            return rows
+        # Drop the later sample of a short chord, unless the previous chord was short too
+        # (dropping both ends of a run at once could open a gap): one per run per pass.
+        later = np.flatnonzero(short & ~np.concatenate([[False], short[:-1]])) + 1
+        later[later == rows.size - 1] -= 1  # keep the last sample, drop its neighbour
+        later = later[later > 0]
+        rows = np.delete(rows, np.unique(later))
+        if rows.size < 2:
+            return rows
+    # Long runs of short chords (jitter at standstill): finish greedily, rarely reached.
+    kept = [0]
+    for k in range(1, rows.size):
+        if np.linalg.norm(positions[rows[k]] - positions[rows[kept[-1]]]) >= tolerance:
+            kept.append(k)
+    if kept[-1] != rows.size - 1:
+        kept[-1] = rows.size - 1
+    return rows[np.asarray(kept)]
+
+
+def _arc_parameter(positions: FloatArray) -> FloatArray:
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    return s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, positions.shape[0])
+
+
+def prepared_samples(
+    positions: FloatArray,
+    timestamps: FloatArray | None = None,
+    *,
+    field: str,
+    time_field: str | None = None,
+    still_tolerance: float = STILL_TOLERANCE,
+) -> PreparedDemonstration:
+    """Run the preparation stage (see the module docstring) and keep its bookkeeping.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, D)
+    timestamps : array_like, shape (T,), optional
+        Any order problems are repaired or refused here.
+    field : str
+        Names the demonstration in errors (e.g. ``"demos[2]"``).
+    time_field : str, optional
+        Names its timestamps in errors; defaults to ``field``.
+    still_tolerance : float
+        See :func:`moving_range`.
+
+    Returns
+    -------
+    PreparedDemonstration
+
+    Raises
+    ------
+    InvalidInputError
+        With ``field`` (or ``time_field``) set, saying what was expected and what came.
+    """
+    points = check_positions(positions, field)
+    n = points.shape[0]
+    magnitude = np.abs(points).max(axis=1)
+    if magnitude.max() > MAX_COORDINATE:
+        row = int(np.argmax(magnitude > MAX_COORDINATE))
+        raise InvalidInputError(
+            f"expected coordinates of {field} within +-{MAX_COORDINATE:g} (metres to nanometres "
+            f"all fit), got {float(magnitude[row]):.6g} at sample {row}; rescale the units",
+            field=field,
+        )
+    rows = np.arange(n)
+    times: FloatArray | None = None
+    if timestamps is not None:
+        tfield = time_field or field
+        times = np.asarray(timestamps, dtype=np.float64)
+        if times.shape != (n,):
+            raise InvalidInputError(f"expected {tfield} of shape ({n},), got {times.shape}", field=tfield)
+        if not np.isfinite(times).all():
+            row = int(np.argmax(~np.isfinite(times)))
+            raise InvalidInputError(f"expected finite {tfield}, got NaN or Inf at row {row}", field=tfield)
+        rows = _time_order_rows(times, tfield)
+
+    # Step 3: repeats (exact and rounding-level), then step 4: glitches.
+    pts = points[rows]
+    exact = mask_of_new_samples(pts)
+    rows, pts = rows[exact], pts[exact]
+    size = robust_path_length(pts)
+    reach = float(np.abs(points).max())
+    if size <= MIN_RELATIVE_MOTION * reach or size == 0.0:
+        what = (
+            f"all {n} samples are identical" if rows.size == 1
+            else f"it moves only {size:.3g}, at rounding level for coordinates of {reach:.3g}"
+        )
+        raise InvalidInputError(
+            f"expected at least {MIN_POINTS} distinct moving samples in {field}, got none: {what}",
+            field=field,
+        )
+    keep = _repeat_mask(pts, NEAR_DUPLICATE_TOLERANCE * size)
+    if times is not None:
+        # A long run of repeats is a real pause: keep its last sample as well.
+        run_end = np.flatnonzero(~keep[1:] & np.concatenate([keep[2:], [True]])) + 1
+        if run_end.size:
+            kept_t = times[rows[keep]]
+            interval = float(np.median(np.diff(kept_t))) if kept_t.size > 1 else 0.0
+            run_start = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))[run_end]
+            long = times[rows[run_end]] - times[rows[run_start]] > PAUSE_INTERVALS * interval
+            keep[run_end[long]] = True
+    exact_rows = rows
+    rows, pts = rows[keep], pts[keep]
+    glitch = _glitch_mask(pts)
+    # Every exact-deduplicated row stands for the kept sample it merged into; rows merged
+    # into a glitch are glitches too (a poller repeating one at rounding level).
+    flagged = np.zeros(keep.size, dtype=bool)
+    flagged[np.flatnonzero(keep)[glitch]] = True
+    representative = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))
+    samples = exact_rows[~flagged[representative]]
+    rows, pts = rows[~glitch], pts[~glitch]
+
+    # Step 5: still ends, then step 6: arc-length spacing.
+    window = moving_range(pts, still_tolerance)
+    rows, pts = rows[window], pts[window]
+    if times is None and rows.size >= 2:
+        spaced = _spaced_rows(pts, 0.5 * NEAR_DUPLICATE_TOLERANCE * robust_path_length(pts))
+        rows, pts = rows[spaced], pts[spaced]
+    if rows.size < MIN_POINTS:
+        raise InvalidInputError(
+            f"expected at least {MIN_POINTS} distinct moving samples in {field}, got {rows.size} "
+            "after dropping repeats, glitches and still ends",
+            field=field,
+        )
+
+    if times is None:
+        phase_kept = _arc_parameter(pts)
+        sample_phase = np.interp(samples, rows, phase_kept)
+        kept_times = None
+    else:
+        kept_times = times[rows]
+        sample_phase = np.clip((times[samples] - kept_times[0]) / (kept_times[-1] - kept_times[0]), 0.0, 1.0)
+    return PreparedDemonstration(
+        rows=rows,
+        positions=pts,
+        timestamps=kept_times,
+        sample_rows=samples,
+        sample_phase=np.asarray(sample_phase, dtype=np.float64),
+    )
+
+
+def prepared_rows(
+    positions: FloatArray,
+    timestamps: FloatArray | None = None,
+    *,
+    field: str,
+    still_tolerance: float = STILL_TOLERANCE,
+) -> IntArray:
+    """Input rows kept by :func:`prepared_demonstration`, increasing, shape (T',)."""
+    return prepared_samples(positions, timestamps, field=field, still_tolerance=still_tolerance).rows
+
+
+def prepared_demonstration(
+    positions: FloatArray,
+    timestamps: FloatArray | None = None,
+    *,
+    field: str,
+    time_field: str | None = None,
+    still_tolerance: float = STILL_TOLERANCE,
+) -> tuple[FloatArray, FloatArray | None]:
+    """Turn a raw log into a demonstration ready for alignment (see the module docstring).
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, D)
+        Raw samples, D in {2, 3}, T >= 4, finite.
+    timestamps : array_like, shape (T,), optional
+        Seconds (any origin); equal, near-equal and isolated out-of-order stamps are repaired.
+    field : str
+        Names the demonstration in errors (e.g. ``"demos[2]"``).
+    time_field : str, optional
+        Names its timestamps in errors; defaults to ``field``.
+    still_tolerance : float
+        Fraction of the path length within which head and tail samples count as still.
+
+    Returns
+    -------
+    positions : array, shape (T', D)
+        Rows of the input: no repeats, glitches or still ends; without timestamps,
+        consecutive rows at least 5e-7 of the path length apart (strictly increasing arc length).
+    timestamps : array, shape (T',) or None
+        Strictly increasing, steps at least 1e-9 of the duration.
+
+    Raises
+    ------
+    InvalidInputError
+        Coordinates beyond +-1e15, a demo that does not move (identical points) or stands
+        still, timestamps that cannot be put in order; ``field`` names the demo.
+    """
+    prepared = prepared_samples(
+        positions, timestamps, field=field, time_field=time_field, still_tolerance=still_tolerance
+    )
+    return prepared.positions, prepared.timestamps
 
 
 def cleaned_demonstration(
@@ -60,26 +522,5 @@ def cleaned_demonstration(
     timestamps: FloatArray | None = None,
     tolerance: float = STILL_TOLERANCE,
 ) -> tuple[FloatArray, FloatArray | None]:
-    """Drop exact repeats, then trim still ends.
-
-    Parameters
-    ----------
-    positions : array, shape (T, D)
-    timestamps : array, shape (T,), optional
-    tolerance : float
-        See :func:`moving_range`.
-
-    Returns
-    -------
-    positions : array, shape (T', D)
-    timestamps : array, shape (T',) or None
-    """
-    keep = mask_of_new_samples(positions)
-    positions = positions[keep]
-    if timestamps is not None:
-        timestamps = timestamps[keep]
-    window = moving_range(positions, tolerance)
-    positions = positions[window]
-    if timestamps is not None:
-        timestamps = timestamps[window]
-    return positions, timestamps
+    """Former name of :func:`prepared_demonstration` (field ``"positions"`` in errors)."""
+    return prepared_demonstration(positions, timestamps, field="positions", still_tolerance=tolerance)

@@ -75,21 +75,17 @@ def check_positions(value: Any, field: str = "positions", dim: int | None = None
 
 
 def check_timestamps(value: Any, n_points: int, field: str = "timestamps") -> FloatArray:
-    """Return ``value`` as a finite, strictly increasing float array of shape (T,)."""
+    """Return ``value`` as a finite float array of shape (T,).
+
+    Their order is checked (and equal or isolated out-of-order stamps repaired) by
+    :func:`canal_core.preprocess.prepared_demonstration`, which names the sample at fault.
+    """
     array = _as_float_array(value, field)
     if array.ndim != 1 or array.shape[0] != n_points:
         raise InvalidInputError(
             f"expected {field} of shape ({n_points},), got {array.shape}", field=field
         )
     check_finite(array, field)
-    steps = np.diff(array)
-    if (steps <= 0).any():
-        row = int(np.argmax(steps <= 0)) + 1
-        raise InvalidInputError(
-            f"expected strictly increasing {field}, got {array[row]!r} after "
-            f"{array[row - 1]!r} at index {row}",
-            field=field,
-        )
     return array
 
 

@@ -14,6 +14,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from canal_core.errors import CanalError
+from canal_core.preprocess import prepared_demonstration
+
 from .errors import InvalidInput
 
 FloatArray = npt.NDArray[np.float64]
@@ -144,12 +147,33 @@ def check_orientations(value: Any, n_points: int) -> FloatArray:
     return quats
 
 
+def check_fittable(positions: FloatArray, timestamps: FloatArray | None) -> None:
+    """Run canal_core's preparation stage, as ``fit`` will, so an unfittable demo is refused now.
+
+    The fit aligns by arc length by default and by time when asked (``by_time``), so both
+    preparations must succeed. canal_core names the demo ``positions`` / ``timestamps`` here.
+    """
+    try:
+        prepared_demonstration(positions, None, field="positions")
+        if timestamps is not None:
+            prepared_demonstration(positions, timestamps, field="positions", time_field="timestamps")
+    except CanalError as exc:
+        raise InvalidInput(f"demonstration cannot be fitted: {exc.message}",
+                           field=exc.field or "positions") from exc
+
+
 def check_demonstration(
     positions: Any, dim: int, timestamps: Any = None, orientations: Any = None
 ) -> DemoArrays:
-    """Run every check; the first failure raises :class:`InvalidInput`."""
+    """Run every check; the first failure raises :class:`InvalidInput`.
+
+    After the per-field checks, the demo goes through canal_core's preparation stage
+    (:func:`check_fittable`): identical points, coordinates beyond +-1e15 or a demo that
+    only stands still are refused here with a 422, never found out at fit time.
+    """
     checked = check_positions(positions, dim)
     n = checked.shape[0]
     times = None if timestamps is None else check_timestamps(timestamps, n)
     quats = None if orientations is None else check_orientations(orientations, n)
+    check_fittable(checked, times)
     return DemoArrays(checked, times, quats)

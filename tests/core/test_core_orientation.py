@@ -11,9 +11,8 @@ from scipy.spatial.transform import Rotation
 
 import canal_core
 from canal_core import InvalidInputError, ModelFormatError
-from canal_core.model import kept_rows
 from canal_core.orientation import angles_between, hemisphere_continuous, mean_orientations
-from canal_core.preprocess import cleaned_demonstration
+from canal_core.preprocess import prepared_demonstration, prepared_rows
 
 UR5E = Path(__file__).resolve().parent.parent / "data" / "ur5e_lab_demos.npz"
 T = 120
@@ -117,8 +116,8 @@ def test_signs_of_the_demo_quaternions_do_not_change_the_model() -> None:
 def test_orientations_follow_the_rows_kept_with_the_positions() -> None:
     demo = np.vstack([np.zeros((5, 3)), arc(0), np.repeat(arc(0)[-1:], 7, axis=0)])
     demo[10] = demo[9]  # an exact repeat inside
-    rows = kept_rows(demo)
-    assert np.array_equal(demo[rows], cleaned_demonstration(demo)[0])
+    rows = prepared_rows(demo, field="demo")
+    assert np.array_equal(demo[rows], prepared_demonstration(demo, field="demo")[0])
     # A still head that rotates must not pull the start section's orientation.
     demos, quats = persistent_set([-5.0, 0.0, 5.0])
     still = np.repeat(demos[0][:1], 30, axis=0)

@@ -211,14 +211,16 @@ def test_fit_on_identical_demos_is_degenerate(client: TestClient, skill: str) ->
     assert stored(client) == (3, 0)
 
 
-def test_fit_names_the_bad_demonstration_by_id(client: TestClient, skill: str) -> None:
-    ok = client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD}).json()["id"]
+def test_unfittable_demonstration_is_refused_at_upload(client: TestClient, skill: str) -> None:
+    # Issue 12: uploads run canal_core's preparation, so a demo the fit would refuse is
+    # refused when it arrives (it used to be stored and then block every fit of the skill).
+    ok = client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD})
+    assert ok.status_code == 201, ok.text
     still = [[0.0, 0.0, 0.0]] * 3 + [[1.0, 0.0, 0.0]] * 3  # only 2 distinct samples
-    bad = client.post(f"/skills/{skill}/demonstrations", json={"positions": still}).json()["id"]
-    error = assert_error(client.post(f"/skills/{skill}/fit", json={}), 422,
-                         f"demonstrations[id={bad}]")
-    assert str(bad) in error["message"] and ok != bad
-    assert stored(client) == (2, 0)
+    error = assert_error(client.post(f"/skills/{skill}/demonstrations", json={"positions": still}),
+                         422, "positions")
+    assert "distinct moving samples" in error["message"]
+    assert stored(client) == (1, 0)
 
 
 def test_reproduce_before_any_fit(client: TestClient, skill: str) -> None:
