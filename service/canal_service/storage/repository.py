@@ -165,7 +165,15 @@ def demonstrations_for_fit(
 
 
 def next_model_version(session: Session, skill: Skill) -> int:
-    """One more than the highest version; the unique constraint catches a concurrent twin."""
+    """One more than the highest version, with the skill row locked until the caller commits.
+
+    Replicas fitting the same skill at once queue on that row lock instead of both reading
+    the same maximum and colliding on ``uq_models_skill_version``. ``FOR NO KEY UPDATE``
+    rather than ``FOR UPDATE``: uploads (which only take a key-share lock through their
+    foreign key) keep flowing. SQLite has no row locks and needs none: its write
+    transactions start with ``BEGIN IMMEDIATE`` and run one at a time.
+    """
+    session.execute(select(Skill.id).where(Skill.id == skill.id).with_for_update(key_share=True))
     latest = session.scalar(
         select(func.max(ModelVersion.version)).where(ModelVersion.skill_id == skill.id)
     )
