@@ -5,7 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 MAX_BATCH_STARTS = 1000
@@ -16,6 +16,9 @@ MAX_ID = 2**31 - 1
 NO_NUL = r"^[^\x00]*$"
 
 Id = Annotated[int, Field(ge=1, le=MAX_ID)]
+# A coordinate is a JSON number: strict, so `true` or "1" is refused instead of becoming 1.0
+# (integers still count as numbers).
+Coordinate = Annotated[float, Strict()]
 
 
 def _utc(value: datetime | None) -> datetime | None:
@@ -89,14 +92,14 @@ class SkillOut(BaseModel):
 class DemonstrationIn(_In):
     """One demonstration as JSON. Positions are (T, D) rows, T >= 4."""
 
-    positions: list[list[float]] = Field(
-        description="(T, D) rows of x, y[, z]; D is the skill's dimension.",
+    positions: list[list[Coordinate]] = Field(
+        description="(T, D) rows of x, y[, z] (JSON numbers); D is the skill's dimension.",
         examples=[[[0, 0, 0], [1, 0, 0], [2, 0.1, 0], [3, 0, 0]]],
     )
-    timestamps: list[float] | None = Field(
+    timestamps: list[Coordinate] | None = Field(
         None, description="(T,) strictly increasing seconds, optional."
     )
-    orientations: list[list[float]] | None = Field(
+    orientations: list[list[Coordinate]] | None = Field(
         None, description="(T, 4) unit quaternions qx, qy, qz, qw, optional."
     )
     label: str | None = Field(None, max_length=256, pattern=NO_NUL)
