@@ -154,7 +154,7 @@ class CanalService:
         Rows 2 or 3 wide are checked at their own width and compared with the skill's
         inside the storing transaction (no separate lookup on the hot path).
         """
-        first = body.positions[0] if body.positions else None
+        first = body.positions[0] if len(body.positions) else None  # lists or arrays
         dim = len(first) if first is not None and len(first) in (2, 3) else self.skill_dim(name)
         demo = check_demonstration(body.positions, dim, body.timestamps, body.orientations)
         return self.add_demonstration(name, demo, body.label, "json")

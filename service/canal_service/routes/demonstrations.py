@@ -20,6 +20,7 @@ from ..schemas import (
     DemonstrationSummary,
     ErrorResponse,
     Page,
+    demonstration_from_json,
 )
 from ..uploads import UploadLimits, detect_format
 
@@ -85,7 +86,7 @@ async def add_demonstration(
         if raw.count(b"[") > 2 * limits.max_points + 8:
             raise _too_many_points(limits)
         try:
-            body = DemonstrationIn.model_validate_json(raw)
+            body = demonstration_from_json(raw)
         except ValidationError as exc:
             raise RequestValidationError(exc.errors(include_url=False)) from exc
         if len(body.positions) > limits.max_points:
