@@ -34,7 +34,6 @@ numpy's C reader, stopping one row past the cap. Each limit is a 413 naming it.
 from __future__ import annotations
 
 import io
-import json
 import struct
 import time
 import zlib
@@ -43,6 +42,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+import orjson
 
 from .errors import BadUpload, InvalidInput, TooLarge
 from .validation import FloatArray
@@ -649,7 +649,7 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
         elif schema.name == FOXGLOVE_POSE:
             samples = []
             for i, (log_time, payload) in enumerate(messages):
-                samples.append(_foxglove_pose(json.loads(payload), log_time))
+                samples.append(_foxglove_pose(orjson.loads(payload), log_time))
                 if not i & 0xFFF:
                     scan.budget.tick()
         else:
@@ -662,7 +662,7 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
             payload = messages[0][1]
             # Count before decoding: the JSON objects cost ~10x the bytes.
             scan.budget.points(payload.count(b'"position"'), f"the {FOXGLOVE_POSES} message")
-            poses = json.loads(payload)["poses"]
+            poses = orjson.loads(payload)["poses"]
             samples = [(None, pos, quat)
                        for _, pos, quat in (_foxglove_pose({"pose": p}, 0) for p in poses)]
     except (InvalidInput, TooLarge):
