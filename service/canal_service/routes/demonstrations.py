@@ -82,8 +82,9 @@ async def add_demonstration(
             raise InvalidInput("expected a JSON body with 'positions', got an empty body",
                                field="body")
         limits = upload_limits(request)
-        # Each row is one '[': refuse an oversized demo before parsing builds its objects.
-        if raw.count(b"[") > 2 * limits.max_points + 8:
+        # Each row is one '[' (positions and orientations; a label adds at most 256): refuse
+        # an oversized demo before parsing builds its objects.
+        if raw.count(b"[") > 2 * limits.max_points + 300:
             raise _too_many_points(limits)
         try:
             body = demonstration_from_json(raw)
