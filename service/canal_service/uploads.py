@@ -202,7 +202,8 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
     if b"\x00" in data:
         raise BadUpload("CSV must be text; found NUL bytes", field="file")
     start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a BOM from spreadsheet exports
-    first = next(_lines(data, start), None)
+    lines = _lines(data, start)
+    first = next(lines, None)
     if first is None:
         raise BadUpload("the CSV file has no rows", field="file")
     first_number, first_text = first
@@ -218,6 +219,8 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
                 raise InvalidInput(f"CSV header names column {name!r} twice; expected each "
                                    "column once", field="file:header")
             seen.add(name)
+        if next(lines, None) is None:
+            raise BadUpload("the CSV file has a header but no data rows", field="file")
     width = len(cells)
     stream = io.BytesIO(data)  # shares the bytes, no copy
     stream.seek(start)

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, delete, func, insert, select
+from sqlalchemy import Connection, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
@@ -122,6 +122,11 @@ class StoredDemo:
     dim: int
 
 
+# Built once: constructing a statement per call costs more than running it on SQLite.
+_SKILL_ID_AND_DIM = select(Skill.id, Skill.dim).where(Skill.name == bindparam("name"))
+_INSERT_DEMONSTRATION = insert(Demonstration).returning(Demonstration.id)
+
+
 def insert_demonstration(
     connection: Connection,
     skill_name: str,
@@ -137,9 +142,7 @@ def insert_demonstration(
     transaction as the insert (a skill deleted or recreated meanwhile cannot slip through),
     and no ORM objects are built for a row that is only written.
     """
-    found = connection.execute(
-        select(Skill.id, Skill.dim).where(Skill.name == skill_name)
-    ).first()
+    found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
     if found is None:
         raise NotFound(f"no skill named {skill_name!r}", field="name")
     skill_id, dim = int(found[0]), int(found[1])
@@ -154,7 +157,7 @@ def insert_demonstration(
     digest = arrays.checksum_of_packed(packed)
     n_points = int(positions.shape[0])
     demo_id = connection.execute(
-        insert(Demonstration).returning(Demonstration.id),
+        _INSERT_DEMONSTRATION,
         {
             "skill_id": skill_id, "label": label, "n_points": n_points, "dim": dim,
             "positions": packed,
