@@ -1,18 +1,21 @@
 """Service benchmark over real HTTP: uploads, fits and reproductions.
 
-Starts ``python -m canal_service`` on a free loopback port (its own process, fresh data
-folder), then drives it with a concurrent httpx client:
+Starts the service the way a user does, ``canal serve`` with its defaults (recordings on,
+the live bridge on, info logs to the terminal; here to a log file), on a free loopback port
+with a fresh data folder, and drives it with a concurrent httpx client:
 
-1. 1,000 demonstration uploads of 1,000 points each (JSON), then checks every one is stored
-   (count, and the SHA-256 checksum of each upload's positions);
+1. uploads of 1,000-point JSON demonstrations at 1 and at 8 clients, then a check that every
+   one is stored (count, and the SHA-256 checksum of each upload's positions);
 2. fits: one over all uploaded demos, then repeated fits of a 10 x 1,000-point skill;
 3. 1,000 reproductions against the fitted model.
 
-Prints a table of throughput and p50/p99 latency with the targets of issue #3 (on a 2-core
-machine: uploads >= 200/s, fit p99 < 100 ms for 10 x 1,000, reproduction p99 < 20 ms) and
-exits 1 when a target or the storage check fails. ``--quick`` runs a tenth of the work.
+Then the uploads again on ``canal serve --no-recordings`` (the second row: what recordings
+cost). Prints uploads/s and p50/p99 latency with the targets of issues #3 and #12 (on a
+2-core machine: uploads >= 200/s at 8 clients with the defaults, fit p99 < 100 ms for
+10 x 1,000, reproduction p99 < 20 ms) and exits 1 when a target or the storage check fails.
+``--quick`` runs a tenth of the work.
 
-    python bench/service.py [--quick] [--concurrency 16]
+    python bench/service.py [--quick] [--concurrency 8]
 """
 
 from __future__ import annotations
@@ -62,6 +65,15 @@ def checksum(positions: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(positions, dtype="<f8").tobytes()).hexdigest()
 
 
+def cpu_seconds(pid: int | None) -> float:
+    """User + system CPU time of process ``pid`` so far (NaN where /proc is missing)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @dataclass
 class Row:
     name: str
@@ -70,6 +82,11 @@ class Row:
     latencies: list[float]
     target: str = ""
     ok: bool | None = None
+    server_cpu: float = float("nan")  # server CPU seconds spent on the step
+
+    @property
+    def cpu_ms(self) -> float:
+        return self.server_cpu / self.count * 1000 if self.count else float("nan")
 
     @property
     def rate(self) -> float:
@@ -99,49 +116,64 @@ async def run_many(n: int, concurrency: int, make: object) -> tuple[list[object]
     return list(results), time.perf_counter() - t0
 
 
-async def bench(url: str, n_uploads: int, n_points: int, n_fits: int, n_repro: int,
-                concurrency: int, repro_concurrency: int) -> tuple[list[Row], list[str]]:
+async def uploads(client: httpx.AsyncClient, skill: str, n: int, n_points: int,
+                  concurrency: int, rng: np.random.Generator, label: str,
+                  problems: list[str], pid: int | None = None) -> Row:
+    """``n`` uploads of ``n_points``-point JSON demos at ``concurrency`` clients, all checked."""
+    await client.post("/skills", json={"name": skill, "dim": 3})
+    demos = [demo(j, n_points, rng) for j in range(n)]
+    bodies = [orjson.dumps({"positions": d, "label": f"d{j}"},
+                           option=orjson.OPT_SERIALIZE_NUMPY) for j, d in enumerate(demos)]
+    headers = {"content-type": "application/json"}
+
+    async def upload(i: int) -> tuple[httpx.Response, float]:
+        return await timed(client, "POST", f"/skills/{skill}/demonstrations",
+                           content=bodies[i], headers=headers)
+
+    cpu0 = cpu_seconds(pid)
+    results, seconds = await run_many(n, concurrency, upload)
+    cpu = cpu_seconds(pid) - cpu0
+    bad = [r for r, _ in results if r.status_code != 201]  # type: ignore[misc]
+    if bad:
+        problems.append(f"{len(bad)} uploads failed, first: {bad[0].status_code} {bad[0].text}")
+    row = Row(f"upload {label} x{concurrency}", n, seconds,
+              [lat for _, lat in results],  # type: ignore[misc]
+              ">= 200/s" if concurrency > 1 else "", server_cpu=cpu)
+    if concurrency > 1:
+        row.ok = row.rate >= 200
+    # every upload stored: count and checksums
+    stored: list[str] = []
+    offset = 0
+    while True:
+        page = (await client.get(f"/skills/{skill}/demonstrations",
+                                 params={"offset": offset, "limit": 1000})).json()
+        stored += [item["checksum"] for item in page["items"]]
+        offset += len(page["items"])
+        if not page["items"] or offset >= page["total"]:
+            break
+    expected = sorted(checksum(d) for d in demos)
+    if len(stored) != n or sorted(stored) != expected:
+        problems.append(f"{skill}: storage check failed: {len(stored)} stored of {n}, "
+                        f"{len(set(stored) & set(expected))} checksums match")
+    return row
+
+
+async def bench(url: str, label: str, n_uploads: int, n_points: int, n_fits: int,
+                n_repro: int, concurrency: int, repro_concurrency: int, pid: int | None = None
+                ) -> tuple[list[Row], list[str]]:
     rng = np.random.default_rng(0)
     problems: list[str] = []
     rows: list[Row] = []
     limits = httpx.Limits(max_connections=concurrency, max_keepalive_connections=concurrency)
     async with httpx.AsyncClient(base_url=url, timeout=120, limits=limits) as client:
-        await client.post("/skills", json={"name": "bench", "dim": 3})
-        await client.post("/skills", json={"name": "fit10", "dim": 3})
-
-        demos = [demo(j, n_points, rng) for j in range(n_uploads)]
-        bodies = [orjson.dumps({"positions": d, "label": f"d{j}"},
-                               option=orjson.OPT_SERIALIZE_NUMPY) for j, d in enumerate(demos)]
+        rows.append(await uploads(client, "bench1", max(n_uploads // 5, 20), n_points, 1, rng,
+                                  label, problems, pid))
+        rows.append(await uploads(client, "bench", n_uploads, n_points, concurrency, rng,
+                                  label, problems, pid))
+        if n_fits == 0:
+            return rows, problems
         headers = {"content-type": "application/json"}
-
-        async def upload(i: int) -> tuple[httpx.Response, float]:
-            return await timed(client, "POST", "/skills/bench/demonstrations",
-                               content=bodies[i], headers=headers)
-
-        results, seconds = await run_many(n_uploads, concurrency, upload)
-        bad = [r for r, _ in results if r.status_code != 201]  # type: ignore[misc]
-        if bad:
-            problems.append(f"{len(bad)} uploads failed, first: {bad[0].status_code} {bad[0].text}")
-        rows.append(Row(f"upload ({n_points} pts, x{concurrency})", n_uploads, seconds,
-                        [lat for _, lat in results], ">= 200/s"))  # type: ignore[misc]
-        rows[-1].ok = rows[-1].rate >= 200
-
-        # every upload stored: count and checksums
-        stored: list[str] = []
-        offset = 0
-        while True:
-            page = (await client.get("/skills/bench/demonstrations",
-                                     params={"offset": offset, "limit": 1000})).json()
-            stored += [item["checksum"] for item in page["items"]]
-            offset += len(page["items"])
-            if not page["items"] or offset >= page["total"]:
-                break
-        expected = sorted(checksum(d) for d in demos)
-        if len(stored) != n_uploads or sorted(stored) != expected:
-            problems.append(f"storage check failed: {len(stored)} stored of {n_uploads}, "
-                            f"{len(set(stored) & set(expected))} checksums match")
-        else:
-            print(f"storage check: {len(stored)}/{n_uploads} stored, all checksums match")
+        await client.post("/skills", json={"name": "fit10", "dim": 3})
 
         r, lat = await timed(client, "POST", "/skills/bench/fit", json={})
         if r.status_code != 201:
@@ -187,15 +219,59 @@ async def bench(url: str, n_uploads: int, n_points: int, n_fits: int, n_repro: i
     return rows, problems
 
 
+def canal_serve() -> list[str]:
+    """The command a user types: the ``canal`` script installed beside this Python."""
+    script = Path(sys.executable).with_name("canal")
+    if script.exists():
+        return [str(script), "serve"]
+    return [sys.executable, "-c", "from canal_client.cli import app; app()", "serve"]
+
+
+def serve_and_bench(extra: list[str], label: str, args: argparse.Namespace, n_uploads: int,
+                    n_fits: int, n_repro: int) -> tuple[list[Row], list[str]]:
+    """Start ``canal serve`` with its defaults plus ``extra`` and run :func:`bench` on it."""
+    port = free_port()
+    with tempfile.TemporaryDirectory(prefix="canal-bench-") as data:
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "service"),
+                                                            str(ROOT / "clients"),
+                                                            os.environ.get("PYTHONPATH", "")])}
+        # Only the port, the data folder and the bridge's port (7447 may be taken on a shared
+        # machine) differ from what a user starts; logs stay at info, like in a terminal.
+        command = [*canal_serve(), "--port", str(port), "--data-dir", data,
+                   "--zenoh-listen", f"tcp/127.0.0.1:{free_port()}", *extra]
+        with open(Path(data) / "serve.log", "wb") as log:
+            server = subprocess.Popen(command, env=env, stdout=log, stderr=log)
+            url = f"http://127.0.0.1:{port}"
+            try:
+                deadline = time.monotonic() + 60
+                while True:
+                    try:
+                        if httpx.get(f"{url}/healthz", timeout=1).status_code == 200:
+                            break  # 503 "starting" while the app loads
+                    except httpx.TransportError:
+                        pass
+                    if server.poll() is not None or time.monotonic() > deadline:
+                        return [], [f"{label}: service did not start"]
+                    time.sleep(0.1)
+                return asyncio.run(bench(url, label, n_uploads, 1000, n_fits, n_repro,
+                                         args.concurrency, args.repro_concurrency, server.pid))
+            finally:
+                server.terminate()
+                server.wait(15)
+
+
 def print_table(rows: list[Row]) -> None:
     print(f"\n{os.cpu_count()} CPUs shared by client and server")
-    head = f"{'step':<30} {'n':>6} {'total s':>8} {'per s':>9} {'p50 ms':>8} {'p99 ms':>8}  target"
+    print("(srv cpu ms: server process CPU per request, the load-independent figure)")
+    head = (f"{'step':<30} {'n':>6} {'total s':>8} {'per s':>9} {'p50 ms':>8} {'p99 ms':>8} "
+            f"{'srv cpu ms':>10}  target")
     print(head)
     print("-" * len(head) + "-" * 12)
     for r in rows:
         verdict = "" if r.ok is None else ("  PASS" if r.ok else "  FAIL")
+        cpu = f"{r.cpu_ms:>10.2f}" if r.cpu_ms == r.cpu_ms else f"{'':>10}"
         print(f"{r.name:<30} {r.count:>6} {r.seconds:>8.2f} {r.rate:>9.1f} {r.pct(50):>8.1f} "
-              f"{r.pct(99):>8.1f}  {r.target}{verdict}")
+              f"{r.pct(99):>8.1f} {cpu}  {r.target}{verdict}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -209,33 +285,19 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     n_uploads, n_fits, n_repro = (100, 10, 100) if args.quick else (1000, 30, 1000)
 
-    port = free_port()
-    with tempfile.TemporaryDirectory(prefix="canal-bench-") as data:
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "service"),
-                                                            os.environ.get("PYTHONPATH", "")])}
-        server = subprocess.Popen(
-            [sys.executable, "-m", "canal_service", "--port", str(port), "--data-dir", data,
-             "--no-recordings", "--log-level", "warning"], env=env)
-        url = f"http://127.0.0.1:{port}"
-        try:
-            deadline = time.monotonic() + 30
-            while True:
-                try:
-                    if httpx.get(f"{url}/healthz", timeout=1).status_code == 200:
-                        break  # 503 "starting" while the app loads
-                except httpx.TransportError:
-                    if server.poll() is not None or time.monotonic() > deadline:
-                        print("service did not start", file=sys.stderr)
-                        return 1
-                    time.sleep(0.1)
-            rows, problems = asyncio.run(bench(url, n_uploads, 1000, n_fits, n_repro,
-                                               args.concurrency, args.repro_concurrency))
-        finally:
-            server.terminate()
-            server.wait(10)
+    rows, problems = serve_and_bench([], "defaults", args, n_uploads, n_fits, n_repro)
+    rows_off, problems_off = serve_and_bench(["--no-recordings"], "--no-recordings", args,
+                                             n_uploads, 0, 0)
+    for row in rows_off:
+        row.target, row.ok = "", None  # the target is for the defaults
+    rows += rows_off
+    problems += problems_off
     print_table(rows)
     summary = [summary_row(f"service {r.name}", r.rate, "1/s", "target", 200, better="higher")
                for r in rows if r.target == ">= 200/s"]
+    summary += [summary_row(f"service {r.name}", r.rate, "1/s", better="higher")
+                for r in rows if r.name.startswith("upload --no-recordings x")
+                and r.name != "upload --no-recordings x1"]
     summary += [summary_row(f"service {r.name} p99", r.pct(99), "ms", "target",
                             float(r.target.split()[2])) for r in rows if r.target.startswith("p99")]
     write_summary("service", summary)

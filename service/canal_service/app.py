@@ -16,7 +16,7 @@ from . import __version__
 from .core.config import Settings
 from .errors import install_error_handlers
 from .metrics import Metrics
-from .middleware import BearerAuth, BodySizeLimit, RequestMetrics
+from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, RequestMetrics
 from .routes import api_router, health, view
 from .service import CanalService, RecorderLike
 from .storage import Database
@@ -105,8 +105,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(api_router)
     app.include_router(view.router)
 
-    # Added innermost first: metrics see every response, auth runs before the body is read,
-    # the size limit wraps everything that reads a body.
+    # Added innermost first: auth runs before the body is read, the size limit wraps
+    # everything that reads a body, the error net wraps them all but the metrics (which then
+    # count its 500s).
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
                            allow_methods=["*"], allow_headers=["*"])
@@ -115,6 +116,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(BearerAuth, token=settings.token.get_secret_value(),
                            open_paths=OPEN_PATHS)
         _declare_bearer(app)
+    app.add_middleware(CatchUnexpected)
     app.add_middleware(RequestMetrics, metrics=metrics)
     return app
 

@@ -18,6 +18,8 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import IntegrityError, OperationalError
+from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from canal_core.errors import (
@@ -100,6 +102,31 @@ class PayloadTooLarge(StarletteHTTPException):
         self.limit = limit
 
 
+class TooLarge(ServiceError):
+    """An upload whose content exceeds a resource limit (points, decompressed bytes, ...)."""
+
+    status_code = 413
+    error_type = "payload_too_large"
+
+
+class TooSlow(ServiceError):
+    """An upload that needs more server time to parse than one upload may take."""
+
+    status_code = 422
+    error_type = "upload_too_slow"
+
+
+class Busy(ServiceError):
+    """A clash with a concurrent request that a retry will resolve (503 + Retry-After)."""
+
+    status_code = 503
+    error_type = "busy"
+
+    def __init__(self, message: str, *, field: str | None = None, retry_after: int = 1) -> None:
+        super().__init__(message, field=field)
+        self.retry_after = retry_after
+
+
 _CANAL_STATUS: list[tuple[type[CanalError], int, str]] = [
     (InvalidInputError, 422, "invalid_input"),
     (DegenerateCanalError, 422, "degenerate_canal"),
@@ -172,7 +199,11 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
-        return JSONResponse(error_body(exc.error_type, exc.message, exc.field), exc.status_code)
+        headers = None
+        if isinstance(exc, Busy):
+            headers = {"Retry-After": str(exc.retry_after)}
+        return JSONResponse(error_body(exc.error_type, exc.message, exc.field), exc.status_code,
+                            headers=headers)
 
     @app.exception_handler(CanalError)
     async def _canal_error(_request: Request, exc: CanalError) -> JSONResponse:
@@ -191,8 +222,22 @@ def install_error_handlers(app: FastAPI) -> None:
         body = error_body(_HTTP_TYPES.get(exc.status_code, "http_error"), str(exc.detail), field)
         return JSONResponse(body, exc.status_code, headers=getattr(exc, "headers", None))
 
-    @app.exception_handler(Exception)
-    async def _unexpected(_request: Request, exc: Exception) -> JSONResponse:
-        # Anything reaching here is a bug; log it with its traceback, keep internals private.
-        log.exception("unhandled error", exc_info=exc)
-        return JSONResponse(error_body("internal", "internal server error"), 500)
+    @app.exception_handler(IntegrityError)
+    async def _integrity_error(_request: Request, exc: IntegrityError) -> JSONResponse:
+        # Expected clashes (names, versions) are caught where they happen; one reaching here
+        # is a race with a concurrent change (e.g. the skill deleted meanwhile): retryable.
+        log.warning("integrity error answered 409: %s", exc.orig)
+        body = error_body("conflict", "the request clashed with a concurrent change; retry it")
+        return JSONResponse(body, 409, headers={"Retry-After": "1"})
+
+    @app.exception_handler(OperationalError)
+    @app.exception_handler(PoolTimeout)
+    async def _database_busy(_request: Request, exc: Exception) -> JSONResponse:
+        # Lock or pool timeouts, a database restarting: the request may well succeed later.
+        log.warning("database unavailable, answered 503: %s", exc)
+        body = error_body("busy", "the database is busy or unavailable; retry shortly")
+        return JSONResponse(body, 503, headers={"Retry-After": "1"})
+
+    # Unexpected exceptions are not handled here: Starlette re-raises them after calling an
+    # ``Exception`` handler, and uvicorn then closes the keep-alive connection. The
+    # ``CatchUnexpected`` middleware answers them with a JSON 500 and swallows them instead.

@@ -1,4 +1,4 @@
-"""Pure ASGI middleware: body size limit, bearer token, request metrics.
+"""Pure ASGI middleware: unexpected-error net, body size limit, bearer token, request metrics.
 
 Pure ASGI rather than ``BaseHTTPMiddleware`` because the size limit has to wrap
 ``receive`` (to stop a chunked upload mid-stream) and because it costs less per request.
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hmac
 import json
+import logging
 import time
 from typing import Any
 
@@ -15,6 +16,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from .errors import PayloadTooLarge, error_body
 from .metrics import Metrics
+
+log = logging.getLogger("canal_service")
 
 
 async def _send_json(send: Send, status: int, body: dict[str, Any],
@@ -27,6 +30,40 @@ async def _send_json(send: Send, status: int, body: dict[str, Any],
                     (b"content-length", str(len(payload)).encode()), *(headers or [])],
     })
     await send({"type": "http.response.body", "body": payload})
+
+
+class CatchUnexpected:
+    """Answer any exception that escaped the routes with a JSON 500, and swallow it.
+
+    Starlette's own ``Exception`` handler re-raises after answering, and uvicorn then closes
+    the connection ("Exception in ASGI application"); a client on keep-alive sees a reset.
+    Here the traceback is logged once and the connection stays usable.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracking_send)
+        except Exception as exc:
+            log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"),
+                          exc_info=exc)
+            if started:
+                # Half a response is on the wire: only closing the connection is honest.
+                raise
+            await _send_json(send, 500, error_body("internal", "internal server error"))
 
 
 class BodySizeLimit:

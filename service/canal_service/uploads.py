@@ -22,20 +22,29 @@ Formats (chosen by ``?format=``, else by the part's file name, else by content t
 Every parser treats its input as hostile and raises :class:`BadUpload` (400) for bytes that
 are not the claimed format; content checks (NaN, dimension, ...) happen afterwards in
 :mod:`canal_service.validation` and give 422.
+
+Resource limits (:class:`UploadLimits`, from the ``CANAL_UPLOAD_*`` settings) hold while
+parsing, not after: at most ``max_points`` samples per demonstration, MCAP chunks decompressed
+in bounded pieces with the bytes *produced* counted against ``max_decompressed_bytes`` (the
+size a chunk declares is not trusted), and ``max_seconds`` of server time per upload. MCAP
+records are scanned in a stream and only the pose topic's messages are kept; CSV is parsed by
+numpy's C reader, stopping one row past the cap. Each limit is a 413 naming it.
 """
 
 from __future__ import annotations
 
-import csv
 import io
-import json
-from collections.abc import Iterable
+import struct
+import time
+import zlib
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+import orjson
 
-from .errors import BadUpload, InvalidInput
+from .errors import BadUpload, InvalidInput, TooLarge
 from .validation import FloatArray
 
 UploadFormat = Literal["csv", "npy", "mcap"]
@@ -51,14 +60,68 @@ _CONTENT_TYPES: dict[str, UploadFormat] = {
 }
 NPY_MAGIC = b"\x93NUMPY"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-# A demonstration is at most a few hundred thousand samples; an MCAP chunk claiming more
-# decompressed bytes than this is a bomb, not a recording.
-MAX_DECOMPRESSED_BYTES = 256 * 1024 * 1024
+
+# A demonstration is a few minutes of a robot at up to 1 kHz: 200,000 samples is 6.7 min at
+# 500 Hz. The other two defaults follow: a ROS 2 PoseStamped record is ~100 bytes, so 200,000
+# samples need ~20 MB decompressed; 64 MiB leaves room for other topics in the same file.
+DEFAULT_MAX_POINTS = 200_000
+DEFAULT_MAX_DECOMPRESSED_BYTES = 64 * 1024 * 1024
+DEFAULT_MAX_SECONDS = 10.0
+# Decompressed output is produced and scanned in pieces of this size, never more at once.
+_PIECE = 1 << 20
+# Bytes of pose payload kept per allowed sample (a JSON PoseInFrame is ~250 bytes).
+_POSE_BYTES_PER_POINT = 1024
 
 ROS2_POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 FOXGLOVE_POSE = "foxglove.PoseInFrame"
 FOXGLOVE_POSES = "foxglove.PosesInFrame"
 POSE_SCHEMAS = (ROS2_POSE_STAMPED, FOXGLOVE_POSE, FOXGLOVE_POSES)
+
+
+@dataclass(frozen=True)
+class UploadLimits:
+    """What one upload may cost the server (see the module docstring)."""
+
+    max_points: int = DEFAULT_MAX_POINTS
+    max_decompressed_bytes: int = DEFAULT_MAX_DECOMPRESSED_BYTES
+    max_seconds: float = DEFAULT_MAX_SECONDS
+
+
+class _Budget:
+    """The running account of one upload against its limits."""
+
+    def __init__(self, limits: UploadLimits) -> None:
+        self.limits = limits
+        self.deadline = time.monotonic() + limits.max_seconds
+        self.decompressed = 0
+
+    def tick(self) -> None:
+        """Raise once the upload has used its server time."""
+        if time.monotonic() > self.deadline:
+            raise TooLarge(
+                f"parsing this upload took more than {self.limits.max_seconds:g} s of server "
+                "time (limit CANAL_UPLOAD_MAX_SECONDS); send fewer samples or a smaller file",
+                field="file",
+            )
+
+    def produced(self, n_bytes: int) -> None:
+        """Count decompressed bytes as they come out of the decompressor."""
+        self.decompressed += n_bytes
+        if self.decompressed > self.limits.max_decompressed_bytes:
+            raise TooLarge(
+                f"MCAP decompresses to more than {self.limits.max_decompressed_bytes} bytes "
+                "(limit CANAL_UPLOAD_MAX_DECOMPRESSED_BYTES)",
+                field="file",
+            )
+
+    def points(self, n_points: int, what: str) -> None:
+        """Refuse more samples than one demonstration may have."""
+        if n_points > self.limits.max_points:
+            raise TooLarge(
+                f"{what} has more than {self.limits.max_points} samples (limit "
+                "CANAL_UPLOAD_MAX_POINTS); downsample it or split it",
+                field="file",
+            )
 
 
 @dataclass(frozen=True)
@@ -97,15 +160,17 @@ def detect_format(
     )
 
 
-def parse_upload(fmt: UploadFormat, data: bytes, dim: int, topic: str | None = None) -> ParsedUpload:
-    """Parse ``data`` in format ``fmt`` for a ``dim``-D skill."""
+def parse_upload(fmt: UploadFormat, data: bytes, dim: int, topic: str | None = None,
+                 limits: UploadLimits | None = None) -> ParsedUpload:
+    """Parse ``data`` in format ``fmt`` for a ``dim``-D skill, within ``limits``."""
     if not data:
         raise BadUpload("the uploaded file is empty", field="file")
+    budget = _Budget(limits or UploadLimits())
     if fmt == "csv":
-        return parse_csv(data, dim)
+        return parse_csv(data, dim, budget)
     if fmt == "npy":
-        return parse_npy(data, dim)
-    return parse_mcap(data, dim, topic)
+        return parse_npy(data, dim, budget)
+    return parse_mcap(data, dim, topic, budget)
 
 
 def _split_time(table: FloatArray, dim: int, field: str) -> ParsedUpload:
@@ -123,42 +188,94 @@ def _split_time(table: FloatArray, dim: int, field: str) -> ParsedUpload:
 _TIME_NAMES = ("t", "time", "timestamp", "stamp")
 
 
-def parse_csv(data: bytes, dim: int) -> ParsedUpload:
-    """CSV with or without a header (see module docstring)."""
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise BadUpload(f"CSV must be UTF-8 text ({exc.reason} at byte {exc.start})",
-                        field="file") from exc
-    if "\x00" in text:
+# ---- CSV ---------------------------------------------------------------------------------------
+
+
+def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpload:
+    """CSV with or without a header (see module docstring).
+
+    numpy's C reader parses the rows straight from the bytes into one float array (no text
+    copy, no Python object per cell) and stops one row past the points limit, so a huge file
+    costs at most that much.
+    """
+    budget = budget or _Budget(UploadLimits())
+    if b"\x00" in data:
         raise BadUpload("CSV must be text; found NUL bytes", field="file")
-    try:
-        rows = [row for row in csv.reader(io.StringIO(text)) if row and any(c.strip() for c in row)]
-    except csv.Error as exc:
-        raise BadUpload(f"unreadable CSV: {exc}", field="file") from exc
-    if not rows:
+    start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a BOM from spreadsheet exports
+    lines = _lines(data, start)
+    first = next(lines, None)
+    if first is None:
         raise BadUpload("the CSV file has no rows", field="file")
+    first_number, first_text = first
+    cells = [c.strip().strip('"').strip() for c in first_text.split(",")]
     header: list[str] | None = None
-    first = [c.strip() for c in rows[0]]
-    if not all(_is_number(c) for c in first):
-        header = [c.lower() for c in first]
-        rows = rows[1:]
-    width = len(header) if header else len(rows[0]) if rows else 0
-    values: list[list[float]] = []
-    for i, row in enumerate(rows):
-        line = i + (2 if header else 1)
-        if len(row) != width:
-            raise InvalidInput(f"expected {width} columns on every CSV line, got {len(row)} on "
-                               f"line {line}", field=f"file:line {line}")
-        try:
-            values.append([float(c) for c in row])
-        except ValueError as exc:
-            raise InvalidInput(f"expected numbers on CSV line {line}: {exc}",
-                               field=f"file:line {line}") from exc
-    table = np.asarray(values, dtype=np.float64).reshape(len(values), width)
+    skip = first_number
+    if not all(_is_number(c) for c in cells):
+        header = [c.lower() for c in cells]
+        skip = first_number + 1
+        seen: set[str] = set()
+        for name in header:
+            if name in seen:
+                raise InvalidInput(f"CSV header names column {name!r} twice; expected each "
+                                   "column once", field="file:header")
+            seen.add(name)
+        if next(lines, None) is None:
+            raise BadUpload("the CSV file has a header but no data rows", field="file")
+    width = len(cells)
+    stream = io.BytesIO(data)  # shares the bytes, no copy
+    stream.seek(start)
+    try:
+        table = np.loadtxt(stream, delimiter=",", dtype=np.float64, ndmin=2, comments=None,
+                           quotechar='"', skiprows=skip, max_rows=budget.limits.max_points + 1,
+                           encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise BadUpload(f"CSV must be UTF-8 text ({exc.reason})", field="file") from exc
+    except ValueError:
+        raise _csv_error(data, start, skip, width) from None
+    budget.tick()
+    budget.points(table.shape[0], "the CSV file")
+    if table.shape[0] == 0:
+        raise BadUpload("the CSV file has no data rows", field="file")
+    if table.shape[1] != width:
+        raise InvalidInput(f"expected {width} columns on every CSV line (as on line "
+                           f"{first_number + 1}), got {table.shape[1]}", field="file:line 2")
     if header is None:
         return _split_time(table, dim, "file")
     return _columns_by_name(header, table, dim)
+
+
+def _lines(data: bytes, start: int) -> Iterator[tuple[int, str]]:
+    """(0-based line number, text) of the non-blank lines, decoded one at a time, lazily."""
+    number = 0
+    while start < len(data):
+        end = data.find(b"\n", start)
+        if end < 0:
+            end = len(data)
+        raw = data[start:end]
+        if raw.strip():
+            try:
+                yield number, raw.decode("utf-8").rstrip("\r")
+            except UnicodeDecodeError as exc:
+                raise BadUpload(f"CSV must be UTF-8 text ({exc.reason} on line {number + 1})",
+                                field="file") from exc
+        start = end + 1
+        number += 1
+
+
+def _csv_error(data: bytes, start: int, skip: int, width: int) -> InvalidInput:
+    """Find the first bad data line (the error path only) and say what is wrong with it."""
+    for number, line in _lines(data, start):
+        if number < skip:
+            continue
+        cells = line.split(",")
+        if len(cells) != width:
+            return InvalidInput(f"expected {width} columns on every CSV line, got {len(cells)} "
+                                f"on line {number + 1}", field=f"file:line {number + 1}")
+        for cell in cells:
+            if not _is_number(cell.strip().strip('"').strip()):
+                return InvalidInput(f"expected numbers on CSV line {number + 1}, got "
+                                    f"{cell.strip()[:40]!r}", field=f"file:line {number + 1}")
+    return InvalidInput("unreadable CSV rows", field="file")
 
 
 def _is_number(cell: str) -> bool:
@@ -180,8 +297,12 @@ def _columns_by_name(header: list[str], table: FloatArray, dim: int) -> ParsedUp
         )
     if dim == 2 and "z" in header:
         raise InvalidInput("CSV has a z column but the skill is 2-D", field="file:header")
+    times_named = [n for n in _TIME_NAMES if n in header]
+    if len(times_named) > 1:
+        raise InvalidInput(f"CSV header has several time columns ({', '.join(times_named)}); "
+                           "expected one", field="file:header")
     positions = table[:, [header.index(a) for a in axes]]
-    time_col = next((header.index(n) for n in _TIME_NAMES if n in header), None)
+    time_col = header.index(times_named[0]) if times_named else None
     times = None if time_col is None else table[:, time_col]
     quats = None
     quat_names = ["qx", "qy", "qz", "qw"]
@@ -195,10 +316,14 @@ def _columns_by_name(header: list[str], table: FloatArray, dim: int) -> ParsedUp
                         None if quats is None else np.ascontiguousarray(quats))
 
 
-def parse_npy(data: bytes, dim: int) -> ParsedUpload:
+# ---- NPY ---------------------------------------------------------------------------------------
+
+
+def parse_npy(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpload:
     """A ``.npy`` array of real numbers; never unpickles, never allocates more than the data."""
     from numpy.lib import format as npformat
 
+    budget = budget or _Budget(UploadLimits())
     if not data.startswith(NPY_MAGIC):
         raise BadUpload("not a .npy file (missing the \\x93NUMPY magic)", field="file")
     stream = io.BytesIO(data)
@@ -223,6 +348,8 @@ def parse_npy(data: bytes, dim: int) -> ParsedUpload:
             f"{len(data) - stream.tell()}",
             field="file",
         )
+    if shape:
+        budget.points(int(shape[0]), "the .npy array")
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)
     except Exception as exc:  # same reason as above
@@ -230,43 +357,302 @@ def parse_npy(data: bytes, dim: int) -> ParsedUpload:
     return _split_time(np.asarray(array, dtype=np.float64), dim, "file")
 
 
-def parse_mcap(data: bytes, dim: int, topic: str | None) -> ParsedUpload:
-    """Poses from one topic of an MCAP file (see module docstring)."""
-    from mcap.records import Channel, Chunk, Schema
-    from mcap.stream_reader import StreamReader
+# ---- MCAP --------------------------------------------------------------------------------------
 
-    if not data.startswith(MCAP_MAGIC):
-        raise BadUpload("not an MCAP file (missing the MCAP magic)", field="file")
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
+_OP_HEADER = 0x01
+_OP_FOOTER = 0x02
+_OP_SCHEMA = 0x03
+_OP_CHANNEL = 0x04
+_OP_MESSAGE = 0x05
+_OP_CHUNK = 0x06
+_OP_DATA_END = 0x0F
+_OP_MAX = 0x0F  # opcodes above are reserved for extensions and skipped; 0x00 is invalid
+
+_U8 = struct.Struct("<B")
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_RECORD = struct.Struct("<BQ")
+_MESSAGE = struct.Struct("<HIQQ")
+_CHUNK_HEAD = struct.Struct("<QQQI")
+
+
+@dataclass(frozen=True)
+class _Schema:
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class _Channel:
+    id: int
+    schema_id: int
+    topic: str
+    message_encoding: str
+
+
+class _McapScan:
+    """One pass over an MCAP's records, keeping only what the pose topic needs.
+
+    Records are read from a buffer that grows by bounded decompressed pieces; a message on
+    any other channel costs one header unpack and is dropped at once.
+    """
+
+    def __init__(self, topic: str | None, budget: _Budget) -> None:
+        self.topic = topic
+        self.budget = budget
+        self.schemas: dict[int, _Schema] = {}
+        self.channels: dict[int, _Channel] = {}
+        self.pose_topics: set[str] = set()
+        self.keep: set[int] = set()  # channel ids whose messages are kept
+        self.messages: dict[int, list[tuple[int, bytes]]] = {}
+        self.kept = 0
+        self.kept_bytes = 0
+        self.max_kept_bytes = max(budget.limits.max_points, 1) * _POSE_BYTES_PER_POINT
+        self.records = 0
+        self.data_end = False
+        self.skip = 0  # bytes still to drop of a skipped record that spans pieces
+
+    # -- records ---------------------------------------------------------------------------
+
+    def records_in(self, buf: bytes | bytearray | memoryview, pos: int, end: int, in_chunk: bool) -> int:
+        """Handle the whole records in ``buf[pos:end]``; return where the first partial one
+        starts (``end`` when none is left over)."""
+        unpack_record = _RECORD.unpack_from
+        last_skipped = b""  # opcode, length and channel of the last skipped message
+        while pos + 9 <= end:
+            op, length = unpack_record(buf, pos)
+            body = pos + 9
+            stop = body + length
+            if stop > end:
+                if in_chunk and not self._needed(op, buf, body, end, length):
+                    # Skipped without being buffered, however long it claims to be.
+                    self.skip = stop - end
+                    return end
+                return pos
+            if op == _OP_MESSAGE:
+                if length < _MESSAGE.size:
+                    raise BadUpload("MCAP message record too short", field="file")
+                channel_id = _U16.unpack_from(buf, body)[0]
+                if channel_id in self.keep:
+                    self._keep(channel_id, buf, body, stop)
+                elif channel_id not in self.channels:
+                    raise BadUpload(f"MCAP message on undeclared channel {channel_id}",
+                                    field="file")
+                else:
+                    head = bytes(buf[pos:body + 2])
+                    if head == last_skipped:
+                        # A run of same-size messages on a skipped channel (a flood of
+                        # empty messages, a high-rate sensor): jump over it in numpy.
+                        pos = _skip_run(buf, pos, end, head, stop - pos)
+                        self.records += 1
+                        self.budget.tick()
+                        continue
+                    last_skipped = head
+            elif op == _OP_SCHEMA:
+                self._schema(bytes(buf[body:stop]))
+            elif op == _OP_CHANNEL:
+                self._channel(bytes(buf[body:stop]))
+            elif op == 0 or (in_chunk and op in (_OP_CHUNK, _OP_HEADER, _OP_FOOTER, _OP_DATA_END)):
+                raise BadUpload(f"invalid MCAP record opcode {op:#04x}"
+                                + (" inside a chunk" if op else ""), field="file")
+            elif not in_chunk and op == _OP_CHUNK:
+                self._chunk(buf, body, stop)
+            elif op == _OP_DATA_END:
+                self.data_end = True
+                return stop
+            # every other record (indexes, attachments, metadata, statistics) is skipped
+            pos = stop
+            self.records += 1
+            if not self.records & 0xFFF:
+                self.budget.tick()
+        return pos
+
+    def _needed(self, op: int, buf: bytes | bytearray | memoryview, body: int, end: int,
+                length: int) -> bool:
+        """Whether a record cut by a piece's end must be buffered whole (else it is skipped)."""
+        if op == _OP_MESSAGE:
+            if body + 2 > end:
+                return True  # cannot tell the channel yet: wait for two more bytes
+            if _U16.unpack_from(buf, body)[0] not in self.keep:
+                return False
+        elif op not in (_OP_SCHEMA, _OP_CHANNEL):
+            return False
+        if length > self.max_kept_bytes:
+            raise TooLarge(f"an MCAP record of {length} bytes is larger than a pose upload "
+                           f"may keep ({self.max_kept_bytes} bytes)", field="file")
+        return True
+
+    def _keep(self, channel_id: int, buf: bytes | bytearray | memoryview, body: int, stop: int) -> None:
+        _cid, _seq, log_time, _pub = _MESSAGE.unpack_from(buf, body)
+        data = bytes(buf[body + _MESSAGE.size:stop])
+        self.kept += 1
+        self.kept_bytes += len(data)
+        topic = self.channels[channel_id].topic
+        self.budget.points(self.kept, f"pose topic {topic!r}")
+        if self.kept_bytes > self.max_kept_bytes:
+            raise TooLarge(f"pose messages on {topic!r} are larger than "
+                           f"{self.max_kept_bytes} bytes in total", field="file")
+        self.messages.setdefault(channel_id, []).append((log_time, data))
+
+    def _schema(self, body: bytes) -> None:
+        try:
+            schema_id = _U16.unpack_from(body, 0)[0]
+            name, pos = _string(body, 2)
+            encoding, pos = _string(body, pos)
+            size = _U32.unpack_from(body, pos)[0]
+            data = body[pos + 4:pos + 4 + size]
+        except (struct.error, UnicodeDecodeError) as exc:
+            raise BadUpload(f"malformed MCAP schema record: {exc}", field="file") from exc
+        self.schemas[schema_id] = _Schema(schema_id, name, encoding, data)
+
+    def _channel(self, body: bytes) -> None:
+        try:
+            channel_id, schema_id = struct.unpack_from("<HH", body, 0)
+            topic, pos = _string(body, 4)
+            encoding, pos = _string(body, pos)
+        except (struct.error, UnicodeDecodeError) as exc:
+            raise BadUpload(f"malformed MCAP channel record: {exc}", field="file") from exc
+        channel = _Channel(channel_id, schema_id, topic, encoding)
+        self.channels[channel_id] = channel
+        schema = self.schemas.get(schema_id)
+        if schema is None or schema.name not in POSE_SCHEMAS:
+            return
+        self.pose_topics.add(topic)
+        if self.topic is not None:
+            if topic == self.topic:
+                self.keep.add(channel_id)
+        elif len(self.pose_topics) == 1:
+            self.keep.add(channel_id)
+        else:
+            # Two pose topics and none chosen: the answer will be "pass ?topic=", so keep
+            # scanning channels only.
+            self.keep.clear()
+            self.messages.clear()
+
+    def _chunk(self, buf: bytes | memoryview, body: int, stop: int) -> None:
+        try:
+            _start, _end, _declared, crc = _CHUNK_HEAD.unpack_from(buf, body)
+            compression, pos = _string(buf, body + _CHUNK_HEAD.size)
+            size = _U64.unpack_from(buf, pos)[0]
+        except (struct.error, UnicodeDecodeError) as exc:
+            raise BadUpload(f"malformed MCAP chunk record: {exc}", field="file") from exc
+        start = pos + 8
+        if start + size > stop:
+            raise BadUpload("MCAP chunk records overrun the chunk", field="file")
+        compressed = memoryview(buf)[start:start + size]
+        # The declared uncompressed size is not trusted: bytes are counted as produced.
+        pending = bytearray()  # the record cut by the last piece's end, and nothing else
+        running_crc = 0
+        for piece in _decompressed_pieces(compression, compressed):
+            self.budget.produced(len(piece))
+            self.budget.tick()
+            if crc:
+                running_crc = zlib.crc32(piece, running_crc)
+            if self.skip:
+                dropped = min(self.skip, len(piece))
+                self.skip -= dropped
+                piece = piece[dropped:]
+                if not piece:
+                    continue
+            if pending:
+                pending += piece
+                left = self.records_in(pending, 0, len(pending), in_chunk=True)
+                del pending[:left]
+            else:
+                left = self.records_in(piece, 0, len(piece), in_chunk=True)
+                pending += piece[left:]
+        if pending or self.skip:
+            raise BadUpload("MCAP chunk ends inside a record", field="file")
+        if crc and running_crc != crc:
+            raise BadUpload("MCAP chunk CRC mismatch (corrupt or tampered file)", field="file")
+
+
+_RUN_WINDOW = 8192  # records compared per numpy step: bounded work when a run is short
+
+
+def _skip_run(buf: bytes | bytearray | memoryview, pos: int, end: int, head: bytes,
+              size: int) -> int:
+    """Where the run of whole records of ``size`` bytes starting with ``head`` ends.
+
+    Each of them is a message record on the same skipped channel, exactly what the record
+    loop would drop one by one.
+    """
+    while True:
+        count = min((end - pos) // size, _RUN_WINDOW)
+        if count == 0:
+            return pos
+        block = np.frombuffer(buf, dtype=np.uint8, count=count * size, offset=pos)
+        same = (block.reshape(count, size)[:, :len(head)]
+                == np.frombuffer(head, dtype=np.uint8)).all(axis=1)
+        run = count if same.all() else int(np.argmin(same))
+        pos += run * size
+        if run < count:
+            return pos
+
+
+def _string(buf: bytes | memoryview, pos: int) -> tuple[str, int]:
+    size = _U32.unpack_from(buf, pos)[0]
+    end = pos + 4 + size
+    if end > len(buf):
+        raise struct.error("string runs past the record")
+    return bytes(buf[pos + 4:end]).decode("utf-8"), end
+
+
+def _decompressed_pieces(compression: str, data: memoryview) -> Iterator[bytes]:
+    """The chunk's bytes, decompressed at most ``_PIECE`` bytes at a time."""
+    if compression == "":
+        for i in range(0, len(data), _PIECE):
+            yield bytes(data[i:i + _PIECE])
+        return
     try:
-        # First pass with chunks left compressed: learn the channels and refuse bombs
-        # before anything is decompressed.
-        total = 0
-        for record in StreamReader(io.BytesIO(data), emit_chunks=True, validate_crcs=True,
-                                   record_size_limit=len(data)).records:
-            if isinstance(record, Chunk):
-                total += record.uncompressed_size
-                if total > MAX_DECOMPRESSED_BYTES:
-                    raise BadUpload(f"MCAP decompresses to more than {MAX_DECOMPRESSED_BYTES} "
-                                    "bytes", field="file")
-        records = list(StreamReader(io.BytesIO(data), validate_crcs=True,
-                                    record_size_limit=len(data)).records)
+        if compression == "zstd":
+            import zstandard
+
+            reader: Any = zstandard.ZstdDecompressor().stream_reader(
+                io.BytesIO(data), read_across_frames=True)
+        elif compression == "lz4":
+            import lz4.frame
+
+            reader = lz4.frame.LZ4FrameFile(io.BytesIO(data), mode="rb")
+        else:
+            raise BadUpload(f"unsupported MCAP chunk compression {compression!r} "
+                            "(expected zstd, lz4 or none)", field="file")
+        with reader:
+            while True:
+                piece = reader.read(_PIECE)
+                if not piece:
+                    return
+                yield piece
     except BadUpload:
         raise
-    except Exception as exc:  # hostile bytes: every mcap/zstd/struct failure means a bad file
-        raise BadUpload(f"unreadable MCAP file: {type(exc).__name__}: {exc}", field="file") from exc
-    for record in records:
-        if isinstance(record, Schema):
-            schemas[record.id] = record
-        elif isinstance(record, Channel):
-            channels[record.id] = record
-    pose_channels = {
-        c.id: c for c in channels.values()
-        if c.schema_id in schemas and schemas[c.schema_id].name in POSE_SCHEMAS
-    }
+    except Exception as exc:  # a corrupt stream: any decompressor failure is a bad upload
+        raise BadUpload(f"cannot decompress an MCAP chunk ({compression}): "
+                        f"{type(exc).__name__}: {exc}", field="file") from exc
+
+
+def parse_mcap(data: bytes, dim: int, topic: str | None,
+               budget: _Budget | None = None) -> ParsedUpload:
+    """Poses from one topic of an MCAP file (see module docstring)."""
+    budget = budget or _Budget(UploadLimits())
+    if not data.startswith(MCAP_MAGIC):
+        raise BadUpload("not an MCAP file (missing the MCAP magic)", field="file")
+    scan = _McapScan(topic, budget)
+    view = memoryview(data)
+    left = scan.records_in(view, len(MCAP_MAGIC), len(data), in_chunk=False)
+    if not scan.data_end and left < len(data) and len(data) - left > 8:
+        raise BadUpload("MCAP file ends inside a record (truncated?)", field="file")
+    return _poses_of(scan, dim, topic)
+
+
+def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
+    pose_channels = [c for c in scan.channels.values()
+                     if c.schema_id in scan.schemas
+                     and scan.schemas[c.schema_id].name in POSE_SCHEMAS]
     if topic is None:
-        topics = sorted({c.topic for c in pose_channels.values()})
+        topics = sorted(scan.pose_topics)
         if len(topics) != 1:
             raise InvalidInput(
                 "pass ?topic= to choose the pose topic; pose topics in this file: "
@@ -274,30 +660,35 @@ def parse_mcap(data: bytes, dim: int, topic: str | None) -> ParsedUpload:
                 field="topic",
             )
         topic = topics[0]
-    chosen = [c for c in pose_channels.values() if c.topic == topic]
+    chosen = [c for c in pose_channels if c.topic == topic]
     if not chosen:
-        available = sorted(f"{c.topic} ({schemas[c.schema_id].name if c.schema_id in schemas else '?'})"
-                           for c in channels.values())
+        available = sorted(
+            f"{c.topic} ({scan.schemas[c.schema_id].name if c.schema_id in scan.schemas else '?'})"
+            for c in scan.channels.values())
         raise InvalidInput(
             f"no pose topic {topic!r} in this MCAP file (supported types: "
             f"{', '.join(POSE_SCHEMAS)}); channels: {', '.join(available) or 'none'}",
             field="topic",
         )
     channel = chosen[0]
-    schema = schemas[channel.schema_id]
-    from mcap.records import Message
-
-    messages = sorted(
-        (r for r in records if isinstance(r, Message) and r.channel_id == channel.id),
-        key=lambda m: m.log_time,
-    )
+    schema = scan.schemas[channel.schema_id]
+    messages = sorted(scan.messages.get(channel.id, []), key=lambda m: m[0])
     if not messages:
         raise InvalidInput(f"topic {topic!r} has no messages", field="topic")
     try:
         if schema.name == ROS2_POSE_STAMPED:
-            samples = list(_ros2_poses(schema, channel, messages))
+            fast = _ros2_pose_arrays(messages)
+            if fast is not None:
+                scan.budget.tick()
+                positions, quats, times = fast
+                return ParsedUpload(np.ascontiguousarray(positions[:, :dim]), times, quats)
+            samples = list(_ros2_poses(schema, channel, messages, scan.budget))
         elif schema.name == FOXGLOVE_POSE:
-            samples = [_foxglove_pose(json.loads(m.data), m.log_time) for m in messages]
+            samples = []
+            for i, (log_time, payload) in enumerate(messages):
+                samples.append(_foxglove_pose(orjson.loads(payload), log_time))
+                if not i & 0xFFF:
+                    scan.budget.tick()
         else:
             if len(messages) != 1:
                 raise InvalidInput(
@@ -305,14 +696,18 @@ def parse_mcap(data: bytes, dim: int, topic: str | None) -> ParsedUpload:
                     f"got {len(messages)}",
                     field="topic",
                 )
-            payload = json.loads(messages[0].data)
-            samples = [_foxglove_pose({"pose": p}, 0) for p in payload["poses"]]
-            samples = [(None, pos, quat) for _, pos, quat in samples]
-    except InvalidInput:
+            payload = messages[0][1]
+            # Count before decoding: the JSON objects cost ~10x the bytes.
+            scan.budget.points(payload.count(b'"position"'), f"the {FOXGLOVE_POSES} message")
+            poses = orjson.loads(payload)["poses"]
+            samples = [(None, pos, quat)
+                       for _, pos, quat in (_foxglove_pose({"pose": p}, 0) for p in poses)]
+    except (InvalidInput, TooLarge):
         raise
     except Exception as exc:  # malformed message payloads
         raise BadUpload(f"cannot decode {schema.name} messages on {topic!r}: "
                         f"{type(exc).__name__}: {exc}", field="file") from exc
+    scan.budget.tick()
     positions = np.array([s[1] for s in samples], dtype=np.float64).reshape(-1, 3)
     quats = np.array([s[2] for s in samples], dtype=np.float64).reshape(-1, 4)
     stamps = [s[0] for s in samples]
@@ -326,18 +721,54 @@ def parse_mcap(data: bytes, dim: int, topic: str | None) -> ParsedUpload:
 _Sample = tuple[int | None, list[float], list[float]]
 
 
-def _ros2_poses(schema: Any, channel: Any, messages: Iterable[Any]) -> Iterable[_Sample]:
+def _ros2_pose_arrays(messages: list[tuple[int, bytes]]
+                      ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """PoseStamped messages decoded in one numpy pass, or None to take the generic decoder.
+
+    Little-endian CDR of ``geometry_msgs/msg/PoseStamped``: a 4-byte encapsulation header,
+    then (offsets after it) stamp.sec int32 @0, stamp.nanosec uint32 @4, frame_id as uint32
+    length @8 and its bytes, then 7 float64 (position, orientation) aligned to 8. A logger
+    writes the same frame_id every time, so every message has the same length and layout;
+    anything else (big-endian, mixed frame ids) goes to the generic decoder.
+    """
+    size = len(messages[0][1])
+    if size < 16 or any(len(m[1]) != size for m in messages):
+        return None
+    rows = np.frombuffer(b"".join(m[1] for m in messages), dtype=np.uint8).reshape(-1, size)
+    if not ((rows[:, 0] == 0) & (rows[:, 1] == 1)).all():
+        return None
+    name_length = int.from_bytes(bytes(rows[0, 12:16]), "little")
+    start = 4 + -(-(12 + name_length) // 8) * 8
+    if start + 56 != size or not (rows[:, 12:16] == rows[0, 12:16]).all():
+        return None
+    values = np.ascontiguousarray(rows[:, start:start + 56]).view("<f8").astype(np.float64)
+    sec = np.ascontiguousarray(rows[:, 4:8]).view("<i4").astype(np.int64).ravel()
+    nsec = np.ascontiguousarray(rows[:, 8:12]).view("<u4").astype(np.int64).ravel()
+    stamps = sec * 1_000_000_000 + nsec
+    log_times = np.array([m[0] for m in messages], dtype=np.int64)
+    stamps = np.where(stamps == 0, log_times, stamps)  # unset stamps: the log time
+    times = (stamps - stamps[0]).astype(np.float64) * 1e-9
+    return values[:, :3], values[:, 3:7], times
+
+
+def _ros2_poses(schema: _Schema, channel: _Channel, messages: Iterable[tuple[int, bytes]],
+                budget: _Budget) -> Iterable[_Sample]:
+    from mcap.records import Schema
     from mcap_ros2.decoder import DecoderFactory
 
-    decoder = DecoderFactory().decoder_for(channel.message_encoding, schema)
+    decoder = DecoderFactory().decoder_for(
+        channel.message_encoding,
+        Schema(id=schema.id, name=schema.name, encoding=schema.encoding, data=schema.data))
     if decoder is None:
         raise BadUpload(f"cannot decode message encoding {channel.message_encoding!r} with "
                         f"schema encoding {schema.encoding!r}", field="file")
-    for message in messages:
-        msg = decoder(message.data)
+    for i, (log_time, payload) in enumerate(messages):
+        msg = decoder(payload)
         stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
         p, q = msg.pose.position, msg.pose.orientation
-        yield (stamp or int(message.log_time), [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        if not i & 0xFFF:
+            budget.tick()
+        yield (stamp or int(log_time), [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
 
 
 def _foxglove_pose(payload: dict[str, Any], log_time: int) -> _Sample:

@@ -44,7 +44,8 @@ def checksum(positions: np.ndarray) -> str:
     return hashlib.sha256(np.ascontiguousarray(positions, dtype="<f8").tobytes()).hexdigest()
 
 
-def ros2_mcap(positions: np.ndarray, topic: str = "/ee_pose", extra_topic: bool = False) -> bytes:
+def ros2_mcap(positions: np.ndarray, topic: str = "/ee_pose", extra_topic: bool = False,
+              frame_ids: tuple[str, ...] = ("base",), zero_stamps: bool = False) -> bytes:
     from mcap_ros2.writer import Writer as Ros2Writer
 
     buf = io.BytesIO()
@@ -53,8 +54,9 @@ def ros2_mcap(positions: np.ndarray, topic: str = "/ee_pose", extra_topic: bool 
     t0 = 1_700_000_000_000_000_000
     for i, p in enumerate(positions):
         stamp = t0 + i * 10_000_000
-        msg = {"header": {"stamp": {"sec": stamp // 10**9, "nanosec": stamp % 10**9},
-                          "frame_id": "base"},
+        sec, nsec = (0, 0) if zero_stamps else (stamp // 10**9, stamp % 10**9)
+        msg = {"header": {"stamp": {"sec": sec, "nanosec": nsec},
+                          "frame_id": frame_ids[i % len(frame_ids)]},
                "pose": {"position": {"x": p[0], "y": p[1], "z": p[2]},
                         "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
         writer.write_message(topic, schema, msg, log_time=stamp, publish_time=stamp)
@@ -182,6 +184,23 @@ def test_mcap_ros2_pose_stamped(client: TestClient, skill: str) -> None:
     assert np.allclose(back["timestamps"], np.arange(25) * 0.01)
     assert np.allclose(back["orientations"], [[0, 0, 0, 1]] * 25)
     assert client.get(f"/skills/{skill}").json()["n_demonstrations"] == 1
+
+
+@pytest.mark.parametrize(("frame_ids", "zero_stamps"),
+                         [(("base",), False), (("base_link",), True), (("a", "base_link"), False)],
+                         ids=["one frame", "stamps unset: log time", "mixed frames: generic"])
+def test_mcap_ros2_decoders_agree(frame_ids: tuple[str, ...], zero_stamps: bool) -> None:
+    """The one-pass numpy decoder of PoseStamped (same-length messages) and the generic
+    mcap_ros2 decoder (everything else) read the same values."""
+    from canal_service.uploads import parse_mcap
+
+    p = demo_positions(2, n=40) * 123.456
+    parsed = parse_mcap(ros2_mcap(p, frame_ids=frame_ids, zero_stamps=zero_stamps), 3, None)
+    assert np.array_equal(parsed.positions, p)
+    assert parsed.orientations is not None and np.array_equal(parsed.orientations,
+                                                              [[0, 0, 0, 1]] * 40)
+    assert parsed.timestamps is not None
+    assert np.allclose(parsed.timestamps, np.arange(40) * 0.01, atol=1e-9)
 
 
 def test_mcap_foxglove_pose_in_frame(client: TestClient, skill: str) -> None:

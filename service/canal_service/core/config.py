@@ -13,6 +13,10 @@ from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 DEFAULT_MAX_BODY_BYTES = 64 * 1024 * 1024
+# Kept equal to canal_service.uploads' defaults (imported there would make config import numpy).
+DEFAULT_UPLOAD_MAX_POINTS = 200_000
+DEFAULT_UPLOAD_MAX_DECOMPRESSED_BYTES = 64 * 1024 * 1024
+DEFAULT_UPLOAD_MAX_SECONDS = 10.0
 
 
 class Settings(BaseSettings):
@@ -41,6 +45,16 @@ class Settings(BaseSettings):
         default_factory=list, description="Allowed CORS origins; CORS stays off when empty."
     )
     max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, gt=0)
+    upload_max_points: int = Field(
+        DEFAULT_UPLOAD_MAX_POINTS, gt=0,
+        description="Samples one demonstration may have, in any format (413 above).")
+    upload_max_decompressed_bytes: int = Field(
+        DEFAULT_UPLOAD_MAX_DECOMPRESSED_BYTES, gt=0,
+        description="Bytes an MCAP upload may decompress to, counted as they are produced "
+                    "(413 above).")
+    upload_max_seconds: float = Field(
+        DEFAULT_UPLOAD_MAX_SECONDS, gt=0,
+        description="Server time one file upload may take to parse (413 above).")
     model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
     log_level: str = "info"
 

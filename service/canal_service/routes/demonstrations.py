@@ -12,7 +12,7 @@ from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException
 
 from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
-from ..errors import BadUpload, InvalidInput, PayloadTooLarge, UnsupportedMediaType
+from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
 from ..schemas import (
     DemonstrationCreated,
     DemonstrationIn,
@@ -20,8 +20,9 @@ from ..schemas import (
     DemonstrationSummary,
     ErrorResponse,
     Page,
+    demonstration_from_json,
 )
-from ..uploads import detect_format
+from ..uploads import UploadLimits, detect_format
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
 
@@ -52,7 +53,7 @@ _REQUEST_BODY: dict[str, Any] = {
     },
 }
 _ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorResponse} for code in (400, 404, 413, 415, 422)
+    code: {"model": ErrorResponse} for code in (400, 404, 413, 415, 422, 503)
 }
 
 Format = Annotated[Literal["csv", "npy", "mcap"] | None,
@@ -80,10 +81,17 @@ async def add_demonstration(
         if not raw.strip():
             raise InvalidInput("expected a JSON body with 'positions', got an empty body",
                                field="body")
+        limits = upload_limits(request)
+        # Each row is one '[' (positions and orientations; a label adds at most 256): refuse
+        # an oversized demo before parsing builds its objects.
+        if raw.count(b"[") > 2 * limits.max_points + 300:
+            raise _too_many_points(limits)
         try:
-            body = DemonstrationIn.model_validate_json(raw)
+            body = demonstration_from_json(raw)
         except ValidationError as exc:
             raise RequestValidationError(exc.errors(include_url=False)) from exc
+        if len(body.positions) > limits.max_points:
+            raise _too_many_points(limits)
         return await run_in_threadpool(service.add_json_demonstration, name, body)
     if base == "multipart/form-data":
         data, filename, part_type, form_label = await _read_multipart(request)
@@ -100,7 +108,21 @@ async def add_demonstration(
     if not data:
         raise BadUpload("the uploaded file is empty", field="file")
     fmt = detect_format(format, filename, part_type, data)
-    return await run_in_threadpool(service.add_file_demonstration, name, fmt, data, topic, label)
+    return await run_in_threadpool(service.add_file_demonstration, name, fmt, data, topic, label,
+                                   upload_limits(request))
+
+
+def upload_limits(request: Request) -> UploadLimits:
+    """The deployment's per-upload limits (``CANAL_UPLOAD_*``)."""
+    settings = request.app.state.settings
+    return UploadLimits(max_points=settings.upload_max_points,
+                        max_decompressed_bytes=settings.upload_max_decompressed_bytes,
+                        max_seconds=settings.upload_max_seconds)
+
+
+def _too_many_points(limits: UploadLimits) -> TooLarge:
+    return TooLarge(f"a demonstration may have at most {limits.max_points} samples (limit "
+                    "CANAL_UPLOAD_MAX_POINTS); downsample it or split it", field="positions")
 
 
 async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | None, str | None]:

@@ -16,7 +16,7 @@ from typing import Any
 
 from alembic import command
 from alembic.config import Config
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Connection, Engine, create_engine, event, text
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -83,6 +83,13 @@ class Database:
         """A session committed on success and rolled back on any error: all or nothing."""
         with self._write() as session, session.begin():
             yield session
+
+    @contextmanager
+    def write_connection(self) -> Iterator[Connection]:
+        """A Core connection in a write transaction, committed on success: for hot paths
+        that only insert and need no ORM session."""
+        with self.write_engine.begin() as connection:
+            yield connection
 
     def migrate(self) -> None:
         """Apply Alembic migrations up to head (idempotent; safe with replicas starting together)."""

@@ -10,13 +10,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import delete, func, select
+from sqlalchemy import Connection, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
-from ..errors import Conflict, NotFound
+from ..errors import Conflict, InvalidInput, NotFound
 from . import arrays
-from .models import Demonstration, ModelVersion, Skill
+from .models import Demonstration, ModelVersion, Skill, utcnow
 
 
 @dataclass(frozen=True)
@@ -112,6 +112,63 @@ def add_demonstration(
     return demo
 
 
+@dataclass(frozen=True)
+class StoredDemo:
+    """What the upload path needs back from an insert."""
+
+    id: int
+    n_points: int
+    checksum: str
+    dim: int
+
+
+# Built once: constructing a statement per call costs more than running it on SQLite.
+_SKILL_ID_AND_DIM = select(Skill.id, Skill.dim).where(Skill.name == bindparam("name"))
+_INSERT_DEMONSTRATION = insert(Demonstration).returning(Demonstration.id)
+
+
+def insert_demonstration(
+    connection: Connection,
+    skill_name: str,
+    positions: arrays.FloatArray,
+    timestamps: arrays.FloatArray | None,
+    orientations: arrays.FloatArray | None,
+    label: str | None,
+    source: str,
+) -> StoredDemo:
+    """Store a checked demonstration in the caller's transaction: two Core statements.
+
+    The upload hot path: the skill is looked up and its dimension compared inside the same
+    transaction as the insert (a skill deleted or recreated meanwhile cannot slip through),
+    and no ORM objects are built for a row that is only written.
+    """
+    found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
+    if found is None:
+        raise NotFound(f"no skill named {skill_name!r}", field="name")
+    skill_id, dim = int(found[0]), int(found[1])
+    if positions.shape[1] != dim:
+        axes = "x, y, z" if dim == 3 else "x, y"
+        raise InvalidInput(
+            f"expected {dim} values per row ({axes} for the {dim}-D skill {skill_name!r}), "
+            f"got {positions.shape[1]} at row 0",
+            field="positions[0]",
+        )
+    packed = arrays.pack(positions)
+    digest = arrays.checksum_of_packed(packed)
+    n_points = int(positions.shape[0])
+    demo_id = connection.execute(
+        _INSERT_DEMONSTRATION,
+        {
+            "skill_id": skill_id, "label": label, "n_points": n_points, "dim": dim,
+            "positions": packed,
+            "timestamps": None if timestamps is None else arrays.pack(timestamps),
+            "orientations": None if orientations is None else arrays.pack(orientations),
+            "checksum": digest, "source": source, "created_at": utcnow(),
+        },
+    ).scalar_one()
+    return StoredDemo(int(demo_id), n_points, digest, dim)
+
+
 _BLOBS = (defer(Demonstration.positions), defer(Demonstration.timestamps),
           defer(Demonstration.orientations))
 
@@ -165,7 +222,15 @@ def demonstrations_for_fit(
 
 
 def next_model_version(session: Session, skill: Skill) -> int:
-    """One more than the highest version; the unique constraint catches a concurrent twin."""
+    """One more than the highest version, with the skill row locked until the caller commits.
+
+    Replicas fitting the same skill at once queue on that row lock instead of both reading
+    the same maximum and colliding on ``uq_models_skill_version``. ``FOR NO KEY UPDATE``
+    rather than ``FOR UPDATE``: uploads (which only take a key-share lock through their
+    foreign key) keep flowing. SQLite has no row locks and needs none: its write
+    transactions start with ``BEGIN IMMEDIATE`` and run one at a time.
+    """
+    session.execute(select(Skill.id).where(Skill.id == skill.id).with_for_update(key_share=True))
     latest = session.scalar(
         select(func.max(ModelVersion.version)).where(ModelVersion.skill_id == skill.id)
     )
