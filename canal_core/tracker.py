@@ -63,6 +63,10 @@ class TrackerTarget:
         Whether the live position is inside the canal.
     done : bool
         Whether the live position has reached the last cross-section.
+    velocity : array, shape (D,), or None
+        Feed-forward velocity at the target, when the model knows one.
+    orientation : array, shape (4,), or None
+        Target orientation [qx, qy, qz, qw], when the model learned orientations.
     """
 
     target: FloatArray
@@ -71,6 +75,8 @@ class TrackerTarget:
     section_index: int
     inside: bool
     done: bool
+    velocity: FloatArray | None = None
+    orientation: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -235,6 +241,131 @@ def tracker_step(
     )
 
 
+def tracker_steps(
+    geometry: TrackerGeometry,
+    states: list[TrackerState],
+    positions: FloatArray,
+    lookahead: int = 1,
+    replan_tolerance: float = REPLAN_TOLERANCE,
+) -> tuple[list[TrackerTarget], list[TrackerState]]:
+    """:func:`tracker_step` for many streams of one model in one vectorised pass.
+
+    Parameters
+    ----------
+    geometry : TrackerGeometry
+    states : list of TrackerState, length B
+        Each stream's state after its previous step.
+    positions : array, shape (B, D)
+        Live position of each stream.
+    lookahead, replan_tolerance
+        As :func:`tracker_step`.
+
+    Returns
+    -------
+    targets : list of TrackerTarget, length B
+    states : list of TrackerState, length B
+
+    Notes
+    -----
+    The answers equal B calls of :func:`tracker_step` (same sections, flags and plan; floats
+    up to the last bits of a reordered sum). A live bridge receives the poses of many robots
+    at once; one numpy pass costs about what one scalar step costs, so per-pose work drops
+    by the batch size. Rows the window search cannot place (pushed ahead, behind the
+    window), non-circular sections and canals of fewer than three sections take the scalar
+    path.
+    """
+    b = len(states)
+    g = geometry
+    n = g.centres.shape[0]
+    out_t: list[TrackerTarget | None] = [None] * b
+    out_s: list[TrackerState | None] = [None] * b
+    positions = np.asarray(positions, dtype=np.float64)
+    if b == 0:
+        return [], []
+    if g.sections.kind != "circle" or n < 3 or b == 1:
+        for i in range(b):
+            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+        return out_t, out_s  # type: ignore[return-value]
+    last_index = np.fromiter((s.index for s in states), dtype=np.intp, count=b)
+    lo = np.maximum(last_index - 1, 0)
+    hi = np.minimum(last_index + WINDOW, n - 1)
+    cols = lo[:, None] + np.arange(WINDOW + 2)[None, :]
+    valid = cols <= hi[:, None]
+    cols = np.minimum(cols, n - 1)
+    dist = np.einsum("bwd,bd->bw", g.tangents[cols], positions) - g.offsets[cols]
+    change = (dist[:, :-1] == 0.0) | ((dist[:, :-1] > 0.0) != (dist[:, 1:] > 0.0))
+    change &= valid[:, 1:]
+    found = change.any(axis=1)
+    index = np.minimum(lo + change.argmax(axis=1), n - 2)
+    rows = np.flatnonzero(found)
+    for i in np.flatnonzero(~found):
+        out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+    if rows.size:
+        _steps_found(g, states, positions, rows, index[rows], last_index[rows], lookahead,
+                     replan_tolerance, out_t, out_s)
+    return out_t, out_s  # type: ignore[return-value]
+
+
+def _steps_found(
+    g: TrackerGeometry,
+    states: list[TrackerState],
+    positions: FloatArray,
+    rows: np.ndarray,
+    index: np.ndarray,
+    last_index: np.ndarray,
+    lookahead: int,
+    replan_tolerance: float,
+    out_t: list[TrackerTarget | None],
+    out_s: list[TrackerState | None],
+) -> None:
+    """The vectorised rest of :func:`tracker_step` for circle sections, rows located in
+    their window (``index`` in [0, n - 2])."""
+    n = g.centres.shape[0]
+    p = positions[rows]
+    upper = index + 1
+    d0 = np.einsum("bd,bd->b", g.tangents[index], p) - g.offsets[index]
+    d1 = np.einsum("bd,bd->b", g.tangents[upper], p) - g.offsets[upper]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        alpha = np.where(d0 != d1, np.clip(d0 / (d0 - d1), 0.0, 1.0), 0.0)
+    q0 = np.einsum("bkd,bd->bk", g.basis[index], p - g.centres[index])
+    q1 = np.einsum("bkd,bd->bk", g.basis[upper], p - g.centres[upper])
+    q = (1.0 - alpha)[:, None] * q0 + alpha[:, None] * q1
+    norm = np.sqrt(np.einsum("bk,bk->b", q, q))
+    k = q.shape[1]
+    default = _DEFAULT_DIRECTIONS[k]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default[None, :])
+    target_index = np.minimum(index + max(lookahead, 1), n - 1)
+    radius = g.sections.params["radius"]
+    reach = (1.0 - alpha) * radius[index] + alpha * radius[upper]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
+    plan_eta = np.minimum(eta, MAX_PLAN_ETA)
+    plan_dir = direction.copy()
+    for j, r in enumerate(rows):
+        st = states[r]
+        if st.eta is not None and st.direction is not None:
+            # circle sections: the reference reach equals the live one
+            gap = q[j] - (st.eta * reach[j]) * st.direction
+            if math.sqrt(float(gap @ gap)) <= replan_tolerance * reach[j]:
+                plan_eta[j] = st.eta
+                plan_dir[j] = st.direction
+    plan_reach = radius[target_index]
+    behind_start = (index == 0) & (d0 < 0.0)
+    past_end = (index == n - 2) & (d1 > 0.0)
+    inside = (eta <= 1.0 + 1e-9) & ~behind_start & ~past_end
+    target = g.centres[target_index] + (plan_eta * plan_reach)[:, None] * np.einsum(
+        "bk,bkd->bd", plan_dir, g.basis[target_index])
+    last = n - 1
+    done = (index >= n - 2) & (p @ g.tangents[last] - g.offsets[last] >= -g.done_tolerance)
+    progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
+    new_index = np.maximum(last_index, index)
+    for j, r in enumerate(rows):
+        out_t[r] = TrackerTarget(target[j], float(progress[j]), float(eta[j]), int(index[j]),
+                                 bool(inside[j]), bool(done[j]))
+        out_s[r] = TrackerState(int(new_index[j]), float(plan_eta[j]), plan_dir[j])
+
+
 def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:
     """Among the plane pairs from ``start`` on that bracket ``position``, the one nearest it."""
     n = g.centres.shape[0]
@@ -277,3 +408,27 @@ class Tracker:
     def reset(self, index: int = 0) -> None:
         """Start over from section ``index`` with no plan (a new run, or a new model version)."""
         self.state = TrackerState(index)
+
+
+def step_trackers(trackers: list[Tracker], positions: FloatArray) -> list[TrackerTarget]:
+    """Step several :class:`Tracker` objects of one geometry at once (see :func:`tracker_steps`).
+
+    Parameters
+    ----------
+    trackers : list of Tracker, length B
+        Trackers sharing one geometry, lookahead and replan tolerance.
+    positions : array, shape (B, D)
+        Live position of each tracker's stream.
+
+    Returns
+    -------
+    list of TrackerTarget, length B
+    """
+    if not trackers:
+        return []
+    first = trackers[0]
+    targets, states = tracker_steps(first.geometry, [t.state for t in trackers], positions,
+                                    first.lookahead, first.replan_tolerance)
+    for tracker, state in zip(trackers, states, strict=True):
+        tracker.state = state
+    return targets
