@@ -298,7 +298,7 @@ def tracker_steps(
     found = change.any(axis=1)
     index = np.minimum(lo + change.argmax(axis=1), n - 2)
     rows = np.flatnonzero(found)
-    for i in np.flatnonzero(~found):
+    for i in np.flatnonzero(~found).tolist():
         out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
     if rows.size:
         _steps_found(g, states, positions, rows, index[rows], last_index[rows], lookahead,
