@@ -93,7 +93,7 @@ class BridgeOptions:
     shard: int = 0
     shards: int = 1
     negative_ttl_s: float = 10.0
-    negative_max: int = 1024
+    negative_max: int = 16384
 
     @classmethod
     def from_settings(cls, settings: Any, **overrides: Any) -> BridgeOptions:
@@ -653,7 +653,8 @@ class Bridge:
                 group[1].append(job)
         for entry, group in by_model.values():
             positions = np.array([j[1].position[:entry.dim] for j in group], dtype=np.float64)
-            targets = step_trackers([j[0].tracker for j in group], positions)
+            with np.errstate(all="ignore"):  # 1e308 poses overflow; they answer outside
+                targets = step_trackers([j[0].tracker for j in group], positions)
             for (st, pose, fmt, ros), tt in zip(group, targets, strict=True):
                 self._answer(st, pose, fmt, ros, entry, tt)
 
