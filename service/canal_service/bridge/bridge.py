@@ -130,8 +130,9 @@ def access_of(config: zenoh.Config) -> dict[str, Any]:
     mtls = _config_value(config, "transport/link/tls/enable_mtls")
     acl = _config_value(config, "access_control/enabled")
     default = _config_value(config, "access_control/default_permission")
-    endpoints = [*_per_mode(_config_value(config, "listen/endpoints"), None),
-                 *_per_mode(_config_value(config, "connect/endpoints"), None)]
+    mode = _config_value(config, "mode")
+    endpoints = [*_per_mode(_config_value(config, "listen/endpoints"), mode),
+                 *_per_mode(_config_value(config, "connect/endpoints"), mode)]
     tls = bool(endpoints) and all(str(e).startswith(("tls/", "quic/")) for e in endpoints)
     authenticated = bool(users or user or (mtls and tls))
     return {"access": "authenticated" if authenticated else "open", "tls": tls,
