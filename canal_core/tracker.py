@@ -287,29 +287,41 @@ def tracker_steps(
             out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
         return out_t, out_s  # type: ignore[return-value]
     last_index = np.fromiter((s.index for s in states), dtype=np.intp, count=b)
+    # every plane's signed distance for every robot in one product, (B, N): cheaper than
+    # gathering B windows of tangents, and it holds d0, d1 and the last plane too
+    dist_all = positions @ g.tangents.T - g.offsets
     lo = np.maximum(last_index - 1, 0)
     hi = np.minimum(last_index + WINDOW, n - 1)
-    cols = lo[:, None] + np.arange(WINDOW + 2)[None, :]
+    cols = lo[:, None] + _WINDOW_COLUMNS
     valid = cols <= hi[:, None]
-    cols = np.minimum(cols, n - 1)
-    dist = np.einsum("bwd,bd->bw", g.tangents[cols], positions) - g.offsets[cols]
-    change = (dist[:, :-1] == 0.0) | ((dist[:, :-1] > 0.0) != (dist[:, 1:] > 0.0))
-    change &= valid[:, 1:]
+    np.minimum(cols, n - 1, out=cols)
+    dist = np.take_along_axis(dist_all, cols, axis=1)
+    above = dist > 0.0
+    change = ((dist[:, :-1] == 0.0) | (above[:, :-1] != above[:, 1:])) & valid[:, 1:]
     found = change.any(axis=1)
     index = np.minimum(lo + change.argmax(axis=1), n - 2)
-    rows = np.flatnonzero(found)
-    for i in np.flatnonzero(~found).tolist():
-        out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+    if found.all():
+        rows = np.arange(b)
+    else:
+        rows = np.flatnonzero(found)
+        for i in np.flatnonzero(~found).tolist():
+            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+        index = index[rows]
+        last_index = last_index[rows]
     if rows.size:
-        _steps_found(g, states, positions, rows, index[rows], last_index[rows], lookahead,
-                     replan_tolerance, out_t, out_s)
+        _steps_found(g, states, positions[rows], dist_all[rows], rows, index, last_index,
+                     lookahead, replan_tolerance, out_t, out_s)
     return out_t, out_s  # type: ignore[return-value]
+
+
+_WINDOW_COLUMNS = np.arange(WINDOW + 2)[None, :]
 
 
 def _steps_found(
     g: TrackerGeometry,
     states: list[TrackerState],
-    positions: FloatArray,
+    p: FloatArray,
+    dist_all: FloatArray,
     rows: np.ndarray,
     index: np.ndarray,
     last_index: np.ndarray,
@@ -319,51 +331,62 @@ def _steps_found(
     out_s: list[TrackerState | None],
 ) -> None:
     """The vectorised rest of :func:`tracker_step` for circle sections, rows located in
-    their window (``index`` in [0, n - 2])."""
+    their window (``index`` in [0, n - 2]); ``p`` and ``dist_all`` are those rows'."""
     n = g.centres.shape[0]
-    p = positions[rows]
+    b = index.shape[0]
     upper = index + 1
-    d0 = np.einsum("bd,bd->b", g.tangents[index], p) - g.offsets[index]
-    d1 = np.einsum("bd,bd->b", g.tangents[upper], p) - g.offsets[upper]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        alpha = np.where(d0 != d1, np.clip(d0 / (d0 - d1), 0.0, 1.0), 0.0)
-    q0 = np.einsum("bkd,bd->bk", g.basis[index], p - g.centres[index])
-    q1 = np.einsum("bkd,bd->bk", g.basis[upper], p - g.centres[upper])
-    q = (1.0 - alpha)[:, None] * q0 + alpha[:, None] * q1
-    norm = np.sqrt(np.einsum("bk,bk->b", q, q))
-    k = q.shape[1]
-    default = _DEFAULT_DIRECTIONS[k]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default[None, :])
     target_index = np.minimum(index + max(lookahead, 1), n - 1)
-    radius = g.sections.params["radius"]
-    reach = (1.0 - alpha) * radius[index] + alpha * radius[upper]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    ar = np.arange(b)
+    d0 = dist_all[ar, index]
+    d1 = dist_all[ar, upper]
+    pair = np.stack([index, upper])  # (2, B)
+    # in-plane coordinates at both planes of the pair: basis_i (x - c_i), shape (2, B, K)
+    q01 = (g.basis[pair] * (p[None, :, None, :] - g.centres[pair][:, :, None, :])).sum(axis=-1)
+    radius = g.sections.params["radius"][np.stack([index, upper, target_index])]  # (3, B)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        alpha = np.where(d0 != d1, np.clip(d0 / (d0 - d1), 0.0, 1.0), 0.0)
+        a1 = alpha[:, None]
+        q = (1.0 - a1) * q01[0] + a1 * q01[1]
+        norm = np.sqrt((q * q).sum(axis=1))
+        default = _DEFAULT_DIRECTIONS[q.shape[1]]
+        direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default)
+        reach = (1.0 - alpha) * radius[0] + alpha * radius[1]
         eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
     plan_eta = np.minimum(eta, MAX_PLAN_ETA)
-    plan_dir = direction.copy()
-    for j, r in enumerate(rows):
-        st = states[r]
-        if st.eta is not None and st.direction is not None:
-            # circle sections: the reference reach equals the live one
-            gap = q[j] - (st.eta * reach[j]) * st.direction
-            if math.sqrt(float(gap @ gap)) <= replan_tolerance * reach[j]:
-                plan_eta[j] = st.eta
-                plan_dir[j] = st.direction
-    plan_reach = radius[target_index]
-    behind_start = (index == 0) & (d0 < 0.0)
-    past_end = (index == n - 2) & (d1 > 0.0)
-    inside = (eta <= 1.0 + 1e-9) & ~behind_start & ~past_end
-    target = g.centres[target_index] + (plan_eta * plan_reach)[:, None] * np.einsum(
-        "bk,bkd->bd", plan_dir, g.basis[target_index])
-    last = n - 1
-    done = (index >= n - 2) & (p @ g.tangents[last] - g.offsets[last] >= -g.done_tolerance)
+    plan_dir = direction
+    kept_states = [states[r] for r in rows.tolist()]
+    olds = [(st.eta, st.direction) for st in kept_states
+            if st.eta is not None and st.direction is not None]
+    if olds:
+        if len(olds) == b:
+            old_eta = np.array([o[0] for o in olds])
+            old_dir = np.array([o[1] for o in olds])
+            planned = np.ones(b, dtype=bool)
+        else:
+            planned = np.array([st.eta is not None and st.direction is not None
+                                for st in kept_states])
+            old_eta = np.array([st.eta if ok else 0.0 for st, ok in zip(kept_states, planned, strict=True)])
+            old_dir = np.array([st.direction if ok else default
+                                for st, ok in zip(kept_states, planned, strict=True)])
+        # circle sections: the reference reach equals the live one
+        gap = q - (old_eta * reach)[:, None] * old_dir
+        with np.errstate(invalid="ignore", over="ignore"):
+            keep = planned & (np.sqrt((gap * gap).sum(axis=1)) <= replan_tolerance * reach)
+        plan_eta = np.where(keep, old_eta, plan_eta)
+        plan_dir = np.where(keep[:, None], old_dir, direction)
+    inside = (eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0)) & ~((index == n - 2) & (d1 > 0.0))
+    with np.errstate(invalid="ignore", over="ignore"):
+        target = g.centres[target_index] + ((plan_eta * radius[2])[:, None, None] * plan_dir[:, :, None]
+                                            * g.basis[target_index]).sum(axis=1)
+    done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
     progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
     new_index = np.maximum(last_index, index)
-    for j, r in enumerate(rows):
-        out_t[r] = TrackerTarget(target[j], float(progress[j]), float(eta[j]), int(index[j]),
-                                 bool(inside[j]), bool(done[j]))
-        out_s[r] = TrackerState(int(new_index[j]), float(plan_eta[j]), plan_dir[j])
+    for r, tgt, prog, et, ix, ins, dn, ni, pe, pd in zip(
+            rows.tolist(), target, progress.tolist(), eta.tolist(), index.tolist(),
+            inside.tolist(), done.tolist(), new_index.tolist(), plan_eta.tolist(), plan_dir,
+            strict=True):
+        out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn)
+        out_s[r] = TrackerState(ni, pe, pd)
 
 
 def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:
