@@ -219,3 +219,41 @@ def test_binary_target_extras_keep_old_readers_working():
                                              False, 2, (0.0, 0.0, 0.0, 1.0), None, 7))
     assert doc["orientation"] == [0.0, 0.0, 0.0, 1.0] and doc["coalesced"] == 7
     assert "velocity" not in doc
+
+
+def test_rmw_zenoh_adapter_round_trip(live):
+    """examples/ros2/rmw_zenoh_adapter.py: a robot publishing on rmw_zenoh's key for
+    /canal/arc3/rosbot/pose gets Canal's CDR answer on rmw_zenoh's key for .../target."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "ros2" / "rmw_zenoh_adapter.py"
+    spec = importlib.util.spec_from_file_location("rmw_zenoh_adapter", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    type_hash = "RIHS01_0123456789abcdef"
+    ros_pose = f"0/canal/arc3/rosbot/pose/{module.POSE_TYPE}/{type_hash}"
+    ros_target = f"0/canal/arc3/rosbot/target/{module.POSE_TYPE}/{type_hash}"
+    directrix = _directrix(live)
+    got: list[bytes] = []
+    from canal_testing import free_port
+
+    # peers do not route for each other: the robot talks to the adapter, the adapter to Canal
+    near = f"tcp/127.0.0.1:{free_port()}"
+    adapter_config = client_config(live.endpoint)
+    adapter_config.insert_json5("listen/endpoints", f'["{near}"]')
+    with zenoh.open(adapter_config) as adapter_session, \
+            zenoh.open(client_config(near)) as robot:
+        adapter = module.Adapter(adapter_session)
+        robot.declare_subscriber(ros_target, lambda s: got.append(s.payload.to_bytes()))
+        time.sleep(0.3)
+        robot.put(ros_pose, pose_stamped(directrix[30], frame_id="tool0", sec=3))
+        deadline = time.monotonic() + 3
+        while not got and time.monotonic() < deadline:
+            time.sleep(0.02)
+        adapter.close()
+    assert got, "no target on the rmw_zenoh key"
+    answer = TS.deserialize_cdr(got[0], POSE_STAMPED)
+    assert answer.header.frame_id == "tool0" and answer.header.stamp.sec == 3
+    assert np.linalg.norm([answer.pose.position.x - directrix[32][0],
+                           answer.pose.position.y - directrix[32][1]]) < 0.1
