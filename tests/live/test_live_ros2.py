@@ -246,11 +246,11 @@ def test_rmw_zenoh_adapter_round_trip(live):
             zenoh.open(client_config(near)) as robot:
         adapter = module.Adapter(adapter_session)
         robot.declare_subscriber(ros_target, lambda s: got.append(s.payload.to_bytes()))
-        time.sleep(0.3)
-        robot.put(ros_pose, pose_stamped(directrix[30], frame_id="tool0", sec=3))
-        deadline = time.monotonic() + 3
+        # declarations travel robot -> adapter -> bridge: repeat the pose until they have
+        deadline = time.monotonic() + 10
         while not got and time.monotonic() < deadline:
-            time.sleep(0.02)
+            robot.put(ros_pose, pose_stamped(directrix[30], frame_id="tool0", sec=3))
+            time.sleep(0.2)
         adapter.close()
     assert got, "no target on the rmw_zenoh key"
     answer = TS.deserialize_cdr(got[0], POSE_STAMPED)

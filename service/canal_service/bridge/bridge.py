@@ -670,8 +670,12 @@ class Bridge:
         target = tt.target
         if inside or done:
             code, status = _OK, "ok"
+            progress = tt.progress
         else:
             code, status = _OUTSIDE, "outside_canal"
+            progress = tt.progress
+            if tt.done:  # lost beyond the end is not the end reached
+                progress = tt.section_index / max(entry.canal.n_sections - 1, 1)
             done = False
             counts.errors["outside_canal"] += 1
             if not (math.isfinite(target[0]) and math.isfinite(target[-1])
@@ -686,11 +690,11 @@ class Bridge:
         velocity = tt.velocity
         if fmt == _FJSON:
             st.publisher.put(wire.pack_target_json(
-                pose.seq, status, target, tt.progress, eta, tt.section_index, inside, done,
+                pose.seq, status, target, progress, eta, tt.section_index, inside, done,
                 entry.version, orientation, velocity, st.coalesced), encoding=ENC_JSON)
         elif fmt == _FBIN:
             st.publisher.put(wire.pack_target(
-                pose.seq, code, target.tolist(), tt.progress, eta, tt.section_index, inside,
+                pose.seq, code, target.tolist(), progress, eta, tt.section_index, inside,
                 done, entry.version, orientation, velocity, st.coalesced), encoding=ENC_BINARY)
         else:
             position = target.tolist()
@@ -701,7 +705,7 @@ class Bridge:
             if status != st.cdr_status:
                 st.cdr_status = status
                 self.session.put(st.status_key, wire.target_json(wire.Target(
-                    pose.seq, status, tuple(position[:entry.dim]), tt.progress, eta,
+                    pose.seq, status, tuple(position[:entry.dim]), progress, eta,
                     tt.section_index, inside, done, entry.version, None,
                     None if orientation is None else tuple(orientation),
                     coalesced=st.coalesced)), encoding=ENC_JSON)
