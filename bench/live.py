@@ -596,7 +596,11 @@ def main(argv: list[str] | None = None) -> int:
         try:
             for k in [int(v) for v in args.processes.split(",") if v]:
                 serve_ep = f"tcp/127.0.0.1:{free_port()}"  # the last run's may linger
-                serve, _ = start_serve(data, serve_ep, processes=k)
+                try:
+                    serve, _ = start_serve(data, serve_ep, processes=k)
+                except RuntimeError as exc:
+                    print(f"  {k} bridge(s): {exc}", file=sys.stderr)
+                    continue
                 try:
                     e = drive(echo_ep, "echo", "json", 16, seconds, path)
                     b = drive(serve_ep, f"canal serve, {k} bridge(s)", "json", 16, seconds,

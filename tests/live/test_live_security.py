@@ -163,19 +163,25 @@ def test_coalesced_poses_are_counted_per_robot(tmp_path):
             original = bridge._batch
 
             def held(batch):
-                gate.wait(2.0)
+                gate.wait(5.0)
                 return original(batch)
 
             bridge._batch = held
             ps.send(x)  # this one is taken by the held worker
             time.sleep(0.1)
             seqs = [ps.send(x) for _ in range(30)]
-            time.sleep(0.2)
+            time.sleep(1.3)
+            # the worker is stuck with a queue behind it: the service says so
+            r = client.get("/healthz")
+            assert r.status_code == 503 and r.json()["status"] == "degraded"
+            assert r.json()["bridge"]["status"] == "behind"
             gate.set()
             answer = ps.wait_for(seqs[-1], 2.0)
             bridge._batch = original
         assert answer is not None and answer.seq == seqs[-1]
         assert answer.coalesced >= 20
+        time.sleep(1.5)  # idle again, and idle is not behind
+        assert client.get("/healthz").json()["bridge"]["status"] == "ok"
         bridge.flush_metrics()
         text = client.get("/metrics").text
         line = next(v for v in text.splitlines()

@@ -192,6 +192,7 @@ class Counts:
         "poses",
         "switches",
         "targets",
+        "waiting",
     )
 
     def __init__(self) -> None:
@@ -203,6 +204,7 @@ class Counts:
         self.batches: collections.deque[tuple[float, int]] = collections.deque(maxlen=100_000)
         self.busy_s = 0.0
         self.last_idle = time.monotonic()
+        self.waiting = True  # blocked on an empty queue
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
@@ -327,7 +329,9 @@ class Bridge:
 
     def behind(self) -> bool:
         """Whether the worker has not caught up with its queue for a while."""
-        return self.state == "ok" and time.monotonic() - self.counts.last_idle > _BEHIND_S
+        counts = self.counts
+        return (self.state == "ok" and not counts.waiting
+                and time.monotonic() - counts.last_idle > _BEHIND_S)
 
     def health(self) -> dict[str, Any]:
         """State for /healthz."""
@@ -511,10 +515,12 @@ class Bridge:
         counts = self.counts
         clock = time.perf_counter
         while True:
+            counts.waiting = True
             try:
                 sample = recv()
             except Exception:  # channel closed: shutting down
                 return
+            counts.waiting = False
             started = clock()
             batch = [sample]
             drained = False
