@@ -72,7 +72,7 @@ class BridgeProcesses:
         self._flushed: dict[int, dict[str, Any]] = {}
         self._stopping = False
 
-    def _argv(self, shard: int, shards: int, first_endpoint: str | None) -> list[str]:
+    def _argv(self, shard: int, shards: int) -> list[str]:
         s = self.settings
         argv = [sys.executable, "-m", "canal_service.bridge", "--supervised",
                 "--shard", f"{shard}/{shards}", "--data-dir", str(s.data_dir),
@@ -104,7 +104,7 @@ class BridgeProcesses:
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1",
                    RERUN_TELEMETRY_ENABLED="false")
         for shard in range(shards):
-            proc = subprocess.Popen(self._argv(shard, shards, first), stdin=subprocess.PIPE,
+            proc = subprocess.Popen(self._argv(shard, shards), stdin=subprocess.PIPE,
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                     env={**env, **self._env(shard, first)})
             child = _Child(shard, proc)
@@ -114,8 +114,13 @@ class BridgeProcesses:
             threading.Thread(target=self._read_err, args=(child,), daemon=True,
                              name=f"canal-bridge-{shard}-err").start()
             # one at a time: bridge 0 must listen before the others connect to it
-            if not child.ready.wait(_READY_TIMEOUT_S) or proc.poll() is not None:
-                time.sleep(0.2)  # let stderr arrive
+            # ready = its first status line came (EOF also wakes the wait, before the exit
+            # code may be known)
+            if not child.ready.wait(_READY_TIMEOUT_S) or not child.health:
+                try:
+                    proc.wait(2.0)  # let it exit and its stderr arrive
+                except subprocess.TimeoutExpired:
+                    pass
                 self.state = "down"
                 self.detail = (f"bridge process {shard} did not start (exit "
                                f"{proc.poll()}): " + " | ".join(child.stderr_tail[-3:]))
