@@ -505,26 +505,33 @@ def rss_kib(pid: int) -> int:
 
 
 def family(pid: int) -> list[int]:
-    """The process and its children (the bridge processes of canal serve)."""
-    out = [pid]
-    try:
-        for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split():
-            out += family(int(child))
-    except OSError:
-        pass
+    """The process and its descendants (the bridge processes of canal serve), by parent pid."""
+    parents: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+        except (OSError, IndexError, ValueError):
+            continue
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo += parents.get(p, [])
     return out
 
 
 def soak(data: Path, path: np.ndarray, minutes: float) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     serve, _ = start_serve(data, endpoint)
-    samples: list[tuple[float, int]] = []
+    samples: list[tuple[float, int, int]] = []
     stop_flag = threading.Event()
 
     def sample() -> None:
         t0 = time.monotonic()
         while not stop_flag.wait(10.0):
-            samples.append((time.monotonic() - t0, sum(rss_kib(p) for p in family(serve.pid))))
+            pids = family(serve.pid)
+            samples.append((time.monotonic() - t0, sum(rss_kib(p) for p in pids), len(pids)))
 
     threading.Thread(target=sample, daemon=True).start()
     try:
@@ -532,7 +539,7 @@ def soak(data: Path, path: np.ndarray, minutes: float) -> None:
     finally:
         stop_flag.set()
         stop(serve)
-    after_1 = [kib for t, kib in samples if t >= 60.0]
+    after_1 = [kib for t, kib, _ in samples if t >= 60.0]
     base = after_1[0] if after_1 else (samples[0][1] if samples else 0)
     peak = max(after_1) if after_1 else base
     growth = 100.0 * (peak - base) / base if base else float("nan")
@@ -540,8 +547,8 @@ def soak(data: Path, path: np.ndarray, minutes: float) -> None:
           f"{run.answered:.2f} % answered, p99 {run.pct(99):.0f} us; RSS (service + bridge) "
           f"{base / 1024:.0f} MiB after 1 min, peak {peak / 1024:.0f} MiB later: "
           f"{growth:+.1f} % ({'flat' if growth < 5 else 'GROWING'})")
-    for t, kib in samples:
-        print(f"  t={t:5.0f} s  RSS {kib / 1024:7.1f} MiB")
+    for t, kib, n in samples:
+        print(f"  t={t:5.0f} s  RSS {kib / 1024:7.1f} MiB ({n} processes)")
 
 
 # ---- main -------------------------------------------------------------------------------------
