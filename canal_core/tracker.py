@@ -63,6 +63,8 @@ class TrackerTarget:
         Whether the live position is inside the canal.
     done : bool
         Whether the live position has reached the last cross-section.
+    velocity : array, shape (D,), or None
+        Feed-forward velocity at the target, when the model knows one.
     orientation : array, shape (4,), or None
         Orientation to hold at the target, unit quaternion [qx, qy, qz, qw]: the mean
         orientation of the target's section when the canal learned orientation.
@@ -74,6 +76,7 @@ class TrackerTarget:
     section_index: int
     inside: bool
     done: bool
+    velocity: FloatArray | None = None
     orientation: FloatArray | None = None
 
 
@@ -246,10 +249,160 @@ def tracker_step(
     return (
         TrackerTarget(
             target, float(progress), float(eta), index, inside, done,
-            None if g.orientations is None else g.orientations[target_index],
+            orientation=None if g.orientations is None else g.orientations[target_index],
         ),
         TrackerState(max(last_index, index), plan_eta, plan_direction),
     )
+
+
+def tracker_steps(
+    geometry: TrackerGeometry,
+    states: list[TrackerState],
+    positions: FloatArray,
+    lookahead: int = 1,
+    replan_tolerance: float = REPLAN_TOLERANCE,
+) -> tuple[list[TrackerTarget], list[TrackerState]]:
+    """:func:`tracker_step` for many streams of one model in one vectorised pass.
+
+    Parameters
+    ----------
+    geometry : TrackerGeometry
+    states : list of TrackerState, length B
+        Each stream's state after its previous step.
+    positions : array, shape (B, D)
+        Live position of each stream.
+    lookahead, replan_tolerance
+        As :func:`tracker_step`.
+
+    Returns
+    -------
+    targets : list of TrackerTarget, length B
+    states : list of TrackerState, length B
+
+    Notes
+    -----
+    The answers equal B calls of :func:`tracker_step` (same sections, flags and plan; floats
+    up to the last bits of a reordered sum). A live bridge receives the poses of many robots
+    at once; one numpy pass costs about what one scalar step costs, so per-pose work drops
+    by the batch size. Rows the window search cannot place (pushed ahead, behind the
+    window), non-circular sections and canals of fewer than three sections take the scalar
+    path.
+    """
+    b = len(states)
+    g = geometry
+    n = g.centres.shape[0]
+    out_t: list[TrackerTarget | None] = [None] * b
+    out_s: list[TrackerState | None] = [None] * b
+    positions = np.asarray(positions, dtype=np.float64)
+    if b == 0:
+        return [], []
+    if g.sections.kind != "circle" or n < 3 or b == 1:
+        for i in range(b):
+            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+        return out_t, out_s  # type: ignore[return-value]
+    last_index = np.fromiter((s.index for s in states), dtype=np.intp, count=b)
+    # every plane's signed distance for every robot in one product, (B, N): cheaper than
+    # gathering B windows of tangents, and it holds d0, d1 and the last plane too
+    dist_all = positions @ g.tangents.T - g.offsets
+    lo = np.maximum(last_index - 1, 0)
+    hi = np.minimum(last_index + WINDOW, n - 1)
+    cols = lo[:, None] + _WINDOW_COLUMNS
+    valid = cols <= hi[:, None]
+    np.minimum(cols, n - 1, out=cols)
+    dist = np.take_along_axis(dist_all, cols, axis=1)
+    above = dist > 0.0
+    change = ((dist[:, :-1] == 0.0) | (above[:, :-1] != above[:, 1:])) & valid[:, 1:]
+    found = change.any(axis=1)
+    index = np.minimum(lo + change.argmax(axis=1), n - 2)
+    if found.all():
+        rows = np.arange(b)
+    else:
+        rows = np.flatnonzero(found)
+        for i in np.flatnonzero(~found).tolist():
+            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+        index = index[rows]
+        last_index = last_index[rows]
+    if rows.size:
+        _steps_found(g, states, positions[rows], dist_all[rows], rows, index, last_index,
+                     lookahead, replan_tolerance, out_t, out_s)
+    return out_t, out_s  # type: ignore[return-value]
+
+
+_WINDOW_COLUMNS = np.arange(WINDOW + 2)[None, :]
+
+
+def _steps_found(
+    g: TrackerGeometry,
+    states: list[TrackerState],
+    p: FloatArray,
+    dist_all: FloatArray,
+    rows: np.ndarray,
+    index: np.ndarray,
+    last_index: np.ndarray,
+    lookahead: int,
+    replan_tolerance: float,
+    out_t: list[TrackerTarget | None],
+    out_s: list[TrackerState | None],
+) -> None:
+    """The vectorised rest of :func:`tracker_step` for circle sections, rows located in
+    their window (``index`` in [0, n - 2]); ``p`` and ``dist_all`` are those rows'."""
+    n = g.centres.shape[0]
+    b = index.shape[0]
+    upper = index + 1
+    target_index = np.minimum(index + max(lookahead, 1), n - 1)
+    ar = np.arange(b)
+    d0 = dist_all[ar, index]
+    d1 = dist_all[ar, upper]
+    pair = np.stack([index, upper])  # (2, B)
+    # in-plane coordinates at both planes of the pair: basis_i (x - c_i), shape (2, B, K)
+    q01 = (g.basis[pair] * (p[None, :, None, :] - g.centres[pair][:, :, None, :])).sum(axis=-1)
+    radius = g.sections.params["radius"][np.stack([index, upper, target_index])]  # (3, B)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        alpha = np.where(d0 != d1, np.clip(d0 / (d0 - d1), 0.0, 1.0), 0.0)
+        a1 = alpha[:, None]
+        q = (1.0 - a1) * q01[0] + a1 * q01[1]
+        norm = np.sqrt((q * q).sum(axis=1))
+        default = _DEFAULT_DIRECTIONS[q.shape[1]]
+        direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default)
+        reach = (1.0 - alpha) * radius[0] + alpha * radius[1]
+        eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
+    plan_eta = np.minimum(eta, MAX_PLAN_ETA)
+    plan_dir = direction
+    kept_states = [states[r] for r in rows.tolist()]
+    olds = [(st.eta, st.direction) for st in kept_states
+            if st.eta is not None and st.direction is not None]
+    if olds:
+        if len(olds) == b:
+            old_eta = np.array([o[0] for o in olds])
+            old_dir = np.array([o[1] for o in olds])
+            planned = np.ones(b, dtype=bool)
+        else:
+            planned = np.array([st.eta is not None and st.direction is not None
+                                for st in kept_states])
+            old_eta = np.array([st.eta if ok else 0.0 for st, ok in zip(kept_states, planned, strict=True)])
+            old_dir = np.array([st.direction if ok else default
+                                for st, ok in zip(kept_states, planned, strict=True)])
+        # circle sections: the reference reach equals the live one
+        gap = q - (old_eta * reach)[:, None] * old_dir
+        with np.errstate(invalid="ignore", over="ignore"):
+            keep = planned & (np.sqrt((gap * gap).sum(axis=1)) <= replan_tolerance * reach)
+        plan_eta = np.where(keep, old_eta, plan_eta)
+        plan_dir = np.where(keep[:, None], old_dir, direction)
+    inside = (eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0)) & ~((index == n - 2) & (d1 > 0.0))
+    with np.errstate(invalid="ignore", over="ignore"):
+        target = g.centres[target_index] + ((plan_eta * radius[2])[:, None, None] * plan_dir[:, :, None]
+                                            * g.basis[target_index]).sum(axis=1)
+    done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
+    progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
+    new_index = np.maximum(last_index, index)
+    orientations = None if g.orientations is None else g.orientations[target_index]
+    for k, (r, tgt, prog, et, ix, ins, dn, ni, pe, pd) in enumerate(zip(
+            rows.tolist(), target, progress.tolist(), eta.tolist(), index.tolist(),
+            inside.tolist(), done.tolist(), new_index.tolist(), plan_eta.tolist(), plan_dir,
+            strict=True)):
+        out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn,
+                                 orientation=None if orientations is None else orientations[k])
+        out_s[r] = TrackerState(ni, pe, pd)
 
 
 def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:
@@ -294,3 +447,27 @@ class Tracker:
     def reset(self, index: int = 0) -> None:
         """Start over from section ``index`` with no plan (a new run, or a new model version)."""
         self.state = TrackerState(index)
+
+
+def step_trackers(trackers: list[Tracker], positions: FloatArray) -> list[TrackerTarget]:
+    """Step several :class:`Tracker` objects of one geometry at once (see :func:`tracker_steps`).
+
+    Parameters
+    ----------
+    trackers : list of Tracker, length B
+        Trackers sharing one geometry, lookahead and replan tolerance.
+    positions : array, shape (B, D)
+        Live position of each tracker's stream.
+
+    Returns
+    -------
+    list of TrackerTarget, length B
+    """
+    if not trackers:
+        return []
+    first = trackers[0]
+    targets, states = tracker_steps(first.geometry, [t.state for t in trackers], positions,
+                                    first.lookahead, first.replan_tolerance)
+    for tracker, state in zip(trackers, states, strict=True):
+        tracker.state = state
+    return targets

@@ -118,6 +118,7 @@ class PoseStreamer:
         self._latest: wire.Target | None = None
         self._answers: dict[int, wire.Target] = {}
         self._seq = 0
+        self._raw = False  # after send_raw, answers to seqs we did not number are ours too
         self._closed = False
         self._thread: threading.Thread | None = None
         try:
@@ -153,7 +154,9 @@ class PoseStreamer:
         return seq
 
     def send_raw(self, payload: bytes, *, json: bool = False) -> None:
-        """Publish bytes as they are (for tests of malformed input)."""
+        """Publish bytes as they are (for tests of malformed input). From then on, answers
+        to any seq are accepted (the streamer no longer knows which seqs it sent)."""
+        self._raw = True
         self._pub.put(payload, encoding=_ENC_JSON if json else _ENC_BINARY)
 
     @property
@@ -192,6 +195,11 @@ class PoseStreamer:
             try:
                 answer = wire.decode_any_target(str(sample.encoding), sample.payload.to_bytes())
             except wire.WireError:
+                continue
+            # Only answers to a seq this streamer has sent count: a stranger's high-seq pose
+            # on our key (possible only on an open Zenoh network; see docs/live.md) must not
+            # become "the latest" and shadow the real answers.
+            if answer.seq is not None and answer.seq >= self._seq and not self._raw:
                 continue
             with self._cond:
                 self._latest = answer

@@ -43,6 +43,18 @@ index (-1 none), float64 progress in [0, 1], float64 eta (NaN when none), uint16
 code; then ``D x float64`` target position; then, if flag 0x08, ``uint16`` length and that
 many bytes of UTF-8 message. Target flags: 0x01 inside, 0x02 done, 0x04 seq is known (not
 set when the pose could not be read), 0x08 has message. A 3-D target is 62 bytes.
+Optional extras follow, each present when its flag is set, in this order: 0x10 ``4 x
+float64`` target orientation (x, y, z, w); 0x20 ``D x float64`` feed-forward velocity;
+0x40 ``uint32`` poses of this stream coalesced so far. They sit after everything an older
+reader looks at, so clients written before them keep working (they ignore the tail).
+
+ROS 2 (CDR): a sample whose Zenoh encoding is ``application/cdr`` or whose first two bytes
+are a CDR encapsulation header (``00 01`` little-endian, ``00 00`` big-endian; a binary
+pose starts with ``01``) is read as a ``geometry_msgs/msg/PoseStamped``. The answer on
+``.../target`` is a ``PoseStamped`` with the pose's stamp and frame_id, the target position
+and orientation; statuses that PoseStamped cannot carry go to ``{prefix}/{skill}/{robot}/status``
+as a JSON target (errors always, ``outside_canal``/``ok`` when the status changes). A CDR
+pose has no seq: the bridge numbers each stream's CDR poses itself.
 
 JSON pose::
 
@@ -52,7 +64,12 @@ JSON pose::
 JSON target::
 
     {"v": 1, "seq": 17, "status": "ok", "target": [x, y, z], "progress": 0.41, "eta": 0.3,
-     "section": 82, "inside": true, "done": false, "model_version": 3, "message": null}
+     "section": 82, "inside": true, "done": false, "model_version": 3, "message": null,
+     "orientation": [qx, qy, qz, qw] | null, "coalesced": 0, "velocity": [vx, vy, vz]?}
+
+``orientation`` is the model's orientation at the target when it learned one, else the
+pose's own (null when the pose had none); ``velocity`` is there only when the model gives
+one; ``coalesced`` counts this stream's poses skipped under overload so far (latest wins).
 
 ``seq`` is null when the pose could not be read; ``target``, ``eta``, ``section`` and
 ``model_version`` are null when there is none. JSON has no NaN: a JSON pose with NaN is
@@ -97,12 +114,17 @@ TARGET_INSIDE = 0x01
 TARGET_DONE = 0x02
 TARGET_SEQ = 0x04
 TARGET_MESSAGE = 0x08
+TARGET_ORIENTATION = 0x10
+TARGET_VELOCITY = 0x20
+TARGET_COALESCED = 0x40
 
 SEQ_MAX = 2**64 - 1
 
 HEADER = struct.Struct("<BBBBQ")
 TARGET_BODY = struct.Struct("<iiddH")
 _U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_QUAT = struct.Struct("<4d")
 
 STATUS_CODES: dict[str, int] = {
     "ok": 0,
@@ -119,6 +141,11 @@ USABLE = frozenset({"ok", "outside_canal"})
 
 JSON_ENCODING = "application/json"
 BINARY_ENCODING = "application/octet-stream"
+CDR_ENCODING = "application/cdr"
+
+FORMAT_JSON = 0
+FORMAT_BINARY = 1
+FORMAT_CDR = 2
 
 
 class WireError(ValueError):
@@ -142,6 +169,31 @@ def check_chunk(name: str, what: str) -> str:
     return name
 
 
+def is_plain_chunk(name: str) -> bool:
+    """Whether ``name`` is one literal key chunk (no wildcard, DSL or verbatim marker)."""
+    if not name or name[0] == "@":
+        return False
+    for c in name:
+        if c in _BAD_CHUNK:
+            return False
+    return True
+
+
+def stream_of(key: str, prefix: str = "canal", leaf: str = "pose") -> tuple[str, str] | None:
+    """``(skill, robot)`` of ``{prefix}/{skill}/{robot}/{leaf}`` when both are plain chunks,
+    else None (a wildcard put such as ``canal/pour/*/pose`` is not anyone's stream)."""
+    head = prefix.rstrip("/") + "/"
+    if not key.startswith(head):
+        return None
+    parts = key[len(head):].split("/")
+    if len(parts) != 3 or parts[2] != leaf:
+        return None
+    skill, robot = parts[0], parts[1]
+    if not is_plain_chunk(skill) or not is_plain_chunk(robot):
+        return None
+    return skill, robot
+
+
 @dataclass(frozen=True)
 class Keys:
     """Key expressions of one (skill, robot) stream."""
@@ -157,6 +209,10 @@ class Keys:
     @property
     def target(self) -> str:
         return f"{self.prefix}/{self.skill}/{self.robot}/target"
+
+    @property
+    def status(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}/status"
 
     @property
     def model(self) -> str:
@@ -214,6 +270,9 @@ class Target:
     done: bool = False
     model_version: int | None = None
     message: str | None = None
+    orientation: tuple[float, float, float, float] | None = None
+    velocity: tuple[float, ...] | None = None
+    coalesced: int = 0
 
     @property
     def usable(self) -> bool:
@@ -317,6 +376,7 @@ def encode_target(answer: Target) -> bytes:
     message = answer.message.encode("utf-8")[:65535] if answer.message else b""
     if message:
         flags |= TARGET_MESSAGE
+    flags |= _extra_flags(answer.orientation, answer.velocity, answer.coalesced)
     data = _target_struct(dim).pack(
         VERSION, KIND_TARGET, flags, dim, 0 if answer.seq is None else answer.seq,
         -1 if answer.model_version is None else answer.model_version,
@@ -324,16 +384,41 @@ def encode_target(answer: Target) -> bytes:
         math.nan if answer.eta is None else answer.eta, STATUS_CODES[answer.status], *position)
     if message:
         data += _U16.pack(len(message)) + message
-    return data
+    return data + _extras(flags, answer.orientation, answer.velocity, answer.coalesced)
+
+
+def _extra_flags(orientation: Any, velocity: Any, coalesced: int) -> int:
+    return ((TARGET_ORIENTATION if orientation is not None else 0)
+            | (TARGET_VELOCITY if velocity is not None else 0)
+            | (TARGET_COALESCED if coalesced else 0))
+
+
+def _extras(flags: int, orientation: Any, velocity: Any, coalesced: int) -> bytes:
+    """The optional tail of a target (flags 0x10, 0x20, 0x40), after the message."""
+    if not flags & (TARGET_ORIENTATION | TARGET_VELOCITY | TARGET_COALESCED):
+        return b""
+    tail = b""
+    if flags & TARGET_ORIENTATION:
+        tail += _QUAT.pack(*orientation)
+    if flags & TARGET_VELOCITY:
+        tail += struct.pack(f"<{len(velocity)}d", *velocity)
+    if flags & TARGET_COALESCED:
+        tail += _U32.pack(min(int(coalesced), 0xFFFFFFFF))
+    return tail
 
 
 def pack_target(seq: int, status: int, target: Any, progress: float, eta: float, section: int,
-                inside: bool, done: bool, model_version: int) -> bytes:
+                inside: bool, done: bool, model_version: int, orientation: Any = None,
+                velocity: Any = None, coalesced: int = 0) -> bytes:
     """Fast path for the bridge: a usable target, no message, ``target`` a (D,) sequence."""
     flags = TARGET_SEQ | (TARGET_INSIDE if inside else 0) | (TARGET_DONE if done else 0)
+    flags |= _extra_flags(orientation, velocity, coalesced)
     dim = len(target)
-    return _target_struct(dim).pack(VERSION, KIND_TARGET, flags, dim, seq, model_version,
+    data = _target_struct(dim).pack(VERSION, KIND_TARGET, flags, dim, seq, model_version,
                                     section, progress, eta, status, *target)
+    if flags & 0x70:
+        data += _extras(flags, orientation, velocity, coalesced)
+    return data
 
 
 def decode_target(data: bytes) -> Target:
@@ -345,9 +430,25 @@ def decode_target(data: bytes) -> Target:
     values = s.unpack_from(data)
     version, section, progress, eta, code = values[5:10]
     message = None
+    at = s.size
     if flags & TARGET_MESSAGE:
-        (n,) = _U16.unpack_from(data, s.size)
-        message = bytes(data[s.size + 2 : s.size + 2 + n]).decode("utf-8", "replace")
+        (n,) = _U16.unpack_from(data, at)
+        message = bytes(data[at + 2 : at + 2 + n]).decode("utf-8", "replace")
+        at += 2 + n
+    orientation = velocity = None
+    coalesced = 0
+    try:
+        if flags & TARGET_ORIENTATION:
+            orientation = _QUAT.unpack_from(data, at)
+            at += _QUAT.size
+        if flags & TARGET_VELOCITY:
+            velocity = struct.unpack_from(f"<{dim}d", data, at)
+            at += 8 * dim
+        if flags & TARGET_COALESCED:
+            (coalesced,) = _U32.unpack_from(data, at)
+    except struct.error:
+        raise WireError("bad_payload", "expected the target's optional fields, got fewer bytes"
+                        ) from None
     return Target(
         seq=seq if flags & TARGET_SEQ else None,
         status=STATUS_KEYS.get(code, f"code_{code}"),
@@ -359,6 +460,9 @@ def decode_target(data: bytes) -> Target:
         done=bool(flags & TARGET_DONE),
         model_version=None if version < 0 else version,
         message=message,
+        orientation=orientation,  # type: ignore[arg-type]
+        velocity=velocity,
+        coalesced=coalesced,
     )
 
 
@@ -418,23 +522,36 @@ def decode_pose_json(data: bytes) -> Pose:
 
 def target_json(answer: Target) -> bytes:
     """A target as JSON."""
-    return orjson.dumps({
+    body: dict[str, Any] = {
         "v": VERSION, "seq": answer.seq, "status": answer.status,
         "target": None if answer.target is None else list(answer.target),
         "progress": answer.progress, "eta": answer.eta, "section": answer.section,
         "inside": answer.inside, "done": answer.done, "model_version": answer.model_version,
         "message": answer.message,
-    })
+        "orientation": None if answer.orientation is None else list(answer.orientation),
+        "coalesced": answer.coalesced,
+    }
+    if answer.velocity is not None:
+        body["velocity"] = list(answer.velocity)
+    return orjson.dumps(body)
+
+
+_NUMPY = orjson.OPT_SERIALIZE_NUMPY
 
 
 def pack_target_json(seq: int, status: str, target: Any, progress: float, eta: float,
-                     section: int, inside: bool, done: bool, model_version: int) -> bytes:
-    """Fast path for the bridge (see :func:`pack_target`)."""
-    return orjson.dumps({
+                     section: int, inside: bool, done: bool, model_version: int,
+                     orientation: Any = None, velocity: Any = None, coalesced: int = 0) -> bytes:
+    """Fast path for the bridge (see :func:`pack_target`); numpy arrays are fine."""
+    body = {
         "v": VERSION, "seq": seq, "status": status, "target": target, "progress": progress,
         "eta": eta, "section": section, "inside": inside, "done": done,
-        "model_version": model_version, "message": None,
-    }, option=orjson.OPT_SERIALIZE_NUMPY)
+        "model_version": model_version, "message": None, "orientation": orientation,
+        "coalesced": coalesced,
+    }
+    if velocity is not None:
+        body["velocity"] = velocity
+    return orjson.dumps(body, option=_NUMPY)
 
 
 def decode_target_json(data: bytes) -> Target:
@@ -446,6 +563,8 @@ def decode_target_json(data: bytes) -> Target:
     if not isinstance(body, dict) or "status" not in body:
         raise WireError("bad_payload", "expected a JSON target object")
     target = body.get("target")
+    orientation = body.get("orientation")
+    velocity = body.get("velocity")
     return Target(
         seq=body.get("seq"), status=str(body["status"]),
         target=None if target is None else tuple(float(v) for v in target),
@@ -453,7 +572,78 @@ def decode_target_json(data: bytes) -> Target:
         section=body.get("section"), inside=bool(body.get("inside")),
         done=bool(body.get("done")), model_version=body.get("model_version"),
         message=body.get("message"),
+        orientation=None if orientation is None else tuple(float(v) for v in orientation),  # type: ignore[arg-type]
+        velocity=None if velocity is None else tuple(float(v) for v in velocity),
+        coalesced=int(body.get("coalesced") or 0),
     )
+
+
+# ---- ROS 2 CDR: geometry_msgs/msg/PoseStamped ---------------------------------------------------
+
+_CDR_HEAD = {0x00: ">", 0x01: "<"}  # encapsulation id (second byte): CDR_BE, CDR_LE
+_CDR_MAX_FRAME = 4096
+
+
+@dataclass(frozen=True, slots=True)
+class RosStamp:
+    """What a CDR PoseStamped's answer carries over: header stamp, frame_id, byte order."""
+
+    sec: int
+    nanosec: int
+    frame_id: str
+    little: bool = True
+
+
+def is_cdr(encoding: str, data: bytes) -> bool:
+    """Whether a payload is CDR: the Zenoh encoding says so, or (default or octet-stream
+    encoding) it starts with a CDR encapsulation header, which no binary pose does."""
+    if encoding.startswith(CDR_ENCODING):
+        return True
+    return (len(data) >= 4 and data[0] == 0 and data[1] in _CDR_HEAD
+            and encoding.startswith(("zenoh/bytes", BINARY_ENCODING)))
+
+
+def decode_pose_cdr(data: bytes, seq: int = 0) -> tuple[Pose, RosStamp]:
+    """A CDR ``geometry_msgs/msg/PoseStamped`` as a pose (3-D position, orientation, the
+    stamp as ``t``) and its header; WireError (bad_payload, non_finite) when it is not one."""
+    if len(data) < 4 or data[0] != 0 or data[1] not in _CDR_HEAD:
+        raise WireError("bad_payload", "expected a CDR encapsulation header (00 01 or 00 00), "
+                        f"got {bytes(data[:2]).hex(' ') or 'nothing'}")
+    order = _CDR_HEAD[data[1]]
+    body = memoryview(data)[4:]
+    try:
+        sec, nanosec, n = struct.unpack_from(order + "iII", body, 0)
+        if n == 0 or n > _CDR_MAX_FRAME:
+            raise WireError("bad_payload", f"expected a frame_id of 1..{_CDR_MAX_FRAME} bytes "
+                            f"with its NUL, got length {n}")
+        end = 12 + n
+        frame_id = bytes(body[12 : end - 1]).decode("utf-8")
+        at = (end + 7) & ~7
+        values = struct.unpack_from(order + "7d", body, at)
+    except (struct.error, UnicodeDecodeError):
+        raise WireError("bad_payload", "expected a geometry_msgs/msg/PoseStamped in CDR, "
+                        f"got {len(data)} bytes that are not one") from None
+    if len(body) - (at + 56) > 7:
+        raise WireError("bad_payload", "expected a geometry_msgs/msg/PoseStamped in CDR, "
+                        f"got {len(body) - (at + 56)} bytes too many")
+    if not _all_finite(values):
+        raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
+    pose = Pose(seq, values[:3], values[3:], sec + nanosec * 1e-9)  # type: ignore[arg-type]
+    return pose, RosStamp(sec, nanosec, frame_id, order == "<")
+
+
+def encode_pose_stamped_cdr(stamp: RosStamp, position: Any, orientation: Any) -> bytes:
+    """A CDR ``geometry_msgs/msg/PoseStamped`` (the bridge's answer on ``.../target``)."""
+    order = "<" if stamp.little else ">"
+    frame = stamp.frame_id.encode("utf-8") + b"\x00"
+    end = 12 + len(frame)
+    pad = ((end + 7) & ~7) - end
+    x, y, z = (float(v) for v in position) if len(position) == 3 else (
+        float(position[0]), float(position[1]), 0.0)
+    qx, qy, qz, qw = orientation if orientation is not None else (0.0, 0.0, 0.0, 1.0)
+    return (bytes((0, 1 if stamp.little else 0, 0, 0))
+            + struct.pack(order + "iII", stamp.sec, stamp.nanosec, len(frame)) + frame
+            + b"\x00" * pad + struct.pack(order + "7d", x, y, z, qx, qy, qz, qw))
 
 
 # ---- either -------------------------------------------------------------------------------------
@@ -477,9 +667,39 @@ def decode_any_pose(encoding: str, data: bytes) -> Pose:
 
 
 __all__ = [
-    "BINARY_ENCODING", "JSON_ENCODING", "STATUS_CODES", "STATUS_KEYS", "VERSION", "Keys",
-    "Pose", "Target", "WireError", "decode_any_pose", "decode_any_target", "decode_pose",
-    "decode_pose_json", "decode_target", "decode_target_json", "encode_pose",
-    "encode_pose_json", "encode_target", "is_json", "keys", "model_key", "pack_target",
-    "pack_target_json", "pose_wildcard", "target_json",
+    "BINARY_ENCODING",
+    "CDR_ENCODING",
+    "FORMAT_BINARY",
+    "FORMAT_CDR",
+    "FORMAT_JSON",
+    "JSON_ENCODING",
+    "STATUS_CODES",
+    "STATUS_KEYS",
+    "VERSION",
+    "Keys",
+    "Pose",
+    "RosStamp",
+    "Target",
+    "WireError",
+    "decode_any_pose",
+    "decode_any_target",
+    "decode_pose",
+    "decode_pose_cdr",
+    "decode_pose_json",
+    "decode_target",
+    "decode_target_json",
+    "encode_pose",
+    "encode_pose_json",
+    "encode_pose_stamped_cdr",
+    "encode_target",
+    "is_cdr",
+    "is_json",
+    "is_plain_chunk",
+    "keys",
+    "model_key",
+    "pack_target",
+    "pack_target_json",
+    "pose_wildcard",
+    "stream_of",
+    "target_json",
 ]

@@ -67,6 +67,9 @@ def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
                    help="connect endpoint, e.g. a zenohd router; repeatable (CANAL_ZENOH_CONNECT)")
     g.add_argument("--zenoh-prefix", help="key expression prefix (CANAL_ZENOH_PREFIX, default canal)")
+    g.add_argument("--zenoh-processes", type=int, metavar="N",
+                   help="bridge processes to start, sharing the robots (CANAL_ZENOH_PROCESSES, "
+                        "default 1; 0 = inside the service process)")
     g.add_argument("--no-zenoh", action="store_true",
                    help="do not run the live bridge (CANAL_ZENOH_ENABLED=false)")
 

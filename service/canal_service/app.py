@@ -53,12 +53,14 @@ def make_recorder(settings: Settings) -> RecorderLike | None:
 
 
 def make_bridge(settings: Settings, service: CanalService) -> Any | None:
-    """The live Zenoh bridge (not started yet), or None when disabled."""
+    """The live Zenoh bridge (not started yet), or None when disabled: bridge processes of
+    their own (``zenoh_processes``, default 1), or a bridge in this process when 0."""
     if not settings.zenoh_enabled:
         return None
-    from .bridge import Bridge, BridgeOptions
+    from .bridge import Bridge, BridgeOptions, BridgeProcesses
 
-    bridge = Bridge(service, BridgeOptions.from_settings(settings))
+    bridge: Any = (BridgeProcesses(settings, service) if settings.zenoh_processes > 0
+                   else Bridge(service, BridgeOptions.from_settings(settings)))
     service.bridge_health = bridge.health
     return bridge
 

@@ -444,8 +444,10 @@ class CanalService:
                 bridge = dict(self.bridge_health())
             except Exception as exc:
                 bridge = {"status": "down", "detail": f"health() failed: {exc}"}
-            # A bridge that is down does not make the REST API unhealthy (it still serves);
-            # watch bridge.status or canal_live_bridge_up for the live path.
+            # The REST API still serves without the live path, but the service is not whole:
+            # a bridge that is down or behind its queue makes the service "degraded".
+            if bridge.get("status") in ("down", "behind"):
+                status = "degraded"
         from . import __version__
 
         return schemas.HealthOut(status=status, database=database,  # type: ignore[arg-type]

@@ -30,8 +30,10 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Live]:
     data: Path = tmp_path_factory.mktemp("live")
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
+    # The bridge in this process (zenoh_processes=0) so tests can look inside it;
+    # test_live_processes.py covers the default, bridge processes of their own.
     settings = Settings(data_dir=data, recordings_enabled=True, zenoh_listen=[endpoint],
-                        zenoh_refresh_s=0.2)
+                        zenoh_refresh_s=0.2, zenoh_processes=0)
     with TestClient(create_app(settings)) as client:
         make_skill(client, "arc3", 3)
         make_skill(client, "arc2", 2)

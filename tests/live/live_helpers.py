@@ -35,7 +35,11 @@ def make_skill(client: TestClient, name: str, dim: int = 3, fit: bool = True,
 
 
 def metric(client: TestClient, name: str, labels: str = "") -> float:
-    """One sample of /metrics (0 when absent)."""
+    """One sample of /metrics (0 when absent), after the in-process bridge has handed its
+    counts over (its metrics thread does that every 0.25 s)."""
+    bridge = getattr(client.app.state, "bridge", None)  # type: ignore[attr-defined]
+    if bridge is not None and hasattr(bridge, "flush_metrics"):
+        bridge.flush_metrics()
     wanted = f"{name}{{{labels}}}" if labels else name
     for line in client.get("/metrics").text.splitlines():
         if line.startswith(wanted + " "):

@@ -90,7 +90,7 @@ def test_answers_use_the_pose_encoding(live):
     doc = orjson.loads(body)
     assert doc["status"] == "bad_payload" and doc["target"] is None and doc["v"] == 1
     assert set(doc) == {"v", "seq", "status", "target", "progress", "eta", "section", "inside",
-                        "done", "model_version", "message"}
+                        "done", "model_version", "message", "orientation", "coalesced"}
     assert zenoh  # the raw subscriber above is a plain Zenoh session
 
 

@@ -3,5 +3,6 @@
 from __future__ import annotations
 
 from .bridge import Bridge, BridgeOptions, zenoh_config
+from .processes import BridgeProcesses
 
-__all__ = ["Bridge", "BridgeOptions", "zenoh_config"]
+__all__ = ["Bridge", "BridgeOptions", "BridgeProcesses", "zenoh_config"]

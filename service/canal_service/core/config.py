@@ -80,6 +80,10 @@ class Settings(BaseSettings):
     zenoh_refresh_s: float = Field(
         2.0, gt=0, description="How often the bridge re-checks each skill's latest model version."
     )
+    zenoh_processes: int = Field(
+        1, ge=0, le=64, description="Bridge processes `canal serve` starts (robots shared by "
+        "hash of skill/robot); 0 runs the bridge inside the service process."
+    )
     zenoh_lookahead: int = Field(
         2, ge=1, description="Tracker lookahead in sections (2: the target lies beyond the next "
         "section plane, so a robot that lags behind its target still crosses it)."

@@ -1,0 +1,175 @@
+"""The shipped secure deployment (docker/zenoh/*-secure.json5): TLS, user/password, ACL with
+default deny, enforced by a real Zenoh router; the service's bridge process behind it."""
+
+from __future__ import annotations
+
+import datetime
+import ipaddress
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient
+
+from canal_client.live import PoseStreamer
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from canal_testing import free_port
+from live_helpers import make_skill
+
+x509 = pytest.importorskip("cryptography.x509")
+from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
+from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
+from cryptography.x509.oid import NameOID  # noqa: E402
+
+pytestmark = pytest.mark.timeout(90)
+
+SECURE = Path(__file__).resolve().parents[2] / "docker" / "zenoh"
+PASSWORDS = {"canal-service": "svc-secret", "arm1": "arm1-secret", "arm2": "arm2-secret"}
+
+
+def _certificates(folder: Path) -> None:
+    """A throw-away CA and a certificate for localhost / 127.0.0.1 signed by it."""
+    now = datetime.datetime.now(datetime.UTC)
+
+    def name(cn):
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+
+    def build(subject, issuer, key, signer, extensions):
+        b = (x509.CertificateBuilder().subject_name(subject).issuer_name(issuer)
+             .public_key(key.public_key()).serial_number(x509.random_serial_number())
+             .not_valid_before(now - datetime.timedelta(minutes=5))
+             .not_valid_after(now + datetime.timedelta(days=1)))
+        for ext, critical in extensions:
+            b = b.add_extension(ext, critical=critical)
+        return b.sign(signer, hashes.SHA256())
+
+    ca_key, key = ec.generate_private_key(ec.SECP256R1()), ec.generate_private_key(ec.SECP256R1())
+    ca = build(name("canal-test-ca"), name("canal-test-ca"), ca_key, ca_key,
+               [(x509.BasicConstraints(ca=True, path_length=None), True)])
+    cert = build(name("localhost"), ca.subject, key, ca_key, [
+        (x509.SubjectAlternativeName([x509.DNSName("localhost"),
+                                      x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), False),
+        (x509.BasicConstraints(ca=False, path_length=None), True)])
+    (folder / "ca.pem").write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    (folder / "router.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    (folder / "router.key").write_bytes(key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption()))
+
+
+def _quote(value) -> str:
+    import json
+
+    return json.dumps(value)
+
+
+def _client_file(tmp: Path, shipped: str, endpoint: str, user: str | None,
+                 password: str | None) -> Path:
+    """A shipped client config with only the router address, CA path and password changed."""
+    config = zenoh.Config.from_file(str(SECURE / shipped))
+    config.insert_json5("connect/endpoints", _quote([endpoint]))
+    config.insert_json5("transport/link/tls/root_ca_certificate", _quote(str(tmp / "ca.pem")))
+    if user is None:
+        config.insert_json5("transport/auth/usrpwd", "{}")
+    else:
+        config.insert_json5("transport/auth/usrpwd/user", _quote(user))
+        config.insert_json5("transport/auth/usrpwd/password", _quote(password))
+    path = tmp / f"{shipped}-{user}-{password}.json"
+    path.write_text(str(config))
+    return path
+
+
+@pytest.fixture(scope="module")
+def secure(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("secure")
+    _certificates(tmp)
+    (tmp / "users.txt").write_text("".join(f"{u}:{p}\n" for u, p in PASSWORDS.items()))
+    port = free_port()
+    config = zenoh.Config.from_file(str(SECURE / "router-secure.json5"))
+    config.insert_json5("listen/endpoints", _quote([f"tls/127.0.0.1:{port}"]))
+    for key, file in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
+                      ("listen_private_key", "router.key")):
+        config.insert_json5(f"transport/link/tls/{key}", _quote(str(tmp / file)))
+    config.insert_json5("transport/auth/usrpwd/dictionary_file", _quote(str(tmp / "users.txt")))
+    endpoint = f"tls/localhost:{port}"
+    with zenoh.open(config):
+        service_conf = _client_file(tmp, "canal-secure.json5", endpoint, "canal-service",
+                                    PASSWORDS["canal-service"])
+        settings = Settings(data_dir=tmp, recordings_enabled=False, zenoh_config=service_conf)
+        with TestClient(create_app(settings)) as client:
+            make_skill(client, "s", 3)
+            yield tmp, endpoint, client
+
+
+def _robot(secure, user, password=None) -> Path:
+    tmp, endpoint, _ = secure
+    return _client_file(tmp, "robot-secure.json5", endpoint, user,
+                        PASSWORDS.get(user, "") if password is None else password)
+
+
+def test_health_says_the_live_path_is_authenticated(secure):
+    health = secure[2].get("/healthz").json()["bridge"]
+    assert health["status"] == "ok"
+    assert health["access"] == "authenticated" and health["tls"] is True
+
+
+def test_robot_streams_over_tls_with_its_password(secure):
+    directrix = np.array(secure[2].get("/skills/s/models/latest").json()["directrix"])
+    with PoseStreamer("s", "arm1", zenoh_config=_robot(secure, "arm1")) as ps:
+        for k in range(10):
+            answer = ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 2.0)
+            assert answer is not None and answer.status == "ok"
+
+
+@pytest.mark.parametrize("user,password", [(None, None), ("arm1", "wrong"),
+                                           ("stranger", "whatever")])
+def test_unauthenticated_peers_are_refused(secure, user, password):
+    path = _robot(secure, user, password)
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(zenoh.Config.from_file(str(path)))
+
+
+def test_a_robot_cannot_read_or_write_another_robots_stream(secure):
+    directrix = np.array(secure[2].get("/skills/s/models/latest").json()["directrix"])
+    seen: list[str] = []
+    lock = threading.Lock()
+
+    def spy(sample):
+        with lock:
+            seen.append(str(sample.key_expr))
+
+    arm1 = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "arm1"))))
+    try:
+        arm1.declare_subscriber("canal/s/arm2/target", spy)
+        arm1.declare_subscriber("canal/**", spy)
+        with PoseStreamer("s", "arm2", zenoh_config=_robot(secure, "arm2")) as arm2:
+            time.sleep(0.3)
+            for k in range(10):
+                answer = arm2.wait_for(arm2.send(directrix[10 + k], restart=k == 0), 2.0)
+                assert answer is not None and answer.status == "ok"
+            n = len(arm2._answers)
+            # arm1 puts on arm2's pose key: the router drops it, arm2 gets no extra answer
+            from canal_client import wire
+
+            arm1.put("canal/s/arm2/pose", wire.encode_pose(10**9, directrix[40]))
+            time.sleep(0.5)
+            assert all(a.seq != 10**9 for a in arm2._answers.values())
+            assert len(arm2._answers) == n
+            # and arm1's model query is refused too (no rule lets it query canal/s/model)
+            replies = list(arm1.get("canal/s/model", timeout=1.0))
+            assert [r for r in replies if r.ok is not None] == []
+        time.sleep(0.2)
+    finally:
+        arm1.close()
+    # arm1 saw nothing of arm2's stream: no target, and no pose but its own put (which its
+    # own session delivers to its own subscriber locally)
+    assert [k for k in seen if "arm2/target" in k] == []
+    assert [k for k in seen if "arm2" in k] == ["canal/s/arm2/pose"]

@@ -1,0 +1,103 @@
+"""The default deployment: ``canal serve`` starts the bridge in processes of its own."""
+
+from __future__ import annotations
+
+import signal
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient
+
+from canal_client.live import PoseStreamer
+from canal_client.sim import run_sim
+from canal_service.app import create_app
+from canal_service.bridge.bridge import shard_of
+from canal_service.core.config import Settings
+from canal_testing import free_port
+from live_helpers import make_skill, metric
+
+pytestmark = pytest.mark.timeout(90)
+
+
+def _wait(predicate, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    return predicate()
+
+
+def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    # refresh every 60 s: a model switch within a second can only come from the fit push
+    settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
+                        zenoh_refresh_s=60.0)
+    assert settings.zenoh_processes == 1  # the default
+    with TestClient(create_app(settings)) as client:
+        health = client.get("/healthz").json()
+        bridge = health["bridge"]
+        assert health["status"] == "ok" and bridge["status"] == "ok"
+        assert bridge["processes"] == 1 and bridge["listen"] == [endpoint]
+        assert bridge["access"] == "open" and bridge["acl"] is False
+        make_skill(client, "s", 3)
+        result = run_sim("s", rate_hz=1000.0, seed=2, endpoint=endpoint, timeout_s=10)
+        assert result.reached_end and result.all_inside and result.model_version == 1
+        # the bridge process's counts reach the service's /metrics
+        assert _wait(lambda: metric(client, "canal_live_poses_total") >= result.n_steps)
+        assert metric(client, "canal_live_targets_total") >= result.n_steps
+        # a fit through REST reaches the bridge process at once (pushed, not polled)
+        directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
+        with PoseStreamer("s", "after-fit", endpoint=endpoint) as ps:
+            first = ps.wait_for(ps.send(directrix[5], restart=True), 2.0)
+            assert first is not None and first.model_version == 1
+            assert client.post("/skills/s/fit", json={"n_samples": 90}).status_code == 201
+
+            def version():
+                answer = ps.wait_for(ps.send(directrix[5]), 1.0)
+                return answer is not None and answer.model_version == 2
+
+            assert _wait(version, 3.0)
+        # the bridge process dies: /healthz says the service is degraded
+        bridges = client.app.state.bridge  # type: ignore[attr-defined]
+        bridges.children[0].proc.send_signal(signal.SIGKILL)
+        bridges.children[0].proc.wait(5)
+        r = client.get("/healthz")
+        assert r.status_code == 503 and r.json()["status"] == "degraded"
+        assert r.json()["bridge"]["status"] == "down"
+
+
+def test_two_bridge_processes_share_the_robots(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
+                        zenoh_processes=2)
+    robots = [f"r{i}" for i in range(6)]
+    assert {shard_of("s", r, 2) for r in robots} == {0, 1}  # both shards have robots
+    with TestClient(create_app(settings)) as client:
+        make_skill(client, "s", 3)
+        directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
+        streamers = [PoseStreamer("s", r, endpoint=endpoint) for r in robots]
+        try:
+            answers = {}
+            for r, ps in zip(robots, streamers, strict=True):
+                for k in range(20):
+                    answer = ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 2.0)
+                    assert answer is not None and answer.status == "ok", (r, k)
+                answers[r] = answer
+        finally:
+            for ps in streamers:
+                ps.close()
+
+        def per_shard():
+            bridges = client.get("/healthz").json()["bridge"]["bridges"]
+            return [b["streams"] for b in bridges] if all(b["streams"] for b in bridges) else None
+
+        streams = _wait(per_shard)
+        assert streams is not None and sum(streams) == len(robots)  # one answer per pose
+        assert client.get("/healthz").json()["bridge"]["processes"] == 2
