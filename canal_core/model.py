@@ -19,6 +19,7 @@ from .cross_sections import (
     KINDS_3D,
     CrossSections,
     fitted_sections,
+    floored_sections,
     scaled_sections,
     section_radii,
 )
@@ -26,15 +27,27 @@ from .crossings import in_plane_coordinates, plane_crossings
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
+from .goal import goal_displacements
 from .preprocess import STILL_TOLERANCE, cleaned_demonstration
 from .reproduce import (
+    END_DECAY,
+    ENTRY_FRACTION,
     Location,
     enclosing_scales,
     located_points,
+    path_ratios,
     ratio_rule_positions,
     section_basis,
+    start_locations,
 )
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
+from .timing import (
+    arc_length_times,
+    finite_velocities,
+    reproduction_times,
+    rescaled_times,
+    section_times,
+)
 from .tracker import Tracker, tracker_geometry
 from .validation import (
     MIN_POINTS,
@@ -46,6 +59,7 @@ from .validation import (
     check_int,
     check_point,
     check_points,
+    check_positive,
 )
 
 FORMAT = "canal-model"
@@ -88,11 +102,22 @@ class Reproduction:
     inside : bool
         Whether the start lies inside the canal.
     eta : float
-        Ratio used for the whole trajectory (clamped to 1 when the start was outside).
+        Ratio the trajectory follows after the start (the start's, at most 1); it fades to 0
+        into the last sections (see :func:`canal_core.reproduce.path_ratios`).
     section_index : int
         Section the start was located at.
     projected : bool
-        True when the start's ratio exceeded 1 and was clamped to the boundary.
+        True when the start's ratio exceeded 1: the path enters the canal over the entry
+        blend and then follows the boundary's ratio 1.
+    times : array, shape (N',), or None
+        Seconds from the start, following the demonstrations' mean speed profile (None
+        when they carried no time stamps and no duration was asked for).
+    velocities : array, shape (N', D), or None
+        Finite differences of ``positions`` over ``times`` (zero at the end).
+    orientations : array, shape (N', 4), or None
+        Unit quaternions [qx, qy, qz, qw] when the model has orientations.
+    goal : array, shape (D,), or None
+        The goal the canal was deformed to, when one was given.
     """
 
     positions: FloatArray
@@ -101,6 +126,10 @@ class Reproduction:
     eta: float
     section_index: int
     projected: bool
+    times: FloatArray | None = None
+    velocities: FloatArray | None = None
+    orientations: FloatArray | None = None
+    goal: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,6 +151,13 @@ class Canal:
         by the mean's tangent); the canal's end sections are extruded along t by these
         depths so that every demonstrated point is inside the canal.
     options : FitOptions
+    section_times : array, shape (N,), or None
+        Mean time (s) at which the demonstrations reach each section, from the first
+        (:mod:`canal_core.timing`); None when they carried no time stamps.
+    envelope_margin : float
+        The fit's report of how much the sections fitted to the plane crossings had to grow
+        so that every demonstrated sample is inside: the largest relative enlargement of
+        any section (0.02 = 2 %). See :func:`canal_core.reproduce.enclosing_scales`.
     """
 
     directrix: FloatArray
@@ -133,6 +169,8 @@ class Canal:
     section_points: FloatArray
     end_depths: FloatArray = field(default_factory=lambda: np.zeros(2))
     options: FitOptions = field(default_factory=FitOptions)
+    section_times: FloatArray | None = None
+    envelope_margin: float = 0.0
 
     # -- derived ---------------------------------------------------------------------
     @property
@@ -192,38 +230,103 @@ class Canal:
         reach = np.where(loc.axial < 0.0, self.end_depths[0], self.end_depths[1]) + axial_tol
         return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
 
-    def reproduce_detailed(self, start: Any, outside: str = "project") -> Reproduction:
+    def reproduce_detailed(
+        self,
+        start: Any,
+        outside: str = "project",
+        start_orientation: Any = None,
+        goal: Any = None,
+        duration: Any = None,
+        *,
+        entry: float = ENTRY_FRACTION,
+        end_decay: float = END_DECAY,
+    ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
+
+        The start is located on the earliest section that holds it
+        (:func:`canal_core.reproduce.start_locations`); its ratio eta is carried along the
+        canal on the schedule of :func:`canal_core.reproduce.path_ratios` (entry blend for a
+        start outside, end decay onto the demonstrations' end).
 
         Parameters
         ----------
         start : array_like, shape (D,)
         outside : {"project", "raise"}
-            For a start outside the canal: clamp its ratio to 1 (the boundary) and say so in
-            ``projected``, or raise :class:`OutsideCanalError`.
+            For a start outside the canal: enter the canal over the entry blend and say so
+            in ``projected``, or raise :class:`OutsideCanalError`.
+        start_orientation : array_like, shape (4,), optional
+            Accepted for the orientation extension; unused by the position model.
+        goal : array_like, shape (D,), optional
+            End the reproduction here: the canal is deformed first (:meth:`with_goal`).
+        duration : float, optional
+            Seconds; the times are stretched to end there (constant speed along the path
+            when the model has no speed profile).
+        entry, end_decay : float
+            Fractions of the canal's length (0 and 0: the paper's constant, clamped ratio).
         """
         point = check_point(start, self.dim, "start")
         check_choice(outside, ("project", "raise"), "outside")
-        loc = located_points(point[None, :], self.directrix, self.tangents, self.basis, self.sections)
+        entry = check_fraction(entry, "entry", maximum=1.0)
+        end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
+        seconds = None if duration is None else check_positive(duration, "duration")
+        target = None if goal is None else check_point(goal, self.dim, "goal")
+        canal = self if target is None else self.with_goal(target)
+        loc = start_locations(point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections)
         eta = float(loc.eta[0])
-        inside = bool(self._inside(loc, CONTAINS_TOLERANCE)[0])
+        index, alpha = int(loc.index[0]), float(loc.alpha[0])
+        inside = bool(canal._inside(canal.locate(point[None, :]), CONTAINS_TOLERANCE)[0])
         if outside == "raise" and not inside:
             raise OutsideCanalError(
-                f"expected start inside the canal, got eta={eta:.4g} at section {int(loc.index[0])}"
+                f"expected start inside the canal, got eta={eta:.4g} at section {index}"
                 + (f" and {float(loc.axial[0]):.4g} beyond its end plane" if loc.axial[0] else ""),
                 field="start",
             )
-        first = min(int(loc.index[0]) + 1, self.n_sections - 1)
-        path = ratio_rule_positions(
-            first, min(eta, 1.0), loc.direction[0], self.directrix, self.basis, self.sections
-        )
+        first = min(index + 1, canal.n_sections - 1)
+        s0 = float(np.interp(index + alpha, np.arange(canal.n_sections), canal.arclength))
+        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay)
+        path = ratio_rule_positions(first, ratios, loc.direction[0], canal.directrix, canal.basis, canal.sections)
+        positions = np.vstack([point, path])
+        times = None
+        if canal.section_times is not None:
+            times = reproduction_times(canal.section_times, index, alpha, positions.shape[0])
+            if seconds is not None:
+                times = rescaled_times(times, seconds)
+        elif seconds is not None:
+            times = arc_length_times(positions, seconds)
         return Reproduction(
-            positions=np.vstack([point, path]),
+            positions=positions,
             start=point,
             inside=inside,
             eta=min(eta, 1.0),
-            section_index=int(loc.index[0]),
+            section_index=index,
             projected=eta > 1.0,
+            times=times,
+            velocities=None if times is None else finite_velocities(positions, times),
+            goal=target,
+        )
+
+    def with_goal(self, goal: Any) -> Canal:
+        """This canal deformed so that its directrix ends at ``goal`` (D,) (:mod:`canal_core.goal`).
+
+        The start region is untouched; frames are recomputed on the displaced directrix and
+        every section keeps its shape in its new plane.
+        """
+        target = check_point(goal, self.dim, "goal")
+        centres = self.directrix + goal_displacements(self.arclength, target - self.directrix[-1])
+        tangents, normals, binormals = canal_frames(centres, self.options)
+        steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+        return Canal(
+            directrix=centres,
+            tangents=tangents,
+            normals=normals,
+            binormals=binormals,
+            arclength=np.concatenate([[0.0], np.cumsum(steps)]),
+            sections=self.sections,
+            section_points=self.section_points,
+            end_depths=self.end_depths,
+            options=self.options,
+            section_times=self.section_times,
+            envelope_margin=self.envelope_margin,
         )
 
     def reproduce(self, start: Any) -> FloatArray:
@@ -234,7 +337,8 @@ class Canal:
         """A reactive tracker for one live stream (see :mod:`canal_core.tracker`)."""
         check_int(lookahead, 1, "lookahead")
         return Tracker(
-            tracker_geometry(self.directrix, self.tangents, self.basis, self.sections), lookahead
+            tracker_geometry(self.directrix, self.tangents, self.basis, self.sections, self.section_times),
+            lookahead,
         )
 
     def mesh(self, n_angles: int = 32, caps: bool = False, envelope: bool = False) -> Mesh:
@@ -282,6 +386,9 @@ class Canal:
             "sections": self.sections.to_dict(),
             "section_points": self.section_points.tolist(),
             "end_depths": self.end_depths.tolist(),
+            # Optional keys (absent in models written before them; from_dict defaults them).
+            "section_times": None if self.section_times is None else self.section_times.tolist(),
+            "envelope_margin": self.envelope_margin,
         }
 
     @classmethod
@@ -326,6 +433,8 @@ class Canal:
                 end_depths=arr["end_depths"],
                 # Models saved before frame smoothing existed had frames of the raw directrix.
                 options=FitOptions(**{"frame_smoothing": 0.0, **data["options"]}),
+                section_times=_optional_times(data.get("section_times"), n),
+                envelope_margin=float(data.get("envelope_margin", 0.0)),
             )
         except ModelFormatError:
             raise
@@ -334,6 +443,29 @@ class Canal:
 
 
 # -------------------------------------------------------------------------------------
+
+
+def _optional_times(values: Any, n: int) -> FloatArray | None:
+    if values is None:
+        return None
+    times = np.asarray(values, dtype=np.float64)
+    if times.shape != (n,) or not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0.0):
+        raise ModelFormatError(
+            f"expected section_times of shape ({n},), finite and non-decreasing, got shape {times.shape}",
+            field="section_times",
+        )
+    return times
+
+
+def canal_frames(centres: FloatArray, options: FitOptions) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Tangents, normals and binormals (None in 2-D) of a directrix (N, D), as ``options`` ask."""
+    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
+    if centres.shape[1] == 2:
+        tangents, normals = planar_frames(frame_curve)
+        return tangents, normals, None
+    if options.frames == "frenet":
+        return frenet_frames(frame_curve)
+    return rotation_minimizing_frames(frame_curve)
 
 
 def end_depths(
@@ -380,6 +512,7 @@ def fit(
     n_samples: int = 200,
     still_tolerance: float = STILL_TOLERANCE,
     frame_smoothing: float = FitOptions.frame_smoothing,
+    by_time: bool | None = None,
 ) -> Canal:
     """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
 
@@ -388,7 +521,9 @@ def fit(
     demos : sequence of array_like, each shape (T_j, D)
         n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
     timestamps : sequence of (array_like, shape (T_j,) or None), optional
-        Strictly increasing; alignment is by time where given, else by arc length.
+        Strictly increasing seconds. They give the canal its speed profile
+        (``section_times``, :mod:`canal_core.timing`) and, unless ``by_time`` is False, its
+        alignment (by time where given, else by arc length).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
     alignment : {"spline", "dtw"}
@@ -399,6 +534,9 @@ def fit(
         Frames are computed on the directrix smoothed by a Gaussian of this fraction of N
         (0.02 by default; 0 = the paper's frames of the raw directrix). See
         :func:`canal_core.frames.smoothed_curve`.
+    by_time : bool, optional
+        Align by the time stamps (default when they are given) or, when False, by arc
+        length while still keeping the speed profile.
     still_tolerance : float
         Head and tail samples within this fraction of the path length of the first/last
         sample are trimmed (see :mod:`canal_core.preprocess`).
@@ -433,7 +571,9 @@ def fit(
                 field=f"demos[{j}]",
             )
     positions = [d for d, _ in cleaned]
-    times = [t for _, t in cleaned]
+    stamped = [t for _, t in cleaned]
+    align_by_time = by_time is None or bool(by_time)
+    times: list[FloatArray | None] = stamped if align_by_time else [None] * len(stamped)
 
     if options.alignment == "dtw":
         aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
@@ -447,15 +587,7 @@ def fit(
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
         raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
 
-    binormals: FloatArray | None
-    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
-    if dim == 2:
-        tangents, normals = planar_frames(frame_curve)
-        binormals = None
-    elif options.frames == "frenet":
-        tangents, normals, binormals = frenet_frames(frame_curve)
-    else:
-        tangents, normals, binormals = rotation_minimizing_frames(frame_curve)
+    tangents, normals, binormals = canal_frames(centres, options)
 
     crossings = plane_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the
@@ -470,18 +602,21 @@ def fit(
         raise DegenerateCanalError(
             "every demonstration is identical: the canal has zero radius everywhere"
         )
-    sections = fitted_sections(coords, options.cross_section)
+    size = float(np.abs(coords).max())
+    sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every sample the caller gave counts, the trimmed still ends and repeats included.
     samples = np.vstack(demos_)
-    phase = np.concatenate([spline_parameter(d, t) for d, t in zip(demos_, times_, strict=True)])
-    approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
-    window = max(8, options.n_samples // 50)
-    sections = scaled_sections(
-        sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
+    phase = np.concatenate(
+        [spline_parameter(d, t if align_by_time else None) for d, t in zip(demos_, times_, strict=True)]
     )
+    approx = np.rint(phase * (options.n_samples - 1)).astype(np.int64)
+    envelope = enclosing_scales(samples, approx, centres, tangents, basis, sections)
+    sections = scaled_sections(sections, envelope.scale)
     return Canal(
-        end_depths=end_depths(samples, phase, centres, tangents),
+        end_depths=np.maximum(end_depths(samples, phase, centres, tangents), envelope.depths),
+        section_times=section_times(positions, stamped, options.n_samples, align_by_time),
+        envelope_margin=float(envelope.scale.max() - 1.0),
         directrix=centres,
         tangents=tangents,
         normals=normals,

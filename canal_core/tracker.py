@@ -63,6 +63,12 @@ class TrackerTarget:
         Whether the live position is inside the canal.
     done : bool
         Whether the live position has reached the last cross-section.
+    velocity : array, shape (D,), or None
+        Feed-forward velocity at the target: the planned path's displacement to the next
+        section over the demonstrations' mean time between the two (None when the model
+        has no speed profile; zero at the last section).
+    orientation : array, shape (4,), or None
+        Target orientation [qx, qy, qz, qw] when the model has orientations.
     """
 
     target: FloatArray
@@ -71,6 +77,8 @@ class TrackerTarget:
     section_index: int
     inside: bool
     done: bool
+    velocity: FloatArray | None = None
+    orientation: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,15 +110,21 @@ class TrackerGeometry:
     offsets: FloatArray  # (N,) t_i . c_i
     sections: CrossSections
     done_tolerance: float
+    section_times: FloatArray | None = None  # (N,) mean seconds to each section
 
 
 def tracker_geometry(
-    centres: FloatArray, tangents: FloatArray, basis: FloatArray, sections: CrossSections
+    centres: FloatArray,
+    tangents: FloatArray,
+    basis: FloatArray,
+    sections: CrossSections,
+    section_times: FloatArray | None = None,
 ) -> TrackerGeometry:
     """Precompute the plane offsets t_i . c_i used by every step."""
     spacing = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).mean()) if len(centres) > 1 else 0.0
     return TrackerGeometry(
-        centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing
+        centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
+        section_times,
     )
 
 
@@ -229,10 +243,32 @@ def tracker_step(
         and float(g.tangents[last] @ position) - float(g.offsets[last]) >= -g.done_tolerance
     )
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
+    velocity = None
+    if g.section_times is not None:
+        velocity = _feed_forward(g, target_index, target, plan_eta, plan_direction)
     return (
-        TrackerTarget(target, float(progress), float(eta), index, inside, done),
+        TrackerTarget(target, float(progress), float(eta), index, inside, done, velocity),
         TrackerState(max(last_index, index), plan_eta, plan_direction),
     )
+
+
+def _feed_forward(
+    g: TrackerGeometry, index: int, target: FloatArray, eta: float, direction: FloatArray
+) -> FloatArray:
+    """Velocity from ``target`` on section ``index`` to the planned point on the next section."""
+    assert g.section_times is not None
+    nxt = index + 1
+    if nxt >= g.centres.shape[0]:
+        return np.zeros_like(target)
+    dt = float(g.section_times[nxt] - g.section_times[index])
+    if dt <= 0.0:
+        return np.zeros_like(target)
+    if g.sections.kind == "circle":
+        reach = float(g.sections.params["radius"][nxt])
+    else:
+        reach = float(boundary_distance(g.sections, np.array([nxt]), direction[None, :])[0])
+    ahead = g.centres[nxt] + (eta * reach) * (direction @ g.basis[nxt])
+    return np.asarray((ahead - target) / dt, dtype=np.float64)
 
 
 def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:
