@@ -243,10 +243,12 @@ class CanalService:
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
         options = body.model_dump(exclude={"demo_ids", "by_time"})
-        timestamps = times if body.by_time and any(t is not None for t in times) else None
+        # Time stamps always give the model its speed profile; they align only when by_time.
+        stamped = times if any(t is not None for t in times) else None
+        timestamps = stamped if body.by_time else None
         started = time.perf_counter()
         try:
-            canal = canal_core.fit(positions, timestamps=timestamps, **options)
+            canal = canal_core.fit(positions, timestamps=stamped, by_time=bool(body.by_time), **options)
         except canal_core.CanalError as exc:
             _name_demo_in(exc, demo_ids)
             # canal_core leaves the field empty when the set as a whole is at fault.
@@ -375,15 +377,27 @@ class CanalService:
             if len(start) != dim:
                 raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(start)}",
                                    field=field)
+        if body.goal is not None and len(body.goal) != dim:
+            raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(body.goal)}",
+                               field="goal")
+        notes = []
+        if canal.section_times is None:
+            notes.append("model has no time stamps: times follow arc length" if body.duration is not None
+                         else "model has no time stamps: no times (send duration for evenly paced times)")
+        goal = None if body.goal is None else np.asarray(body.goal, dtype=np.float64)
         results = []
         for start, field in zip(starts, fields, strict=True):
             try:
                 result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
-                                                  outside=body.outside)
+                                                  outside=body.outside, goal=goal,
+                                                  duration=body.duration,
+                                                  start_orientation=body.start_orientation)
             except canal_core.CanalError as exc:
-                exc.field = field
+                exc.field = field if exc.field in (None, "start") else exc.field
                 raise
             results.append(result)
+        if body.start_orientation is not None and all(r.orientations is None for r in results):
+            notes.append("model has no orientation: start_orientation ignored")
         outs = []
         for result in results:
             self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
@@ -393,6 +407,8 @@ class CanalService:
                 inside=bool(result.inside), eta=float(result.eta),
                 section_index=int(result.section_index), projected=bool(result.projected),
                 model_version=found_version,
+                times=_tolist(result.times), velocities=_tolist(result.velocities),
+                orientations=_tolist(result.orientations), goal=_tolist(result.goal), notes=notes,
             ))
         if body.start is not None:
             return outs[0]
