@@ -116,7 +116,7 @@ def test_outside_start_enters_smoothly_and_early() -> None:
     assert steps.max() < 6.0 * directrix_step + np.linalg.norm(path[1] - path[0])
     inside = canal.contains(path)
     first_in = int(np.argmax(inside))
-    assert inside[first_in:].all() and first_in <= 0.06 * canal.n_sections + 2
+    assert inside[first_in:].all() and first_in <= 0.11 * canal.n_sections + 2
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -241,3 +241,26 @@ def test_tracker_target_carries_the_feed_forward_velocity() -> None:
     assert quick.velocity is not None and quick.velocity[0] > 2.0 * target.velocity[0]
     untimed = canal_core.fit(demos, n_samples=100).tracker().step(canal.directrix[20])
     assert untimed.velocity is None
+
+
+def ur5e_demos() -> tuple[list[np.ndarray], list[np.ndarray]]:
+    from pathlib import Path
+
+    data = np.load(Path(__file__).resolve().parent.parent / "data" / "ur5e_lab_demos.npz")
+    n = int(data["n_demos"])
+    return [data[f"demo{i}_pos"] for i in range(n)], [data[f"demo{i}_t"] for i in range(n)]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_real_ur5e_demos_are_all_inside_and_starts_are_found_early(kind: str) -> None:
+    demos, times = ur5e_demos()
+    for held in (0, 3):
+        train = [d for j, d in enumerate(demos) if j != held]
+        train_t = [t for j, t in enumerate(times) if j != held]
+        canal = canal_core.fit(train, train_t, cross_section=kind, by_time=False)
+        for demo in train:  # raw logs: repeated rows, still ends, 3,000-5,000 samples each
+            assert canal.contains(demo).all()
+        result = canal.reproduce_detailed(demos[held][0])
+        assert result.section_index < 20  # within the first 10 % of the motion
+        assert result.times is not None
+        assert 0.5 * min(t[-1] for t in train_t) < result.times[-1] < max(t[-1] for t in train_t)
