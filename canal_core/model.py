@@ -215,7 +215,7 @@ class Canal:
     def locate(self, points: Any) -> Location:
         """Where points (M, D) sit in the canal (see :func:`canal_core.reproduce.located_points`)."""
         pts = check_points(points, self.dim)
-        return located_points(pts, self.directrix, self.tangents, self.basis, self.sections)
+        return located_points(pts, self.directrix, self.tangents, self.basis, self.sections, self.end_depths)
 
     def contains(self, points: Any, tol: float = CONTAINS_TOLERANCE) -> BoolArray:
         """Whether each point (M, D) lies in the volume swept by the cross-sections.

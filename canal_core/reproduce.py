@@ -191,6 +191,7 @@ def located_points(
     tangents: FloatArray,
     basis: FloatArray,
     sections: CrossSections,
+    end_depths: FloatArray | None = None,
 ) -> Location:
     """Locate points in the swept canal for containment (see module docstring).
 
@@ -203,6 +204,10 @@ def located_points(
     centres, tangents : arrays, shape (N, D)
     basis : array, shape (N, D - 1, D)
     sections : CrossSections
+    end_depths : array, shape (2,), optional
+        How far the end sections are extruded (behind the first plane, past the last): an
+        end candidate within its depth holds the point like a pair of planes does. Without
+        them only pairs of planes hold points.
 
     Returns
     -------
@@ -210,7 +215,11 @@ def located_points(
     """
     pt, sec, alpha, axial, coords, direction, eta = _candidates(points, centres, tangents, basis, sections)
     # Prefer a section that holds the point; else the end or pair where it is least outside.
-    key = np.where((axial == 0.0) & (eta <= 1.0 + INSIDE_TOLERANCE), eta, 2.0 + eta)
+    within = axial == 0.0
+    if end_depths is not None:
+        depth = np.where(axial < 0.0, end_depths[0], end_depths[1]) * (1.0 + INSIDE_TOLERANCE)
+        within = within | (np.abs(axial) <= depth)
+    key = np.where(within & (eta <= 1.0 + INSIDE_TOLERANCE), eta, 2.0 + eta)
     order = np.lexsort((key, pt))
     first = order[np.searchsorted(pt[order], np.arange(points.shape[0]))]
     return _picked(first, sec, alpha, axial, coords, direction, eta)
