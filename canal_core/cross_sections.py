@@ -51,6 +51,11 @@ ELLIPSE_RELATIVE_FLOOR = 1e-6
 #: with Welzl's algorithm instead of the vectorised enumeration of all pairs and triples.
 MEC_ENUMERATION_LIMIT = 13
 KHACHIYAN_TOLERANCE = 1e-8
+#: Evenly spaced extra knots of a spline section (on the hull polygon, like the demo knots).
+SPLINE_GUIDES = 12
+#: A spline section's boundary is never nearer c_i than this fraction of its largest knot
+#: radius, so every direction has a positive reach the envelope can scale.
+SPLINE_FLOOR = 1e-3
 KHACHIYAN_MAX_ITERATIONS = 2000
 
 
@@ -397,8 +402,12 @@ def hull_radial_function(points: FloatArray, theta: FloatArray, n_normals: int =
 
 def _spline_knots(coords: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Polar knots (angle, radius) per section: each demo's angle, on the section's hull."""
-    k = coords.shape[1]
-    theta = np.mod(np.arctan2(coords[:, :, 1], coords[:, :, 0]), TWO_PI)
+    # Between two demos far apart in angle the cubic overshoots (through c_i, measured:
+    # radius 0 over whole arcs of 200 sections of 1,000 with 6 noisy demos). Fixed knots
+    # every 2 pi / SPLINE_GUIDES radians on the same hull polygon keep it on the hull there.
+    guides = np.broadcast_to(np.arange(SPLINE_GUIDES) * (TWO_PI / SPLINE_GUIDES), (coords.shape[0], SPLINE_GUIDES))
+    theta = np.concatenate([np.mod(np.arctan2(coords[:, :, 1], coords[:, :, 0]), TWO_PI), guides], axis=1)
+    k = theta.shape[1]
     order = np.argsort(theta, axis=1)
     theta = np.take_along_axis(theta, order, axis=1)
     # Knots sit where each demo's ray meets the convex hull of the crossings (and c_i): the
@@ -498,7 +507,8 @@ def boundary_distance(sections: CrossSections, index: IntArray, direction: Float
         r = periodic_spline_values(
             p["knot_angles"][index], p["knot_radii"][index], sections._derived["second"][index], theta
         )
-        return np.maximum(r, 0.0) * p["scale"][index]
+        floor = SPLINE_FLOOR * p["knot_radii"][index].max(axis=1)
+        return np.maximum(r, floor) * p["scale"][index]
     raise ValueError(f"unknown cross-section kind {kind!r}")
 
 
@@ -556,3 +566,43 @@ def scaled_sections(sections: CrossSections, scale: FloatArray) -> CrossSections
         p["scale"] *= scale
         return CrossSections("spline", p, dict(sections._derived))  # knots unchanged
     return CrossSections(sections.kind, p)
+
+
+def floored_sections(sections: CrossSections, floor: float) -> CrossSections:
+    """Sections whose boundary lies at least about ``floor`` from c_i in every direction.
+
+    The envelope (:func:`canal_core.reproduce.enclosing_scales`) grows sections by a
+    homothety about c_i, which cannot enlarge a boundary that passes through c_i (a zero
+    radius, a one-sided interval, a spline knot of radius 0). ``floor`` is a tiny length
+    (1e-9 of the canal's size in :func:`canal_core.fit`), so every other section is unchanged.
+
+    Parameters
+    ----------
+    sections : CrossSections
+    floor : float
+        Smallest boundary distance, in the data's units.
+    """
+    p = {k: v.copy() for k, v in sections.params.items()}
+    kind = sections.kind
+    if kind == "circle":
+        p["radius"] = np.maximum(p["radius"], floor)
+    elif kind == "interval":
+        p["lower"] = np.minimum(p["lower"], -floor)
+        p["upper"] = np.maximum(p["upper"], floor)
+    elif kind == "mec":
+        p["radius"] = np.maximum(p["radius"], np.linalg.norm(p["center"], axis=1) + floor)
+    elif kind == "ellipse":
+        # c_i sits strictly inside by the regularising cross of ellipse_sections; only an
+        # ellipse with c_i on its boundary (o^T A o = 1) is grown, into a disc around c_i.
+        o = p["center"]
+        depth = np.einsum("ni,nij,nj->n", o, sections._derived["matrix"], o)
+        edge = depth > 1.0 - 1e-9
+        if not edge.any():
+            return sections
+        p["axes"][edge] = np.maximum(p["axes"][edge], np.linalg.norm(o[edge], axis=1)[:, None] + floor)
+    elif kind == "spline":
+        if np.all(p["knot_radii"] >= floor):
+            return sections
+        p["knot_radii"] = np.maximum(p["knot_radii"], floor)
+        return CrossSections(kind, p)
+    return CrossSections(kind, p)

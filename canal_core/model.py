@@ -24,6 +24,7 @@ from .cross_sections import (
     KINDS_3D,
     CrossSections,
     fitted_sections,
+    floored_sections,
     scaled_sections,
     section_radii,
 )
@@ -31,16 +32,28 @@ from .crossings import in_plane_coordinates, located_crossings, sections_of_samp
 from .directrix import directrix_gmr, directrix_mean
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
+from .goal import goal_displacements
 from .orientation import OrientationModel, fitted_orientations
 from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples
 from .reproduce import (
+    END_DECAY,
+    ENTRY_FRACTION,
     Location,
     enclosing_scales,
     located_points,
+    path_ratios,
     ratio_rule_positions,
     section_basis,
+    start_locations,
 )
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
+from .timing import (
+    arc_length_times,
+    finite_velocities,
+    reproduction_times,
+    rescaled_times,
+    section_times,
+)
 from .tracker import Tracker, tracker_geometry
 from .validation import (
     BoolArray,
@@ -52,6 +65,7 @@ from .validation import (
     check_int,
     check_point,
     check_points,
+    check_positive,
     check_quaternion,
 )
 
@@ -95,11 +109,18 @@ class Reproduction:
     inside : bool
         Whether the start lies inside the canal.
     eta : float
-        Ratio used for the whole trajectory (clamped to 1 when the start was outside).
+        Ratio the trajectory follows after the start (the start's, at most 1); it fades to 0
+        into the last sections (see :func:`canal_core.reproduce.path_ratios`).
     section_index : int
         Section the start was located at.
     projected : bool
-        True when the start's ratio exceeded 1 and was clamped to the boundary.
+        True when the start's ratio exceeded 1: the path enters the canal over the entry
+        blend and then follows the boundary's ratio 1.
+    times : array, shape (N',), or None
+        Seconds from the start, following the demonstrations' mean speed profile (None
+        when they carried no time stamps and no duration was asked for).
+    velocities : array, shape (N', D), or None
+        Finite differences of ``positions`` over ``times`` (zero at the end).
     orientations : array, shape (N', 4), or None
         One unit quaternion [qx, qy, qz, qw] per position when the canal learned orientation
         (see :mod:`canal_core.orientation`): the start orientation (or its section's mean),
@@ -107,6 +128,8 @@ class Reproduction:
     orientation_eta : float or None
         The start orientation's angle from its section mean over the section's spread,
         before clamping to 1 (None without a start orientation or orientation model).
+    goal : array, shape (D,), or None
+        The goal the canal was deformed to, when one was given.
     """
 
     positions: FloatArray
@@ -115,8 +138,11 @@ class Reproduction:
     eta: float
     section_index: int
     projected: bool
+    times: FloatArray | None = None
+    velocities: FloatArray | None = None
     orientations: FloatArray | None = None
     orientation_eta: float | None = None
+    goal: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,6 +166,13 @@ class Canal:
     options : FitOptions
     orientation : OrientationModel or None
         Per-section mean orientation and spread, when every demonstration had orientations.
+    section_times : array, shape (N,), or None
+        Mean time (s) at which the demonstrations reach each section, from the first
+        (:mod:`canal_core.timing`); None when they carried no time stamps.
+    envelope_margin : float
+        The fit's report of how much the sections fitted to the plane crossings had to grow
+        so that every demonstrated sample is inside: the largest relative enlargement of
+        any section (0.02 = 2 %). See :func:`canal_core.reproduce.enclosing_scales`.
     """
 
     directrix: FloatArray
@@ -152,6 +185,8 @@ class Canal:
     end_depths: FloatArray = field(default_factory=lambda: np.zeros(2))
     options: FitOptions = field(default_factory=FitOptions)
     orientation: OrientationModel | None = None
+    section_times: FloatArray | None = None
+    envelope_margin: float = 0.0
 
     # -- one-line summaries (the dataclass repr would print every array) ---------------
     def _summary_numbers(self) -> tuple[float, float, float]:
@@ -216,7 +251,7 @@ class Canal:
     def locate(self, points: Any) -> Location:
         """Where points (M, D) sit in the canal (see :func:`canal_core.reproduce.located_points`)."""
         pts = check_points(points, self.dim)
-        return located_points(pts, self.directrix, self.tangents, self.basis, self.sections)
+        return located_points(pts, self.directrix, self.tangents, self.basis, self.sections, self.end_depths)
 
     def contains(self, points: Any, tol: float = CONTAINS_TOLERANCE) -> BoolArray:
         """Whether each point (M, D) lies in the volume swept by the cross-sections.
@@ -232,50 +267,112 @@ class Canal:
         return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
 
     def reproduce_detailed(
-        self, start: Any, outside: str = "project", start_orientation: Any = None
+        self,
+        start: Any,
+        outside: str = "project",
+        start_orientation: Any = None,
+        goal: Any = None,
+        duration: Any = None,
+        *,
+        entry: float = ENTRY_FRACTION,
+        end_decay: float = END_DECAY,
     ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
+
+        The start is located on the earliest section that holds it
+        (:func:`canal_core.reproduce.start_locations`); its ratio eta is carried along the
+        canal on the schedule of :func:`canal_core.reproduce.path_ratios` (entry blend for a
+        start outside, end decay onto the demonstrations' end).
 
         Parameters
         ----------
         start : array_like, shape (D,)
         outside : {"project", "raise"}
-            For a start outside the canal: clamp its ratio to 1 (the boundary) and say so in
-            ``projected``, or raise :class:`OutsideCanalError`.
+            For a start outside the canal: enter the canal over the entry blend and say so
+            in ``projected``, or raise :class:`OutsideCanalError`.
         start_orientation : array_like, shape (4,), optional
             Unit quaternion [qx, qy, qz, qw] of the start pose. Its offset from the start
             section's mean orientation is carried by the rotational ratio rule
             (:mod:`canal_core.orientation`). Checked always, used only when the canal has an
             orientation model; without it the orientations are the section means.
+        goal : array_like, shape (D,), optional
+            End the reproduction here: the canal is deformed first (:meth:`with_goal`).
+        duration : float, optional
+            Seconds; the times are stretched to end there (constant speed along the path
+            when the model has no speed profile).
+        entry, end_decay : float
+            Fractions of the canal's length (0 and 0: the paper's constant, clamped ratio).
         """
         point = check_point(start, self.dim, "start")
         check_choice(outside, ("project", "raise"), "outside")
         quat = None if start_orientation is None else check_quaternion(start_orientation)
-        loc = located_points(point[None, :], self.directrix, self.tangents, self.basis, self.sections)
+        entry = check_fraction(entry, "entry", maximum=1.0)
+        end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
+        seconds = None if duration is None else check_positive(duration, "duration")
+        target = None if goal is None else check_point(goal, self.dim, "goal")
+        canal = self if target is None else self.with_goal(target)
+        loc = start_locations(point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections)
         eta = float(loc.eta[0])
-        inside = bool(self._inside(loc, CONTAINS_TOLERANCE)[0])
+        index, alpha = int(loc.index[0]), float(loc.alpha[0])
+        inside = bool(canal._inside(canal.locate(point[None, :]), CONTAINS_TOLERANCE)[0])
         if outside == "raise" and not inside:
             raise OutsideCanalError(
-                f"expected start inside the canal, got eta={eta:.4g} at section {int(loc.index[0])}"
+                f"expected start inside the canal, got eta={eta:.4g} at section {index}"
                 + (f" and {float(loc.axial[0]):.4g} beyond its end plane" if loc.axial[0] else ""),
                 field="start",
             )
-        first = min(int(loc.index[0]) + 1, self.n_sections - 1)
-        path = ratio_rule_positions(
-            first, min(eta, 1.0), loc.direction[0], self.directrix, self.basis, self.sections
-        )
+        first = min(index + 1, canal.n_sections - 1)
+        s0 = float(np.interp(index + alpha, np.arange(canal.n_sections), canal.arclength))
+        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay)
+        path = ratio_rule_positions(first, ratios, loc.direction[0], canal.directrix, canal.basis, canal.sections)
+        positions = np.vstack([point, path])
+        times = None
+        if canal.section_times is not None:
+            times = reproduction_times(canal.section_times, index, alpha, positions.shape[0])
+            if seconds is not None:
+                times = rescaled_times(times, seconds)
+        elif seconds is not None:
+            times = arc_length_times(positions, seconds)
         orientations, orientation_eta = None, None
-        if self.orientation is not None:
-            orientations, orientation_eta = self.orientation.reproduced(int(loc.index[0]), first, quat)
+        if canal.orientation is not None:
+            orientations, orientation_eta = canal.orientation.reproduced(index, first, quat)
         return Reproduction(
-            positions=np.vstack([point, path]),
+            positions=positions,
             start=point,
             inside=inside,
             eta=min(eta, 1.0),
-            section_index=int(loc.index[0]),
+            section_index=index,
             projected=eta > 1.0,
+            times=times,
+            velocities=None if times is None else finite_velocities(positions, times),
             orientations=orientations,
             orientation_eta=orientation_eta,
+            goal=target,
+        )
+
+    def with_goal(self, goal: Any) -> Canal:
+        """This canal deformed so that its directrix ends at ``goal`` (D,) (:mod:`canal_core.goal`).
+
+        The start region is untouched; frames are recomputed on the displaced directrix and
+        every section keeps its shape in its new plane (and its orientation, when learned).
+        """
+        target = check_point(goal, self.dim, "goal")
+        centres = self.directrix + goal_displacements(self.arclength, target - self.directrix[-1])
+        tangents, normals, binormals = canal_frames(centres, self.options)
+        steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+        return Canal(
+            directrix=centres,
+            tangents=tangents,
+            normals=normals,
+            binormals=binormals,
+            arclength=np.concatenate([[0.0], np.cumsum(steps)]),
+            sections=self.sections,
+            section_points=self.section_points,
+            end_depths=self.end_depths,
+            options=self.options,
+            orientation=self.orientation,
+            section_times=self.section_times,
+            envelope_margin=self.envelope_margin,
         )
 
     def reproduce(self, start: Any) -> FloatArray:
@@ -288,6 +385,7 @@ class Canal:
         geometry = tracker_geometry(
             self.directrix, self.tangents, self.basis, self.sections,
             orientations=None if self.orientation is None else self.orientation.means,
+            section_times=self.section_times,
         )
         return Tracker(geometry, lookahead)
 
@@ -338,6 +436,9 @@ class Canal:
             "end_depths": self.end_depths.tolist(),
             # Absent in models saved before orientation existed; None when not learned.
             "orientation": None if self.orientation is None else self.orientation.to_dict(),
+            # Optional keys (absent in models written before them; from_dict defaults them).
+            "section_times": None if self.section_times is None else self.section_times.tolist(),
+            "envelope_margin": self.envelope_margin,
         }
 
     @classmethod
@@ -387,6 +488,8 @@ class Canal:
                 # Models saved before frame smoothing existed had frames of the raw directrix.
                 options=FitOptions(**{"frame_smoothing": 0.0, **data["options"]}),
                 orientation=orientation,
+                section_times=_optional_times(data.get("section_times"), n),
+                envelope_margin=float(data.get("envelope_margin", 0.0)),
             )
         except ModelFormatError:
             raise
@@ -395,6 +498,29 @@ class Canal:
 
 
 # -------------------------------------------------------------------------------------
+
+
+def _optional_times(values: Any, n: int) -> FloatArray | None:
+    if values is None:
+        return None
+    times = np.asarray(values, dtype=np.float64)
+    if times.shape != (n,) or not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0.0):
+        raise ModelFormatError(
+            f"expected section_times of shape ({n},), finite and non-decreasing, got shape {times.shape}",
+            field="section_times",
+        )
+    return times
+
+
+def canal_frames(centres: FloatArray, options: FitOptions) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Tangents, normals and binormals (None in 2-D) of a directrix (N, D), as ``options`` ask."""
+    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
+    if centres.shape[1] == 2:
+        tangents, normals = planar_frames(frame_curve)
+        return tangents, normals, None
+    if options.frames == "frenet":
+        return frenet_frames(frame_curve)
+    return rotation_minimizing_frames(frame_curve)
 
 
 def end_depths(
@@ -442,6 +568,7 @@ def fit(
     still_tolerance: float = STILL_TOLERANCE,
     frame_smoothing: float = FitOptions.frame_smoothing,
     orientations: Any = None,
+    by_time: bool | None = None,
 ) -> Canal:
     """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
 
@@ -450,10 +577,11 @@ def fit(
     demos : sequence of array_like, each shape (T_j, D)
         n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
     timestamps : sequence of (array_like, shape (T_j,) or None), optional
-        Seconds; alignment is by time where given, else by arc length. Raw logs are fine:
-        every demo goes through :func:`canal_core.preprocess.prepared_demonstration`
-        (repeats, rounding-level steps, glitches, still ends, equal or isolated
-        out-of-order stamps).
+        Seconds; raw logs are fine: every demo goes through
+        :func:`canal_core.preprocess.prepared_demonstration` (repeats, rounding-level steps,
+        glitches, still ends, equal or isolated out-of-order stamps). They give the canal its
+        speed profile (``section_times``, :mod:`canal_core.timing`) and, unless ``by_time``
+        is False, its alignment (by time where given, else by arc length).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
     alignment : {"spline", "dtw"}
@@ -464,6 +592,9 @@ def fit(
         Frames are computed on the directrix smoothed by a Gaussian of this fraction of N
         (0.02 by default; 0 = the paper's frames of the raw directrix). See
         :func:`canal_core.frames.smoothed_curve`.
+    by_time : bool, optional
+        Align by the time stamps (default when they are given) or, when False, by arc
+        length while still keeping the speed profile.
     still_tolerance : float
         Head and tail samples within this fraction of the path length of the first/last
         sample are trimmed (see :mod:`canal_core.preprocess`).
@@ -496,12 +627,16 @@ def fit(
             field="cross_section",
         )
 
+    # Timestamps are prepared (repaired or refused) even when the alignment is by arc
+    # length: they still give the speed profile.
     prepared = [
         prepared_samples(d, t, field=f"demos[{j}]", time_field=f"timestamps[{j}]", still_tolerance=still_tolerance)
         for j, (d, t) in enumerate(zip(demos_, times_, strict=True))
     ]
     positions = [p.positions for p in prepared]
-    times = [p.timestamps for p in prepared]
+    stamped = [p.timestamps for p in prepared]
+    align_by_time = by_time is None or bool(by_time)
+    times: list[FloatArray | None] = stamped if align_by_time else [None] * len(stamped)
 
     if options.alignment == "dtw":
         aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
@@ -515,15 +650,7 @@ def fit(
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
         raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
 
-    binormals: FloatArray | None
-    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
-    if dim == 2:
-        tangents, normals = planar_frames(frame_curve)
-        binormals = None
-    elif options.frames == "frenet":
-        tangents, normals, binormals = frenet_frames(frame_curve)
-    else:
-        tangents, normals, binormals = rotation_minimizing_frames(frame_curve)
+    tangents, normals, binormals = canal_frames(centres, options)
 
     crossings, crossing_index = located_crossings(aligned, centres, tangents)
     # A demo that starts behind the first plane (or ends past the last) is measured at the
@@ -538,7 +665,8 @@ def fit(
         raise DegenerateCanalError(
             "every demonstration is identical: the canal has zero radius everywhere"
         )
-    sections = fitted_sections(coords, options.cross_section)
+    size = float(np.abs(coords).max())
+    sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every genuine sample counts, the trimmed still ends included (glitches do not); its
     # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
@@ -550,15 +678,15 @@ def fit(
         sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
         for j, p in enumerate(prepared)
     ])).astype(np.int64)
-    window = max(8, options.n_samples // 50)
-    sections = scaled_sections(
-        sections, enclosing_scales(samples, approx, centres, tangents, basis, sections, window)
-    )
+    envelope = enclosing_scales(samples, approx, centres, tangents, basis, sections)
+    sections = scaled_sections(sections, envelope.scale)
     orientation = None
     if quats_ is not None:
-        orientation = _fitted_orientation(prepared, quats_, options)
+        orientation = _fitted_orientation(prepared, times, quats_, options)
     return Canal(
-        end_depths=end_depths(samples, phase, centres, tangents),
+        end_depths=np.maximum(end_depths(samples, phase, centres, tangents), envelope.depths),
+        section_times=section_times(positions, stamped, options.n_samples, align_by_time),
+        envelope_margin=float(envelope.scale.max() - 1.0),
         directrix=centres,
         tangents=tangents,
         normals=normals,
@@ -573,17 +701,20 @@ def fit(
 
 def _fitted_orientation(
     prepared: list[PreparedDemonstration],
+    times: list[FloatArray | None],
     quaternions: list[FloatArray],
     options: FitOptions,
 ) -> OrientationModel:
     """The orientation model on the same alignment as the positions.
 
     Orientations follow the rows the preparation stage kept for their positions, at the
-    same spline parameter.
+    spline parameter the positions were aligned by (``times``: the stamps, or None for arc
+    length).
     """
-    parameters = [spline_parameter(p.positions, p.timestamps) for p in prepared]
+    positions = [p.positions for p in prepared]
+    parameters = [spline_parameter(d, t) for d, t in zip(positions, times, strict=True)]
     if options.alignment == "dtw":
-        at = dtw_parameters([p.positions for p in prepared], [p.timestamps for p in prepared], options.n_samples)
+        at = dtw_parameters(positions, times, options.n_samples)
     else:
         at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(prepared), options.n_samples))
     return fitted_orientations([q[p.rows] for q, p in zip(quaternions, prepared, strict=True)], parameters, at)

@@ -110,6 +110,7 @@ class TrackerGeometry:
     sections: CrossSections
     done_tolerance: float
     orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
+    section_times: FloatArray | None = None  # (N,) mean seconds to each section
 
 
 def tracker_geometry(
@@ -118,16 +119,19 @@ def tracker_geometry(
     basis: FloatArray,
     sections: CrossSections,
     orientations: FloatArray | None = None,
+    section_times: FloatArray | None = None,
 ) -> TrackerGeometry:
     """Precompute the plane offsets t_i . c_i used by every step.
 
     ``orientations`` (N, 4), the canal's section mean orientations, makes every target carry
-    the one of its section.
+    the one of its section; ``section_times`` (N,), the demonstrations' mean time to each
+    section, gives targets a feed-forward velocity.
     """
     spacing = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).mean()) if len(centres) > 1 else 0.0
     return TrackerGeometry(
         centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
         orientations,
+        section_times,
     )
 
 
@@ -246,9 +250,12 @@ def tracker_step(
         and float(g.tangents[last] @ position) - float(g.offsets[last]) >= -g.done_tolerance
     )
     progress = 1.0 if done else (index + alpha) / max(n - 1, 1)
+    velocity = None
+    if g.section_times is not None:
+        velocity = _feed_forward(g, target_index, target, plan_eta, plan_direction)
     return (
         TrackerTarget(
-            target, float(progress), float(eta), index, inside, done,
+            target, float(progress), float(eta), index, inside, done, velocity,
             orientation=None if g.orientations is None else g.orientations[target_index],
         ),
         TrackerState(max(last_index, index), plan_eta, plan_direction),
@@ -400,9 +407,28 @@ def _steps_found(
             rows.tolist(), target, progress.tolist(), eta.tolist(), index.tolist(),
             inside.tolist(), done.tolist(), new_index.tolist(), plan_eta.tolist(), plan_dir,
             strict=True)):
-        out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn,
+        velocity = (None if g.section_times is None
+                    else _feed_forward(g, int(target_index[k]), tgt, pe, pd))
+        out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn, velocity,
                                  orientation=None if orientations is None else orientations[k])
         out_s[r] = TrackerState(ni, pe, pd)
+def _feed_forward(
+    g: TrackerGeometry, index: int, target: FloatArray, eta: float, direction: FloatArray
+) -> FloatArray:
+    """Velocity from ``target`` on section ``index`` to the planned point on the next section."""
+    assert g.section_times is not None
+    nxt = index + 1
+    if nxt >= g.centres.shape[0]:
+        return np.zeros_like(target)
+    dt = float(g.section_times[nxt] - g.section_times[index])
+    if dt <= 0.0:
+        return np.zeros_like(target)
+    if g.sections.kind == "circle":
+        reach = float(g.sections.params["radius"][nxt])
+    else:
+        reach = float(boundary_distance(g.sections, np.array([nxt]), direction[None, :])[0])
+    ahead = g.centres[nxt] + (eta * reach) * (direction @ g.basis[nxt])
+    return np.asarray((ahead - target) / dt, dtype=np.float64)
 
 
 def _nearest_crossing_ahead(g: TrackerGeometry, start: int, position: FloatArray) -> int:

@@ -185,6 +185,15 @@ def check_int(value: Any, minimum: int, field: str, maximum: int | None = None) 
     return int(value)
 
 
+def check_positive(value: Any, field: str) -> float:
+    """Return ``value`` as a finite float > 0."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidInputError(f"expected {field} as a number, got {type(value).__name__}", field=field)
+    if not np.isfinite(value) or value <= 0.0:
+        raise InvalidInputError(f"expected {field} as a finite number > 0, got {value}", field=field)
+    return float(value)
+
+
 def check_fraction(value: Any, field: str, maximum: float = 0.25) -> float:
     """Return ``value`` as a finite float in [0, maximum]."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):

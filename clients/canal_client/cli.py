@@ -493,35 +493,45 @@ def reproduce(
     model: Annotated[str, typer.Option("--model", "-m",
                                        help="Model version or 'latest'.")] = "latest",
     out_path: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="Save the trajectory: .csv (x,y,z header), .npy (N, D) or .json.")
+        "--out", "-o", help="Save the trajectory: .csv (x,y,z header), .npy (N, D) or .json "
+        "(with times and velocities).")
     ] = None,
     outside: Annotated[Outside, typer.Option(
-        "--outside", help="A start outside the canal: project it onto the canal, or refuse.")
+        "--outside", help="A start outside the canal: enter the canal over a short blend, or refuse.")
     ] = Outside.project,
     start_orientation: Annotated[str | None, typer.Option(
         "--start-orientation", "-q",
         help="qx,qy,qz,qw unit quaternion of the start pose (models with orientation carry it; "
              "--out .csv then adds qx,qy,qz,qw columns).")] = None,
+    goal: Annotated[str | None, typer.Option(
+        "--goal", "-g", help="x,y[,z] goal: the canal is deformed to end there.")] = None,
+    duration: Annotated[float | None, typer.Option(
+        "--duration", "-d", help="Seconds: stretch the reproduction's times to end there.")
+    ] = None,
 ) -> None:
-    """Reproduce a trajectory from a new start."""
+    """Reproduce a trajectory from a new start (optionally to a new goal, in a given time)."""
     point = _parse_point(start)
     quat = None if start_orientation is None else _parse_quaternion(start_orientation)
+    goal_point = None if goal is None else _parse_point(goal, "--goal")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise typer.BadParameter(f"expected seconds > 0, got {duration}", param_hint="--duration")
     if model != "latest" and not model.isdigit():
         raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with _client(ctx) as c:
-        r = c.reproduce(skill, point, model=model, outside=outside.value,
-                        start_orientation=quat)
+        r = c.reproduce(skill, point, model=model, outside=outside.value, goal=goal_point,
+                        duration=duration, start_orientation=quat)
     if out_path is not None:
         _write_trajectory(out_path, r.positions, r, r.orientations)
     if _opts(ctx).json:
         _print_json({**_plain(r), "out": None if out_path is None else str(out_path)})
         return
-    state = "inside" if r.inside else "outside, projected onto the canal" if r.projected \
+    state = "inside" if r.inside else "outside, entering the canal" if r.projected \
         else "outside"
     end = ", ".join(f"{v:.4g}" for v in r.positions[-1])
-    out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}; "
+    timing = "" if r.times is None else f" in {r.times[-1]:.3g} s"
+    out.print(f"reproduced {len(r.positions)} points{timing} with model version {r.model_version}; "
               f"start {state} (eta {r.eta:.3f}, section {r.section_index}); ends at ({end})")
     if r.orientations is not None:
         last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])

@@ -197,9 +197,12 @@ class Reproduction:
     ``positions`` (N', D) ends on the canal's last section; ``start`` (D,) is the start that was
     asked for; ``inside`` whether it was inside the canal; ``eta`` its ratio to the section's
     boundary (0 on the directrix, 1 on the boundary); ``section_index`` the section it was
-    located at; ``projected`` whether it was moved onto the boundary first;
+    located at; ``projected`` whether it was outside and entered the canal over a short blend.
+    ``times`` (N',) seconds from the start and ``velocities`` (N', D) follow the demonstrations'
+    mean speed (None when the model has no time stamps and no duration was asked for);
     ``orientations`` (N', 4) unit quaternions qx, qy, qz, qw per position when the model has
-    orientation (else ``None``); ``notes`` what the service did that the request did not say.
+    orientation (else ``None``); ``goal`` the goal asked for; ``notes`` what the service did
+    that the request did not say (ignored or assumed).
     """
 
     positions: FloatArray
@@ -209,14 +212,20 @@ class Reproduction:
     section_index: int
     projected: bool
     model_version: int
+    times: FloatArray | None = None
+    velocities: FloatArray | None = None
     orientations: FloatArray | None = None
+    goal: FloatArray | None = None
     notes: list[str] = field(default_factory=list)
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> Reproduction:
+        def optional(key: str) -> FloatArray | None:
+            return None if d.get(key) is None else _array(d[key])
+
         return cls(positions=_array(d["positions"]), start=_array(d["start"]),
                    inside=bool(d["inside"]), eta=float(d["eta"]),
                    section_index=int(d["section_index"]), projected=bool(d["projected"]),
-                   model_version=int(d["model_version"]),
-                   orientations=None if d.get("orientations") is None else _array(d["orientations"]),
-                   notes=[str(n) for n in d.get("notes") or []])
+                   model_version=int(d["model_version"]), times=optional("times"),
+                   velocities=optional("velocities"), orientations=optional("orientations"),
+                   goal=optional("goal"), notes=[str(n) for n in d.get("notes") or []])

@@ -284,31 +284,38 @@ def _model_ref(model: Version) -> int | str:
     return model if model == "latest" else int(model)
 
 
-def _with_orientation(payload: dict[str, Any], start_orientation: ArrayLike | None
-                      ) -> dict[str, Any]:
+def _reproduction_options(goal: ArrayLike | None, duration: float | None,
+                          start_orientation: ArrayLike | None) -> dict[str, Any]:
+    """The optional request fields that were given (absent ones are not sent)."""
+    out: dict[str, Any] = {}
+    if goal is not None:
+        out["goal"] = _point(goal, "goal")
+    if duration is not None:
+        out["duration"] = float(duration)
     if start_orientation is not None:
-        payload["start_orientation"] = _point(start_orientation, "start_orientation")
-    return payload
+        out["start_orientation"] = _point(start_orientation, "start_orientation")
+    return out
 
 
 def _reproduce(skill: str, start: ArrayLike, model: Version, outside: str,
+               goal: ArrayLike | None = None, duration: float | None = None,
                start_orientation: ArrayLike | None = None) -> _Request[Reproduction]:
     return _post_json(_skill_path(skill, "reproductions"),
-                      _with_orientation({"start": _point(start), "model": _model_ref(model),
-                                         "outside": outside}, start_orientation),
+                      {"start": _point(start), "model": _model_ref(model), "outside": outside,
+                       **_reproduction_options(goal, duration, start_orientation)},
                       _json_of(Reproduction.from_json))
 
 
 def _reproduce_many(skill: str, starts: ArrayLike, model: Version, outside: str,
-                    start_orientation: ArrayLike | None = None
-                    ) -> _Request[list[Reproduction]]:
+                    goal: ArrayLike | None = None, duration: float | None = None,
+                    start_orientation: ArrayLike | None = None) -> _Request[list[Reproduction]]:
     def read(resp: httpx.Response) -> list[Reproduction]:
         return [Reproduction.from_json(r) for r in resp.json()["reproductions"]]
 
     return _post_json(_skill_path(skill, "reproductions"),
-                      _with_orientation({"starts": _rows(starts, "starts"),
-                                         "model": _model_ref(model), "outside": outside},
-                                        start_orientation), read)
+                      {"starts": _rows(starts, "starts"), "model": _model_ref(model),
+                       "outside": outside, **_reproduction_options(goal, duration, start_orientation)},
+                      read)
 
 
 def _recording_path(skill: str, kind: str) -> str:
@@ -505,21 +512,26 @@ class CanalClient(_Base):
     # -- reproductions --
 
     def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                  outside: str = "project", start_orientation: ArrayLike | None = None
-                  ) -> Reproduction:
-        """Reproduce from ``start`` (D,). A start outside the canal is projected onto it
-        (``outside="project"``) or refused with :class:`~canal_client.errors.OutsideCanalError`
-        (``outside="raise"``). ``start_orientation`` (4,) qx, qy, qz, qw: the start pose's
-        orientation, carried along when the model has orientation (``result.orientations``);
-        a model without it ignores it and says so in ``result.notes``."""
-        return self._call(_reproduce(skill, start, model, outside, start_orientation))
+                  outside: str = "project", goal: ArrayLike | None = None,
+                  duration: float | None = None,
+                  start_orientation: ArrayLike | None = None) -> Reproduction:
+        """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
+        (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
+        (``outside="raise"``). ``goal`` (D,) deforms the canal to end there; ``duration``
+        (seconds) stretches the returned ``times``. ``start_orientation`` (4,) qx, qy, qz, qw:
+        the start pose's orientation, carried along when the model has orientation
+        (``result.orientations``); a model without it ignores it and says so in
+        ``result.notes``."""
+        return self._call(_reproduce(skill, start, model, outside, goal, duration, start_orientation))
 
     def reproduce_many(self, skill: str, starts: ArrayLike, *,
                        model: Version = "latest", outside: str = "project",
+                       goal: ArrayLike | None = None, duration: float | None = None,
                        start_orientation: ArrayLike | None = None) -> list[Reproduction]:
         """Reproduce from each start (at most 1000) in one request, in order
         (``start_orientation`` is used for every start)."""
-        return self._call(_reproduce_many(skill, starts, model, outside, start_orientation))
+        return self._call(_reproduce_many(skill, starts, model, outside, goal, duration,
+                                          start_orientation))
 
     # -- recordings --
 
@@ -664,16 +676,19 @@ class AsyncCanalClient(_Base):
         return await self._call(_mesh(skill, version, format, n_angles, caps, envelope))
 
     async def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                        outside: str = "project", start_orientation: ArrayLike | None = None
-                        ) -> Reproduction:
+                        outside: str = "project", goal: ArrayLike | None = None,
+                        duration: float | None = None,
+                        start_orientation: ArrayLike | None = None) -> Reproduction:
         """See :meth:`CanalClient.reproduce`."""
-        return await self._call(_reproduce(skill, start, model, outside, start_orientation))
+        return await self._call(_reproduce(skill, start, model, outside, goal, duration,
+                                           start_orientation))
 
     async def reproduce_many(self, skill: str, starts: ArrayLike, *,
                              model: Version = "latest", outside: str = "project",
+                             goal: ArrayLike | None = None, duration: float | None = None,
                              start_orientation: ArrayLike | None = None) -> list[Reproduction]:
         """See :meth:`CanalClient.reproduce_many`."""
-        return await self._call(_reproduce_many(skill, starts, model, outside,
+        return await self._call(_reproduce_many(skill, starts, model, outside, goal, duration,
                                                 start_orientation))
 
     async def download_recording(self, skill: str, kind: RecordingKind,

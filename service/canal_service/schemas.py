@@ -281,8 +281,18 @@ class ReproductionRequest(_In):
     )
     outside: Literal["project", "raise"] = Field(
         "project",
-        description="A start outside the canal is projected onto it (200, inside=false, "
-        "projected=true), or refused with 422 when 'raise'.",
+        description="A start outside the canal enters it over a short blend (200, inside=false, "
+        "projected=true), or is refused with 422 when 'raise'.",
+    )
+    goal: list[float] | None = Field(
+        None, min_length=2, max_length=3,
+        description="End the reproduction here: the canal is smoothly deformed so its end moves "
+        "to the goal (the start region is untouched).",
+    )
+    duration: float | None = Field(
+        None, gt=0, allow_inf_nan=False,
+        description="Seconds: the times are stretched to end there (evenly paced along the path "
+        "when the model has no time stamps).",
     )
     start_orientation: list[float] | None = Field(
         None, min_length=4, max_length=4, examples=[[0.0, 0.0, 0.0, 1.0]],
@@ -307,9 +317,14 @@ class ReproductionOut(BaseModel):
     section_index: int
     projected: bool
     model_version: int
+    times: list[float] | None = Field(
+        None, description="Seconds from the start, following the demonstrations' mean speed."
+    )
+    velocities: list[list[float]] | None = None
     orientations: list[list[float]] | None = Field(
         None, description="(N', 4) unit quaternions qx, qy, qz, qw, one per position, when the "
                           "model has orientation; null otherwise.")
+    goal: list[float] | None = None
     notes: list[str] = Field(
         default_factory=list,
         description="What the service did that the request did not say, e.g. "

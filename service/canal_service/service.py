@@ -243,15 +243,16 @@ class CanalService:
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
         options = body.model_dump(exclude={"demo_ids", "by_time", "orientation"})
-        timestamps = times if body.by_time and any(t is not None for t in times) else None
+        # Time stamps always give the model its speed profile; they align only when by_time.
+        stamped = times if any(t is not None for t in times) else None
         quats = [d[3] for d in loaded]
         # Orientation is learned only when every demo has it: a mean over some demos would
         # not be the skill's.
         orientations = quats if body.orientation and all(q is not None for q in quats) else None
         started = time.perf_counter()
         try:
-            canal = canal_core.fit(positions, timestamps=timestamps, orientations=orientations,
-                                   **options)
+            canal = canal_core.fit(positions, timestamps=stamped, by_time=bool(body.by_time),
+                                   orientations=orientations, **options)
         except canal_core.CanalError as exc:
             _name_demo_in(exc, demo_ids)
             # canal_core leaves the field empty when the set as a whole is at fault.
@@ -259,7 +260,7 @@ class CanalService:
             raise
         seconds = time.perf_counter() - started
         serialized = canal.to_dict()
-        used_options = {**canal.options.to_dict(), "by_time": timestamps is not None,
+        used_options = {**canal.options.to_dict(), "by_time": bool(body.by_time) and stamped is not None,
                         "orientation": bool(canal.has_orientation)}
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
         self.cache.put(model[0], canal)
@@ -382,19 +383,27 @@ class CanalService:
             if len(start) != dim:
                 raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(start)}",
                                    field=field)
+        if body.goal is not None and len(body.goal) != dim:
+            raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(body.goal)}",
+                               field="goal")
         notes = []
+        if canal.section_times is None:
+            notes.append("model has no time stamps: times follow arc length" if body.duration is not None
+                         else "model has no time stamps: no times (send duration for evenly paced times)")
         start_orientation = body.start_orientation
         if start_orientation is not None and not canal.has_orientation:
             notes.append("model has no orientation: start_orientation ignored")
             start_orientation = None
+        goal = None if body.goal is None else np.asarray(body.goal, dtype=np.float64)
         results = []
         for start, field in zip(starts, fields, strict=True):
             try:
                 result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
-                                                  outside=body.outside,
+                                                  outside=body.outside, goal=goal,
+                                                  duration=body.duration,
                                                   start_orientation=start_orientation)
             except canal_core.CanalError as exc:
-                exc.field = exc.field if exc.field == "start_orientation" else field
+                exc.field = field if exc.field in (None, "start") else exc.field
                 raise
             results.append(result)
         outs = []
@@ -405,7 +414,9 @@ class CanalService:
                 positions=_tolist(result.positions), start=_tolist(result.start),
                 inside=bool(result.inside), eta=float(result.eta),
                 section_index=int(result.section_index), projected=bool(result.projected),
-                model_version=found_version, orientations=_tolist(result.orientations),
+                model_version=found_version,
+                times=_tolist(result.times), velocities=_tolist(result.velocities),
+                orientations=_tolist(result.orientations), goal=_tolist(result.goal),
                 notes=notes + _orientation_notes(canal, result, start_orientation),
             ))
         if body.start is not None:

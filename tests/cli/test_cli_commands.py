@@ -193,6 +193,19 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     r = run("reproduce", name, "--start", "0,0,0", "--out", str(tmp_path / "t.txt"))
     assert r.exit_code == 2 and ".csv, .npy or .json" in r.output
 
+    # --goal deforms the canal to end there, --duration times the path
+    r = run("--json", "reproduce", name, "--start", "0,0.01,0", "--model", "1",
+            "--goal", "1.05,0.02,0.1", "--duration", "2.5")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert np.allclose(doc["positions"][-1], [1.05, 0.02, 0.1], atol=1e-9)
+    assert abs(doc["times"][-1] - 2.5) < 1e-9 and len(doc["velocities"]) == len(doc["positions"])
+    r = run("reproduce", name, "--start", "0,0.01,0", "--duration", "3")
+    assert r.exit_code == 0 and "in 3 s" in r.stdout, r.output
+    for bad in (("--goal", "1,2,x"), ("--duration", "0"), ("--duration", "-1")):
+        r = run("reproduce", name, "--start", "0,0,0", *bad)
+        assert r.exit_code == 2 and bad[0] in r.output, r.output
+
 
 def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[str], str],
                          tmp_path: Path) -> None:

@@ -104,6 +104,14 @@ def test_upload_every_file_format(client: CanalClient, unique_name: Callable[[st
         client.upload_demo_file(name, odd)
 
 
+def test_untimed_model_gives_times_only_for_a_duration(client: CanalClient, fitted: str) -> None:
+    start = client.get_canal(fitted).directrix[0]
+    r = client.reproduce(fitted, start)
+    assert r.times is None and r.velocities is None and any("time stamps" in n for n in r.notes)
+    d = client.reproduce(fitted, start, duration=3.0)
+    assert d.times is not None and d.velocities is not None and abs(d.times[-1] - 3.0) < 1e-9
+
+
 def test_canal_mesh_and_reproductions(client: CanalClient, fitted: str) -> None:
     canal = client.get_canal(fitted)
     assert isinstance(canal, canal_core.Canal)
@@ -174,3 +182,33 @@ def test_lazy_robot_side_names_do_not_break_import() -> None:
     assert "PoseStreamer" in canal_client.__all__ and "run_sim" in dir(canal_client)
     with pytest.raises(AttributeError):
         _ = canal_client.no_such_name  # type: ignore[attr-defined]
+
+
+def test_reproduction_with_goal_duration_and_timing(client: CanalClient,
+                                                    unique_name: Callable[[str], str]) -> None:
+    name = unique_name("timed")
+    client.create_skill(name, dim=3)
+    for j in range(4):
+        positions = demo_positions(j)
+        # slow first half, fast second half: the reproduction keeps that profile
+        t = np.concatenate([np.linspace(0.0, 3.0, 25), np.linspace(3.0, 4.0, positions.shape[0] - 24)[1:]])
+        client.add_demo(name, positions, timestamps=t)
+    client.fit(name, n_samples=40)
+    canal = client.get_canal(name)
+    start = canal.directrix[0]
+    r = client.reproduce(name, start)
+    assert r.times is not None and r.velocities is not None and r.notes == []
+    assert r.times.shape == (r.positions.shape[0],) and r.velocities.shape == r.positions.shape
+    np.testing.assert_allclose(r.times[-1], 4.0, rtol=0.05)
+    local = canal.reproduce_detailed(start)
+    assert local.times is not None
+    np.testing.assert_allclose(r.times, local.times)
+    goal = canal.directrix[-1] + np.array([0.05, -0.05, 0.1])
+    g = client.reproduce(name, start, goal=goal, duration=2.0)
+    np.testing.assert_allclose(g.positions[-1], goal, atol=1e-9)
+    assert g.goal is not None and np.allclose(g.goal, goal)
+    assert g.times is not None and abs(g.times[-1] - 2.0) < 1e-9
+    many = client.reproduce_many(name, [start, start + 0.001], duration=1.0)
+    assert all(m.times is not None and abs(m.times[-1] - 1.0) < 1e-9 for m in many)
+    noted = client.reproduce(name, start, start_orientation=[0.0, 0.0, 0.0, 1.0])
+    assert any("orientation" in n for n in noted.notes) or noted.orientations is not None

@@ -223,7 +223,10 @@ def test_ur5e_leave_one_out_reproductions_end_near_the_held_out_goal() -> None:
         canal = canal_core.fit(train, n_samples=200)
         result = canal.reproduce_detailed(positions[held][0])
         assert np.isfinite(result.positions).all()
-        assert canal.contains(result.positions[1:]).all()
+        # A start outside enters the canal over the entry blend (10 % of its length) and
+        # stays inside from there on; a start inside never leaves.
+        entered = 1 if result.inside else max(1, result.positions.shape[0] // 5)
+        assert canal.contains(result.positions[entered:]).all()
         # The demos all end within a few cm of one another (a reach to one target).
         assert np.linalg.norm(result.positions[-1] - positions[held][-1]) < 0.1
 

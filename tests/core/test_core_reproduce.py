@@ -42,9 +42,10 @@ def test_task_one_reproduction_passes_the_narrow_middle(kind: str, rng: np.rando
 def test_eta_is_preserved_along_the_reproduction(kind: str) -> None:
     canal = canal_core.fit(sleeve_demos(), cross_section=kind, n_samples=120)
     start = canal.directrix[10] + 0.6 * 0.05 * canal.normals[10] + 0.2 * 0.05 * canal.binormals[10]
-    result = canal.reproduce_detailed(start)
+    # The paper's schedule (no end decay): each reproduced point sits exactly in its
+    # cross-section at ratio eta.
+    result = canal.reproduce_detailed(start, end_decay=0.0)
     idx = np.arange(result.section_index + 1, canal.n_sections)
-    # Each reproduced point sits exactly in its cross-section at ratio eta.
     rel = result.positions[1:] - canal.directrix[idx]
     q = np.einsum("nkd,nd->nk", canal.basis[idx], rel)
     norm = np.linalg.norm(q, axis=1)
@@ -60,7 +61,10 @@ def test_start_is_matched_to_its_nearest_section_not_the_first() -> None:
     result = canal.reproduce_detailed(start)
     assert result.section_index in (89, 90)
     assert result.positions.shape[0] == 1 + canal.n_sections - 1 - result.section_index
-    np.testing.assert_allclose(result.positions[-1], canal.directrix[-1] + result.eta * canal.radii[-1] * canal.normals[-1], atol=1e-9)
+    # The offset fades into the last sections: the reproduction lands on the canal's end.
+    np.testing.assert_allclose(result.positions[-1], canal.directrix[-1], atol=1e-12)
+    paper = canal.reproduce_detailed(start, end_decay=0.0)
+    np.testing.assert_allclose(paper.positions[-1], canal.directrix[-1] + result.eta * canal.radii[-1] * canal.normals[-1], atol=1e-9)
 
 
 def test_start_on_the_directrix_follows_the_directrix() -> None:
@@ -77,8 +81,14 @@ def test_start_outside_is_projected_or_raises() -> None:
     result = canal.reproduce_detailed(start)
     assert not result.inside and result.projected and result.eta == 1.0
     np.testing.assert_array_equal(result.positions[0], start)
-    # After the start, the path runs along the boundary and stays in the canal.
-    assert canal.contains(result.positions[1:]).all()
+    # The path enters the canal over the entry blend (10 % of the length), then stays inside.
+    eta = canal.locate(result.positions).eta
+    assert np.all(np.diff(eta[:12]) <= 1e-9)
+    entered = int(np.argmax(canal.arclength[1:] >= canal.arclength[1] + 0.1 * canal.arclength[-1]))
+    assert canal.contains(result.positions[1 + entered:]).all()
+    assert eta[1] > 1.5  # the first step does not jump onto the wall
+    # entry=0 is the paper's clamp: on the boundary at once.
+    assert canal.contains(canal.reproduce_detailed(start, entry=0.0).positions[1:]).all()
     with pytest.raises(OutsideCanalError, match=r"eta=2\.5"):
         canal.reproduce_detailed(start, outside="raise")
 
@@ -88,7 +98,7 @@ def test_two_dimensional_reproduction_keeps_its_side() -> None:
     demos = [np.column_stack([x, 0.3 * np.sin(np.pi * x) + d * (1.2 - x)]) for d in (-0.05, 0.02, 0.1)]
     canal = canal_core.fit(demos, cross_section="ellipse", n_samples=80)
     start = canal.directrix[0] + 0.5 * canal.sections.params["lower"][0] * canal.normals[0]
-    path = canal.reproduce(start)
+    path = canal.reproduce_detailed(start, end_decay=0.0).positions
     side = np.einsum("nd,nd->n", path[1:] - canal.directrix[1:], canal.normals[1:])
     np.testing.assert_allclose(side, 0.5 * canal.sections.params["lower"][1:], rtol=1e-9, atol=1e-15)
 
@@ -100,6 +110,7 @@ def test_model_round_trips_exactly_through_json(kind: str) -> None:
     again = canal_core.Canal.from_dict(json.loads(text))
     for name in ("directrix", "tangents", "normals", "binormals", "arclength", "section_points", "end_depths", "radii"):
         np.testing.assert_array_equal(getattr(again, name), getattr(canal, name))
+    assert again.envelope_margin == canal.envelope_margin
     assert again.options == canal.options
     start = canal.directrix[3] + 0.01 * canal.normals[3]
     np.testing.assert_array_equal(again.reproduce(start), canal.reproduce(start))
@@ -152,7 +163,7 @@ def test_smoothed_frames_do_not_twist_on_noisy_demos() -> None:
 
     def end_offset(smoothing: float) -> np.ndarray:
         canal = canal_core.fit(demos, frame_smoothing=smoothing)
-        path = canal.reproduce(start)
+        path = canal.reproduce_detailed(start, end_decay=0.0).positions
         return path[-1, 1:] - canal.directrix[-1, 1:]
 
     def angle(v: np.ndarray) -> float:

@@ -1,0 +1,117 @@
+"""The demonstrations' speed profile along the canal, and the timing of reproductions.
+
+The paper's reproduction is time-independent: one point per cross-section, paced by arc
+length. Demonstrations that carry time stamps also say *how fast* each part of the motion
+goes (slow near a narrow passage, fast in the open). The canal keeps their mean time along
+the phase: for each demonstration j (cleaned, see :mod:`canal_core.preprocess`), the time
+t_j(u_i) at which it reaches phase u_i = i / (N - 1) of its alignment parameter (the same
+parameter the aligned sample i comes from: normalised arc length, or normalised time when
+aligned by time), measured from its first sample. The section times are their mean,
+
+    tau_i = (1 / n_t) sum_j t_j(u_i),     i = 0 .. N - 1,
+
+over the n_t demonstrations with time stamps. A reproduction located at fractional section
+i0 + alpha and passing through sections i0 + 1 .. N - 1 is given the times
+tau(k) - tau(i0 + alpha) (linear in the fractional section), optionally rescaled to a
+requested duration, and velocities by finite differences of positions over those times.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .alignment import spline_parameter
+from .validation import FloatArray
+
+
+def section_times(
+    demos: list[FloatArray], timestamps: list[FloatArray | None], n_samples: int, by_time: bool
+) -> FloatArray | None:
+    """Mean time from the start at which the demonstrations reach each section, shape (N,).
+
+    Parameters
+    ----------
+    demos : list of arrays, each shape (T_j, D)
+        Cleaned demonstrations (no repeats, still ends trimmed).
+    timestamps : list of (array, shape (T_j,)) or None
+    n_samples : int
+        N.
+    by_time : bool
+        Whether the demonstrations were aligned by time (else by arc length).
+
+    Returns
+    -------
+    tau : array, shape (N,), or None when no demonstration has time stamps
+        Non-decreasing, tau[0] = 0.
+    """
+    u = np.linspace(0.0, 1.0, n_samples)
+    rows = []
+    for positions, times in zip(demos, timestamps, strict=True):
+        if times is None:
+            continue
+        phase = spline_parameter(positions, times if by_time else None)
+        rows.append(np.interp(u, phase, times - times[0]))
+    if not rows:
+        return None
+    tau = np.maximum.accumulate(np.mean(rows, axis=0))
+    return np.asarray(tau - tau[0], dtype=np.float64)
+
+
+def reproduction_times(
+    tau: FloatArray, start_index: int, start_alpha: float, n_points: int
+) -> FloatArray:
+    """Times, shape (n_points,), of a reproduction: its start, then sections N - n_points + 1 .. N - 1.
+
+    Parameters
+    ----------
+    tau : array, shape (N,)
+        Section times (:func:`section_times`).
+    start_index, start_alpha : int, float
+        Where the start was located (between sections i and i + 1).
+    n_points : int
+        Length of the reproduction (start included).
+    """
+    n = tau.shape[0]
+    t0 = float(np.interp(start_index + start_alpha, np.arange(n), tau))
+    path = tau[n - (n_points - 1) :] - t0
+    times = np.concatenate([[0.0], path])
+    return strictly_increasing(times)
+
+
+def arc_length_times(positions: FloatArray, duration: float) -> FloatArray:
+    """Times, shape (T,), at constant speed along ``positions`` (T, D), ending at ``duration``."""
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    times = s * (duration / s[-1]) if s[-1] > 0.0 else np.linspace(0.0, duration, positions.shape[0])
+    return strictly_increasing(times)
+
+
+def strictly_increasing(times: FloatArray) -> FloatArray:
+    """``times`` made strictly increasing by the least nudge (1e-9 of the span per step)."""
+    if times.shape[0] < 2:
+        return times.astype(np.float64)
+    span = max(float(times[-1] - times[0]), 1.0)
+    eps = 1e-9 * span
+    steps = np.maximum(np.diff(times), eps)
+    return np.asarray(np.concatenate([[times[0]], times[0] + np.cumsum(steps)]), dtype=np.float64)
+
+
+def rescaled_times(times: FloatArray, duration: float) -> FloatArray:
+    """``times`` (T,) from 0, stretched so the last is ``duration``."""
+    if times.shape[0] < 2 or times[-1] <= 0.0:
+        return np.linspace(0.0, duration, times.shape[0])
+    return np.asarray(times * (duration / times[-1]), dtype=np.float64)
+
+
+def finite_velocities(positions: FloatArray, times: FloatArray) -> FloatArray:
+    """Velocities, shape (T, D), by second-order finite differences over uneven ``times`` (T,).
+
+    The last sample's velocity is zero: the reproduction ends where the demonstrations
+    stopped (their still tails were trimmed, so one-sided differences there would report
+    the last moving speed as the arrival speed).
+    """
+    if positions.shape[0] < 2:
+        return np.zeros_like(positions)
+    velocity = np.gradient(positions, times, axis=0, edge_order=1)
+    velocity[-1] = 0.0
+    return np.asarray(velocity, dtype=np.float64)
