@@ -7,10 +7,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: run example walkthrough figure test lint bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml docker/constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet -c docker/constraints.txt -e '.[dev]'
 	touch $(STAMP)
 
 run: $(STAMP)
