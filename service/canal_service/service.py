@@ -387,9 +387,10 @@ class CanalService:
             raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(body.goal)}",
                                field="goal")
         notes = []
-        if canal.section_times is None:
-            notes.append("model has no time stamps: times follow arc length" if body.duration is not None
-                         else "model has no time stamps: no times (send duration for evenly paced times)")
+        if canal.section_times is None and body.duration is not None:
+            # Without a duration the answer's null times say it all; with one, the pacing
+            # is an assumption worth stating.
+            notes.append("model has no time stamps: times follow arc length at constant speed")
         start_orientation = body.start_orientation
         if start_orientation is not None and not canal.has_orientation:
             notes.append("model has no orientation: start_orientation ignored")

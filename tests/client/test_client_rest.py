@@ -107,9 +107,10 @@ def test_upload_every_file_format(client: CanalClient, unique_name: Callable[[st
 def test_untimed_model_gives_times_only_for_a_duration(client: CanalClient, fitted: str) -> None:
     start = client.get_canal(fitted).directrix[0]
     r = client.reproduce(fitted, start)
-    assert r.times is None and r.velocities is None and any("time stamps" in n for n in r.notes)
+    assert r.times is None and r.velocities is None and r.notes == []
     d = client.reproduce(fitted, start, duration=3.0)
     assert d.times is not None and d.velocities is not None and abs(d.times[-1] - 3.0) < 1e-9
+    assert any("arc length" in n for n in d.notes)
 
 
 def test_canal_mesh_and_reproductions(client: CanalClient, fitted: str) -> None:
