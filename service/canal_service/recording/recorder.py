@@ -139,6 +139,7 @@ class Recorder:
         self.decimated_live = 0
         self.written_live = 0
         self._closed = not enabled
+        self.live_source: Any = None  # a LiveSubscriber feeding live_sample()
         self._thread: threading.Thread | None = None
         if enabled:
             self._thread = threading.Thread(target=self._run, name="canal-recorder", daemon=True)
@@ -384,10 +385,18 @@ class Recorder:
             "decimated": self.decimated_live,
             "live_written": self.written_live,
             "reconciled": dict(self.reconciled),
+            "live": self.live_source.health() if self.live_source is not None else {
+                "status": "disabled"},
         }
 
     def close(self) -> None:
         """Write everything queued, finish every file and stop the writer."""
+        if self.live_source is not None:
+            source, self.live_source = self.live_source, None
+            try:
+                source.close()
+            except Exception:
+                log.exception("closing the live subscriber")
         if self._thread is None or not self._thread.is_alive():
             self._closed = True
             return
