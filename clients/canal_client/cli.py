@@ -49,6 +49,7 @@ HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
   canal reproduce SKILL --start x,y,z     a new trajectory (--out traj.csv)
   canal export SKILL [--rrd F] [--mcap F] download the review recordings
   canal view SKILL                        open the recording in the Rerun viewer
+  canal recordings rebuild SKILL          regenerate the recordings from the database
   canal sim SKILL                         drive a simulated robot (Zenoh)
 
 Global options go before the command: canal --url http://host:8000 --token T skill list
@@ -64,6 +65,8 @@ skill_app = typer.Typer(help="Create, list, show and delete skills.", no_args_is
 demo_app = typer.Typer(help="Add, list and remove demonstrations.", no_args_is_help=True)
 app.add_typer(skill_app, name="skill")
 app.add_typer(demo_app, name="demo")
+recordings_app = typer.Typer(help="The service's review recordings.", no_args_is_help=True)
+app.add_typer(recordings_app, name="recordings")
 
 
 @dataclasses.dataclass
@@ -601,6 +604,23 @@ def view(
     out.print(f"open it with: {escape(open_cmd)}")
     if cmd is None:
         out.print("(no Rerun viewer found: pip install rerun-sdk==0.41.0)")
+
+
+@recordings_app.command("rebuild")
+def recordings_rebuild(ctx: typer.Context, skill: str) -> None:
+    """Regenerate SKILL's .rrd and .mcap from the service's database (demonstrations and
+    model versions; live poses and reproductions are not stored, so they are not kept)."""
+    from .rest import _check, _skill_path
+
+    with _client(ctx) as c:
+        resp = c._http.post(_skill_path(skill, "recording", "rebuild"))
+        _check(resp)
+        body = resp.json()
+    if _opts(ctx).json:
+        _print_json(body)
+        return
+    out.print(f"rebuilt the recordings of {escape(skill)}: {body.get('demos', 0)} "
+              f"demonstrations, {body.get('models', 0)} model versions")
 
 
 # ---- simulation ------------------------------------------------------------------------------
