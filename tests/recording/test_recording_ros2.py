@@ -78,7 +78,7 @@ def test_ros2_profile_reads_back_with_rosbags(recorder: Recorder, demos3: list[n
     assert np.allclose(got, demos3[1])
     assert len(by_topic["/canal/demos/demo_1"][-1].poses) == 0  # the deletion
     mesh = canal3.mesh(n_angles=32)
-    surface = [m for m in by_topic["/canal/model/mesh"][0].markers if m.ns == "canal/mesh"][0]
+    surface = next(m for m in by_topic["/canal/model/mesh"][0].markers if m.ns == "canal/mesh")
     assert surface.type == 11 and len(surface.points) == 3 * len(mesh.faces)
     timed = by_topic["/canal/reproductions"][-1]
     q = timed.poses[-1].pose.orientation

@@ -5,8 +5,11 @@ Needs ``canal_service.recording`` (written separately); skipped with a reason un
 
 from __future__ import annotations
 
+import io
+import json
 from pathlib import Path
 
+import httpx
 import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
@@ -41,3 +44,42 @@ def test_recording_exports(tmp_path: Path) -> None:
         assert mcap.status_code == 200 and mcap.content.startswith(b"\x89MCAP0\r\n")
         assert c.get("/skills/nope/recording.rrd").status_code == 404
     assert settings.resolved_recordings_dir.exists()
+
+
+def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> None:
+    import shutil
+
+    from canal_client.cli import app
+    from canal_testing import LiveServer
+    from mcap.reader import make_reader
+    from typer.testing import CliRunner
+
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
+    with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        ids = [c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(j).tolist()}).json()["id"]
+               for j in range(3)]
+        assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+        assert c.delete(f"/skills/pour/demonstrations/{ids[0]}").status_code == 204
+        assert c.get("/skills/pour/recording.mcap").status_code == 200  # written out
+        # The recording is lost (a disk swap, a deleted folder): rebuild it from the database.
+        shutil.rmtree(settings.resolved_recordings_dir / "pour")
+        r = CliRunner().invoke(app, ["--url", server.url, "--json", "recordings", "rebuild",
+                                     "pour"])
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0}
+        mcap = c.get("/skills/pour/recording.mcap").content
+        assert c.post("/skills/nope/recording/rebuild").status_code == 404
+    reader = make_reader(io.BytesIO(mcap))
+    demos = {e["id"] for _, _, m in reader.iter_messages(topics=["/canal/demos"])
+             for e in json.loads(m.data)["entities"]}
+    assert demos == {f"demo/{ids[1]}", f"demo/{ids[2]}"}  # the deleted one stays gone
+    models = [m for _, _, m in make_reader(io.BytesIO(mcap)).iter_messages(
+        topics=["/canal/model_info"])]
+    assert len(models) == 1
+
+
+def test_rebuild_answers_404_when_recordings_are_off(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/recording/rebuild")
+    assert r.status_code == 404 and r.json()["error"]["type"] == "disabled"
