@@ -105,13 +105,23 @@ class Recorder:
         recording misses (after a crash), and :meth:`rebuild` regenerates a recording.
     coordinates : str
         ``rr.ViewCoordinates`` of the world in the ``.rrd`` (3-D skills).
+    quiet_s, max_lag_s : float
+        The writer yields to the request path: queued events wait while events keep coming
+        (less than ``quiet_s`` apart), at most ``max_lag_s``; an export, rebuild or close
+        writes everything queued at once. ``quiet_s=0`` writes as soon as possible.
     """
 
     def __init__(self, root: Path, *, enabled: bool = True, flush_interval_s: float = 1.0,
                  live_max_hz: float | None = 100.0, live_queue_size: int = 20_000,
                  event_queue_size: int = 10_000, idle_close_s: float = 60.0,
                  export_timeout_s: float = 30.0, source: DbSource | None = None,
-                 coordinates: str = "RIGHT_HAND_Z_UP") -> None:
+                 coordinates: str = "RIGHT_HAND_Z_UP", quiet_s: float = 0.25,
+                 max_lag_s: float = 10.0) -> None:
+        self.quiet_s = float(quiet_s)
+        self.max_lag_s = float(max_lag_s)
+        self._last_put = 0.0
+        self._urgent = 0  # urgent events queued (export, rebuild, reconcile, stop)
+        self._urgent_lock = threading.Lock()
         view_coordinates(coordinates)  # a bad name fails here, not in the writer
         self.coordinates = coordinates
         self.source = source
@@ -298,6 +308,7 @@ class Recorder:
             raise RuntimeError("this recorder has no database to rebuild from")
         event = Rebuild(skill)
         self._events.append(event)  # never dropped, like Rotate
+        self._mark_urgent()
         self._wake.set()
         if not event.done.wait(timeout_s or max(self.export_timeout_s, 600.0)):
             raise TimeoutError(f"rebuild of {skill!r} did not finish")
@@ -311,6 +322,7 @@ class Recorder:
             return {}
         event = Reconcile(skill)
         self._events.append(event)
+        self._mark_urgent()
         self._wake.set()
         event.done.wait(timeout_s)
         return dict(event.result)
@@ -323,6 +335,7 @@ class Recorder:
             # Never dropped: the writer closes the open segment after every event queued
             # before this one, so the snapshot holds everything recorded up to now.
             self._events.append(rotate)
+            self._mark_urgent()
             self._wake.set()
             if not rotate.done.wait(self.export_timeout_s):
                 self._note("export", f"writer did not answer within {self.export_timeout_s:g}"
@@ -404,6 +417,7 @@ class Recorder:
             self._closed = True
             atexit.unregister(self.close)
             self._events.append(Stop())
+            self._mark_urgent()
             self._wake.set()
         self._thread.join(timeout=60)
 
@@ -416,7 +430,12 @@ class Recorder:
                        f"{self.dropped_events} events dropped")
             return
         self._events.append(event)
+        self._last_put = time.monotonic()
         self._wake.set()
+
+    def _mark_urgent(self) -> None:
+        with self._urgent_lock:
+            self._urgent += 1
 
     def _caller_error(self, method: str) -> None:
         self.dropped_events += 1
@@ -444,13 +463,17 @@ class Recorder:
         if self.source is not None:
             # The database is the source of truth: what it acknowledged and a crash kept
             # out of the files is logged now, before anything new.
+            self._mark_urgent()
             self._events.appendleft(Reconcile(None))
         next_flush = time.monotonic() + self.flush_interval_s
         while True:
-            self._wake.wait(max(0.0, next_flush - time.monotonic()))
+            timeout = next_flush - time.monotonic()
+            if self._events:
+                timeout = min(timeout, self.quiet_s)
+            self._wake.wait(max(0.0, timeout))
             self._wake.clear()
             try:
-                if self._drain_events():
+                if self._events and not self._busy() and self._drain_events():
                     break
                 if time.monotonic() >= next_flush:
                     self._drain_live()
@@ -463,9 +486,23 @@ class Recorder:
         for state in list(self._skills.values()):
             self._close_segment(state)
 
+    def _busy(self) -> bool:
+        """Whether queued events should wait: the request path is busy and none is urgent."""
+        if self._urgent or self.quiet_s <= 0 or self._closed:
+            return False
+        if time.monotonic() - self._last_put >= self.quiet_s:
+            return False
+        try:
+            head_ns = getattr(self._events[0], "t_ns", None)
+        except IndexError:
+            return False
+        return head_ns is None or time.time_ns() - head_ns < self.max_lag_s * 1e9
+
     def _drain_events(self) -> bool:
-        """Handle queued events; True when asked to stop."""
+        """Handle queued events (until the request path is busy again); True to stop."""
         while True:
+            if self._busy():
+                return False  # a new burst: yield, the rest waits for the next lull
             try:
                 event = self._events.popleft()
             except IndexError:
@@ -487,6 +524,8 @@ class Recorder:
                     event.result["error"] = f"{type(exc).__name__}: {exc}"
             finally:
                 if isinstance(event, Rotate | Rebuild | Reconcile):
+                    with self._urgent_lock:
+                        self._urgent -= 1
                     event.done.set()
 
     def _demo_refs(self, first: DemoRef) -> None:
@@ -752,6 +791,7 @@ class Recorder:
         state.pending_ledger = []
         if reconcile and lost and self.source is not None:
             # Not in the ledger, so the database fills them in again at the next reconcile.
+            self._mark_urgent()
             self._events.append(Reconcile(state.skill))
         if state.rerun is not None:
             state.rerun.abandon()
