@@ -512,6 +512,9 @@ def export(
                    ] = None,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Save the MCAP file here.")
                     ] = None,
+    ros2: Annotated[bool, typer.Option(
+        "--ros2", help="The MCAP as a rosbag2-compatible file (CDR) instead of Foxglove JSON.")
+                    ] = False,
 ) -> None:
     """Download the skill's review recordings (both to ./SKILL.rrd and ./SKILL.mcap when
     neither --rrd nor --mcap is given)."""
@@ -520,13 +523,25 @@ def export(
     written: dict[str, str] = {}
     with _client(ctx) as c:
         for kind, path in (("rrd", rrd), ("mcap", mcap)):
-            if path is not None:
+            if path is not None and kind == "mcap" and ros2:
+                _download_ros2(c, skill, path)
+            elif path is not None:
                 c.download_recording(skill, kind, path)  # type: ignore[arg-type]
                 written[kind] = str(path)
                 if not _opts(ctx).json:
                     out.print(f"wrote {escape(str(path))} ({path.stat().st_size} bytes)")
     if _opts(ctx).json:
         _print_json(written)
+
+
+def _download_ros2(c: CanalClient, skill: str, path: Path) -> None:
+    from .rest import _check, _skill_path
+
+    resp = c._http.get(_skill_path(skill, "recording.mcap"), params={"profile": "ros2"})
+    _check(resp)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(resp.content)
+    tmp.replace(path)
 
 
 def _cache_dir() -> Path:

@@ -71,6 +71,12 @@ def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> 
         assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0}
         mcap = c.get("/skills/pour/recording.mcap").content
         assert c.post("/skills/nope/recording/rebuild").status_code == 404
+        ros2 = tmp_path / "pour-ros2.mcap"
+        r = CliRunner().invoke(app, ["--url", server.url, "export", "pour", "--mcap", str(ros2),
+                                     "--ros2"])
+        assert r.exit_code == 0, r.output
+        assert make_reader(io.BytesIO(ros2.read_bytes())).get_header().profile == "ros2"
+        assert c.get("/skills/pour/recording.mcap", params={"profile": "bag"}).status_code == 422
     reader = make_reader(io.BytesIO(mcap))
     demos = {e["id"] for _, _, m in reader.iter_messages(topics=["/canal/demos"])
              for e in json.loads(m.data)["entities"]}
