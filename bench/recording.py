@@ -258,11 +258,14 @@ def bench_uploads(n: int, clients: int, rounds: int) -> dict[str, Any]:
         np.linspace(0, 3, 1000)), np.zeros(1000)] + 0.01 * rng.standard_normal((1000, 3))
                                            ).tolist()}) for _ in range(16)]
     on, off, recorded = [], [], []
-    for _ in range(rounds):  # alternated, so both see the same machine load
-        r = _upload_round(True, n, clients, bodies)
-        on.append(r["rate"])
-        recorded.append(r["recorded"])
-        off.append(_upload_round(False, n, clients, bodies)["rate"])
+    for k in range(rounds):  # alternated (and the order swapped), so both see the same load
+        for recordings in ((True, False) if k % 2 == 0 else (False, True)):
+            r = _upload_round(recordings, n, clients, bodies)
+            if recordings:
+                on.append(r["rate"])
+                recorded.append(r["recorded"])
+            else:
+                off.append(r["rate"])
     best_on, best_off = max(on), max(off)
     return {"on": on, "off": off, "best_on": best_on, "best_off": best_off,
             "cost_pct": 100.0 * (1.0 - best_on / best_off), "recorded": recorded, "n": n,

@@ -614,10 +614,11 @@ class Recorder:
         """Log what the database holds and the ledger does not (one skill or all)."""
         if self.source is None:
             return {}
-        names = [skill] if skill is not None else sorted(self.source.skills())
+        dims = self.source.skills()
+        names = [skill] if skill is not None else sorted(dims)
         total = {"demos": 0, "models": 0, "removed": 0}
         for name in names:
-            for k, v in self._reconcile_skill(name, full=False).items():
+            for k, v in self._reconcile_skill(name, full=False, dims=dims).items():
                 total[k] += v
         for k, v in total.items():
             self.reconciled[k] += v
@@ -625,7 +626,8 @@ class Recorder:
             log.info("recordings reconciled with the database: %s", total)
         return total
 
-    def _reconcile_skill(self, skill: str, *, full: bool) -> dict[str, int]:
+    def _reconcile_skill(self, skill: str, *, full: bool,
+                         dims: dict[str, int] | None = None) -> dict[str, int]:
         assert self.source is not None
         inventory = self.source.inventory(skill)
         if inventory is None:
@@ -640,7 +642,8 @@ class Recorder:
                  "m": ledger.models.add}.get(kind, lambda _v: None)(int(value))
         if full:
             ledger.demos, ledger.models = set(), set()
-        dims = self.source.skills()
+        if dims is None:
+            dims = self.source.skills()
         if skill in dims:
             self._dims[skill] = dims[skill]
         missing = sorted(db_demos - ledger.demos)
