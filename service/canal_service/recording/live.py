@@ -121,6 +121,18 @@ class LiveStats:
 _cdr_store: Any = None
 
 
+def _json_seq(data: bytes) -> int | None:
+    """The ``seq`` of a JSON pose without parsing all of it (None when not found)."""
+    at = data.find(b'"seq":')
+    if at < 0:
+        return None
+    end = at + 6
+    while end < len(data) and data[end:end + 1] in b" 0123456789":
+        end += 1
+    digits = data[at + 6:end].strip()
+    return int(digits) if digits else None
+
+
 def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]] | None:
     """(position, [qx, qy, qz, qw]) of a CDR ``geometry_msgs/msg/PoseStamped``; None when
     ``rosbags`` is not installed."""
@@ -219,20 +231,22 @@ class LiveSubscriber:
         return n
 
     def _sample(self, kind: int, sample: Any) -> None:
+        # Most samples at high rates are over the recording rate: decide that from the key,
+        # the arrival time and a peek at the payload, and decode only the samples kept.
         parts = str(sample.key_expr).split("/")
         if len(parts) != self._depth + 3:
             return
         skill, robot = parts[-3], parts[-2]
         ts = sample.timestamp
-        t_ns = int(ts.get_time().timestamp() * 1e9) if ts is not None else time.time_ns()
+        t_ns = ts.get_time_as_ntp64().as_nanos() if ts is not None else time.time_ns()
         data = sample.payload.to_bytes()
         try:
             if data[:4] in _CDR_HEADERS:
                 self._cdr(kind, skill, robot, t_ns, data)
             elif kind == POSE:
-                self._pose(skill, robot, t_ns, str(sample.encoding), data)
+                self._pose(skill, robot, t_ns, sample, data)
             else:
-                self._target(skill, robot, t_ns, str(sample.encoding), data)
+                self._target(skill, robot, t_ns, sample, data)
         except Exception:  # WireError, a CDR SerdeError, a short struct: not ours to fix
             self.stats.bad_payload += 1
 
@@ -246,24 +260,27 @@ class LiveSubscriber:
         if last is None or seq > last:
             self.stats.last_seq[key] = seq
 
-    def _pose(self, skill: str, robot: str, t_ns: int, encoding: str, data: bytes) -> None:
-        json = wire.is_json(encoding, data)
-        if json:
-            pose = wire.decode_pose_json(data)
-            self._seq(skill, robot, pose.seq)
-        else:
-            if len(data) >= 12:
-                self._seq(skill, robot, _SEQ.unpack_from(data, 4)[0])
-            if not self.recorder.wants_live(skill, robot, POSE, t_ns):
-                self.recorder.decimated_live += 1
-                return  # decimated before decoding: most poses at high rates
-            pose = wire.decode_pose(data)
+    def _pose(self, skill: str, robot: str, t_ns: int, sample: Any, data: bytes) -> None:
+        json = data[:1] == b"{" or wire.is_json(str(sample.encoding), data)
+        if not json and len(data) >= 12 and data[0] == wire.VERSION:
+            self._seq(skill, robot, _SEQ.unpack_from(data, 4)[0])
+        elif json:
+            self._seq(skill, robot, _json_seq(data))
+        if not self.recorder.wants_live(skill, robot, POSE, t_ns):
+            self.recorder.decimated_live += 1
+            return  # decimated before decoding
+        pose = wire.decode_pose_json(data) if json else wire.decode_pose(data)
         self.recorder.live_sample(LiveSample(
             skill, robot, POSE, t_ns, list(pose.position),
             None if pose.orientation is None else list(pose.orientation)))
 
-    def _target(self, skill: str, robot: str, t_ns: int, encoding: str, data: bytes) -> None:
-        target = wire.decode_any_target(encoding, data)
+    def _target(self, skill: str, robot: str, t_ns: int, sample: Any, data: bytes) -> None:
+        json = data[:1] == b"{" or wire.is_json(str(sample.encoding), data)
+        if not self.recorder.wants_live(skill, robot, TARGET, t_ns) and not self._flips(
+                skill, robot, json, data):
+            self.recorder.decimated_live += 1
+            return
+        target = wire.decode_target_json(data) if json else wire.decode_target(data)
         if target.target is None:
             return  # an error answer: no position to draw
         orientation = getattr(target, "orientation", None)
@@ -273,6 +290,16 @@ class LiveSubscriber:
             float("nan") if target.eta is None else float(target.eta),
             -1 if target.section is None else int(target.section),
             bool(target.inside), bool(target.done)))
+
+    def _flips(self, skill: str, robot: str, json: bool, data: bytes) -> bool:
+        """Whether a target's inside/done flags differ from the last recorded (a peek)."""
+        if json:
+            inside, done = b'"inside":true' in data, b'"done":true' in data
+        elif len(data) > 2:
+            inside, done = bool(data[2] & wire.TARGET_INSIDE), bool(data[2] & wire.TARGET_DONE)
+        else:
+            return True
+        return self.recorder.live_flags(skill, robot) != (inside, done)
 
     def _cdr(self, kind: int, skill: str, robot: str, t_ns: int, data: bytes) -> None:
         if not self.recorder.wants_live(skill, robot, kind, t_ns):

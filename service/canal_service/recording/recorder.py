@@ -253,6 +253,11 @@ class Recorder:
             self._live.append(sample)
         return True
 
+    def live_flags(self, skill: str, robot: str) -> tuple[bool, bool] | None:
+        """(inside, done) of the last target kept for this robot, or None."""
+        last = self._live_last.get((skill, robot, TARGET))
+        return None if last is None else (last[1], last[2])
+
     def wants_live(self, skill: str, robot: str, kind: int, t_ns: int) -> bool:
         """Whether a sample at ``t_ns`` would pass the rate limit (a cheap pre-check)."""
         last = self._live_last.get((skill, robot, kind))
