@@ -250,6 +250,62 @@ def _upload_round(recordings: bool, n: int, clients: int, bodies: list[bytes]) -
             proc.kill()
 
 
+def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
+    """Cost per sample of the recorder's Zenoh subscriber (drain thread), real sessions.
+
+    16 robots' poses and targets (binary and JSON) are put on loopback, then one drain
+    empties the rings; time per sample at the default 100 Hz and keeping every sample.
+    """
+    import orjson
+    import zenoh
+    from canal_client import wire
+    from canal_service.recording.live import LiveOptions, LiveSubscriber
+
+    def config(mode: str, listen: list[str], connect: list[str]) -> Any:
+        c = zenoh.Config()
+        c.insert_json5("mode", orjson.dumps(mode).decode())
+        c.insert_json5("scouting/multicast/enabled", "false")
+        c.insert_json5("listen/endpoints", orjson.dumps(listen).decode())
+        c.insert_json5("connect/endpoints", orjson.dumps(connect).decode())
+        return c
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    bridge = zenoh.open(config("peer", [endpoint], []))
+    rows = []
+    try:
+        for hz in (100.0, None):
+            rec = Recorder(Path(tempfile.mkdtemp(prefix="canal-bench-drain-")),
+                           live_max_hz=hz, quiet_s=0)
+            sub = LiveSubscriber(rec, LiveOptions(listen=(endpoint,), interval_s=3600))
+            sub.start()
+            robot = zenoh.open(config("client", [], [endpoint]))
+            time.sleep(1.5)
+            for enc in ("binary", "json"):
+                for k in range(n // 2):
+                    key, seq, p = f"canal/b/r{k % 16}", k // 16 + 1, [0.1, 0.2, 0.3]
+                    if enc == "binary":
+                        robot.put(f"{key}/pose", wire.encode_pose(seq, p))
+                        robot.put(f"{key}/target", wire.pack_target(
+                            seq, 0, p, 0.5, 0.3, 4, True, False, 1))
+                    else:
+                        robot.put(f"{key}/pose", wire.encode_pose_json(seq, p),
+                                  encoding=wire.JSON_ENCODING)
+                        robot.put(f"{key}/target", wire.pack_target_json(
+                            seq, "ok", p, 0.5, 0.3, 4, True, False, 1),
+                            encoding=wire.JSON_ENCODING)
+                time.sleep(1.0)
+                t0 = time.perf_counter()
+                got = sub.drain()
+                dt = time.perf_counter() - t0
+                rows.append({"hz": hz or 0, "encoding": enc, "samples": got,
+                             "us": 1e6 * dt / max(got, 1)})
+            robot.close()
+            rec.close()
+    finally:
+        bridge.close()
+    return rows
+
+
 def bench_uploads(n: int, clients: int, rounds: int) -> dict[str, Any]:
     rng = np.random.default_rng(0)
     import orjson
@@ -279,7 +335,15 @@ def main() -> None:
                         help="only the upload rounds through canal serve (with/without recordings)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--n-uploads", type=int, default=1000)
+    parser.add_argument("--live-drain", action="store_true",
+                        help="only the cost per sample of the recorder's Zenoh subscriber")
     args = parser.parse_args()
+    if args.live_drain:
+        print("| recorder Zenoh subscriber | kept Hz | samples drained | us/sample |")
+        print("|---|---|---|---|")
+        for r in bench_live_drain():
+            print(f"| {r['encoding']} | {r['hz'] or 'all':>4} | {r['samples']} | {r['us']:.1f} |")
+        return
     if args.uploads:
         up = bench_uploads(args.n_uploads, 8, args.rounds)
         print(f"uploads through python -m canal_service (defaults), {up['n']} x 1,000-point "
