@@ -139,3 +139,16 @@ def test_garbage_and_gaps_are_counted_not_recorded(live: Any) -> None:
     assert len(mcap_messages(rec.export_mcap("pour"), "/live/arm1/pose")) == 2
     health = rec.health()["live"]
     assert health["status"] == "ok" and health["missed_poses"] == 3
+
+
+def test_a_zenoh_config_file_is_used_with_its_listen_endpoints_as_connect(tmp_path: Path) -> None:
+    from canal_service.recording.live import zenoh_config
+
+    path = tmp_path / "zenoh.json5"
+    path.write_text('{ mode: "peer", listen: { endpoints: ["tcp/0.0.0.0:7447"] },'
+                    ' connect: { endpoints: ["tcp/10.0.0.5:7447"] } }')
+    config = zenoh_config(LiveOptions(config_file=path))
+    assert orjson.loads(config.get_json("listen/endpoints")) == []
+    assert orjson.loads(config.get_json("connect/endpoints")) == ["tcp/10.0.0.5:7447",
+                                                                   "tcp/127.0.0.1:7447"]
+    assert orjson.loads(config.get_json("mode")) == "peer"

@@ -89,3 +89,37 @@ def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> 
 def test_rebuild_answers_404_when_recordings_are_off(client: TestClient, skill: str) -> None:
     r = client.post(f"/skills/{skill}/recording/rebuild")
     assert r.status_code == 404 and r.json()["error"]["type"] == "disabled"
+
+
+def test_a_restart_reconciles_the_recording_with_the_database(tmp_path: Path) -> None:
+    """Changes made while recordings were off show up once they are on again."""
+    from mcap.reader import make_reader
+
+    def settings(recordings: bool) -> Settings:
+        return Settings(data_dir=tmp_path / "data", recordings_enabled=recordings,
+                        zenoh_enabled=False)
+
+    with TestClient(create_app(settings(True))) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        ids = [c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(j).tolist()}).json()["id"]
+               for j in range(3)]
+        assert c.get("/skills/pour/recording.mcap").status_code == 200
+    with TestClient(create_app(settings(False))) as c:  # the recorder does not hear these
+        assert c.delete(f"/skills/pour/demonstrations/{ids[0]}").status_code == 204
+        late = c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(7).tolist()}).json()["id"]
+        assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+    with TestClient(create_app(settings(True))) as c:
+        mcap = c.get("/skills/pour/recording.mcap").content
+        reconciled = c.get("/healthz").json()["recorder"]["reconciled"]
+    assert reconciled == {"demos": 1, "models": 1, "removed": 1}
+    shown: set[str] = set()
+    for _, _, m in make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/demos"],
+                                                               log_time_order=False):
+        update = json.loads(m.data)
+        shown |= {e["id"] for e in update["entities"]}
+        shown -= {d["id"] for d in update["deletions"]}
+    assert shown == {f"demo/{ids[1]}", f"demo/{ids[2]}", f"demo/{late}"}
+    models = list(make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/model_info"]))
+    assert len(models) == 1
