@@ -116,7 +116,7 @@ class Recorder:
                  event_queue_size: int = 10_000, idle_close_s: float = 60.0,
                  export_timeout_s: float = 30.0, source: DbSource | None = None,
                  coordinates: str = "RIGHT_HAND_Z_UP", quiet_s: float = 0.25,
-                 max_lag_s: float = 10.0) -> None:
+                 max_lag_s: float = 30.0) -> None:
         self.quiet_s = float(quiet_s)
         self.max_lag_s = float(max_lag_s)
         self._last_put = 0.0
