@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from canal_service.recording import Recorder
 from mcap.reader import make_reader
-from recording_helpers import record_session
+from recording_helpers import mcap_messages, record_session
 
 highlevel = pytest.importorskip("rosbags.highlevel")
 typesys = pytest.importorskip("rosbags.typesys")
@@ -45,6 +45,13 @@ def test_ros2_profile_reads_back_with_rosbags(recorder: Recorder, demos3: list[n
     quats = np.c_[np.zeros(n), np.sin(np.linspace(0, 1, n)), np.zeros(n),
                   np.cos(np.linspace(0, 1, n))]
     recorder.reproduction("pour", 1, _Rep(rep.positions, rep.start, True, 0.4, 0, False, quats))
+    m = len(demos3[0])
+    demo_q = np.c_[np.sin(np.linspace(0, 1, m)), np.zeros(m), np.zeros(m),
+                   np.cos(np.linspace(0, 1, m))]
+    recorder.demo_added("pour", 3, 9, demos3[0], None, "with q", orientations=demo_q)
+    foxglove = mcap_messages(recorder.export_mcap("pour"), "/canal/demo_poses/9")
+    q9 = foxglove[0]["poses"][-1]["orientation"]  # the JSON flavour carries them too
+    assert np.allclose([q9["x"], q9["y"], q9["z"], q9["w"]], demo_q[-1])
     path = recorder.export_mcap("pour", profile="ros2")
 
     with open(path, "rb") as f:
@@ -80,6 +87,8 @@ def test_ros2_profile_reads_back_with_rosbags(recorder: Recorder, demos3: list[n
     mesh = canal3.mesh(n_angles=32)
     surface = next(m for m in by_topic["/canal/model/mesh"][0].markers if m.ns == "canal/mesh")
     assert surface.type == 11 and len(surface.points) == 3 * len(mesh.faces)
+    q9 = by_topic["/canal/demos/demo_9"][0].poses[-1].pose.orientation
+    assert np.allclose([q9.x, q9.y, q9.z, q9.w], demo_q[-1])
     timed = by_topic["/canal/reproductions"][-1]
     q = timed.poses[-1].pose.orientation
     assert np.allclose([q.x, q.y, q.z, q.w], quats[-1])

@@ -5,6 +5,7 @@ Topics (all JSON, see :mod:`.foxglove` for the schemas)::
     /tf                        foxglove.FrameTransform   world -> canal (per segment),
                                                           canal -> robot/<name> (live)
     /canal/demos               foxglove.SceneUpdate      demo/<id> line; deletions on removal
+    /canal/demo_poses/<id>     foxglove.PosesInFrame     a demo's poses (when it has orientations)
     /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames
     /canal/model_info          canal.ModelInfo           version, radii and arclength arrays
     /canal/reproductions       foxglove.SceneUpdate      reproduction/<n> line and start (one
@@ -92,12 +93,16 @@ class McapSegment:
 
     # ---- events -----------------------------------------------------------------------------
 
-    def demo_added(self, t_ns: int, demo_id: int, points: np.ndarray, label: str | None) -> None:
-        """A demo/<id> line entity; ``points`` (T, 3)."""
+    def demo_added(self, t_ns: int, demo_id: int, points: np.ndarray, label: str | None,
+                   orientations: np.ndarray | None = None) -> None:
+        """A demo/<id> line entity; ``points`` (T, 3); its poses when it has orientations."""
         ent = fx.entity(t_ns, f"demo/{demo_id}", lines=[fx.line(points, _DEMO_COLOR)],
                         metadata={"demo_id": demo_id, "label": label or "",
                                   "n_samples": len(points)})
         self._write("/canal/demos", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
+        if orientations is not None and len(orientations) == len(points):
+            self._write(f"/canal/demo_poses/{demo_id}", "foxglove.PosesInFrame", t_ns,
+                        fx.poses_in_frame(t_ns, points, orientations))
 
     def demo_removed(self, t_ns: int, demo_id: int) -> None:
         """Delete the demo/<id> entity."""

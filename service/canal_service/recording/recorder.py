@@ -563,7 +563,8 @@ class Recorder:
             self._write(event.skill, event.t_ns,
                         lambda r: r.demo_added(event.t_ns, event.demo_id, pts, event.positions,
                                                event.timestamps, event.label, event.orientations),
-                        lambda m: m.demo_added(event.t_ns, event.demo_id, pts, event.label),
+                        lambda m: m.demo_added(event.t_ns, event.demo_id, pts, event.label,
+                                               event.orientations),
                         ledger=f"d {event.demo_id}")
         elif isinstance(event, DemoRemoved):
             self._write(event.skill, event.t_ns,

@@ -7,8 +7,9 @@ Made on export from the recording's Foxglove JSON MCAP (one source of truth), wi
     /tf                              tf2_msgs/msg/TFMessage        world -> canal, canal -> robot/<r>
     /canal/live/<robot>/pose         geometry_msgs/msg/PoseStamped  the robot's poses
     /canal/live/<robot>/target       geometry_msgs/msg/PoseStamped  Canal's targets
-    /canal/demos/demo_<id>           nav_msgs/msg/Path              a demonstration (an empty
-                                                                    Path when it was deleted)
+    /canal/demos/demo_<id>           nav_msgs/msg/Path              a demonstration, with its
+                                                                    orientations (an empty Path
+                                                                    when it was deleted)
     /canal/model/directrix           nav_msgs/msg/Path              per model version
     /canal/model/mesh                visualization_msgs/msg/MarkerArray  TRIANGLE_LIST canal surface,
                                                                     LINE_LIST rings and frames
@@ -105,17 +106,23 @@ def _mesh_markers(stamp: dict[str, int], entities: list[dict[str, Any]]) -> dict
 def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
     """(topic, ROS type, message dict, log time) of the Foxglove recording, in log order."""
     poses_at: dict[int, list[dict[str, float]]] = {}
+    demo_poses: dict[tuple[str, int], list[dict[str, float]]] = {}
     with open(src, "rb") as f:
         reader = make_reader(f)
-        for _, _, m in reader.iter_messages(topics=["/canal/reproduction_poses"]):
-            msg = orjson.loads(m.data)
-            poses_at[m.log_time] = [p["orientation"] for p in msg["poses"]]
+        for _, channel, m in reader.iter_messages(log_time_order=False):
+            if channel.topic == "/canal/reproduction_poses":
+                msg = orjson.loads(m.data)
+                poses_at[m.log_time] = [p["orientation"] for p in msg["poses"]]
+            elif channel.topic.startswith("/canal/demo_poses/"):
+                msg = orjson.loads(m.data)
+                demo_poses[(channel.topic.rsplit("/", 1)[1], m.log_time)] = [
+                    p["orientation"] for p in msg["poses"]]
     with open(src, "rb") as f:
         reader = make_reader(f)
         for _, channel, m in reader.iter_messages(log_time_order=True):
             topic, t = channel.topic, m.log_time
-            if topic in ("/canal/reproduction_poses",) or not topic.startswith(("/tf", "/live/",
-                                                                                "/canal/")):
+            if (topic == "/canal/reproduction_poses" or topic.startswith("/canal/demo_poses/")
+                    or not topic.startswith(("/tf", "/live/", "/canal/"))):
                 continue
             msg = orjson.loads(m.data)
             if topic == "/tf":
@@ -141,7 +148,8 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
                     demo = ent["id"].split("/")[-1]
                     points = ent["lines"][0]["points"] if ent.get("lines") else []
                     yield (f"/canal/demos/{ros_name('demo_' + demo)}", "nav_msgs/msg/Path",
-                           _path(ent["timestamp"], ent["frame_id"], points), t)
+                           _path(ent["timestamp"], ent["frame_id"], points,
+                                 demo_poses.get((demo, t))), t)
             elif topic == "/canal/model":
                 entities = msg.get("entities", [])
                 stamp = entities[0]["timestamp"] if entities else {"sec": 0, "nsec": 0}
