@@ -75,7 +75,11 @@ class _SkillState:
         self.pending_live = 0
         # Ledger lines of what was written since the last flush (appended once flushed).
         self.pending_ledger: list[str] = []
-        self.n_reproductions = sdir.ledger().reproductions
+        ledger = sdir.ledger()
+        self.n_reproductions = ledger.reproductions
+        # What the files hold or the open segment got (ledger + pending): never logged twice.
+        self.demos: set[int] = ledger.demos
+        self.models: set[int] = ledger.models
 
 
 class Recorder:
@@ -545,10 +549,11 @@ class Recorder:
         for skill, group in by_skill.items():
             try:
                 stored = {d.demo_id: d for d in self.source.demos(skill, [r.demo_id for r in group])}
+                logged = self._state(skill).demos
                 for ref in group:
                     d = stored.get(ref.demo_id)
-                    if d is None:
-                        continue  # deleted since: its removal is queued behind
+                    if d is None or d.demo_id in logged:
+                        continue  # deleted since (its removal is queued behind), or reconciled
                     self._handle(DemoAdded(ref.t_ns, skill, d.demo_id, d.positions,
                                            d.timestamps, d.label, d.orientations))
             except Exception as exc:
@@ -572,6 +577,8 @@ class Recorder:
                         lambda m: m.demo_removed(event.t_ns, event.demo_id),
                         ledger=f"x {event.demo_id}")
         elif isinstance(event, ModelFitted):
+            if self.source is not None and event.version in self._state(event.skill).models:
+                return  # reconciled from the database before its own event came
             self._dims[event.skill] = int(event.canal.dim)
             geo = model_geometry(event.version, event.canal)
             self._write(event.skill, event.t_ns, lambda r: r.model(event.t_ns, geo),
@@ -639,28 +646,23 @@ class Recorder:
         if inventory is None:
             return {"demos": 0, "models": 0, "removed": 0}
         db_demos, db_models = inventory
-        state = self._skills.get(skill)
-        ledger = SkillDir.of(self.root, skill).ledger()
-        if state is not None:  # written but not yet flushed counts as logged
-            for line in state.pending_ledger:
-                kind, _, value = line.partition(" ")
-                {"d": ledger.demos.add, "x": ledger.demos.discard,
-                 "m": ledger.models.add}.get(kind, lambda _v: None)(int(value))
+        state = self._state(skill)
+        logged_demos, logged_models = set(state.demos), set(state.models)
         if full:
-            ledger.demos, ledger.models = set(), set()
+            logged_demos, logged_models = set(), set()
         if dims is None:
             dims = self.source.skills()
         if skill in dims:
             self._dims[skill] = dims[skill]
-        missing = sorted(db_demos - ledger.demos)
-        stale = sorted(ledger.demos - db_demos)
+        missing = sorted(db_demos - logged_demos)
+        stale = sorted(logged_demos - db_demos)
         now = time.time_ns()
         for d in self.source.demos(skill, missing) if missing else []:
             self._handle(DemoAdded(d.t_ns or now, skill, d.demo_id, d.positions, d.timestamps,
                                    d.label, d.orientations))
         for demo_id in stale:
             self._handle(DemoRemoved(now, skill, demo_id))
-        versions = sorted(db_models - ledger.models)
+        versions = sorted(db_models - logged_models)
         for m in self.source.models(skill, versions) if versions else []:
             self._handle(ModelFitted(m.t_ns or now, skill, m.version, m.canal))
         return {"demos": len(missing), "models": len(versions), "removed": len(stale)}
@@ -691,6 +693,13 @@ class Recorder:
             state.pending_events += 1
         if ledger is not None:
             state.pending_ledger.append(ledger)
+            kind, _, value = ledger.partition(" ")
+            if kind == "d":
+                state.demos.add(int(value))
+            elif kind == "x":
+                state.demos.discard(int(value))
+            elif kind == "m":
+                state.models.add(int(value))
 
     def _open(self, skill: str, t_ns: int) -> _SkillState:
         state = self._state(skill)
@@ -797,6 +806,12 @@ class Recorder:
         self.written_live -= state.pending_live
         state.pending_events = state.pending_live = 0
         lost = bool(state.pending_ledger)
+        for line in state.pending_ledger:  # not in the files for sure: not logged
+            kind, _, value = line.partition(" ")
+            if kind == "d":
+                state.demos.discard(int(value))
+            elif kind == "m":
+                state.models.discard(int(value))
         state.pending_ledger = []
         if reconcile and lost and self.source is not None:
             # Not in the ledger, so the database fills them in again at the next reconcile.
