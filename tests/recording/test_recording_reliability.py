@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 from canal_service.recording import Recorder
-from recording_helpers import mcap_counts, mcap_messages
+from recording_helpers import helix_demo, mcap_counts, mcap_messages
 
 HERE = Path(__file__).parent
 
@@ -123,3 +123,29 @@ def test_a_disabled_recorder_records_nothing(tmp_path: Path, demos3: list[np.nda
         rec.export_mcap("pour")
     rec.close()
     assert not (tmp_path / "rec").exists()
+
+
+def test_a_demo_queued_while_the_start_reconcile_runs_is_logged_once(tmp_path: Path) -> None:
+    from canal_service.metrics import Metrics
+    from canal_service.recording.source import DbSource
+    from canal_service.schemas import DemonstrationIn, SkillCreate
+    from canal_service.service import CanalService
+    from canal_service.storage import Database
+
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    service = CanalService(db, Metrics())
+    service.create_skill(SkillCreate(name="pour", description="", dim=3))
+    ids = [service.add_json_demonstration("pour", DemonstrationIn(
+        positions=helix_demo(k).tolist())).id for k in range(3)]
+    # The recorder starts (its reconcile finds the 3 demos) while their own events are queued.
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, source=DbSource(db))
+    for demo_id in ids:
+        rec.demo_added("pour", 3, demo_id, None, None, None)
+    try:
+        path = rec.export_mcap("pour")
+    finally:
+        rec.close()
+    logged = [e["id"] for m in mcap_messages(path, "/canal/demos") for e in m["entities"]]
+    assert sorted(logged) == sorted(f"demo/{i}" for i in ids)
+    db.dispose()
