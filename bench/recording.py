@@ -10,13 +10,22 @@ Run: ``.venv/bin/python bench/recording.py`` (``--quick``: fewer fits, a 1-minut
   the time of ``recorder.live`` (enqueue) against the same loop calling a no-op. File sizes
   are per minute of stream time.
 * Memory: resident set size before and at the peak of the long stream.
+* Uploads (``--uploads``): ``python -m canal_service`` as a user starts it (defaults, info
+  logs, live bridge on), with and without recordings, alternated in one run; 1,000-point JSON
+  demos from 8 concurrent clients. Reports uploads/s of each and the recordings' cost, then
+  checks the recording holds every uploaded demo.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import os
+import signal
+import socket
 import statistics
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -176,10 +185,179 @@ def bench_live(root: Path, demos: list[np.ndarray], minutes: float,
     }
 
 
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _upload_round(recordings: bool, n: int, clients: int, bodies: list[bytes]) -> dict[str, Any]:
+    """Start a fresh service, upload ``n`` demos from ``clients`` clients; rate and checks."""
+    import httpx
+
+    port, zport = _free_port(), _free_port()
+    data = Path(tempfile.mkdtemp(prefix="canal-bench-uploads-"))
+    cmd = [sys.executable, "-m", "canal_service", "--port", str(port), "--data-dir", str(data),
+           "--zenoh-listen", f"tcp/127.0.0.1:{zport}"]
+    if not recordings:
+        cmd.append("--no-recordings")
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env=dict(os.environ, RERUN_TELEMETRY_ENABLED="false"))
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(f"{url}/healthz").status_code in (200, 503):
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("service did not start")
+            time.sleep(0.1)
+        httpx.post(f"{url}/skills", json={"name": "up", "dim": 3})
+
+        async def run() -> float:
+            limits = httpx.Limits(max_connections=clients)
+            async with httpx.AsyncClient(base_url=url, limits=limits, timeout=60) as c:
+                queue = list(range(n))
+
+                async def worker() -> None:
+                    while queue:
+                        i = queue.pop()
+                        r = await c.post("/skills/up/demonstrations", content=bodies[i % len(bodies)],
+                                         headers={"content-type": "application/json"})
+                        assert r.status_code == 201, r.text
+
+                t0 = time.perf_counter()
+                await asyncio.gather(*(worker() for _ in range(clients)))
+                return time.perf_counter() - t0
+
+        seconds = asyncio.run(run())
+        recorded = -1
+        if recordings:
+            from mcap.reader import make_reader
+
+            r = httpx.get(f"{url}/skills/up/recording.mcap", timeout=600)
+            recorded = sum(1 for _ in make_reader(__import__("io").BytesIO(r.content))
+                           .iter_messages(topics=["/canal/demos"]))
+        return {"rate": n / seconds, "recorded": recorded}
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
+    """Cost per sample of the recorder's Zenoh subscriber (drain thread), real sessions.
+
+    16 robots' poses and targets (binary and JSON) are put on loopback, then one drain
+    empties the rings; time per sample at the default 100 Hz and keeping every sample.
+    """
+    import orjson
+    import zenoh
+    from canal_client import wire
+    from canal_service.recording.live import LiveOptions, LiveSubscriber
+
+    def config(mode: str, listen: list[str], connect: list[str]) -> Any:
+        c = zenoh.Config()
+        c.insert_json5("mode", orjson.dumps(mode).decode())
+        c.insert_json5("scouting/multicast/enabled", "false")
+        c.insert_json5("listen/endpoints", orjson.dumps(listen).decode())
+        c.insert_json5("connect/endpoints", orjson.dumps(connect).decode())
+        return c
+
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    bridge = zenoh.open(config("peer", [endpoint], []))
+    rows = []
+    try:
+        for hz in (100.0, None):
+            rec = Recorder(Path(tempfile.mkdtemp(prefix="canal-bench-drain-")),
+                           live_max_hz=hz, quiet_s=0)
+            sub = LiveSubscriber(rec, LiveOptions(listen=(endpoint,), interval_s=3600))
+            sub.start()
+            robot = zenoh.open(config("client", [], [endpoint]))
+            time.sleep(1.5)
+            for enc in ("binary", "json"):
+                for k in range(n // 2):
+                    key, seq, p = f"canal/b/r{k % 16}", k // 16 + 1, [0.1, 0.2, 0.3]
+                    if enc == "binary":
+                        robot.put(f"{key}/pose", wire.encode_pose(seq, p))
+                        robot.put(f"{key}/target", wire.pack_target(
+                            seq, 0, p, 0.5, 0.3, 4, True, False, 1))
+                    else:
+                        robot.put(f"{key}/pose", wire.encode_pose_json(seq, p),
+                                  encoding=wire.JSON_ENCODING)
+                        robot.put(f"{key}/target", wire.pack_target_json(
+                            seq, "ok", p, 0.5, 0.3, 4, True, False, 1),
+                            encoding=wire.JSON_ENCODING)
+                time.sleep(1.0)
+                t0 = time.perf_counter()
+                got = sub.drain()
+                dt = time.perf_counter() - t0
+                rows.append({"hz": hz or 0, "encoding": enc, "samples": got,
+                             "us": 1e6 * dt / max(got, 1)})
+            robot.close()
+            rec.close()
+    finally:
+        bridge.close()
+    return rows
+
+
+def bench_uploads(n: int, clients: int, rounds: int) -> dict[str, Any]:
+    rng = np.random.default_rng(0)
+    import orjson
+
+    bodies = [orjson.dumps({"positions": (np.c_[np.linspace(0, 1, 1000), np.sin(
+        np.linspace(0, 3, 1000)), np.zeros(1000)] + 0.01 * rng.standard_normal((1000, 3))
+                                           ).tolist()}) for _ in range(16)]
+    on, off, recorded = [], [], []
+    for k in range(rounds):  # alternated (and the order swapped), so both see the same load
+        for recordings in ((True, False) if k % 2 == 0 else (False, True)):
+            r = _upload_round(recordings, n, clients, bodies)
+            if recordings:
+                on.append(r["rate"])
+                recorded.append(r["recorded"])
+            else:
+                off.append(r["rate"])
+    best_on, best_off = max(on), max(off)
+    return {"on": on, "off": off, "best_on": best_on, "best_off": best_off,
+            "cost_pct": 100.0 * (1.0 - best_on / best_off), "recorded": recorded, "n": n,
+            "clients": clients}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--uploads", action="store_true",
+                        help="only the upload rounds through canal serve (with/without recordings)")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--n-uploads", type=int, default=1000)
+    parser.add_argument("--live-drain", action="store_true",
+                        help="only the cost per sample of the recorder's Zenoh subscriber")
     args = parser.parse_args()
+    if args.live_drain:
+        print("| recorder Zenoh subscriber | kept Hz | samples drained | us/sample |")
+        print("|---|---|---|---|")
+        for r in bench_live_drain():
+            print(f"| {r['encoding']} | {r['hz'] or 'all':>4} | {r['samples']} | {r['us']:.1f} |")
+        return
+    if args.uploads:
+        up = bench_uploads(args.n_uploads, 8, args.rounds)
+        print(f"uploads through python -m canal_service (defaults), {up['n']} x 1,000-point "
+              f"JSON demos, {up['clients']} clients, {len(up['on'])} alternated rounds")
+        print("| recordings | uploads/s per round | best |")
+        print("|---|---|---|")
+        print(f"| on  | {', '.join(f'{v:.0f}' for v in up['on'])} | {up['best_on']:.0f} |")
+        print(f"| off | {', '.join(f'{v:.0f}' for v in up['off'])} | {up['best_off']:.0f} |")
+        print(f"recordings cost {up['cost_pct']:.1f} % of the no-recordings rate (best of each); "
+              f"demos in the recording after each round: {up['recorded']} of {up['n']}")
+        write_summary("recording", [summary_row(
+            "uploads/s with recordings (8 clients)", up["best_on"], "1/s",
+            "same run without recordings", up["best_off"], better="higher")])
+        return
     demos = helix_demos()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)

@@ -49,6 +49,7 @@ HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
   canal reproduce SKILL --start x,y,z     a new trajectory (--out traj.csv)
   canal export SKILL [--rrd F] [--mcap F] download the review recordings
   canal view SKILL [--web]                open the recording in the Rerun viewer
+  canal recordings rebuild SKILL          regenerate the recordings from the database
   canal sim SKILL                         drive a simulated robot (Zenoh)
 
 Global options go before the command: canal --url http://host:8000 --token T skill list
@@ -64,6 +65,8 @@ skill_app = typer.Typer(help="Create, list, show and delete skills.", no_args_is
 demo_app = typer.Typer(help="Add, list and remove demonstrations.", no_args_is_help=True)
 app.add_typer(skill_app, name="skill")
 app.add_typer(demo_app, name="demo")
+recordings_app = typer.Typer(help="The service's review recordings.", no_args_is_help=True)
+app.add_typer(recordings_app, name="recordings")
 
 
 @dataclasses.dataclass
@@ -553,6 +556,9 @@ def export(
                    ] = None,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Save the MCAP file here.")
                     ] = None,
+    ros2: Annotated[bool, typer.Option(
+        "--ros2", help="The MCAP as a rosbag2-compatible file (CDR) instead of Foxglove JSON.")
+                    ] = False,
 ) -> None:
     """Download the skill's review recordings (both to ./SKILL.rrd and ./SKILL.mcap when
     neither --rrd nor --mcap is given)."""
@@ -561,13 +567,25 @@ def export(
     written: dict[str, str] = {}
     with _client(ctx) as c:
         for kind, path in (("rrd", rrd), ("mcap", mcap)):
-            if path is not None:
+            if path is not None and kind == "mcap" and ros2:
+                _download_ros2(c, skill, path)
+            elif path is not None:
                 c.download_recording(skill, kind, path)  # type: ignore[arg-type]
                 written[kind] = str(path)
                 if not _opts(ctx).json:
                     out.print(f"wrote {escape(str(path))} ({path.stat().st_size} bytes)")
     if _opts(ctx).json:
         _print_json(written)
+
+
+def _download_ros2(c: CanalClient, skill: str, path: Path) -> None:
+    from .rest import _check, _skill_path
+
+    resp = c._http.get(_skill_path(skill, "recording.mcap"), params={"profile": "ros2"})
+    _check(resp)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(resp.content)
+    tmp.replace(path)
 
 
 def _cache_dir() -> Path:
@@ -677,6 +695,21 @@ def _view_web(ctx: typer.Context, skill: str, no_open: bool) -> None:
     out.print(f"{'opened' if opened else 'open'} {escape(link)}"
               + (" in your browser" if opened else " in a browser (Rerun's web viewer; the "
                  "first visit copies the viewer's files out of rerun-sdk, a few seconds)"))
+@recordings_app.command("rebuild")
+def recordings_rebuild(ctx: typer.Context, skill: str) -> None:
+    """Regenerate SKILL's .rrd and .mcap from the service's database (demonstrations and
+    model versions; live poses and reproductions are not stored, so they are not kept)."""
+    from .rest import _check, _skill_path
+
+    with _client(ctx) as c:
+        resp = c._http.post(_skill_path(skill, "recording", "rebuild"))
+        _check(resp)
+        body = resp.json()
+    if _opts(ctx).json:
+        _print_json(body)
+        return
+    out.print(f"rebuilt the recordings of {escape(skill)}: {body.get('demos', 0)} "
+              f"demonstrations, {body.get('models', 0)} model versions")
 
 
 # ---- simulation ------------------------------------------------------------------------------

@@ -34,21 +34,23 @@ Every error is JSON: `{"error": {"type", "field", "message"}}`.
 """
 
 
-def make_recorder(settings: Settings) -> RecorderLike | None:
-    """The recorder from config, or None when disabled or not installed."""
+def make_recorder(settings: Settings, db: Database | None = None) -> RecorderLike | None:
+    """The recorder from config, or None when disabled or not installed.
+
+    With ``db`` the recorder reads what it logs from the database (the request path queues
+    only ids) and fills in what a crash kept out of the recordings; it records live poses
+    from its own Zenoh session when the bridge is enabled.
+    """
     if not settings.recordings_enabled:
         return None
     try:
-        from .recording import Recorder  # type: ignore[attr-defined]
+        from .recording import recorder_from_settings
     except ImportError as exc:
         log.warning("recordings disabled: canal_service.recording not importable (%s)", exc)
         return None
     # Rerun phones home on first use unless told not to; a lab service should not.
     os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
-    root = settings.resolved_recordings_dir
-    root.mkdir(parents=True, exist_ok=True)
-    recorder: RecorderLike = Recorder(root, enabled=True,
-                                      live_max_hz=settings.recordings_live_hz or None)
+    recorder: RecorderLike = recorder_from_settings(settings, db)
     return recorder
 
 
@@ -77,7 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        service.recorder = await run_in_threadpool(make_recorder, settings)
+        service.recorder = await run_in_threadpool(make_recorder, settings, db)
         if bridge is not None:
             # A bridge that cannot start (port taken) leaves the REST API up; /healthz says so.
             await run_in_threadpool(bridge.start)

@@ -21,7 +21,9 @@ def main() -> None:
     root, interval = Path(sys.argv[1]), float(sys.argv[2])
     demos = [helix_demo(k) for k in range(3)]
     canal = canal_core.fit(demos, n_samples=80)
-    rec = Recorder(root, flush_interval_s=interval, live_max_hz=None)
+    # quiet_s=0: write at once; this test is about what the files keep at a kill, not about
+    # the writer yielding to a busy request path.
+    rec = Recorder(root, flush_interval_s=interval, live_max_hz=None, quiet_s=0)
     logged = record_session(rec, "pour", demos, canal, n_live=200)
     print("LOGGED", json.dumps(logged), flush=True)
     tracker = canal.tracker()

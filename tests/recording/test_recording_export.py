@@ -53,7 +53,7 @@ def test_exports_compact_the_segments(recorder: Recorder, demos3: list[np.ndarra
         recorder.export_mcap("pour").unlink()
         recorder.export_rrd("pour").unlink()
         files = sorted(p.name for p in (recorder.root / "pour").iterdir())
-        assert files == ["recording_id", f"seg-000001-{round_ + 1:06d}.mcap",
+        assert files == ["ledger", "recording_id", f"seg-000001-{round_ + 1:06d}.mcap",
                          f"seg-000001-{round_ + 1:06d}.rrd"]
     assert mcap_counts(recorder.export_mcap("pour"))["/canal/model"] == 3
     assert list((recorder.root / ".exports").iterdir())  # the caller deletes snapshots

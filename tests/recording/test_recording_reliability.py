@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 from canal_service.recording import Recorder
-from recording_helpers import mcap_counts, mcap_messages
+from recording_helpers import helix_demo, mcap_counts, mcap_messages
 
 HERE = Path(__file__).parent
 
@@ -34,16 +34,17 @@ def test_live_queue_is_bounded_and_drops_the_oldest(tmp_path: Path, demos3: list
     # A long flush interval keeps the writer from draining during the burst: a stalled disk.
     rec = Recorder(tmp_path / "rec", flush_interval_s=60, live_max_hz=None, live_queue_size=100)
     t0 = time.time_ns()
-    _live(rec, canal3, demos3[0], 5000, t0)
+    _live(rec, canal3, demos3[0], 5000, t0)  # a pose and a target sample per step
     health = rec.health()
     assert health["queued"] == 100
-    assert health["dropped"] == 4900
+    assert health["dropped"] == 9900
     rec.close()
     assert rec.written_live == 100
     path = rec.export_mcap("pour")
-    assert mcap_counts(path)["/live/ur5/pose"] == 100
+    assert mcap_counts(path)["/live/ur5/pose"] == 50
+    assert mcap_counts(path)["/live/ur5/target"] == 50
     first = mcap_messages(path, "/live/ur5/pose")[0]["timestamp"]
-    assert first["sec"] * 10**9 + first["nsec"] == t0 + 4900 * 1_000_000  # the newest were kept
+    assert first["sec"] * 10**9 + first["nsec"] == t0 + 4950 * 1_000_000  # the newest were kept
 
 
 def test_live_decimation_keeps_the_rate_and_every_transition(
@@ -53,8 +54,12 @@ def test_live_decimation_keeps_the_rate_and_every_transition(
     far = demos3[0] + np.where(np.arange(len(demos3[0]))[:, None] % 20 < 10, 0.0, 5.0)
     targets = _live(rec, canal3, far, 1000, t0)
     rec.close()
-    states = mcap_messages(rec.export_mcap("pour"), "/live/ur5/state")
-    assert len(states) == rec.written_live and rec.written_live + rec.decimated_live == 1000
+    path = rec.export_mcap("pour")
+    states = mcap_messages(path, "/live/ur5/state")
+    poses = mcap_messages(path, "/live/ur5/pose")
+    assert len(states) + len(poses) == rec.written_live
+    assert rec.written_live + rec.decimated_live == 2000
+    assert 100 <= len(poses) <= 101
     t = np.array([s["timestamp"]["sec"] * 10**9 + s["timestamp"]["nsec"] for s in states])
     flags = np.array([(s["inside"], s["done"]) for s in states])
     flips = int(np.count_nonzero(np.diff([(x.inside, x.done) for x in targets], axis=0).any(axis=1)))
@@ -109,9 +114,38 @@ def test_disk_full_degrades_health_and_never_fails_a_call(tmp_path: Path) -> Non
 def test_a_disabled_recorder_records_nothing(tmp_path: Path, demos3: list[np.ndarray]) -> None:
     rec = Recorder(tmp_path / "rec", enabled=False)
     rec.demo_added("pour", 3, 1, demos3[0], None, None)
-    assert rec.health() == {"status": "ok", "detail": "recording disabled", "queued": 0,
-                            "dropped": 0, "decimated": 0, "live_written": 0}
+    health = rec.health()
+    assert {k: health[k] for k in ("status", "detail", "queued", "dropped", "decimated",
+                                   "live_written")} == {
+        "status": "ok", "detail": "recording disabled", "queued": 0, "dropped": 0,
+        "decimated": 0, "live_written": 0}
     with pytest.raises(RuntimeError):
         rec.export_mcap("pour")
     rec.close()
     assert not (tmp_path / "rec").exists()
+
+
+def test_a_demo_queued_while_the_start_reconcile_runs_is_logged_once(tmp_path: Path) -> None:
+    from canal_service.metrics import Metrics
+    from canal_service.recording.source import DbSource
+    from canal_service.schemas import DemonstrationIn, SkillCreate
+    from canal_service.service import CanalService
+    from canal_service.storage import Database
+
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    service = CanalService(db, Metrics())
+    service.create_skill(SkillCreate(name="pour", description="", dim=3))
+    ids = [service.add_json_demonstration("pour", DemonstrationIn(
+        positions=helix_demo(k).tolist())).id for k in range(3)]
+    # The recorder starts (its reconcile finds the 3 demos) while their own events are queued.
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, source=DbSource(db))
+    for demo_id in ids:
+        rec.demo_added("pour", 3, demo_id, None, None, None)
+    try:
+        path = rec.export_mcap("pour")
+    finally:
+        rec.close()
+    logged = [e["id"] for m in mcap_messages(path, "/canal/demos") for e in m["entities"]]
+    assert sorted(logged) == sorted(f"demo/{i}" for i in ids)
+    db.dispose()

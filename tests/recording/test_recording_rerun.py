@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rerun.blueprint as rrb
 from canal_service.recording import Recorder
-from recording_helpers import record_session, rrd_rows, rrd_verify
+from canal_service.recording.rerun_log import review_blueprint
+from recording_helpers import helix_demo, mcap_messages, record_session, rrd_rows, rrd_verify
 
 
 def test_rrd_export_verifies_and_holds_every_entity(
@@ -35,13 +38,19 @@ def test_rrd_export_verifies_and_holds_every_entity(
         assert rows[(entity, component)] == logged["versions"], entity
     for v in (1, 2):
         assert rows[(f"/radius/v{v}", "Scalars:scalars")] == canal3.n_sections
-    assert rows[("/reproductions/path", "LineStrips3D:strips")] == 1
-    assert rows[("/reproductions/start", "Points3D:positions")] == 1
-    assert rows[("/reproductions/eta", "Scalars:scalars")] == 1
-    assert rows[("/reproductions/inside", "Scalars:scalars")] == 1
+    assert rows[("/reproductions/1/path", "LineStrips3D:strips")] == 1
+    assert rows[("/reproductions/1/start", "Points3D:positions")] == 1
+    assert rows[("/reproductions/1/eta", "Scalars:scalars")] == 1
+    assert rows[("/reproductions/1/inside", "Scalars:scalars")] == 1
     for entity in ("/live/ur5/pose", "/live/ur5/target"):
         assert rows[(entity, "Points3D:positions")] == logged["live"]
     assert rows[("/live/ur5/progress", "Scalars:scalars")] == logged["live"]
+    # Live poses carry a frame (translation + quaternion) drawn as axes.
+    assert rows[("/live/ur5/frame", "Transform3D:quaternion")] == logged["live"]
+    assert rows[("/live/ur5/frame", "Transform3D:translation")] == logged["live"]
+    assert rows[("/live/ur5/frame", "TransformAxes3D:axis_length")] == 1
+    # The world is Z-up, right-handed.
+    assert rows[("/", "ViewCoordinates:xyz")] == 1
     # The default blueprint travels with the recording.
     assert rows[("/time_panel", "TimePanelBlueprint:timeline")] == 1
     assert rows[("/viewport", "ViewportBlueprint:root_container")] == 1
@@ -78,3 +87,58 @@ def test_deleting_a_skill_deletes_its_recording(tmp_path: Path, demos3: list[np.
         assert not (tmp_path / "rec" / "pour").exists()
     finally:
         rec.close()
+
+
+@dataclass(frozen=True)
+class _Rep:
+    """A reproduction as the contract extends it: times and orientations (N', 4)."""
+
+    positions: np.ndarray
+    start: np.ndarray
+    inside: bool
+    eta: float
+    section_index: int
+    projected: bool
+    times: np.ndarray | None = None
+    orientations: np.ndarray | None = None
+
+
+def test_every_reproduction_keeps_its_entity_with_times_and_orientations(
+        recorder: Recorder, demos3: list[np.ndarray], canal3: Any,
+        rerun_env: dict[str, str]) -> None:
+    base = canal3.reproduce_detailed(demos3[0][0])
+    n = len(base.positions)
+    angle = np.linspace(0.0, np.pi / 2, n)
+    quats = np.c_[np.zeros(n), np.zeros(n), np.sin(angle / 2), np.cos(angle / 2)]
+    recorder.reproduction("pour", 1, base)
+    recorder.reproduction("pour", 1, _Rep(base.positions, base.start, True, 0.5, 0, False,
+                                          times=np.linspace(0.0, 3.0, n), orientations=quats))
+    recorder.reproduction("pour", 1, canal3.reproduce_detailed(demos3[1][0]))
+    rows = rrd_rows(recorder.export_rrd("pour"), rerun_env)
+    for k in (1, 2, 3):  # none overwrites another
+        assert rows[(f"/reproductions/{k}/path", "LineStrips3D:strips")] == 1
+    assert rows[("/reproductions/2/orientation", "Arrows3D:vectors")] == 1
+    assert rows[("/reproductions/1/orientation", "Arrows3D:vectors")] == 0
+    # The timed one moves along its own timeline, with its orientation.
+    assert rows[("/reproductions/2/point", "Points3D:positions")] == n
+    assert rows[("/reproductions/2/point", "Transform3D:quaternion")] == n
+    mcap = mcap_messages(recorder.export_mcap("pour"), "/canal/reproduction_poses")
+    assert len(mcap) == 1
+    q = mcap[0]["poses"][-1]["orientation"]
+    assert np.allclose([q["x"], q["y"], q["z"], q["w"]], quats[-1])
+
+
+def test_a_2d_skill_is_drawn_in_2d(recorder: Recorder, canal2: Any,
+                                   rerun_env: dict[str, str]) -> None:
+    demo = helix_demo(0, dim=2)
+    recorder.demo_added("plane", 2, 1, demo, None, None)
+    recorder.model_fitted("plane", 1, canal2)
+    recorder.reproduction("plane", 1, canal2.reproduce_detailed(demo[0]))
+    rows = rrd_rows(recorder.export_rrd("plane"), rerun_env)
+    assert rows[("/demos/1/path", "LineStrips2D:strips")] == 1
+    assert rows[("/model/directrix", "LineStrips2D:strips")] == 1
+    assert rows[("/reproductions/1/path", "LineStrips2D:strips")] == 1
+    assert rows[("/demos/1/path", "LineStrips3D:strips")] == 0
+    assert rows[("/", "ViewCoordinates:xyz")] == 0  # 3-D axes mean nothing in a 2-D view
+    assert isinstance(review_blueprint(2).root_container.contents[0], rrb.Spatial2DView)
+    assert isinstance(review_blueprint(3).root_container.contents[0], rrb.Spatial3DView)

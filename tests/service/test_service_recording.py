@@ -5,8 +5,11 @@ Needs ``canal_service.recording`` (written separately); skipped with a reason un
 
 from __future__ import annotations
 
+import io
+import json
 from pathlib import Path
 
+import httpx
 import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
@@ -41,3 +44,82 @@ def test_recording_exports(tmp_path: Path) -> None:
         assert mcap.status_code == 200 and mcap.content.startswith(b"\x89MCAP0\r\n")
         assert c.get("/skills/nope/recording.rrd").status_code == 404
     assert settings.resolved_recordings_dir.exists()
+
+
+def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> None:
+    import shutil
+
+    from canal_client.cli import app
+    from canal_testing import LiveServer
+    from mcap.reader import make_reader
+    from typer.testing import CliRunner
+
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
+    with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        ids = [c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(j).tolist()}).json()["id"]
+               for j in range(3)]
+        assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+        assert c.delete(f"/skills/pour/demonstrations/{ids[0]}").status_code == 204
+        assert c.get("/skills/pour/recording.mcap").status_code == 200  # written out
+        # The recording is lost (a disk swap, a deleted folder): rebuild it from the database.
+        shutil.rmtree(settings.resolved_recordings_dir / "pour")
+        r = CliRunner().invoke(app, ["--url", server.url, "--json", "recordings", "rebuild",
+                                     "pour"])
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0}
+        mcap = c.get("/skills/pour/recording.mcap").content
+        assert c.post("/skills/nope/recording/rebuild").status_code == 404
+        ros2 = tmp_path / "pour-ros2.mcap"
+        r = CliRunner().invoke(app, ["--url", server.url, "export", "pour", "--mcap", str(ros2),
+                                     "--ros2"])
+        assert r.exit_code == 0, r.output
+        assert make_reader(io.BytesIO(ros2.read_bytes())).get_header().profile == "ros2"
+        assert c.get("/skills/pour/recording.mcap", params={"profile": "bag"}).status_code == 422
+    reader = make_reader(io.BytesIO(mcap))
+    demos = {e["id"] for _, _, m in reader.iter_messages(topics=["/canal/demos"])
+             for e in json.loads(m.data)["entities"]}
+    assert demos == {f"demo/{ids[1]}", f"demo/{ids[2]}"}  # the deleted one stays gone
+    models = [m for _, _, m in make_reader(io.BytesIO(mcap)).iter_messages(
+        topics=["/canal/model_info"])]
+    assert len(models) == 1
+
+
+def test_rebuild_answers_404_when_recordings_are_off(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/recording/rebuild")
+    assert r.status_code == 404 and r.json()["error"]["type"] == "disabled"
+
+
+def test_a_restart_reconciles_the_recording_with_the_database(tmp_path: Path) -> None:
+    """Changes made while recordings were off show up once they are on again."""
+    from mcap.reader import make_reader
+
+    def settings(recordings: bool) -> Settings:
+        return Settings(data_dir=tmp_path / "data", recordings_enabled=recordings,
+                        zenoh_enabled=False)
+
+    with TestClient(create_app(settings(True))) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        ids = [c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(j).tolist()}).json()["id"]
+               for j in range(3)]
+        assert c.get("/skills/pour/recording.mcap").status_code == 200
+    with TestClient(create_app(settings(False))) as c:  # the recorder does not hear these
+        assert c.delete(f"/skills/pour/demonstrations/{ids[0]}").status_code == 204
+        late = c.post("/skills/pour/demonstrations",
+                      json={"positions": demo_positions(7).tolist()}).json()["id"]
+        assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+    with TestClient(create_app(settings(True))) as c:
+        mcap = c.get("/skills/pour/recording.mcap").content
+        reconciled = c.get("/healthz").json()["recorder"]["reconciled"]
+    assert reconciled == {"demos": 1, "models": 1, "removed": 1}
+    shown: set[str] = set()
+    for _, _, m in make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/demos"],
+                                                               log_time_order=False):
+        update = json.loads(m.data)
+        shown |= {e["id"] for e in update["entities"]}
+        shown -= {d["id"] for d in update["deletions"]}
+    assert shown == {f"demo/{ids[1]}", f"demo/{ids[2]}", f"demo/{late}"}
+    models = list(make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/model_info"]))
+    assert len(models) == 1

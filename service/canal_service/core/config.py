@@ -38,6 +38,8 @@ class Settings(BaseSettings):
         100.0, ge=0.0,
         description="Live poses kept in the recordings per (skill, robot) stream and second; "
                     "changes of the inside/done flags are always kept; 0 keeps every pose.")
+    recordings_view_coordinates: str = Field(
+        "RIGHT_HAND_Z_UP", description="rr.ViewCoordinates of the world in the .rrd recordings.")
     token: SecretStr | None = Field(
         None, description="When set, every route except /healthz needs 'Authorization: Bearer ...'."
     )

@@ -83,6 +83,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                                  entities=_array(_ENTITY)),
     "foxglove.PoseInFrame": _obj("foxglove.PoseInFrame", timestamp=_TIME,
                                  frame_id={"type": "string"}, pose=_POSE),
+    "foxglove.PosesInFrame": _obj("foxglove.PosesInFrame", timestamp=_TIME,
+                                  frame_id={"type": "string"}, poses=_array(_POSE)),
     "foxglove.FrameTransform": _obj("foxglove.FrameTransform", timestamp=_TIME,
                                     parent_frame_id={"type": "string"},
                                     child_frame_id={"type": "string"},
@@ -93,10 +95,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "canal.ReproductionResult": _obj(
         "canal.ReproductionResult", timestamp=_TIME, model_version={"type": "integer"},
         eta={"type": "number"}, inside={"type": "boolean"}, projected={"type": "boolean"},
-        section_index={"type": "integer"}, start=_VECTOR3, n_points={"type": "integer"}),
+        section_index={"type": "integer"}, start=_VECTOR3, n_points={"type": "integer"},
+        number={"type": "integer"}, times={"type": ["array", "null"], "items": {"type": "number"}}),
     "canal.TrackerState": _obj(
         "canal.TrackerState", timestamp=_TIME, robot={"type": "string"},
-        progress={"type": "number"}, eta={"type": "number"}, section_index={"type": "integer"},
+        progress={"type": "number"}, eta={"type": ["number", "null"]}, section_index={"type": "integer"},
         inside={"type": "boolean"}, done={"type": "boolean"}),
 }
 
@@ -193,22 +196,38 @@ def scene_update(entities: Sequence[dict[str, Any]] = (),
     })
 
 
-def pose_in_frame(t_ns: int, position: list[float], frame_id: str = CANAL_FRAME) -> bytes:
-    """A ``foxglove.PoseInFrame`` at ``position`` (3,) with identity orientation."""
+_IDENTITY_Q = (0.0, 0.0, 0.0, 1.0)
+
+
+def pose_in_frame(t_ns: int, position: Sequence[float], orientation: Sequence[float] = _IDENTITY_Q,
+                  frame_id: str = CANAL_FRAME) -> bytes:
+    """A ``foxglove.PoseInFrame`` at ``position`` (3,) with ``orientation`` [qx, qy, qz, qw]."""
     x, y, z = position
+    qx, qy, qz, qw = orientation
     return orjson.dumps({"timestamp": stamp(t_ns), "frame_id": frame_id, "pose": {
         "position": {"x": x, "y": y, "z": z},
-        "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}})
+        "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}})
+
+
+def poses_in_frame(t_ns: int, positions: FloatArray, orientations: FloatArray,
+                   frame_id: str = CANAL_FRAME) -> bytes:
+    """A ``foxglove.PosesInFrame``: positions (M, 3) with orientations (M, 4) [qx, qy, qz, qw]."""
+    return orjson.dumps({"timestamp": stamp(t_ns), "frame_id": frame_id, "poses": [
+        {"position": {"x": p[0], "y": p[1], "z": p[2]},
+         "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}
+        for p, q in zip(positions.tolist(), orientations.tolist(), strict=True)]})
 
 
 def frame_transform(t_ns: int, parent: str, child: str,
-                    translation: list[float] | tuple[float, float, float] = (0.0, 0.0, 0.0)) -> bytes:
-    """A ``foxglove.FrameTransform`` ``parent -> child`` (translation only)."""
+                    translation: Sequence[float] = (0.0, 0.0, 0.0),
+                    rotation: Sequence[float] = _IDENTITY_Q) -> bytes:
+    """A ``foxglove.FrameTransform`` ``parent -> child`` (rotation [qx, qy, qz, qw])."""
     x, y, z = translation
+    qx, qy, qz, qw = rotation
     return orjson.dumps({"timestamp": stamp(t_ns), "parent_frame_id": parent,
                          "child_frame_id": child,
                          "translation": {"x": x, "y": y, "z": z},
-                         "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}})
+                         "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}})
 
 
 def plain(t_ns: int, **fields: Any) -> bytes:

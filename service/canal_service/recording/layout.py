@@ -7,6 +7,7 @@
       .rerun/                       rerun CLI config (analytics off) for our CLI subprocesses
       <skill>/
         recording_id                the Rerun recording id shared by every segment
+        ledger                      ids of the demos/models flushed to the files (reconcile)
         seg-000001-000004.rrd       closed: segments 1..4 merged (footer / summary written)
         seg-000005-000005.mcap      closed: one segment
         seg-000006.open.rrd         the segment being written (at most one per kind)
@@ -36,6 +37,15 @@ def skill_dirname(skill: str) -> str:
     if SAFE_NAME.match(skill) and skill not in (".", ".."):
         return skill
     return "x-" + skill.encode("utf-8").hex()
+
+
+@dataclass
+class Ledger:
+    """What a skill's recording holds for sure (flushed to the files), from its ledger file."""
+
+    demos: set[int]
+    models: set[int]
+    reproductions: int
 
 
 @dataclass(frozen=True)
@@ -73,6 +83,43 @@ class SkillDir:
             tmp.write_text(rid)
             tmp.replace(id_file)
             return rid
+
+    @property
+    def ledger_path(self) -> Path:
+        """Lines ``d <id>`` (demo logged), ``x <id>`` (demo removed), ``m <version>``,
+        ``p <n>`` (n-th reproduction), appended only once their data is flushed."""
+        return self.path / "ledger"
+
+    def ledger(self) -> Ledger:
+        """What the ledger says the recording holds (empty when there is none)."""
+        demos: set[int] = set()
+        models: set[int] = set()
+        repro = 0
+        try:
+            text = self.ledger_path.read_text()
+        except FileNotFoundError:
+            return Ledger(demos, models, 0)
+        for line in text.splitlines():
+            kind, _, value = line.partition(" ")
+            if not value.strip().isdigit():
+                continue  # a line the crash cut short
+            n = int(value)
+            if kind == "d":
+                demos.add(n)
+            elif kind == "x":
+                demos.discard(n)
+            elif kind == "m":
+                models.add(n)
+            elif kind == "p":
+                repro = max(repro, n)
+        return Ledger(demos, models, repro)
+
+    def append_ledger(self, lines: list[str]) -> None:
+        """Append ``lines`` to the ledger (one write: a crash cuts at most the last line)."""
+        if lines:
+            self.ensure()
+            with open(self.ledger_path, "a") as f:
+                f.write("\n".join(lines) + "\n")
 
     def open_path(self, segment: int, kind: str) -> Path:
         """The file of an open (being written) segment."""

@@ -5,12 +5,17 @@ Topics (all JSON, see :mod:`.foxglove` for the schemas)::
     /tf                        foxglove.FrameTransform   world -> canal (per segment),
                                                           canal -> robot/<name> (live)
     /canal/demos               foxglove.SceneUpdate      demo/<id> line; deletions on removal
+    /canal/demo_poses/<id>     foxglove.PosesInFrame     a demo's poses (when it has orientations)
     /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames
     /canal/model_info          canal.ModelInfo           version, radii and arclength arrays
-    /canal/reproductions       foxglove.SceneUpdate      reproduction/latest line and start
-    /canal/reproduction_result canal.ReproductionResult  eta, inside, ...
-    /live/<robot>/pose         foxglove.PoseInFrame
-    /live/<robot>/target       foxglove.PoseInFrame
+    /canal/reproductions       foxglove.SceneUpdate      reproduction/<n> line and start (one
+                                                          entity per reproduction)
+    /canal/reproduction_result canal.ReproductionResult  eta, inside, times, ...
+    /canal/reproduction_poses  foxglove.PosesInFrame     a reproduction's poses (when it has
+                                                          orientations)
+    /live/<robot>/pose         foxglove.PoseInFrame      the robot's orientation (identity when
+                                                          the pose had none)
+    /live/<robot>/target       foxglove.PoseInFrame      the target's orientation (likewise)
     /live/<robot>/state        canal.TrackerState        progress, eta, inside, done
 
 Files are chunked and zstd-compressed with message indexes and a summary. A segment's chunk
@@ -31,7 +36,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.writer import CompressionType, Writer
 
 from . import foxglove as fx
-from .events import LiveBatch, ReproductionView
+from .events import POSE, LiveBatch, ReproductionView
 from .geometry import ModelGeometry
 
 CHUNK_SIZE = 1024 * 1024
@@ -88,12 +93,16 @@ class McapSegment:
 
     # ---- events -----------------------------------------------------------------------------
 
-    def demo_added(self, t_ns: int, demo_id: int, points: np.ndarray, label: str | None) -> None:
-        """A demo/<id> line entity; ``points`` (T, 3)."""
+    def demo_added(self, t_ns: int, demo_id: int, points: np.ndarray, label: str | None,
+                   orientations: np.ndarray | None = None) -> None:
+        """A demo/<id> line entity; ``points`` (T, 3); its poses when it has orientations."""
         ent = fx.entity(t_ns, f"demo/{demo_id}", lines=[fx.line(points, _DEMO_COLOR)],
                         metadata={"demo_id": demo_id, "label": label or "",
                                   "n_samples": len(points)})
         self._write("/canal/demos", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
+        if orientations is not None and len(orientations) == len(points):
+            self._write(f"/canal/demo_poses/{demo_id}", "foxglove.PosesInFrame", t_ns,
+                        fx.poses_in_frame(t_ns, points, orientations))
 
     def demo_removed(self, t_ns: int, demo_id: int) -> None:
         """Delete the demo/<id> entity."""
@@ -127,35 +136,46 @@ class McapSegment:
             arclength=geo.arclength))
 
     def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
-        """The latest reproduction's trajectory (green inside, orange outside) and result."""
+        """One reproduction as its own entity ``reproduction/<n>`` (green inside, orange
+        outside), its result, and its poses (real orientations when it has them)."""
         rgba = _INSIDE_COLOR if rep.inside else _OUTSIDE_COLOR
-        ent = fx.entity(t_ns, "reproduction/latest", lines=[
+        ent = fx.entity(t_ns, f"reproduction/{rep.number}", lines=[
             fx.line(rep.positions, rgba, thickness=3.0),
             fx.line(np.stack([rep.start, rep.positions[0]]), rgba, thickness=8.0)],
-            metadata={"model_version": rep.version, "inside": rep.inside, "eta": rep.eta})
+            metadata={"model_version": rep.version, "inside": rep.inside, "eta": rep.eta,
+                      "number": rep.number})
         self._write("/canal/reproductions", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
         x, y, z = rep.start.tolist()
         self._write("/canal/reproduction_result", "canal.ReproductionResult", t_ns, fx.plain(
             t_ns, model_version=rep.version, eta=rep.eta, inside=rep.inside,
-            projected=rep.projected, section_index=rep.section_index,
-            start={"x": x, "y": y, "z": z}, n_points=len(rep.positions)))
+            projected=rep.projected, section_index=rep.section_index, number=rep.number,
+            start={"x": x, "y": y, "z": z}, n_points=len(rep.positions),
+            times=rep.times if rep.times is not None else None))
+        if rep.orientations is not None:
+            self._write("/canal/reproduction_poses", "foxglove.PosesInFrame", t_ns,
+                        fx.poses_in_frame(t_ns, rep.positions, rep.orientations))
 
     def live(self, batch: LiveBatch) -> None:
-        """Pose, target, tracker state and robot frame of each sample."""
-        pose_topic, target_topic = f"/live/{batch.robot}/pose", f"/live/{batch.robot}/target"
-        state_topic, frame = f"/live/{batch.robot}/state", f"robot/{batch.robot}"
-        rows = zip(batch.t_ns.tolist(), batch.position.tolist(), batch.target.tolist(),
+        """Poses (with the robot's frame) or targets (with the tracker state) of one robot."""
+        robot = batch.robot
+        frame = f"robot/{robot}"
+        rows = zip(batch.t_ns.tolist(), batch.position.tolist(), batch.orientation.tolist(),
                    batch.progress.tolist(), batch.eta.tolist(), batch.section_index.tolist(),
                    batch.inside.tolist(), batch.done.tolist(), strict=True)
         # One message per sample and topic is what MCAP is: the loop is over messages.
-        for t, pos, tgt, progress, eta, section, inside, done in rows:
-            self._write(pose_topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, pos))
-            self._write(target_topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, tgt))
+        if batch.kind == POSE:
+            topic = f"/live/{robot}/pose"
+            for t, pos, q, *_ in rows:
+                self._write(topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, pos, q))
+                self._write("/tf", "foxglove.FrameTransform", t,
+                            fx.frame_transform(t, fx.CANAL_FRAME, frame, pos, q))
+            return
+        topic, state_topic = f"/live/{robot}/target", f"/live/{robot}/state"
+        for t, pos, q, progress, eta, section, inside, done in rows:
+            self._write(topic, "foxglove.PoseInFrame", t, fx.pose_in_frame(t, pos, q))
             self._write(state_topic, "canal.TrackerState", t, fx.plain(
-                t, robot=batch.robot, progress=progress, eta=eta, section_index=section,
-                inside=inside, done=done))
-            self._write("/tf", "foxglove.FrameTransform", t,
-                        fx.frame_transform(t, fx.CANAL_FRAME, frame, pos))
+                t, robot=robot, progress=progress, eta=None if eta != eta else eta,
+                section_index=section, inside=inside, done=done))
 
     # ---- file -------------------------------------------------------------------------------
 

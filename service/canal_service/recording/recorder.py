@@ -23,11 +23,17 @@ from typing import Any
 import numpy as np
 
 from .events import (
+    POSE,
+    TARGET,
     ControlEvent,
     DemoAdded,
+    DemoRef,
     DemoRemoved,
     LiveSample,
     ModelFitted,
+    ModelRef,
+    Rebuild,
+    Reconcile,
     ReproductionMade,
     Rotate,
     SkillDeleted,
@@ -38,12 +44,20 @@ from .events import (
 from .geometry import model_geometry, points3d
 from .layout import KINDS, SkillDir, skill_dirname, skill_dirs
 from .mcap_log import McapSegment, empty_mcap, merge_mcap
-from .rerun_log import RerunSegment, cli_env, empty_rrd, merge_rrd
+from .rerun_log import RerunSegment, cli_env, empty_rrd, merge_rrd, view_coordinates
+from .source import DbSource
 
 log = logging.getLogger("canal_service.recording")
 
 EXPORTS = ".exports"
 RERUN_CONFIG = ".rerun"
+
+
+def _vector(value: Any) -> list[float]:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim != 1 or not 1 <= arr.shape[0] <= 16:
+        raise ValueError(f"expected a position of 1 to 16 coordinates, got shape {arr.shape}")
+    return arr.tolist()
 
 
 class _SkillState:
@@ -59,6 +73,13 @@ class _SkillState:
         # Written to the open segment since its last successful flush: lost if it fails.
         self.pending_events = 0
         self.pending_live = 0
+        # Ledger lines of what was written since the last flush (appended once flushed).
+        self.pending_ledger: list[str] = []
+        ledger = sdir.ledger()
+        self.n_reproductions = ledger.reproductions
+        # What the files hold or the open segment got (ledger + pending): never logged twice.
+        self.demos: set[int] = ledger.demos
+        self.models: set[int] = ledger.models
 
 
 class Recorder:
@@ -82,12 +103,34 @@ class Recorder:
         A skill's segment idle this long is closed (finished files, no open threads).
     export_timeout_s : float
         How long an export waits for the writer before exporting what is closed on disk.
+    source : DbSource, optional
+        The service's database. With it, the request path queues only ids (the writer reads
+        the arrays in batches), the writer fills in at start what the database holds and the
+        recording misses (after a crash), and :meth:`rebuild` regenerates a recording.
+    coordinates : str
+        ``rr.ViewCoordinates`` of the world in the ``.rrd`` (3-D skills).
+    quiet_s, max_lag_s : float
+        The writer yields to the request path: queued events wait while events keep coming
+        (less than ``quiet_s`` apart), at most ``max_lag_s``; an export, rebuild or close
+        writes everything queued at once. ``quiet_s=0`` writes as soon as possible.
     """
 
     def __init__(self, root: Path, *, enabled: bool = True, flush_interval_s: float = 1.0,
                  live_max_hz: float | None = 100.0, live_queue_size: int = 20_000,
-                 event_queue_size: int = 1_000, idle_close_s: float = 60.0,
-                 export_timeout_s: float = 30.0) -> None:
+                 event_queue_size: int = 10_000, idle_close_s: float = 60.0,
+                 export_timeout_s: float = 30.0, source: DbSource | None = None,
+                 coordinates: str = "RIGHT_HAND_Z_UP", quiet_s: float = 0.25,
+                 max_lag_s: float = 30.0) -> None:
+        self.quiet_s = float(quiet_s)
+        self.max_lag_s = float(max_lag_s)
+        self._last_put = 0.0
+        self._urgent = 0  # urgent events queued (export, rebuild, reconcile, stop)
+        self._urgent_lock = threading.Lock()
+        view_coordinates(coordinates)  # a bad name fails here, not in the writer
+        self.coordinates = coordinates
+        self.source = source
+        self._dims: dict[str, int] = {}
+        self.reconciled: dict[str, int] = {"demos": 0, "models": 0, "removed": 0}
         self.root = Path(root)
         self.enabled = enabled
         self.flush_interval_s = float(flush_interval_s)
@@ -97,7 +140,7 @@ class Recorder:
         self._event_cap = int(event_queue_size)
         self._live: deque[LiveSample] = deque(maxlen=int(live_queue_size))
         self._live_lock = threading.Lock()
-        self._live_last: dict[tuple[str, str], tuple[int, bool, bool]] = {}
+        self._live_last: dict[tuple[str, str, int], tuple[int, bool, bool]] = {}
         self._period_ns = int(1e9 / live_max_hz) if live_max_hz else 0
         self._wake = threading.Event()
         self._state_lock = threading.Lock()
@@ -110,6 +153,7 @@ class Recorder:
         self.decimated_live = 0
         self.written_live = 0
         self._closed = not enabled
+        self.live_source: Any = None  # a LiveSubscriber feeding live_sample()
         self._thread: threading.Thread | None = None
         if enabled:
             self._thread = threading.Thread(target=self._run, name="canal-recorder", daemon=True)
@@ -119,15 +163,23 @@ class Recorder:
     # ---- record methods: enqueue only, never raise ----------------------------------------
 
     def demo_added(self, skill: str, dim: int, demo_id: int, positions: Any, timestamps: Any,
-                   label: str | None) -> None:
-        """A demonstration was stored: positions (T, D), timestamps (T,) or None."""
+                   label: str | None, orientations: Any = None) -> None:
+        """A demonstration was stored: positions (T, D), timestamps (T,) or None.
+
+        With a database ``source`` only the id is queued (the writer reads the stored arrays,
+        orientations included, in batches); without one the arrays are copied.
+        """
         if self._closed:
             return
         try:
+            if self.source is not None:
+                self._put(DemoRef(time.time_ns(), skill, int(demo_id)))
+                return
             ts = None if timestamps is None else np.array(timestamps, dtype=np.float64)
+            q = None if orientations is None else np.array(orientations, dtype=np.float64)
             self._put(DemoAdded(time.time_ns(), skill, int(demo_id),
                                 np.array(positions, dtype=np.float64, ndmin=2),
-                                ts, None if label is None else str(label)))
+                                ts, None if label is None else str(label), q))
         except Exception:
             self._caller_error("demo_added")
 
@@ -159,34 +211,61 @@ class Recorder:
             self._caller_error("reproduction")
 
     def live(self, skill: str, robot: str, position: Any, target: Any,
-             t_ns: int | None = None) -> None:
+             t_ns: int | None = None, orientation: Any = None) -> None:
         """One live tracker step: robot ``position`` (D,) and the ``TrackerTarget``.
 
-        Kept at most ``live_max_hz`` per (skill, robot); a sample whose ``inside`` or
-        ``done`` flag differs from the last kept sample is always kept.
+        Queued as a pose and a target sample (see :meth:`live_sample`). The service's live
+        recording comes from :class:`~.live.LiveSubscriber` instead (its own Zenoh session).
         """
         if self._closed:
             return
         try:
             t = time.time_ns() if t_ns is None else int(t_ns)
-            inside, done = bool(target.inside), bool(target.done)
-            key = (skill, robot)
-            with self._live_lock:
-                last = self._live_last.get(key)
-                if (last is not None and 0 <= t - last[0] < self._period_ns
-                        and last[1] == inside and last[2] == done):
-                    self.decimated_live += 1
-                    return
-                self._live_last[key] = (t, inside, done)
-                if len(self._live) == self._live.maxlen:
-                    self.dropped_live += 1  # the deque drops its oldest sample on append
-                self._live.append(LiveSample(
-                    skill, robot, t, np.asarray(position, dtype=np.float64).tolist(),
-                    np.asarray(target.target, dtype=np.float64).tolist(),
-                    float(target.progress), float(target.eta), int(target.section_index),
-                    inside, done))
+            q = None if orientation is None else [float(v) for v in orientation]
+            tq = getattr(target, "orientation", None)
+            pose = LiveSample(skill, robot, POSE, t, _vector(position), q)
+            answer = LiveSample(
+                skill, robot, TARGET, t, _vector(target.target),
+                None if tq is None else np.asarray(tq, dtype=np.float64).tolist(),
+                float(target.progress), float(target.eta), int(target.section_index),
+                bool(target.inside), bool(target.done))
+            self.live_sample(pose)
+            self.live_sample(answer)
         except Exception:
             self._caller_error("live")
+
+    def live_sample(self, sample: LiveSample) -> bool:
+        """Queue one live pose or target; False when it was decimated.
+
+        Kept at most ``live_max_hz`` per (skill, robot, kind); a target whose ``inside`` or
+        ``done`` flag differs from the last kept one is always kept. Beyond the queue's size
+        the oldest sample is dropped (counted).
+        """
+        if self._closed:
+            return False
+        t, inside, done = sample.t_ns, sample.inside, sample.done
+        key = (sample.skill, sample.robot, sample.kind)
+        with self._live_lock:
+            last = self._live_last.get(key)
+            if (last is not None and 0 <= t - last[0] < self._period_ns
+                    and last[1] == inside and last[2] == done):
+                self.decimated_live += 1
+                return False
+            self._live_last[key] = (t, inside, done)
+            if len(self._live) == self._live.maxlen:
+                self.dropped_live += 1  # the deque drops its oldest sample on append
+            self._live.append(sample)
+        return True
+
+    def live_flags(self, skill: str, robot: str) -> tuple[bool, bool] | None:
+        """(inside, done) of the last target kept for this robot, or None."""
+        last = self._live_last.get((skill, robot, TARGET))
+        return None if last is None else (last[1], last[2])
+
+    def wants_live(self, skill: str, robot: str, kind: int, t_ns: int) -> bool:
+        """Whether a sample at ``t_ns`` would pass the rate limit (a cheap pre-check)."""
+        last = self._live_last.get((skill, robot, kind))
+        return last is None or not 0 <= t_ns - last[0] < self._period_ns
 
     def skill_deleted(self, skill: str) -> None:
         """The skill is gone: its recording is deleted."""
@@ -206,9 +285,56 @@ class Recorder:
         """A finished ``.rrd`` snapshot of the skill's recording; the caller deletes it."""
         return self._export(skill, "rrd")
 
-    def export_mcap(self, skill: str) -> Path:
-        """A finished ``.mcap`` snapshot of the skill's recording; the caller deletes it."""
-        return self._export(skill, "mcap")
+    def export_mcap(self, skill: str, profile: str = "foxglove") -> Path:
+        """A finished ``.mcap`` snapshot of the skill's recording; the caller deletes it.
+
+        ``profile="ros2"`` converts it to a rosbag2-compatible MCAP (CDR messages, see
+        :mod:`.ros2`).
+        """
+        if profile not in ("foxglove", "ros2"):
+            raise ValueError(f"unknown MCAP profile {profile!r} (foxglove or ros2)")
+        path = self._export(skill, "mcap")
+        if profile == "foxglove":
+            return path
+        from .ros2 import foxglove_to_ros2
+
+        out = path.with_name(path.stem + "-ros2.mcap")
+        try:
+            foxglove_to_ros2(path, out)
+        finally:
+            path.unlink(missing_ok=True)
+        return out
+
+    def rebuild(self, skill: str, timeout_s: float | None = None) -> dict[str, Any]:
+        """Regenerate the skill's recording from the database; what was logged.
+
+        Live samples and reproductions are not in the database: a rebuilt recording holds
+        the demonstrations (deleted ones gone) and every model version.
+        """
+        if not self.enabled or self._closed:
+            raise RuntimeError("recording is disabled")
+        if self.source is None:
+            raise RuntimeError("this recorder has no database to rebuild from")
+        event = Rebuild(skill)
+        self._events.append(event)  # never dropped, like Rotate
+        self._mark_urgent()
+        self._wake.set()
+        if not event.done.wait(timeout_s or max(self.export_timeout_s, 600.0)):
+            raise TimeoutError(f"rebuild of {skill!r} did not finish")
+        if "error" in event.result:
+            raise RuntimeError(event.result["error"])
+        return dict(event.result)
+
+    def reconcile(self, skill: str | None = None, timeout_s: float = 600.0) -> dict[str, Any]:
+        """Log what the database holds and the recording misses; what was added."""
+        if not self.enabled or self._closed or self.source is None:
+            return {}
+        event = Reconcile(skill)
+        self._events.append(event)
+        self._mark_urgent()
+        self._wake.set()
+        event.done.wait(timeout_s)
+        return dict(event.result)
 
     def _export(self, skill: str, kind: str) -> Path:
         if not self.enabled:
@@ -218,6 +344,7 @@ class Recorder:
             # Never dropped: the writer closes the open segment after every event queued
             # before this one, so the snapshot holds everything recorded up to now.
             self._events.append(rotate)
+            self._mark_urgent()
             self._wake.set()
             if not rotate.done.wait(self.export_timeout_s):
                 self._note("export", f"writer did not answer within {self.export_timeout_s:g}"
@@ -230,7 +357,8 @@ class Recorder:
             segments = sdir.closed_segments(kind)
             if not segments:
                 if kind == "rrd":
-                    empty_rrd(out, str(uuid.uuid4()), skill)
+                    empty_rrd(out, str(uuid.uuid4()), skill, dim=self._dims.get(skill, 3),
+                              coordinates=self.coordinates)
                 else:
                     empty_mcap(out, time.time_ns())
                 return out
@@ -278,10 +406,19 @@ class Recorder:
             "dropped": self.dropped_events + self.dropped_live,
             "decimated": self.decimated_live,
             "live_written": self.written_live,
+            "reconciled": dict(self.reconciled),
+            "live": self.live_source.health() if self.live_source is not None else {
+                "status": "disabled"},
         }
 
     def close(self) -> None:
         """Write everything queued, finish every file and stop the writer."""
+        if self.live_source is not None:
+            source, self.live_source = self.live_source, None
+            try:
+                source.close()
+            except Exception:
+                log.exception("closing the live subscriber")
         if self._thread is None or not self._thread.is_alive():
             self._closed = True
             return
@@ -289,6 +426,7 @@ class Recorder:
             self._closed = True
             atexit.unregister(self.close)
             self._events.append(Stop())
+            self._mark_urgent()
             self._wake.set()
         self._thread.join(timeout=60)
 
@@ -301,7 +439,12 @@ class Recorder:
                        f"{self.dropped_events} events dropped")
             return
         self._events.append(event)
+        self._last_put = time.monotonic()
         self._wake.set()
+
+    def _mark_urgent(self) -> None:
+        with self._urgent_lock:
+            self._urgent += 1
 
     def _caller_error(self, method: str) -> None:
         self.dropped_events += 1
@@ -326,12 +469,20 @@ class Recorder:
             self._recover_all()
         except Exception as exc:
             self._note("recovery", f"{type(exc).__name__}: {exc}")
+        if self.source is not None:
+            # The database is the source of truth: what it acknowledged and a crash kept
+            # out of the files is logged now, before anything new.
+            self._mark_urgent()
+            self._events.appendleft(Reconcile(None))
         next_flush = time.monotonic() + self.flush_interval_s
         while True:
-            self._wake.wait(max(0.0, next_flush - time.monotonic()))
+            timeout = next_flush - time.monotonic()
+            if self._events:
+                timeout = min(timeout, self.quiet_s)
+            self._wake.wait(max(0.0, timeout))
             self._wake.clear()
             try:
-                if self._drain_events():
+                if self._events and not self._busy() and self._drain_events():
                     break
                 if time.monotonic() >= next_flush:
                     self._drain_live()
@@ -344,9 +495,23 @@ class Recorder:
         for state in list(self._skills.values()):
             self._close_segment(state)
 
+    def _busy(self) -> bool:
+        """Whether queued events should wait: the request path is busy and none is urgent."""
+        if self._urgent or self.quiet_s <= 0 or self._closed:
+            return False
+        if time.monotonic() - self._last_put >= self.quiet_s:
+            return False
+        try:
+            head_ns = getattr(self._events[0], "t_ns", None)
+        except IndexError:
+            return False
+        return head_ns is None or time.time_ns() - head_ns < self.max_lag_s * 1e9
+
     def _drain_events(self) -> bool:
-        """Handle queued events; True when asked to stop."""
+        """Handle queued events (until the request path is busy again); True to stop."""
         while True:
+            if self._busy():
+                return False  # a new burst: yield, the rest waits for the next lull
             try:
                 event = self._events.popleft()
             except IndexError:
@@ -354,35 +519,81 @@ class Recorder:
                 return False
             if isinstance(event, Stop):
                 return True
+            if isinstance(event, DemoRef):
+                self._demo_refs(event)
+                continue
             try:
                 self._handle(event)
             except Exception as exc:
                 log.exception("recorder could not record %s", type(event).__name__)
                 self.dropped_events += 1
-                self._note(getattr(event, "skill", "writer"), f"{type(exc).__name__}: {exc}")
+                self._note(getattr(event, "skill", None) or "writer",
+                           f"{type(exc).__name__}: {exc}")
+                if isinstance(event, Rebuild | Reconcile):
+                    event.result["error"] = f"{type(exc).__name__}: {exc}"
             finally:
-                if isinstance(event, Rotate):
+                if isinstance(event, Rotate | Rebuild | Reconcile):
+                    with self._urgent_lock:
+                        self._urgent -= 1
                     event.done.set()
+
+    def _demo_refs(self, first: DemoRef) -> None:
+        """``first`` and the demo refs queued right behind it: one database read per skill."""
+        refs = [first]
+        while self._events and isinstance(self._events[0], DemoRef):
+            refs.append(self._events.popleft())  # type: ignore[arg-type]
+        by_skill: dict[str, list[DemoRef]] = {}
+        for ref in refs:
+            by_skill.setdefault(ref.skill, []).append(ref)
+        assert self.source is not None
+        for skill, group in by_skill.items():
+            try:
+                stored = {d.demo_id: d for d in self.source.demos(skill, [r.demo_id for r in group])}
+                logged = self._state(skill).demos
+                for ref in group:
+                    d = stored.get(ref.demo_id)
+                    if d is None or d.demo_id in logged:
+                        continue  # deleted since (its removal is queued behind), or reconciled
+                    self._handle(DemoAdded(ref.t_ns, skill, d.demo_id, d.positions,
+                                           d.timestamps, d.label, d.orientations))
+            except Exception as exc:
+                log.exception("recorder could not record demonstrations of %s", skill)
+                self.dropped_events += len(group)
+                self._note(skill, f"{type(exc).__name__}: {exc}")
 
     def _handle(self, event: ControlEvent) -> None:
         if isinstance(event, DemoAdded):
+            self._dims[event.skill] = int(event.positions.shape[1])
             pts = points3d(event.positions)
             self._write(event.skill, event.t_ns,
                         lambda r: r.demo_added(event.t_ns, event.demo_id, pts, event.positions,
-                                               event.timestamps, event.label),
-                        lambda m: m.demo_added(event.t_ns, event.demo_id, pts, event.label))
+                                               event.timestamps, event.label, event.orientations),
+                        lambda m: m.demo_added(event.t_ns, event.demo_id, pts, event.label,
+                                               event.orientations),
+                        ledger=f"d {event.demo_id}")
         elif isinstance(event, DemoRemoved):
             self._write(event.skill, event.t_ns,
                         lambda r: r.demo_removed(event.t_ns, event.demo_id),
-                        lambda m: m.demo_removed(event.t_ns, event.demo_id))
+                        lambda m: m.demo_removed(event.t_ns, event.demo_id),
+                        ledger=f"x {event.demo_id}")
         elif isinstance(event, ModelFitted):
+            if self.source is not None and event.version in self._state(event.skill).models:
+                return  # reconciled from the database before its own event came
+            self._dims[event.skill] = int(event.canal.dim)
             geo = model_geometry(event.version, event.canal)
             self._write(event.skill, event.t_ns, lambda r: r.model(event.t_ns, geo),
-                        lambda m: m.model(event.t_ns, geo))
+                        lambda m: m.model(event.t_ns, geo), ledger=f"m {event.version}")
+        elif isinstance(event, ModelRef):
+            assert self.source is not None
+            for stored in self.source.models(event.skill, [event.version]):
+                self._handle(ModelFitted(event.t_ns, event.skill, stored.version, stored.canal))
         elif isinstance(event, ReproductionMade):
-            rep = reproduction_view(event.version, event.result)
+            state = self._state(event.skill)
+            number = state.n_reproductions + 1
+            rep = reproduction_view(event.version, event.result, number)
             self._write(event.skill, event.t_ns, lambda r: r.reproduction(event.t_ns, rep),
-                        lambda m: m.reproduction(event.t_ns, rep))
+                        lambda m: m.reproduction(event.t_ns, rep), ledger=f"p {number}")
+            state.n_reproductions = number
         elif isinstance(event, Rotate):
             self._drain_live()
             state = self._skills.get(event.skill)
@@ -390,16 +601,81 @@ class Recorder:
                 self._close_segment(state)
             self._recover(SkillDir.of(self.root, event.skill))
         elif isinstance(event, SkillDeleted):
-            self._drain_live()
-            state = self._skills.pop(event.skill, None)
+            self._delete(event.skill)
+        elif isinstance(event, Rebuild):
+            self._delete(event.skill)
+            event.result.update(self._reconcile_skill(event.skill, full=True))
+            state = self._skills.get(event.skill)
             if state is not None:
-                self._abandon(state)
-            with self._skill_lock(event.skill):
-                SkillDir.of(self.root, event.skill).remove()
-            self._clear(event.skill)
+                self._close_segment(state)
+        elif isinstance(event, Reconcile):
+            event.result.update(self._reconcile(event.skill))
+
+    def _delete(self, skill: str) -> None:
+        self._drain_live()
+        state = self._skills.pop(skill, None)
+        if state is not None:
+            self._abandon(state, reconcile=False)
+        with self._skill_lock(skill):
+            SkillDir.of(self.root, skill).remove()
+        self._dims.pop(skill, None)
+        self._clear(skill)
+
+    # ---- the database as source of truth --------------------------------------------------------
+
+    def _reconcile(self, skill: str | None) -> dict[str, Any]:
+        """Log what the database holds and the ledger does not (one skill or all)."""
+        if self.source is None:
+            return {}
+        dims = self.source.skills()
+        names = [skill] if skill is not None else sorted(dims)
+        total = {"demos": 0, "models": 0, "removed": 0}
+        for name in names:
+            for k, v in self._reconcile_skill(name, full=False, dims=dims).items():
+                total[k] += v
+        for k, v in total.items():
+            self.reconciled[k] += v
+        if any(total.values()):
+            log.info("recordings reconciled with the database: %s", total)
+        return total
+
+    def _reconcile_skill(self, skill: str, *, full: bool,
+                         dims: dict[str, int] | None = None) -> dict[str, int]:
+        assert self.source is not None
+        inventory = self.source.inventory(skill)
+        if inventory is None:
+            return {"demos": 0, "models": 0, "removed": 0}
+        db_demos, db_models = inventory
+        state = self._state(skill)
+        logged_demos, logged_models = set(state.demos), set(state.models)
+        if full:
+            logged_demos, logged_models = set(), set()
+        if dims is None:
+            dims = self.source.skills()
+        if skill in dims:
+            self._dims[skill] = dims[skill]
+        missing = sorted(db_demos - logged_demos)
+        stale = sorted(logged_demos - db_demos)
+        now = time.time_ns()
+        for d in self.source.demos(skill, missing) if missing else []:
+            self._handle(DemoAdded(d.t_ns or now, skill, d.demo_id, d.positions, d.timestamps,
+                                   d.label, d.orientations))
+        for demo_id in stale:
+            self._handle(DemoRemoved(now, skill, demo_id))
+        versions = sorted(db_models - logged_models)
+        for m in self.source.models(skill, versions) if versions else []:
+            self._handle(ModelFitted(m.t_ns or now, skill, m.version, m.canal))
+        return {"demos": len(missing), "models": len(versions), "removed": len(stale)}
+
+    def _state(self, skill: str) -> _SkillState:
+        state = self._skills.get(skill)
+        if state is None:
+            state = self._skills[skill] = _SkillState(skill, SkillDir.of(self.root, skill))
+        return state
 
     def _write(self, skill: str, t_ns: int, to_rerun: Callable[[RerunSegment], None],
-               to_mcap: Callable[[McapSegment], None], *, n_live: int = 0) -> None:
+               to_mcap: Callable[[McapSegment], None], *, n_live: int = 0,
+               ledger: str | None = None) -> None:
         """Log one event (or ``n_live`` live samples) to both files of the skill."""
         state = self._open(skill, t_ns)
         try:
@@ -415,18 +691,26 @@ class Recorder:
             self.written_live += n_live
         else:
             state.pending_events += 1
+        if ledger is not None:
+            state.pending_ledger.append(ledger)
+            kind, _, value = ledger.partition(" ")
+            if kind == "d":
+                state.demos.add(int(value))
+            elif kind == "x":
+                state.demos.discard(int(value))
+            elif kind == "m":
+                state.models.add(int(value))
 
     def _open(self, skill: str, t_ns: int) -> _SkillState:
-        state = self._skills.get(skill)
-        if state is None:
-            state = self._skills[skill] = _SkillState(skill, SkillDir.of(self.root, skill))
+        state = self._state(skill)
         if state.rerun is not None:
             return state
         sdir = state.dir
         sdir.ensure()
         n = sdir.next_segment()
         rerun = RerunSegment(sdir.open_path(n, "rrd"), sdir.recording_id(), skill,
-                             blueprint=not sdir.closed_segments("rrd"))
+                             blueprint=not sdir.closed_segments("rrd"),
+                             dim=self._dims.get(skill, 3), coordinates=self.coordinates)
         try:
             mcap = McapSegment(sdir.open_path(n, "mcap"), t_ns)
         except Exception:
@@ -442,6 +726,8 @@ class Recorder:
         pop = self._live.popleft
         samples = [pop() for _ in range(n)]
         for skill, batches in live_batches(samples).items():
+            if skill not in self._dims:
+                self._dims[skill] = self._source_dim(skill)
             for batch in batches:
                 try:
                     self._write(skill, int(batch.t_ns[0]), lambda r, b=batch: r.live(b),
@@ -450,6 +736,23 @@ class Recorder:
                     log.exception("recorder could not record live samples of %s", skill)
                     self.dropped_live += len(batch)
                     self._note(skill, f"{type(exc).__name__}: {exc}")
+
+    def _source_dim(self, skill: str) -> int:
+        if self.source is None:
+            return 3
+        try:
+            return self.source.skills().get(skill, 3)
+        except Exception:
+            return 3
+
+    def _flushed(self, state: _SkillState) -> None:
+        """The open segment's data reached the OS: the ledger may now say so."""
+        state.pending_events = state.pending_live = 0
+        lines, state.pending_ledger = state.pending_ledger, []
+        try:
+            state.dir.append_ledger(lines)
+        except OSError as exc:  # the recording is fine; a restart re-logs these (harmless)
+            self._note(f"ledger {state.skill}", f"{type(exc).__name__}: {exc}")
 
     def _flush_all(self) -> None:
         now = time.monotonic()
@@ -464,7 +767,7 @@ class Recorder:
                 self._note(state.skill, f"{type(exc).__name__}: {exc}")
                 self._abandon(state)
                 continue
-            state.pending_events = state.pending_live = 0
+            self._flushed(state)
             self._clear(state.skill)
             if now - state.last_write > self.idle_close_s:
                 self._close_segment(state)
@@ -486,6 +789,7 @@ class Recorder:
             rerun.abandon()
             mcap.abandon()
             return
+        self._flushed(state)
         # The open .rrd is a run of flushed streams; merged, it has one footer and index.
         try:
             self._merge([sdir.open_path(n, "rrd")], sdir.closed_path(n, n, "rrd"), "rrd")
@@ -494,13 +798,25 @@ class Recorder:
             log.exception("recorder could not merge a segment of %s", state.skill)
             self._note(state.skill, f"{type(exc).__name__}: {exc}")
 
-    def _abandon(self, state: _SkillState) -> None:
+    def _abandon(self, state: _SkillState, *, reconcile: bool = True) -> None:
         """Drop the open segment after a write error; its files are recovered later."""
         # Whatever reached the segment since its last good flush may be lost: count it.
         self.dropped_events += state.pending_events
         self.dropped_live += state.pending_live
         self.written_live -= state.pending_live
         state.pending_events = state.pending_live = 0
+        lost = bool(state.pending_ledger)
+        for line in state.pending_ledger:  # not in the files for sure: not logged
+            kind, _, value = line.partition(" ")
+            if kind == "d":
+                state.demos.discard(int(value))
+            elif kind == "m":
+                state.models.discard(int(value))
+        state.pending_ledger = []
+        if reconcile and lost and self.source is not None:
+            # Not in the ledger, so the database fills them in again at the next reconcile.
+            self._mark_urgent()
+            self._events.append(Reconcile(state.skill))
         if state.rerun is not None:
             state.rerun.abandon()
         if state.mcap is not None:

@@ -12,14 +12,20 @@ Entities and timelines::
     model/frames            Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
     model/info              AnyValues          wall_time, model_version
     radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
-    reproductions/path      LineStrips3D       wall_time, model_version
-    reproductions/start     Points3D           wall_time, model_version
-    reproductions/eta       Scalars            wall_time
-    reproductions/inside    Scalars (0/1)      wall_time
+    reproductions/<n>/path  LineStrips3D       wall_time, model_version (n-th reproduction)
+    reproductions/<n>/start Points3D           wall_time, model_version
+    reproductions/<n>/orientation Arrows3D     wall_time (triads, when it has orientations)
+    reproductions/<n>/point Points3D+Transform3D  reproduction_time (when it has times)
+    reproductions/<n>/eta   Scalars            wall_time
+    reproductions/<n>/inside Scalars (0/1)     wall_time
     live/<robot>/pose       Points3D           wall_time
+    live/<robot>/frame      Transform3D + TransformAxes3D  wall_time (the pose's orientation)
     live/<robot>/target     Points3D           wall_time
     live/<robot>/progress   Scalars            wall_time
     live/<robot>/eta        Scalars            wall_time
+
+``/`` carries ``ViewCoordinates`` (RIGHT_HAND_Z_UP unless configured). A 2-D skill is logged
+with the 2-D archetypes (LineStrips2D, Points2D, Arrows2D) and its blueprint is a 2-D view.
 
 Every segment of one skill shares the skill's recording id, so merged segments are one
 recording. The first segment carries the default blueprint.
@@ -32,12 +38,13 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .events import LiveBatch, ReproductionView
+from .events import POSE, LiveBatch, ReproductionView
 from .geometry import FloatArray, ModelGeometry
 
 APP_ID = "canal"
@@ -51,20 +58,26 @@ _POSE_COLOR = (220, 40, 160, 255)
 _TARGET_COLOR = (40, 200, 220, 255)
 
 
-def review_blueprint() -> rrb.Blueprint:
-    """3-D view of demos, canal, reproductions and live poses; plots of radii and progress."""
+def review_blueprint(dim: int = 3) -> rrb.Blueprint:
+    """Spatial view of demos, canal, reproductions and live poses; plots of radii and progress.
+
+    A 2-D skill gets a 2-D view (its entities are logged with the 2-D archetypes).
+    """
+    spatial = rrb.Spatial2DView if dim == 2 else rrb.Spatial3DView
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="Canal", origin="/", contents=[
-                "+ /demos/*/path", "+ /model/**", "+ /reproductions/path",
-                "+ /reproductions/start", "+ /live/*/pose", "+ /live/*/target"]),
+            spatial(name="Canal", origin="/", contents=[
+                "+ /demos/*/path", "+ /model/**", "+ /reproductions/*/path",
+                "+ /reproductions/*/start", "+ /reproductions/*/orientation",
+                "+ /reproductions/*/point", "+ /live/*/pose", "+ /live/*/target",
+                "+ /live/*/frame"]),
             rrb.Vertical(
                 rrb.TimeSeriesView(name="Radius per section (timeline: section)",
                                    origin="/radius"),
                 rrb.TimeSeriesView(name="Live progress and eta", origin="/live",
                                    contents=["+ /live/*/progress", "+ /live/*/eta"]),
                 rrb.TimeSeriesView(name="Reproductions: eta, inside", origin="/reproductions",
-                                   contents=["+ /reproductions/eta", "+ /reproductions/inside"]),
+                                   contents=["+ /reproductions/*/eta", "+ /reproductions/*/inside"]),
             ),
             column_shares=[2, 1],
         ),
@@ -80,6 +93,26 @@ def _entity(part: str) -> str:
     return rr.escape_entity_path_part(part)
 
 
+def view_coordinates(name: str) -> Any:
+    """A ``rr.ViewCoordinates`` constant by name (e.g. ``RIGHT_HAND_Z_UP``)."""
+    value = getattr(rr.ViewCoordinates, name.upper(), None) if name.isidentifier() else None
+    if value is None or name.startswith("_") or callable(value):
+        raise ValueError(f"unknown rerun ViewCoordinates {name!r} (e.g. RIGHT_HAND_Z_UP)")
+    return value
+
+
+def rotate(quats: FloatArray, vectors: FloatArray) -> FloatArray:
+    """``vectors`` (M, 3) rotated by unit quaternions ``quats`` (M, 4) [qx, qy, qz, qw]."""
+    q = quats[:, :3]
+    w = quats[:, 3:4]
+    t = 2.0 * np.cross(q, vectors)
+    return vectors + w * t + np.cross(q, t)
+
+
+#: About this many orientation triads are drawn along a reproduction.
+ORIENTATION_MARKS = 12
+
+
 class RerunSegment:
     """One open ``.rrd`` segment of a skill's recording (used by the writer thread only).
 
@@ -89,16 +122,24 @@ class RerunSegment:
     (``rerun rrd verify --check-footers false``), and file I/O errors surface here, in Python,
     instead of in the SDK's file sink (whose ``disconnect()`` can hang once its writer thread
     died of an I/O error). Closing merges the parts into one file with a single footer.
+
+    ``dim`` 2 logs the 2-D archetypes (LineStrips2D, Points2D, Arrows2D) for a 2-D view;
+    ``coordinates`` names the ``rr.ViewCoordinates`` of the world (3-D only).
     """
 
-    def __init__(self, path: Path, recording_id: str, skill: str, *, blueprint: bool) -> None:
+    def __init__(self, path: Path, recording_id: str, skill: str, *, blueprint: bool,
+                 dim: int = 3, coordinates: str = "RIGHT_HAND_Z_UP") -> None:
         self.path = path
+        self.dim = 2 if dim == 2 else 3
         self._file = open(path, "wb")
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self._stream = self.rec.binary_stream()
         if blueprint:
-            self.rec.send_blueprint(review_blueprint(), make_active=False, make_default=True)
+            self.rec.send_blueprint(review_blueprint(self.dim), make_active=False,
+                                    make_default=True)
         self.rec.send_recording_name(skill)
+        if self.dim == 3:
+            self.rec.log("/", view_coordinates(coordinates), static=True)
         self._dirty = True
 
     def _at(self, t_ns: int, version: int | None = None) -> None:
@@ -110,14 +151,31 @@ class RerunSegment:
         if version is not None:
             self.rec.set_time("model_version", sequence=version)
 
+    def _strips(self, strips: list[FloatArray], **kw: Any) -> Any:
+        if self.dim == 2:
+            return rr.LineStrips2D([s[:, :2] for s in strips], **kw)
+        return rr.LineStrips3D(strips, **kw)
+
+    def _points(self, points: FloatArray, **kw: Any) -> Any:
+        if self.dim == 2:
+            kw.pop("radii", None)
+            return rr.Points2D(points[:, :2], radii=[-4.0], **kw)
+        return rr.Points3D(points, **kw)
+
+    def _arrows(self, origins: FloatArray, vectors: FloatArray, colors: Any) -> Any:
+        if self.dim == 2:
+            return rr.Arrows2D(origins=origins[:, :2], vectors=vectors[:, :2], colors=colors)
+        return rr.Arrows3D(origins=origins, vectors=vectors, colors=colors)
+
     # ---- events -----------------------------------------------------------------------------
 
     def demo_added(self, t_ns: int, demo_id: int, points: FloatArray, positions: FloatArray,
-                   timestamps: FloatArray | None, label: str | None) -> None:
-        """Path (3-D), per-sample coordinates and id/label of a demonstration."""
+                   timestamps: FloatArray | None, label: str | None,
+                   orientations: FloatArray | None = None) -> None:
+        """Path, per-sample coordinates, id/label (and orientation triads) of a demonstration."""
         base = f"demos/{demo_id}"
         self._at(t_ns)
-        self.rec.log(f"{base}/path", rr.LineStrips3D(
+        self.rec.log(f"{base}/path", self._strips(
             [points], colors=[_DEMO_COLOR], labels=[f"demo {demo_id} {label or ''}".strip()]))
         self.rec.log(f"{base}/info", rr.AnyValues(demo_id=demo_id, label=label or "",
                                                   n_samples=len(points)))
@@ -128,6 +186,22 @@ class RerunSegment:
             indexes.append(rr.TimeColumn("demo_time", duration=timestamps - timestamps[0]))
         self.rec.send_columns(f"{base}/position", indexes=indexes,
                               columns=rr.Scalars.columns(scalars=positions))
+        if orientations is not None and self.dim == 3:
+            self._triads(f"{base}/orientation", points, orientations)
+
+    def _triads(self, entity: str, points: FloatArray, quats: FloatArray) -> None:
+        """Rotated x/y/z axes (red, green, blue) at about ORIENTATION_MARKS points."""
+        idx = np.unique(np.linspace(0, len(points) - 1, min(len(points), ORIENTATION_MARKS))
+                        .astype(int))
+        span = float(np.linalg.norm(np.ptp(points, axis=0))) or 1.0
+        scale = 0.05 * span
+        q = quats[idx]
+        q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
+        origins = np.repeat(points[idx], 3, axis=0)
+        axes = np.tile(np.eye(3) * scale, (len(idx), 1))
+        vectors = rotate(np.repeat(q, 3, axis=0), axes)
+        self.rec.log(entity, rr.Arrows3D(origins=origins, vectors=vectors,
+                                         colors=np.tile(_AXIS_COLORS, (len(idx), 1))))
 
     def demo_removed(self, t_ns: int, demo_id: int) -> None:
         """Clear the demonstration from this time on."""
@@ -137,16 +211,22 @@ class RerunSegment:
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Directrix, mesh, rings, frames and radius profile of one model version."""
         self._at(t_ns, geo.version)
-        self.rec.log("model/directrix", rr.LineStrips3D([geo.directrix], colors=[_DIRECTRIX_COLOR]))
-        self.rec.log("model/mesh", rr.Mesh3D(
-            vertex_positions=geo.vertices, triangle_indices=geo.faces,
-            vertex_normals=geo.vertex_normals, vertex_colors=geo.vertex_colors.astype(np.float32)))
-        self.rec.log("model/rings", rr.LineStrips3D(list(geo.rings), colors=[_RING_COLOR]))
+        self.rec.log("model/directrix", self._strips([geo.directrix], colors=[_DIRECTRIX_COLOR]))
+        if self.dim == 2:
+            # A 2-D canal is a strip: its two boundaries (vertices 2i and 2i+1 per section).
+            strip = geo.vertices.reshape(-1, 2, 3)
+            self.rec.log("model/mesh", self._strips([strip[:, 0], strip[:, 1]],
+                                                    colors=[_RING_COLOR]))
+        else:
+            self.rec.log("model/mesh", rr.Mesh3D(
+                vertex_positions=geo.vertices, triangle_indices=geo.faces,
+                vertex_normals=geo.vertex_normals,
+                vertex_colors=geo.vertex_colors.astype(np.float32)))
+        self.rec.log("model/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
         n_axes = geo.frame_vectors.shape[1]
-        self.rec.log("model/frames", rr.Arrows3D(
-            origins=np.repeat(geo.frame_origins, n_axes, axis=0),
-            vectors=geo.frame_vectors.reshape(-1, 3),
-            colors=np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
+        self.rec.log("model/frames", self._arrows(
+            np.repeat(geo.frame_origins, n_axes, axis=0), geo.frame_vectors.reshape(-1, 3),
+            np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
         self.rec.log("model/info", rr.AnyValues(version=geo.version, n_sections=geo.n_sections))
         radius = f"radius/v{geo.version}"
         self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
@@ -154,24 +234,54 @@ class RerunSegment:
             geo.n_sections))], columns=rr.Scalars.columns(scalars=geo.radii))
 
     def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
-        """Start, trajectory, eta and inside flag of one reproduction."""
+        """One reproduction under its own entity ``reproductions/<n>``.
+
+        Trajectory, start, eta and inside flag; orientation triads when the reproduction has
+        orientations; with ``times``, its moving point on the ``reproduction_time`` timeline.
+        """
         rgba = _INSIDE_COLOR if rep.inside else _OUTSIDE_COLOR
+        base = f"reproductions/{rep.number}"
         self._at(t_ns, rep.version)
-        self.rec.log("reproductions/path", rr.LineStrips3D([rep.positions], colors=[rgba]))
-        self.rec.log("reproductions/start", rr.Points3D([rep.start], colors=[rgba], radii=[-4.0]))
+        self.rec.log(f"{base}/path", self._strips([rep.positions], colors=[rgba]))
+        self.rec.log(f"{base}/start", self._points(rep.start[None, :], colors=[rgba],
+                                                   radii=[-4.0]))
+        if rep.orientations is not None and self.dim == 3:
+            self._triads(f"{base}/orientation", rep.positions, rep.orientations)
         self._at(t_ns)
-        self.rec.log("reproductions/eta", rr.Scalars(rep.eta))
-        self.rec.log("reproductions/inside", rr.Scalars(float(rep.inside)))
+        self.rec.log(f"{base}/eta", rr.Scalars(rep.eta))
+        self.rec.log(f"{base}/inside", rr.Scalars(float(rep.inside)))
+        if rep.times is not None:
+            index = [rr.TimeColumn("reproduction_time", duration=rep.times - rep.times[0])]
+            if self.dim == 2:
+                cols = rr.Points2D.columns(positions=rep.positions[:, :2])
+            else:
+                cols = rr.Points3D.columns(positions=rep.positions)
+            self.rec.send_columns(f"{base}/point", indexes=index, columns=cols)
+            if rep.orientations is not None and self.dim == 3:
+                self.rec.send_columns(f"{base}/point", indexes=index,
+                                      columns=rr.Transform3D.columns(
+                                          translation=rep.positions,
+                                          quaternion=rep.orientations))
 
     def live(self, batch: LiveBatch) -> None:
-        """Pose, target, progress and eta of a robot's samples, one columnar send each."""
+        """Live poses (point and frame) or targets (point, progress, eta), one send each."""
         self._dirty = True
         base = f"live/{_entity(batch.robot)}"
         index = [rr.TimeColumn("wall_time", timestamp=batch.t_ns.astype("datetime64[ns]"))]
-        self.rec.send_columns(f"{base}/pose", indexes=index, columns=rr.Points3D.columns(
-            positions=batch.position, colors=np.tile(_POSE_COLOR, (len(batch), 1))))
-        self.rec.send_columns(f"{base}/target", indexes=index, columns=rr.Points3D.columns(
-            positions=batch.target, colors=np.tile(_TARGET_COLOR, (len(batch), 1))))
+        pts = batch.position[:, :2] if self.dim == 2 else batch.position
+        points = rr.Points2D if self.dim == 2 else rr.Points3D
+        if batch.kind == POSE:
+            self.rec.send_columns(f"{base}/pose", indexes=index, columns=points.columns(
+                positions=pts, colors=np.tile(_POSE_COLOR, (len(batch), 1))))
+            if self.dim == 3:
+                self.rec.log(f"{base}/frame", rr.TransformAxes3D(0.1), static=True)
+                self.rec.send_columns(f"{base}/frame", indexes=index,
+                                      columns=rr.Transform3D.columns(
+                                          translation=batch.position,
+                                          quaternion=batch.orientation))
+            return
+        self.rec.send_columns(f"{base}/target", indexes=index, columns=points.columns(
+            positions=pts, colors=np.tile(_TARGET_COLOR, (len(batch), 1))))
         self.rec.send_columns(f"{base}/progress", indexes=index,
                               columns=rr.Scalars.columns(scalars=batch.progress))
         self.rec.send_columns(f"{base}/eta", indexes=index,
@@ -205,9 +315,11 @@ class RerunSegment:
             self.rec.disconnect()
 
 
-def empty_rrd(path: Path, recording_id: str, skill: str) -> None:
+def empty_rrd(path: Path, recording_id: str, skill: str, *, dim: int = 3,
+              coordinates: str = "RIGHT_HAND_Z_UP") -> None:
     """A finished ``.rrd`` holding only the blueprint (a skill with nothing recorded)."""
-    RerunSegment(path, recording_id, skill, blueprint=True).close()  # one stream: one footer
+    RerunSegment(path, recording_id, skill, blueprint=True, dim=dim,
+                 coordinates=coordinates).close()  # one stream: one footer
 
 
 # ---- the rerun CLI (shipped in the rerun-sdk wheel) ------------------------------------------

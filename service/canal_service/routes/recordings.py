@@ -1,17 +1,17 @@
-"""/skills/{name}/recording.rrd and .mcap: snapshots of the skill's recording."""
+"""/skills/{name}/recording.rrd and .mcap: snapshots of the skill's recording; rebuild."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
 from ..deps import ServiceDep, SkillName
-from ..errors import Disabled
+from ..errors import Conflict, Disabled
 from ..schemas import ErrorResponse
 
 router = APIRouter(prefix="/skills/{name}", tags=["recordings"])
@@ -21,10 +21,17 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 _MEDIA = {"rrd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
-async def _export(service: Any, name: str, kind: str) -> FileResponse:
+def _snapshot(service: Any, name: str, kind: str, profile: str) -> Any:
+    if profile == "foxglove":
+        return service.export_recording(name, kind)
+    service.skill_dim(name)  # 404 for an unknown skill, as the default export
+    return service.recorder.export_mcap(name, profile=profile)
+
+
+async def _export(service: Any, name: str, kind: str, profile: str = "foxglove") -> FileResponse:
     if service.recorder is None:
         raise Disabled("recordings are disabled on this service", field="recordings")
-    path = Path(await run_in_threadpool(service.export_recording, name, kind))
+    path = Path(await run_in_threadpool(_snapshot, service, name, kind, profile))
     # The snapshot is ours to delete once sent (Recorder contract).
     return FileResponse(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
                         background=BackgroundTask(path.unlink, missing_ok=True))
@@ -39,6 +46,32 @@ async def recording_rrd(name: SkillName, service: ServiceDep) -> FileResponse:
 
 @router.get("/recording.mcap", response_class=FileResponse, responses={
     **_RESPONSES, 200: {"content": {"application/octet-stream": {}}}})
-async def recording_mcap(name: SkillName, service: ServiceDep) -> FileResponse:
-    """An MCAP snapshot of the same recording."""
-    return await _export(service, name, "mcap")
+async def recording_mcap(
+    name: SkillName, service: ServiceDep,
+    profile: Literal["foxglove", "ros2"] = Query(
+        "foxglove", description="foxglove: JSON messages with Foxglove schemas; ros2: a "
+        "rosbag2-compatible MCAP (CDR: tf2_msgs/TFMessage, geometry_msgs/PoseStamped, "
+        "nav_msgs/Path, visualization_msgs/MarkerArray)"),
+) -> FileResponse:
+    """An MCAP snapshot of the same recording (Foxglove JSON, or ROS 2 with ?profile=ros2)."""
+    return await _export(service, name, "mcap", profile)
+
+
+def _rebuild(service: Any, name: str) -> dict[str, Any]:
+    service.skill_dim(name)  # 404 for an unknown skill
+    try:
+        result = service.recorder.rebuild(name)
+    except RuntimeError as exc:
+        raise Conflict(f"could not rebuild the recording of {name!r}: {exc}",
+                       field="recordings") from exc
+    return {"skill": name, **result}
+
+
+@router.post("/recording/rebuild", responses={**_RESPONSES, 409: {"model": ErrorResponse}})
+async def rebuild_recording(name: SkillName, service: ServiceDep) -> dict[str, Any]:
+    """Regenerate the skill's .rrd and .mcap from the database: every stored demonstration and
+    model version. Live poses and reproductions are not stored, so a rebuilt recording does
+    not have them. Answers how many demonstrations and models were logged."""
+    if service.recorder is None or not hasattr(service.recorder, "rebuild"):
+        raise Disabled("recordings are disabled on this service", field="recordings")
+    return await run_in_threadpool(_rebuild, service, name)
