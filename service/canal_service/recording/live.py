@@ -11,7 +11,7 @@ recorder's work never runs on the bridge's Zenoh callback:
   the recorder's rate limit and the logs see arrival times, not drain times.
 - Payloads are decoded with :mod:`canal_client.wire` (JSON and binary v1). A payload that
   starts with a CDR encapsulation header is a ROS 2 ``geometry_msgs/msg/PoseStamped``,
-  decoded with ``rosbags`` when it is installed, else skipped and counted.
+  decoded by the bridge's own CDR reader (no ROS install or rosbags needed).
 
 Configured from the service settings the bridge uses (see :meth:`LiveOptions.from_settings`).
 """
@@ -105,7 +105,6 @@ class LiveStats:
 
     received: int = 0
     bad_payload: int = 0
-    cdr_skipped: int = 0
     missed_poses: int = 0  # gaps in a stream's pose seq: ring overflow or lost on the way
     full_rings: int = 0  # drains that found a ring at capacity (it dropped its oldest)
     status: str = "starting"
@@ -114,11 +113,8 @@ class LiveStats:
 
     def as_dict(self) -> dict[str, Any]:
         return {"status": self.status, "detail": self.detail, "received": self.received,
-                "bad_payload": self.bad_payload, "cdr_skipped": self.cdr_skipped,
+                "bad_payload": self.bad_payload,
                 "missed_poses": self.missed_poses, "full_rings": self.full_rings}
-
-
-_cdr_store: Any = None
 
 
 def _json_seq(data: bytes) -> int | None:
@@ -133,20 +129,13 @@ def _json_seq(data: bytes) -> int | None:
     return int(digits) if digits else None
 
 
-def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]] | None:
-    """(position, [qx, qy, qz, qw]) of a CDR ``geometry_msgs/msg/PoseStamped``; None when
-    ``rosbags`` is not installed."""
-    global _cdr_store
-    if _cdr_store is None:
-        try:
-            from rosbags.typesys import Stores, get_typestore
-        except ImportError:
-            return None
-        _cdr_store = get_typestore(Stores.ROS2_HUMBLE)
-    msg = _cdr_store.deserialize_cdr(data, "geometry_msgs/msg/PoseStamped")
-    p, q = msg.pose.position, msg.pose.orientation
-    return [float(p.x), float(p.y), float(p.z)], [float(q.x), float(q.y), float(q.z),
-                                                  float(q.w)]
+def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]]:
+    """(position, [qx, qy, qz, qw]) of a CDR ``geometry_msgs/msg/PoseStamped``, read by the
+    bridge's own decoder (:func:`canal_client.wire.decode_pose_cdr`, checked against
+    ``rosbags`` in the tests), so a deployment records ROS 2 streams without extra packages.
+    Raises ``WireError`` when the payload is not one."""
+    pose, _ = wire.decode_pose_cdr(data)
+    return [float(v) for v in pose.position], [float(v) for v in pose.orientation]
 
 
 class LiveSubscriber:
@@ -305,9 +294,5 @@ class LiveSubscriber:
         if not self.recorder.wants_live(skill, robot, kind, t_ns):
             self.recorder.decimated_live += 1
             return
-        decoded = decode_cdr_pose(data)
-        if decoded is None:
-            self.stats.cdr_skipped += 1
-            return
-        position, orientation = decoded
+        position, orientation = decode_cdr_pose(data)
         self.recorder.live_sample(LiveSample(skill, robot, kind, t_ns, position, orientation))
