@@ -522,6 +522,28 @@ def enclosing_scales(
     # one row of N, whatever its distance from its phase.
     width = min(4, window)
     index, alpha, found = _blocked_bracketing(samples, approx_index, tangents, plane, width)
+    # Still heads and tails (seconds of a standing arm in a raw log: often most of the
+    # samples) lie behind the first plane or past the last, where no nearby pair of planes
+    # brackets them. Each holds on its end section alone, so it is measured there directly
+    # instead of costing rows of N plane distances in the wider searches below. A sample
+    # behind the first plane *and* past the last goes the general way (either end may count).
+    behind = samples @ tangents[0] - plane[0] < 0.0
+    past = samples @ tangents[-1] - plane[-1] > 0.0
+    head = ~found & behind & ~past & (approx_index <= window)
+    tail = ~found & past & ~behind & (approx_index >= n - 1 - window)
+    for end, rows, section, pair, blend in (
+        (0, np.flatnonzero(head), 0, 0, 0.0), (1, np.flatnonzero(tail), n - 1, n - 2, 1.0)
+    ):
+        if rows.size == 0:
+            continue
+        pts = samples[rows]  # measured as _candidates measures an end: on its section alone
+        _, _, end_eta = blended_location(
+            pts, np.full(rows.size, pair), np.full(rows.size, blend), centres, basis, sections
+        )
+        scale[section] = max(scale[section], float(np.where(np.isfinite(end_eta), end_eta, 1.0).max()))
+        depths[end] = max(depths[end], float(np.abs(pts @ tangents[section] - plane[section]).max()))
+    settled_at_end = head | tail
+    found |= settled_at_end
     while width < window and not found.all():
         width = min(2 * width, window)
         miss = np.flatnonzero(~found)
@@ -536,6 +558,7 @@ def enclosing_scales(
             n,
         )
     _, _, eta = blended_location(samples, index, alpha, centres, basis, sections)
+    eta[settled_at_end] = 0.0  # held above; index/alpha of these rows are not a bracket
     near = found & np.isfinite(eta) & (eta <= MAX_STRETCH)
     np.maximum.at(scale, index[near], eta[near])
     np.maximum.at(scale, index[near] + 1, eta[near])
@@ -551,6 +574,6 @@ def enclosing_scales(
         for rows in (lower, upper):
             ok = rows >= 0
             np.maximum.at(scale, rows[ok], need[ok])
-        depths[0] = max(0.0, -float(loc.axial[behind].min(initial=0.0)))
-        depths[1] = max(0.0, float(loc.axial[past].max(initial=0.0)))
+        depths[0] = max(depths[0], -float(loc.axial[behind].min(initial=0.0)))
+        depths[1] = max(depths[1], float(loc.axial[past].max(initial=0.0)))
     return Envelope(scale, depths, int(far.size))
