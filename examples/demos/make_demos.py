@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from canal_service.recording.ros2_msgdefs import MSGDEFS
 
 from canal_core import datasets
 
@@ -34,32 +35,7 @@ TOPIC = "/ee_pose"
 RATE_HZ = 10.0
 
 # geometry_msgs/msg/PoseStamped with its dependencies, as ROS 2 bags store it (ros2msg).
-POSE_STAMPED_MSGDEF = """std_msgs/Header header
-geometry_msgs/Pose pose
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/Pose
-geometry_msgs/Point position
-geometry_msgs/Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-"""
+POSE_STAMPED_MSGDEF = MSGDEFS["geometry_msgs/msg/PoseStamped"]
 
 
 def demonstrations(seed: int = 7) -> list[tuple[np.ndarray, np.ndarray]]:

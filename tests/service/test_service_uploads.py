@@ -8,36 +8,13 @@ import json
 
 import numpy as np
 import pytest
+from canal_service.recording.ros2_msgdefs import MSGDEFS
 from fastapi.testclient import TestClient
 from mcap.writer import CompressionType, Writer
 from service_helpers import demo_positions
 
-POSE_STAMPED_MSGDEF = """std_msgs/Header header
-geometry_msgs/Pose pose
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/Pose
-geometry_msgs/Point position
-geometry_msgs/Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-"""
+# geometry_msgs/msg/PoseStamped with its dependencies, as ROS 2 bags store it (ros2msg).
+POSE_STAMPED_MSGDEF = MSGDEFS["geometry_msgs/msg/PoseStamped"]
 
 
 def checksum(positions: np.ndarray) -> str:
