@@ -44,7 +44,7 @@ from .reproduce import (
     path_ratios,
     ratio_rule_positions,
     section_basis,
-    start_locations,
+    start_and_located_points,
 )
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
 from .timing import (
@@ -311,10 +311,12 @@ class Canal:
         seconds = None if duration is None else check_positive(duration, "duration")
         target = None if goal is None else check_point(goal, self.dim, "goal")
         canal = self if target is None else self.with_goal(target)
-        loc = start_locations(point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections)
+        loc, held = start_and_located_points(
+            point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections
+        )
         eta = float(loc.eta[0])
         index, alpha = int(loc.index[0]), float(loc.alpha[0])
-        inside = bool(canal._inside(canal.locate(point[None, :]), CONTAINS_TOLERANCE)[0])
+        inside = bool(canal._inside(held, CONTAINS_TOLERANCE)[0])
         if outside == "raise" and not inside:
             raise OutsideCanalError(
                 f"expected start inside the canal, got eta={eta:.4g} at section {index}"

@@ -213,7 +213,16 @@ def located_points(
     -------
     Location
     """
-    pt, sec, alpha, axial, coords, direction, eta = _candidates(points, centres, tangents, basis, sections)
+    candidates = _candidates(points, centres, tangents, basis, sections)
+    return _located_among(points.shape[0], candidates, end_depths)
+
+
+Candidates = tuple[IntArray, IntArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+
+
+def _located_among(m: int, candidates: Candidates, end_depths: FloatArray | None = None) -> Location:
+    """:func:`located_points`' choice among the candidates of m points."""
+    pt, sec, alpha, axial, coords, direction, eta = candidates
     # Prefer a section that holds the point; else the end or pair where it is least outside.
     within = axial == 0.0
     if end_depths is not None:
@@ -221,7 +230,7 @@ def located_points(
         within = within | (np.abs(axial) <= depth)
     key = np.where(within & (eta <= 1.0 + INSIDE_TOLERANCE), eta, 2.0 + eta)
     order = np.lexsort((key, pt))
-    first = order[np.searchsorted(pt[order], np.arange(points.shape[0]))]
+    first = order[np.searchsorted(pt[order], np.arange(m))]
     return _picked(first, sec, alpha, axial, coords, direction, eta)
 
 
@@ -251,8 +260,25 @@ def start_locations(
     -------
     Location
     """
-    pt, sec, alpha, axial, coords, direction, eta = _candidates(points, centres, tangents, basis, sections)
-    m = points.shape[0]
+    return _start_among(points.shape[0], _candidates(points, centres, tangents, basis, sections))
+
+
+def start_and_located_points(
+    points: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    basis: FloatArray,
+    sections: CrossSections,
+) -> tuple[Location, Location]:
+    """:func:`start_locations` and :func:`located_points` of the same points, from one search
+    of the candidates (a reproduction needs both: where to start, and whether it is inside)."""
+    candidates = _candidates(points, centres, tangents, basis, sections)
+    return _start_among(points.shape[0], candidates), _located_among(points.shape[0], candidates)
+
+
+def _start_among(m: int, candidates: Candidates) -> Location:
+    """:func:`start_locations`' choice among the candidates of m points."""
+    pt, sec, alpha, axial, coords, direction, eta = candidates
     holds = eta <= 1.0 + INSIDE_TOLERANCE
     any_holds = np.zeros(m, dtype=bool)
     any_holds[pt[holds]] = True
