@@ -24,6 +24,7 @@ import contextlib
 import os
 import re
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -188,12 +189,18 @@ def run_block(block: Block, service: LiveService, cwd: Path, n: int) -> None:
     script = cwd.parent / f"block-{n:02d}.{'py' if block.kind == 'python' else 'sh'}"
     script.write_text(code)
     cmd = [sys.executable, str(script)] if block.kind == "python" else ["bash", "-e", str(script)]
-    try:
-        proc = subprocess.run(cmd, cwd=cwd, env=service.env, capture_output=True, text=True,
-                              timeout=BLOCK_TIMEOUT_S)
-    except subprocess.TimeoutExpired as exc:
-        pytest.fail(f"{block.where}: still running after {BLOCK_TIMEOUT_S} s\n{code}\n"
-                    f"{exc.stdout or ''}{exc.stderr or ''}")
+    # A block in its own session, so that on a timeout everything it started (a `canal serve`
+    # left in a block once kept port 8000 busy long after the test) goes with it.
+    with subprocess.Popen(cmd, cwd=cwd, env=service.env, stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True, start_new_session=True) as running:
+        try:
+            stdout, stderr = running.communicate(timeout=BLOCK_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(running.pid, signal.SIGKILL)
+            stdout, stderr = running.communicate()
+            pytest.fail(f"{block.where}: still running after {BLOCK_TIMEOUT_S} s\n{code}\n"
+                        f"{stdout}{stderr}")
+    proc = subprocess.CompletedProcess(cmd, running.returncode, stdout, stderr)
     report = (f"{block.where} ({block.lang}) as run:\n{code}\n--- exit {proc.returncode}\n"
               f"--- stdout\n{proc.stdout}\n--- stderr\n{proc.stderr}")
     assert proc.returncode == 0, report
