@@ -567,25 +567,14 @@ def export(
     written: dict[str, str] = {}
     with _client(ctx) as c:
         for kind, path in (("rrd", rrd), ("mcap", mcap)):
-            if path is not None and kind == "mcap" and ros2:
-                _download_ros2(c, skill, path)
-            elif path is not None:
-                c.download_recording(skill, kind, path)  # type: ignore[arg-type]
+            if path is not None:
+                profile = "ros2" if kind == "mcap" and ros2 else None
+                c.download_recording(skill, kind, path, profile=profile)  # type: ignore[arg-type]
                 written[kind] = str(path)
                 if not _opts(ctx).json:
                     out.print(f"wrote {escape(str(path))} ({path.stat().st_size} bytes)")
     if _opts(ctx).json:
         _print_json(written)
-
-
-def _download_ros2(c: CanalClient, skill: str, path: Path) -> None:
-    from .rest import _check, _skill_path
-
-    resp = c._http.get(_skill_path(skill, "recording.mcap"), params={"profile": "ros2"})
-    _check(resp)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(resp.content)
-    tmp.replace(path)
 
 
 def _cache_dir() -> Path:
@@ -699,12 +688,8 @@ def _view_web(ctx: typer.Context, skill: str, no_open: bool) -> None:
 def recordings_rebuild(ctx: typer.Context, skill: str) -> None:
     """Regenerate SKILL's .rrd and .mcap from the service's database (demonstrations and
     model versions; live poses and reproductions are not stored, so they are not kept)."""
-    from .rest import _check, _skill_path
-
     with _client(ctx) as c:
-        resp = c._http.post(_skill_path(skill, "recording", "rebuild"))
-        _check(resp)
-        body = resp.json()
+        body = c.rebuild_recording(skill)
     if _opts(ctx).json:
         _print_json(body)
         return

@@ -318,6 +318,10 @@ def _reproduce_many(skill: str, starts: ArrayLike, model: Version, outside: str,
                       read)
 
 
+def _rebuild_recording(skill: str) -> _Request[dict[str, Any]]:
+    return _Request("POST", _skill_path(skill, "recording", "rebuild"), _json_of(dict))
+
+
 def _recording_path(skill: str, kind: str) -> str:
     if kind not in ("rrd", "mcap"):
         raise ValueError(f"kind: expected 'rrd' or 'mcap', got {kind!r}")
@@ -536,14 +540,16 @@ class CanalClient(_Base):
     # -- recordings --
 
     def download_recording(self, skill: str, kind: RecordingKind,
-                           path: str | os.PathLike[str]) -> Path:
+                           path: str | os.PathLike[str], *, profile: str | None = None) -> Path:
         """Stream the skill's ``.rrd`` or ``.mcap`` snapshot to ``path`` (written to a temporary
-        file beside it, then renamed: ``path`` is either the whole file or untouched)."""
+        file beside it, then renamed: ``path`` is either the whole file or untouched).
+        ``profile="ros2"`` (mcap only): a rosbag2-compatible CDR file instead of Foxglove JSON."""
         target = Path(path)
         url = _recording_path(skill, kind)
+        params = None if profile is None else {"profile": profile}
         with _atomic_file(target) as out:
             try:
-                with self._http.stream("GET", url) as resp:
+                with self._http.stream("GET", url, params=params) as resp:
                     if not resp.is_success:
                         resp.read()
                         _check(resp)
@@ -552,6 +558,11 @@ class CanalClient(_Base):
             except httpx.TransportError as exc:
                 raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
         return target
+
+    def rebuild_recording(self, skill: str) -> dict[str, Any]:
+        """Regenerate the skill's recordings from the service's database (demonstrations and
+        model versions); answers what was written (``demos``, ``models``)."""
+        return self._call(_rebuild_recording(skill))
 
 
 class AsyncCanalClient(_Base):
@@ -692,13 +703,15 @@ class AsyncCanalClient(_Base):
                                                 start_orientation))
 
     async def download_recording(self, skill: str, kind: RecordingKind,
-                                 path: str | os.PathLike[str]) -> Path:
+                                 path: str | os.PathLike[str], *,
+                                 profile: str | None = None) -> Path:
         """See :meth:`CanalClient.download_recording`."""
         target = Path(path)
         url = _recording_path(skill, kind)
+        params = None if profile is None else {"profile": profile}
         with _atomic_file(target) as out:
             try:
-                async with self._http.stream("GET", url) as resp:
+                async with self._http.stream("GET", url, params=params) as resp:
                     if not resp.is_success:
                         await resp.aread()
                         _check(resp)
@@ -707,3 +720,7 @@ class AsyncCanalClient(_Base):
             except httpx.TransportError as exc:
                 raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
         return target
+
+    async def rebuild_recording(self, skill: str) -> dict[str, Any]:
+        """See :meth:`CanalClient.rebuild_recording`."""
+        return await self._call(_rebuild_recording(skill))
