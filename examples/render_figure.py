@@ -25,7 +25,9 @@ import canal_core
 from canal_core.plot import draw_panel
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from walkthrough import bundled_examples, lasa_shape, random_starts
+from walkthrough import bundled_examples, lasa_shape
+
+from canal_core.plot import random_starts
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 from canal_client import CanalClient, CanalClientError, NotFoundError
 
-import canal_core
 from canal_core import datasets
+from canal_core.plot import random_starts
 
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
 
@@ -98,27 +98,6 @@ def bundled_examples(quick: bool = False) -> list[Example]:
         if example is not None:
             examples.append(example)
     return examples
-
-
-def random_starts(canal: canal_core.Canal, n: int, rng: np.random.Generator,
-                  head: float = 0.05) -> np.ndarray:
-    """``n`` random points inside the canal near its start (the first ``head`` of the sections).
-
-    Rejection sampling: a point uniform in the ball of the section's largest radius around a
-    directrix sample, kept when the canal contains it.
-    """
-    k = max(1, round(head * canal.n_sections))
-    found: list[np.ndarray] = []
-    for _ in range(1000):
-        i = rng.integers(0, k, size=4 * n)
-        u = rng.standard_normal((4 * n, canal.dim))
-        u /= np.linalg.norm(u, axis=1, keepdims=True)
-        u *= rng.uniform(0.0, 1.0, (4 * n, 1)) ** (1.0 / canal.dim)
-        points = canal.directrix[i] + canal.radii[i, None] * u
-        found.extend(points[canal.contains(points)])
-        if len(found) >= n:
-            return np.array(found[:n])
-    raise RuntimeError("could not sample starts inside the canal")
 
 
 # ---- a service to talk to ----------------------------------------------------------------------
