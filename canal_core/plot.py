@@ -95,9 +95,14 @@ def draw_canal_3d(ax: Any, canal: Canal, n_angles: int = 36, n_rings: int = 16) 
             nxt = np.roll(ring, -1, axis=0)
             tris.extend(np.stack([ring, nxt, nxt + shift, ring + shift], axis=1))
             outlines.append(ring + shift)
-    ax.add_collection3d(Poly3DCollection(tris, facecolor=SURFACE, edgecolor="none", alpha=0.12))
+    # Data limits come from the vertices, not from the collections: matplotlib's 3-D
+    # autoscale of a collection gave NaN limits (a ValueError) in 4 of 30 figures drawn in
+    # one process.
+    ax.add_collection3d(Poly3DCollection(tris, facecolor=SURFACE, edgecolor="none", alpha=0.12),
+                        autolim=False)
     closed = [np.vstack([r, r[:1]]) for r in outlines]
-    ax.add_collection3d(Line3DCollection(closed, colors=SURFACE, linewidths=0.6))
+    ax.add_collection3d(Line3DCollection(closed, colors=SURFACE, linewidths=0.6), autolim=False)
+    ax.auto_scale_xyz(*np.vstack([mesh.vertices, *outlines]).T, had_data=True)
 
 
 def draw_canal_2d(ax: Any, canal: Canal) -> None:
