@@ -16,15 +16,13 @@ import numpy.typing as npt
 
 from canal_core.errors import CanalError
 from canal_core.preprocess import prepared_demonstration
+from canal_core.validation import check_quaternions
 
 from .errors import InvalidInput
 
 FloatArray = npt.NDArray[np.float64]
 
 MIN_POINTS = 4
-# Quaternions from robot drivers are often float32 and renormalised loosely; 1e-3 accepts
-# those and still catches Euler angles or unnormalised garbage.
-QUATERNION_NORM_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -135,16 +133,11 @@ def check_orientations(value: Any, n_points: int) -> FloatArray:
             field="orientations",
         )
     _check_finite(quats, "orientations")
-    norms = np.linalg.norm(quats, axis=1)
-    bad = np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise InvalidInput(
-            f"expected unit quaternions (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
-            f"got norm {norms[i]:.6g} at row {i}",
-            field=f"orientations[{i}]",
-        )
-    return quats
+    try:  # the unit-norm rule (and its tolerance) is canal_core's, the one fit applies
+        check_quaternions(quats, n_points, "orientations")
+    except CanalError as exc:
+        raise InvalidInput(exc.message, field=exc.field) from exc
+    return quats  # stored as sent; fit normalises
 
 
 def check_fittable(positions: FloatArray, timestamps: FloatArray | None) -> None:
