@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -89,20 +89,6 @@ def test_deleting_a_skill_deletes_its_recording(tmp_path: Path, demos3: list[np.
         rec.close()
 
 
-@dataclass(frozen=True)
-class _Rep:
-    """A reproduction as the contract extends it: times and orientations (N', 4)."""
-
-    positions: np.ndarray
-    start: np.ndarray
-    inside: bool
-    eta: float
-    section_index: int
-    projected: bool
-    times: np.ndarray | None = None
-    orientations: np.ndarray | None = None
-
-
 def test_every_reproduction_keeps_its_entity_with_times_and_orientations(
         recorder: Recorder, demos3: list[np.ndarray], canal3: Any,
         rerun_env: dict[str, str]) -> None:
@@ -111,8 +97,9 @@ def test_every_reproduction_keeps_its_entity_with_times_and_orientations(
     angle = np.linspace(0.0, np.pi / 2, n)
     quats = np.c_[np.zeros(n), np.zeros(n), np.sin(angle / 2), np.cos(angle / 2)]
     recorder.reproduction("pour", 1, base)
-    recorder.reproduction("pour", 1, _Rep(base.positions, base.start, True, 0.5, 0, False,
-                                          times=np.linspace(0.0, 3.0, n), orientations=quats))
+    recorder.reproduction("pour", 1, replace(base, inside=True, eta=0.5, section_index=0,
+                                             projected=False, times=np.linspace(0.0, 3.0, n),
+                                             orientations=quats))
     recorder.reproduction("pour", 1, canal3.reproduce_detailed(demos3[1][0]))
     rows = rrd_rows(recorder.export_rrd("pour"), rerun_env)
     for k in (1, 2, 3):  # none overwrites another

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -15,17 +15,6 @@ from recording_helpers import mcap_messages, record_session
 
 highlevel = pytest.importorskip("rosbags.highlevel")
 typesys = pytest.importorskip("rosbags.typesys")
-
-
-@dataclass(frozen=True)
-class _Rep:
-    positions: np.ndarray
-    start: np.ndarray
-    inside: bool
-    eta: float
-    section_index: int
-    projected: bool
-    orientations: np.ndarray | None = None
 
 
 def _read(path: Path) -> list[tuple[str, str, Any]]:
@@ -44,7 +33,8 @@ def test_ros2_profile_reads_back_with_rosbags(recorder: Recorder, demos3: list[n
     n = len(rep.positions)
     quats = np.c_[np.zeros(n), np.sin(np.linspace(0, 1, n)), np.zeros(n),
                   np.cos(np.linspace(0, 1, n))]
-    recorder.reproduction("pour", 1, _Rep(rep.positions, rep.start, True, 0.4, 0, False, quats))
+    recorder.reproduction("pour", 1, replace(rep, inside=True, eta=0.4, section_index=0,
+                                             projected=False, orientations=quats))
     m = len(demos3[0])
     demo_q = np.c_[np.sin(np.linspace(0, 1, m)), np.zeros(m), np.zeros(m),
                    np.cos(np.linspace(0, 1, m))]
