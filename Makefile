@@ -26,7 +26,7 @@ figure: $(STAMP)
 	$(PY) examples/render_figure.py
 
 lint: $(STAMP)
-	$(PY) -m ruff check canal_core service clients tests bench examples
+	$(PY) -m ruff check canal_core canal_protocol service clients tests bench examples
 	$(PY) -m mypy canal_core
 
 test: lint

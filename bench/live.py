@@ -116,10 +116,11 @@ def make_database(data: Path) -> tuple[np.ndarray, object]:
     """A skill with 6 noisy arcs fitted (circle, N = 200); a path along it and the canal."""
     os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
     from canal_service.metrics import Metrics
-    from canal_service.schemas import FitRequest, SkillCreate
     from canal_service.service import CanalService
     from canal_service.storage import Database
     from canal_service.validation import check_demonstration
+
+    from canal_protocol.schemas import FitRequest, SkillCreate
 
     db = Database(f"sqlite:///{(data / 'canal.sqlite3').resolve()}")
     db.migrate()
@@ -223,7 +224,7 @@ def stop(proc: subprocess.Popen[bytes] | subprocess.Popen[str]) -> None:
 
 def payloads(fmt: str, n_streams: int, total: int, path: np.ndarray) -> list[list[bytes]]:
     """Every pose of every stream, encoded up front (the client must not be the bottleneck)."""
-    from canal_client import wire
+    from canal_protocol import wire
 
     out = []
     for i in range(n_streams):
@@ -358,9 +359,9 @@ def drive(endpoint: str, server: str, fmt: str, n_streams: int, seconds: float,
 def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> list[tuple[str, float]]:
     """Per-pose cost (us) of each stage of the pose path, measured in this process."""
     import zenoh
-    from canal_client import wire
 
     from canal_core.tracker import Tracker, step_trackers, tracker_geometry
+    from canal_protocol import wire
 
     geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
     pts = path[:repeats]
@@ -441,12 +442,13 @@ def old_vs_new_bridge(path: np.ndarray, canal, data: Path, n_batch: int = 16,
                       rounds: int = 250) -> list[tuple[str, float]]:
     """The whole in-process pose path per pose: the bridge's batch handler on real samples."""
     import zenoh
-    from canal_client import wire
     from canal_client.live import client_config
     from canal_service.bridge import Bridge, BridgeOptions
     from canal_service.metrics import Metrics
     from canal_service.service import CanalService
     from canal_service.storage import Database
+
+    from canal_protocol import wire
 
     db = Database(f"sqlite:///{(data / 'canal.sqlite3').resolve()}")
     service = CanalService(db, Metrics())

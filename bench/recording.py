@@ -258,8 +258,9 @@ def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
     """
     import orjson
     import zenoh
-    from canal_client import wire
     from canal_service.recording.live import LiveOptions, LiveSubscriber
+
+    from canal_protocol import wire
 
     def config(mode: str, listen: list[str], connect: list[str]) -> Any:
         c = zenoh.Config()

@@ -5,9 +5,8 @@
 - ``canal``: the command line (:mod:`canal_client.cli`);
 - ``PoseStreamer`` (:mod:`canal_client.live`) and ``run_sim``/``SimResult``
   (:mod:`canal_client.sim`): the robot side over Zenoh;
-- :mod:`canal_client.wire`: the live wire protocol (numpy and stdlib only).
-
-The clients are imported on first use, so ``import canal_client.wire`` stays light.
+The live wire codecs are in :mod:`canal_protocol.wire` (shared with the service).
+The clients are imported on first use, so ``import canal_client`` stays light.
 """
 
 from __future__ import annotations
@@ -80,7 +79,7 @@ __all__ = [
 ]
 
 # name -> module; loaded on first attribute access (PEP 562), so that a robot importing only
-# canal_client.wire pulls in neither httpx nor zenoh.
+# the errors pulls in neither httpx nor zenoh.
 _LAZY = {
     "DEFAULT_URL": ".rest",
     "AsyncCanalClient": ".rest",

@@ -25,7 +25,7 @@ from typing import Any
 import orjson
 import zenoh
 
-from . import wire
+from canal_protocol import wire
 
 _ENC_JSON = zenoh.Encoding.APPLICATION_JSON
 _ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
@@ -93,7 +93,7 @@ class PoseStreamer:
     prefix : str
     encoding : "binary" | "json"
     on_target : callable, optional
-        Called with every :class:`~canal_client.wire.Target`, from the streamer's thread.
+        Called with every :class:`~canal_protocol.wire.Target`, from the streamer's thread.
     session : zenoh.Session, optional
         Use this session instead of opening one (it is not closed by :meth:`close`).
     connect_timeout : float

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from . import wire
+from canal_protocol import wire
+
 from .live import PoseStreamer
 
 Push = tuple[float | str, Sequence[float]]

@@ -6,7 +6,8 @@ from typing import Annotated
 
 from fastapi import Depends, Path, Query, Request
 
-from .schemas import MAX_ID, SKILL_NAME_PATTERN
+from canal_protocol.schemas import MAX_ID, SKILL_NAME_PATTERN
+
 from .service import CanalService
 
 

@@ -19,8 +19,9 @@ import numpy as np
 from sqlalchemy.exc import IntegrityError
 
 import canal_core
+from canal_protocol import schemas
 
-from . import schemas, uploads
+from . import uploads
 from .errors import Conflict, InvalidInput, NotFound
 from .metrics import Metrics
 from .storage import Database, Demonstration, ModelVersion, Skill, arrays

@@ -157,7 +157,7 @@ def test_a_robot_cannot_read_or_write_another_robots_stream(secure):
                 assert answer is not None and answer.status == "ok"
             n = len(arm2._answers)
             # arm1 puts on arm2's pose key: the router drops it, arm2 gets no extra answer
-            from canal_client import wire
+            from canal_protocol import wire
 
             arm1.put("canal/s/arm2/pose", wire.encode_pose(10**9, directrix[40]))
             time.sleep(0.5)

@@ -7,8 +7,9 @@ import struct
 
 import numpy as np
 import pytest
-from canal_client import wire
 from canal_client.live import PoseStreamer
+
+from canal_protocol import wire
 
 pytestmark = pytest.mark.timeout(60)
 

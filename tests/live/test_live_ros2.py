@@ -10,8 +10,9 @@ import numpy as np
 import orjson
 import pytest
 import zenoh
-from canal_client import wire
 from canal_client.live import PoseStreamer, client_config
+
+from canal_protocol import wire
 
 rosbags_typesys = pytest.importorskip("rosbags.typesys")
 TS = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_HUMBLE)

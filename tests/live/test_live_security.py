@@ -8,9 +8,10 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from canal_client import wire
 from canal_client.live import PoseStreamer, client_config, query_json
 from live_helpers import make_skill
+
+from canal_protocol import wire
 
 pytestmark = pytest.mark.timeout(60)
 

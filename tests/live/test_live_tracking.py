@@ -10,12 +10,12 @@ import pytest
 from canal_client.live import PoseStreamer
 from canal_client.sim import run_sim
 from canal_service.metrics import Metrics
-from canal_service.schemas import FitRequest
 from canal_service.service import CanalService
 from canal_service.storage import Database
 from live_helpers import make_skill
 
 import canal_core
+from canal_protocol.schemas import FitRequest
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -16,11 +16,12 @@ import numpy as np
 import orjson
 import pytest
 import zenoh
-from canal_client import wire
 from canal_service.recording import Recorder
 from canal_service.recording.live import LiveOptions, LiveSubscriber
 from canal_testing import free_port
 from recording_helpers import mcap_messages
+
+from canal_protocol import wire
 
 
 def _config(mode: str, listen: list[str] | None = None,

@@ -128,9 +128,10 @@ def test_a_disabled_recorder_records_nothing(tmp_path: Path, demos3: list[np.nda
 def test_a_demo_queued_while_the_start_reconcile_runs_is_logged_once(tmp_path: Path) -> None:
     from canal_service.metrics import Metrics
     from canal_service.recording.source import DbSource
-    from canal_service.schemas import DemonstrationIn, SkillCreate
     from canal_service.service import CanalService
     from canal_service.storage import Database
+
+    from canal_protocol.schemas import DemonstrationIn, SkillCreate
 
     db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
     db.migrate()

@@ -8,10 +8,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from canal_service.schemas import DemonstrationIn, _fast_demonstration, demonstration_from_json
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
+
+from canal_protocol.schemas import DemonstrationIn, _fast_demonstration, demonstration_from_json
 
 scalars = st.one_of(
     st.floats(allow_nan=False, allow_infinity=False),

@@ -54,9 +54,9 @@ from typing import Any
 import numpy as np
 import orjson
 import zenoh
-from canal_client import wire
 
 from canal_core.tracker import Tracker, step_trackers, tracker_geometry
+from canal_protocol import wire
 
 from ..errors import Conflict, NotFound, ServiceError
 from ..validation import check_demonstration

@@ -9,7 +9,7 @@ recorder's work never runs on the bridge's Zenoh callback:
   ``interval_s`` and counts what it missed (gaps in the poses' ``seq``, full rings).
 - Each sample carries the time it reached the session (Zenoh timestamping on ingress), so
   the recorder's rate limit and the logs see arrival times, not drain times.
-- Payloads are decoded with :mod:`canal_client.wire` (JSON and binary v1). A payload that
+- Payloads are decoded with :mod:`canal_protocol.wire` (JSON and binary v1). A payload that
   starts with a CDR encapsulation header is a ROS 2 ``geometry_msgs/msg/PoseStamped``,
   decoded by the bridge's own CDR reader (no ROS install or rosbags needed).
 
@@ -28,7 +28,8 @@ from typing import Any
 
 import orjson
 import zenoh
-from canal_client import wire
+
+from canal_protocol import wire
 
 from .events import POSE, TARGET, LiveSample
 
@@ -131,7 +132,7 @@ def _json_seq(data: bytes) -> int | None:
 
 def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]]:
     """(position, [qx, qy, qz, qw]) of a CDR ``geometry_msgs/msg/PoseStamped``, read by the
-    bridge's own decoder (:func:`canal_client.wire.decode_pose_cdr`, checked against
+    bridge's own decoder (:func:`canal_protocol.wire.decode_pose_cdr`, checked against
     ``rosbags`` in the tests), so a deployment records ROS 2 streams without extra packages.
     Raises ``WireError`` when the payload is not one."""
     pose, _ = wire.decode_pose_cdr(data)

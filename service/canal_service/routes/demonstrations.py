@@ -11,9 +11,7 @@ from pydantic import ValidationError
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException
 
-from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
-from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
-from ..schemas import (
+from canal_protocol.schemas import (
     DemonstrationCreated,
     DemonstrationIn,
     DemonstrationOut,
@@ -22,6 +20,9 @@ from ..schemas import (
     Page,
     demonstration_from_json,
 )
+
+from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
+from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
 from ..uploads import UploadLimits, detect_format
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])

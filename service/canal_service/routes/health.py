@@ -7,8 +7,9 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
+from canal_protocol.schemas import HealthOut
+
 from ..deps import ServiceDep
-from ..schemas import HealthOut
 
 router = APIRouter(tags=["health"])
 

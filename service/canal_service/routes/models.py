@@ -7,9 +7,10 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, Query, Response, status
 from fastapi.concurrency import run_in_threadpool
 
+from canal_protocol.schemas import ErrorResponse, FitRequest, ModelOut, ModelSummary, Page
+
 from ..deps import Limit, Offset, ServiceDep, SkillName, VersionRef, parse_version
 from ..mesh import MESH_MEDIA_TYPES, export_mesh
-from ..schemas import ErrorResponse, FitRequest, ModelOut, ModelSummary, Page
 
 router = APIRouter(prefix="/skills/{name}", tags=["models"])
 _ERRORS: dict[int | str, dict[str, Any]] = {

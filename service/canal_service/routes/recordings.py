@@ -10,9 +10,10 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
+from canal_protocol.schemas import ErrorResponse
+
 from ..deps import ServiceDep, SkillName
 from ..errors import Conflict, Disabled
-from ..schemas import ErrorResponse
 
 router = APIRouter(prefix="/skills/{name}", tags=["recordings"])
 _RESPONSES: dict[int | str, dict[str, Any]] = {

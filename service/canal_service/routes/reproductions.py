@@ -6,8 +6,14 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from canal_protocol.schemas import (
+    ErrorResponse,
+    ReproductionBatchOut,
+    ReproductionOut,
+    ReproductionRequest,
+)
+
 from ..deps import ServiceDep, SkillName
-from ..schemas import ErrorResponse, ReproductionBatchOut, ReproductionOut, ReproductionRequest
 
 router = APIRouter(prefix="/skills/{name}", tags=["reproductions"])
 _ERRORS: dict[int | str, dict[str, Any]] = {

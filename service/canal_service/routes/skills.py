@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Response, status
 
+from canal_protocol.schemas import ErrorResponse, Page, SkillCreate, SkillOut
+
 from ..deps import Limit, Offset, ServiceDep, SkillName
-from ..schemas import ErrorResponse, Page, SkillCreate, SkillOut
 
 router = APIRouter(prefix="/skills", tags=["skills"])
 _ERRORS = {404: {"model": ErrorResponse}, 422: {"model": ErrorResponse}}

@@ -31,9 +31,10 @@ from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, RedirectResponse
 
+from canal_protocol.schemas import ErrorResponse
+
 from ..deps import ServiceDep, SkillName
 from ..errors import Disabled, NotFound
-from ..schemas import ErrorResponse
 
 router = APIRouter(tags=["view"])
 
