@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, Literal, cast, get_args
 
 import numpy as np
 
@@ -72,10 +72,24 @@ from .validation import (
 FORMAT = "canal-model"
 FORMAT_VERSION = 1
 
-CROSS_SECTIONS = KINDS_3D
-FRAMES = ("rmf", "frenet")
-ALIGNMENTS = ("spline", "dtw")
-DIRECTRICES = ("mean", "gmr")
+#: Frame kinds, alignments and directrices: each ``Literal`` is the one list of names; the
+#: tuples are derived from it, and canal_protocol derives the HTTP contract from both.
+FrameKind = Literal["rmf", "frenet"]
+AlignmentKind = Literal["spline", "dtw"]
+DirectrixKind = Literal["mean", "gmr"]
+#: Cross-section names fitted from demonstrations ("interval" is the 2-D form of each and is
+#: not chosen by name).
+CROSS_SECTIONS: tuple[str, ...] = KINDS_3D
+FRAMES: tuple[FrameKind, ...] = get_args(FrameKind)
+ALIGNMENTS: tuple[AlignmentKind, ...] = get_args(AlignmentKind)
+DIRECTRICES: tuple[DirectrixKind, ...] = get_args(DirectrixKind)
+#: Bounds of ``n_samples`` (N, the number of cross-sections) and of ``frame_smoothing``; the
+#: service's limits are these. A fit's cost grows faster than N (5 demos of 1,000 points:
+#: about 1 s at N = 5,000, 38 s at 20,000, over 7 min at 100,000, on a busy 2-core machine),
+#: so N stops where a fit still answers within an HTTP request's patience.
+MIN_SAMPLES = 2
+MAX_SAMPLES = 5_000
+MAX_FRAME_SMOOTHING = 0.25
 #: Relative tolerance of :meth:`Canal.contains` on eta and on the axial offset at the ends.
 CONTAINS_TOLERANCE = 1e-6
 
@@ -84,10 +98,12 @@ CONTAINS_TOLERANCE = 1e-6
 class FitOptions:
     """How a canal was fitted (see :func:`fit`)."""
 
+    #: One of :data:`CROSS_SECTIONS`.
     cross_section: str = "circle"
-    frames: str = "rmf"
-    alignment: str = "spline"
-    directrix: str = "mean"
+    frames: FrameKind = "rmf"
+    alignment: AlignmentKind = "spline"
+    directrix: DirectrixKind = "mean"
+    #: In [MIN_SAMPLES, MAX_SAMPLES].
     n_samples: int = 200
     #: Gaussian smoothing of the curve the frames are computed on, as a fraction of
     #: n_samples (0 = frames of the raw directrix, as in the paper). See canal_core.frames.
@@ -551,11 +567,12 @@ def fit_options(
     """Validated :class:`FitOptions`."""
     return FitOptions(
         cross_section=check_choice(cross_section, CROSS_SECTIONS, "cross_section"),
-        frames=check_choice(frames, FRAMES, "frames"),
-        alignment=check_choice(alignment, ALIGNMENTS, "alignment"),
-        directrix=check_choice(directrix, DIRECTRICES, "directrix"),
-        n_samples=check_int(n_samples, 2, "n_samples", maximum=100_000),
-        frame_smoothing=check_fraction(frame_smoothing, "frame_smoothing"),
+        frames=cast(FrameKind, check_choice(frames, FRAMES, "frames")),
+        alignment=cast(AlignmentKind, check_choice(alignment, ALIGNMENTS, "alignment")),
+        directrix=cast(DirectrixKind, check_choice(directrix, DIRECTRICES, "directrix")),
+        n_samples=check_int(n_samples, MIN_SAMPLES, "n_samples", maximum=MAX_SAMPLES),
+        frame_smoothing=check_fraction(frame_smoothing, "frame_smoothing",
+                                       maximum=MAX_FRAME_SMOOTHING),
     )
 
 

@@ -9,6 +9,9 @@ import numpy as np
 import orjson
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
+from . import options
+from .options import Alignment, CrossSection, Directrix, FrameKind
+
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 MAX_BATCH_STARTS = 1000
 # Ids and versions fit a 32-bit SQL integer; larger numbers cannot name anything we stored,
@@ -201,15 +204,21 @@ class DemonstrationOut(DemonstrationSummary):
 
 
 class FitRequest(_In):
-    """canal_core fit options; every field has the canal_core default."""
+    """canal_core fit options; every field left out takes canal_core's default.
 
-    cross_section: Literal["circle", "mec", "ellipse", "spline"] = "circle"
-    frames: Literal["rmf", "frenet"] = "rmf"
-    alignment: Literal["spline", "dtw"] = "spline"
-    directrix: Literal["mean", "gmr"] = "mean"
-    n_samples: int = Field(200, ge=2, le=5000)
+    Names, defaults and limits come from :mod:`canal_protocol.options` (derived from
+    :mod:`canal_core.model`), never written out here.
+    """
+
+    cross_section: CrossSection = options.DEFAULTS.cross_section
+    frames: FrameKind = options.DEFAULTS.frames
+    alignment: Alignment = options.DEFAULTS.alignment
+    directrix: Directrix = options.DEFAULTS.directrix
+    n_samples: int = Field(
+        options.DEFAULTS.n_samples, ge=options.MIN_SAMPLES, le=options.MAX_SAMPLES,
+        description="N, the number of cross-sections.")
     frame_smoothing: float = Field(
-        0.02, ge=0.0, le=0.25,
+        options.DEFAULTS.frame_smoothing, ge=0.0, le=options.MAX_FRAME_SMOOTHING,
         description="Frames are computed on the directrix smoothed by a Gaussian of this "
                     "fraction of n_samples; 0 = the paper's raw frames.")
     by_time: bool = Field(

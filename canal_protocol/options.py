@@ -1,0 +1,52 @@
+"""The fit options of the HTTP contract, derived from :mod:`canal_core` (never written out).
+
+The names a client may choose are canal_core's: the ``Literal`` aliases of
+:mod:`canal_core.model` for frames, alignment and directrix, and canal_core's cross-section
+names for ``cross_section`` (``canal_core.model.CROSS_SECTIONS``, the tuple ``fit``
+validates against). Defaults are :class:`canal_core.model.FitOptions`'s, limits are
+canal_core's constants. A new cross-section kind in canal_core is therefore accepted by the
+service, offered by the client and listed in the OpenAPI schema without touching this package.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Literal
+
+from canal_core import model as _core
+
+__all__ = [
+    "ALIGNMENTS",
+    "CROSS_SECTIONS",
+    "DEFAULTS",
+    "DIRECTRICES",
+    "FRAMES",
+    "MAX_FRAME_SMOOTHING",
+    "MAX_SAMPLES",
+    "MIN_SAMPLES",
+    "Alignment",
+    "CrossSection",
+    "Directrix",
+    "FrameKind",
+]
+
+
+#: The names ``canal_core.fit`` accepts (its validator checks against the same tuple).
+CROSS_SECTIONS: tuple[str, ...] = tuple(_core.CROSS_SECTIONS)
+FRAMES = _core.FRAMES
+ALIGNMENTS = _core.ALIGNMENTS
+DIRECTRICES = _core.DIRECTRICES
+MIN_SAMPLES = _core.MIN_SAMPLES
+#: The service accepts every N the core fits: one limit (docs/CONTRACTS.md says why 5,000).
+MAX_SAMPLES = _core.MAX_SAMPLES
+MAX_FRAME_SMOOTHING = _core.MAX_FRAME_SMOOTHING
+#: canal_core's defaults: what a request that leaves an option out gets.
+DEFAULTS = _core.FitOptions()
+
+FrameKind = _core.FrameKind
+Alignment = _core.AlignmentKind
+Directrix = _core.DirectrixKind
+if TYPE_CHECKING:
+    # The registry is open (a new kind is one new module), so statically it is a name.
+    CrossSection = str
+else:
+    CrossSection = Literal[CROSS_SECTIONS]
