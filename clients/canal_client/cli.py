@@ -22,6 +22,7 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
+from pydantic import BaseModel
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -132,7 +133,9 @@ def _client(ctx: typer.Context) -> Iterator[CanalClient]:
 
 
 def _plain(value: Any) -> Any:
-    """JSON-ready form of the client's dataclasses, numpy arrays and datetimes."""
+    """JSON-ready form of the client's models, dataclasses, numpy arrays and datetimes."""
+    if isinstance(value, BaseModel):  # the client's models (canal_protocol's)
+        return {name: _plain(field) for name, field in value}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
     if isinstance(value, np.ndarray):

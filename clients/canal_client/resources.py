@@ -1,17 +1,39 @@
-"""What the client returns: plain frozen dataclasses, arrays as numpy.
+"""What the client returns: the contract's own models (:mod:`canal_protocol.schemas`).
 
-Each ``from_json`` takes the service's JSON object for that resource (see the README's
-Resources table) and nothing else.
+Resources without arrays are the protocol's models themselves (``Skill`` is
+:class:`canal_protocol.schemas.SkillOut`, ...). Resources with arrays are subclasses of the
+protocol's models that hold numpy ``float64`` arrays where the protocol has lists of numbers:
+same fields, same JSON (``model_dump(mode="json")`` gives the lists back), same JSON schema.
+Nothing here lists a field the protocol does not, and tests diff these models against the
+service's live OpenAPI document.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from datetime import datetime
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import (
+    BeforeValidator,
+    ConfigDict,
+    PlainSerializer,
+    TypeAdapter,
+    WithJsonSchema,
+)
+
+from canal_protocol.schemas import (
+    DemonstrationCreated,
+    DemonstrationOut,
+    DemonstrationSummary,
+    Frames,
+    HealthOut,
+    ModelOut,
+    ReproductionBatchOut,
+    ReproductionOut,
+    SkillOut,
+)
+from canal_protocol.schemas import ModelSummary as ModelSummary
 
 __all__ = [
     "DemoCreated",
@@ -19,179 +41,124 @@ __all__ = [
     "Demonstration",
     "Health",
     "Model",
+    "ModelFrames",
     "ModelSummary",
     "Reproduction",
+    "ReproductionBatch",
     "Skill",
 ]
 
 FloatArray = NDArray[np.float64]
 
-
-def _time(value: Any) -> datetime | None:
-    return datetime.fromisoformat(value) if isinstance(value, str) else None
+#: ``GET /healthz``: ``status`` ok|degraded, ``database``, ``recorder``, ``bridge``, ``version``.
+Health = HealthOut
+#: A skill with its counts and latest model version (``None`` before the first fit).
+Skill = SkillOut
+#: A stored demonstration: its id, size and SHA-256 of the positions.
+DemoCreated = DemonstrationCreated
+#: A demonstration without its arrays.
+DemoSummary = DemonstrationSummary
 
 
 def _array(value: Any) -> FloatArray:
+    if isinstance(value, np.ndarray) and value.dtype == np.float64:
+        return value
     return np.asarray(value, dtype=np.float64)
 
 
-def _optional_array(value: Any) -> FloatArray | None:
-    return None if value is None else _array(value)
+def _rows(value: Any) -> FloatArray:
+    array = _array(value)
+    if array.ndim != 2:
+        raise ValueError(f"expected rows of numbers (2-D), got shape {array.shape}")
+    return array
 
 
-@dataclass(frozen=True)
-class Health:
-    """``GET /healthz``: ``status`` is ``ok`` or ``degraded``."""
-
-    status: str
-    database: str
-    recorder: dict[str, Any]
-    version: str
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> Health:
-        return cls(status=d["status"], database=d["database"], recorder=dict(d["recorder"]),
-                   version=d["version"])
+def _vector(value: Any) -> FloatArray:
+    array = _array(value)
+    if array.ndim != 1:
+        raise ValueError(f"expected a list of numbers (1-D), got shape {array.shape}")
+    return array
 
 
-@dataclass(frozen=True)
-class Skill:
-    """A skill with its counts and latest model version (``None`` before the first fit)."""
-
-    name: str
-    description: str
-    dim: int
-    created_at: datetime | None
-    n_demonstrations: int
-    n_models: int
-    latest_model_version: int | None
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> Skill:
-        return cls(name=d["name"], description=d["description"], dim=int(d["dim"]),
-                   created_at=_time(d.get("created_at")),
-                   n_demonstrations=int(d["n_demonstrations"]), n_models=int(d["n_models"]),
-                   latest_model_version=d.get("latest_model_version"))
+def _listed(array: FloatArray) -> Any:
+    return array.tolist()
 
 
-@dataclass(frozen=True)
-class DemoCreated:
-    """A stored demonstration: its id, size and SHA-256 of the positions."""
+# numpy in Python, the protocol's lists on the wire and in the JSON schema.
+Rows = Annotated[
+    FloatArray,
+    BeforeValidator(_rows),
+    PlainSerializer(_listed, return_type=list[list[float]]),
+    WithJsonSchema(TypeAdapter(list[list[float]]).json_schema()),
+]
+Vector = Annotated[
+    FloatArray,
+    BeforeValidator(_vector),
+    PlainSerializer(_listed, return_type=list[float]),
+    WithJsonSchema(TypeAdapter(list[float]).json_schema()),
+]
 
-    id: int
-    n_points: int
-    checksum: str
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> DemoCreated:
-        return cls(id=int(d["id"]), n_points=int(d["n_points"]), checksum=d["checksum"])
-
-
-@dataclass(frozen=True)
-class DemoSummary:
-    """A demonstration without its arrays."""
-
-    id: int
-    label: str | None
-    n_points: int
-    dim: int
-    has_timestamps: bool
-    has_orientations: bool
-    source: str
-    checksum: str
-    created_at: datetime | None
-
-    @staticmethod
-    def _fields(d: dict[str, Any]) -> dict[str, Any]:
-        return dict(id=int(d["id"]), label=d.get("label"), n_points=int(d["n_points"]),
-                    dim=int(d["dim"]), has_timestamps=bool(d["has_timestamps"]),
-                    has_orientations=bool(d["has_orientations"]), source=d["source"],
-                    checksum=d["checksum"], created_at=_time(d.get("created_at")))
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> DemoSummary:
-        return cls(**cls._fields(d))
+_ARRAYS = ConfigDict(arbitrary_types_allowed=True, frozen=True)
 
 
-@dataclass(frozen=True, eq=False)
-class Demonstration(DemoSummary):
+# The overrides below change a field's type from the protocol's lists to numpy arrays of the
+# same values; mypy sees a changed attribute type (hence the ignores), pydantic the same field.
+
+
+class Demonstration(DemonstrationOut):
     """A demonstration with its arrays: positions (T, D), timestamps (T,), orientations (T, 4)."""
 
-    positions: FloatArray
-    timestamps: FloatArray | None
-    orientations: FloatArray | None
+    model_config = _ARRAYS
 
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> Demonstration:
-        return cls(**cls._fields(d), positions=_array(d["positions"]),
-                   timestamps=_optional_array(d.get("timestamps")),
-                   orientations=_optional_array(d.get("orientations")))
+    positions: Rows  # type: ignore[assignment]
+    timestamps: Vector | None  # type: ignore[assignment]
+    orientations: Rows | None  # type: ignore[assignment]
 
 
-@dataclass(frozen=True)
-class ModelSummary:
-    """One fitted model version and the options it was fitted with."""
+class ModelFrames(Frames):
+    """Per-section frames: tangents, normals (N, D), binormals (N, 3) or ``None`` in 2-D."""
 
-    version: int
-    created_at: datetime | None
-    demo_ids: list[int]
-    options: dict[str, Any]
-    dim: int
-    n_demos: int
-    n_sections: int
-    section_kind: str
-    fit_seconds: float
-    #: Whether the model learned orientation (its reproductions carry quaternions).
-    has_orientation: bool
+    model_config = _ARRAYS
 
-    @staticmethod
-    def _fields(d: dict[str, Any]) -> dict[str, Any]:
-        return dict(version=int(d["version"]), created_at=_time(d.get("created_at")),
-                    demo_ids=[int(i) for i in d["demo_ids"]], options=dict(d["options"]),
-                    dim=int(d["dim"]), n_demos=int(d["n_demos"]),
-                    n_sections=int(d["n_sections"]), section_kind=d["section_kind"],
-                    fit_seconds=float(d["fit_seconds"]),
-                    has_orientation=bool(d.get("has_orientation", False)))
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> ModelSummary:
-        return cls(**cls._fields(d))
+    tangents: Rows  # type: ignore[assignment]
+    normals: Rows  # type: ignore[assignment]
+    binormals: Rows | None  # type: ignore[assignment]
 
 
-@dataclass(frozen=True, eq=False)
-class Model(ModelSummary):
+class Model(ModelOut):
     """A model version with its geometry.
 
-    ``directrix`` (N, D), ``arclength`` (N,), ``radii`` (N,), ``tangents``/``normals`` (N, D),
-    ``binormals`` (N, 3) or ``None`` in 2-D, ``bounds`` (2, D) as [min, max];
-    ``sections`` the cross-section parameters; ``serialized`` the full canal_core model dict
-    when asked for (``get_model(..., serialized=True)``).
+    ``directrix`` (N, D), ``arclength`` (N,), ``radii`` (N,), ``frames`` (tangents and normals
+    (N, D), binormals (N, 3) or ``None`` in 2-D; also as ``tangents``/``normals``/``binormals``),
+    ``bounds`` (2, D) as [min, max]; ``sections`` the cross-section parameters; ``serialized``
+    the full canal_core model dict when asked for (``get_model(..., serialized=True)``).
     """
 
-    directrix: FloatArray
-    arclength: FloatArray
-    radii: FloatArray
-    tangents: FloatArray
-    normals: FloatArray
-    binormals: FloatArray | None
-    bounds: FloatArray
-    sections: dict[str, Any] | None
-    serialized: dict[str, Any] | None
+    model_config = _ARRAYS
 
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> Model:
-        frames = d.get("frames") or {}
-        return cls(**cls._fields(d), directrix=_array(d["directrix"]),
-                   arclength=_array(d["arclength"]), radii=_array(d["radii"]),
-                   tangents=_array(frames.get("tangents", [])),
-                   normals=_array(frames.get("normals", [])),
-                   binormals=_optional_array(frames.get("binormals")),
-                   bounds=_array(d["bounds"]), sections=d.get("sections"),
-                   serialized=d.get("serialized"))
+    directrix: Rows  # type: ignore[assignment]
+    arclength: Vector  # type: ignore[assignment]
+    radii: Vector  # type: ignore[assignment]
+    frames: ModelFrames
+    bounds: Rows  # type: ignore[assignment]
+
+    @property
+    def tangents(self) -> FloatArray:
+        """``frames.tangents``, shape (N, D)."""
+        return self.frames.tangents
+
+    @property
+    def normals(self) -> FloatArray:
+        """``frames.normals``, shape (N, D)."""
+        return self.frames.normals
+
+    @property
+    def binormals(self) -> FloatArray | None:
+        """``frames.binormals``, shape (N, 3), ``None`` in 2-D."""
+        return self.frames.binormals
 
 
-@dataclass(frozen=True, eq=False)
-class Reproduction:
+class Reproduction(ReproductionOut):
     """One reproduced trajectory.
 
     ``positions`` (N', D) ends on the canal's last section; ``start`` (D,) is the start that was
@@ -205,27 +172,19 @@ class Reproduction:
     that the request did not say (ignored or assumed).
     """
 
-    positions: FloatArray
-    start: FloatArray
-    inside: bool
-    eta: float
-    section_index: int
-    projected: bool
-    model_version: int
-    times: FloatArray | None = None
-    velocities: FloatArray | None = None
-    orientations: FloatArray | None = None
-    goal: FloatArray | None = None
-    notes: list[str] = field(default_factory=list)
+    model_config = _ARRAYS
 
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> Reproduction:
-        def optional(key: str) -> FloatArray | None:
-            return None if d.get(key) is None else _array(d[key])
+    positions: Rows  # type: ignore[assignment]
+    start: Vector  # type: ignore[assignment]
+    times: Vector | None = None  # type: ignore[assignment]
+    velocities: Rows | None = None  # type: ignore[assignment]
+    orientations: Rows | None = None  # type: ignore[assignment]
+    goal: Vector | None = None  # type: ignore[assignment]
 
-        return cls(positions=_array(d["positions"]), start=_array(d["start"]),
-                   inside=bool(d["inside"]), eta=float(d["eta"]),
-                   section_index=int(d["section_index"]), projected=bool(d["projected"]),
-                   model_version=int(d["model_version"]), times=optional("times"),
-                   velocities=optional("velocities"), orientations=optional("orientations"),
-                   goal=optional("goal"), notes=[str(n) for n in d.get("notes") or []])
+
+class ReproductionBatch(ReproductionBatchOut):
+    """Reproductions in the order of the request's ``starts``."""
+
+    model_config = _ARRAYS
+
+    reproductions: list[Reproduction]  # type: ignore[assignment]

@@ -14,31 +14,47 @@ resources::
         r = canal.reproduce("pour", [0.0, 0.02, 0.0])
         r.positions                              # (N, 3) numpy array
 
-Errors are :mod:`canal_client.errors` exceptions carrying the service's message.
+They return the contract's models (:mod:`canal_protocol.schemas`, numpy arrays where the
+resource has arrays: :mod:`canal_client.resources`). Errors are :mod:`canal_client.errors`
+exceptions carrying the service's message.
 
-How it is built: each method describes its HTTP exchange as a :class:`_Request` (method, path,
-body, and the function that turns the answer into the return value), made by the module-level
-``_*`` builders shared by both clients; the clients only send it (``_call``). Paged lists are
-generators of requests (:func:`_all_pages`) driven by either client.
+How it is built: :data:`ENDPOINTS` lists every exchange the client has with the service
+(method, OpenAPI path, the protocol model sent and the one read back, query parameters);
+tests diff it against the live service's ``/openapi.json``. Each method is described once, as
+a generator of steps (an HTTP request, a streamed download, a local file read) that returns
+the method's result (``_health``, ``_fit``, ...). The :class:`_operation` descriptor turns
+that one description into a method of :class:`CanalClient` and a coroutine method of
+:class:`AsyncCanalClient`; the two clients differ only in how they run a step.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import os
 import tempfile
-from collections.abc import Callable, Generator, Iterable, Iterator
+from collections.abc import Callable, Coroutine, Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, BinaryIO, Generic, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, BinaryIO, Generic, Literal, ParamSpec, TypeVar, overload
 from urllib.parse import quote
 
 import httpx
 import numpy as np
 from numpy.typing import ArrayLike
+from pydantic import BaseModel, ValidationError
+
+from canal_protocol.options import Alignment, CrossSection, Directrix, FrameKind
+from canal_protocol.schemas import (
+    DemonstrationIn,
+    FitRequest,
+    Page,
+    ReproductionRequest,
+    SkillCreate,
+)
 
 from .errors import (
     CanalClientError,
@@ -54,25 +70,113 @@ from .resources import (
     Model,
     ModelSummary,
     Reproduction,
+    ReproductionBatch,
     Skill,
 )
 
 if TYPE_CHECKING:
     import canal_core
 
-__all__ = ["DEFAULT_URL", "AsyncCanalClient", "CanalClient", "RecordingKind", "guess_format"]
+__all__ = [
+    "DEFAULT_URL",
+    "ENDPOINTS",
+    "AsyncCanalClient",
+    "CanalClient",
+    "Endpoint",
+    "RecordingKind",
+    "guess_format",
+]
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 RecordingKind = Literal["rrd", "mcap"]
+Outside = Literal["project", "raise"]
 Version = int | Literal["latest"] | str
 PAGE_SIZE = 1000
 
 T = TypeVar("T")
+M = TypeVar("M", bound=BaseModel)
+P = ParamSpec("P")
 _FILE_TYPES = {"csv": "text/csv", "npy": "application/x-npy", "mcap": "application/x-mcap"}
 _SUFFIXES = {".csv": "csv", ".txt": "csv", ".npy": "npy", ".mcap": "mcap", ".json": "json"}
 
 
-# ---- request descriptions (shared by both clients) -------------------------------------------
+def _check(resp: httpx.Response) -> None:
+    if not resp.is_success:
+        raise error_from_response(resp.status_code, resp.content)
+
+
+def _headers(token: str | None) -> dict[str, str]:
+    headers = {"accept": "application/json"}
+    if token:
+        headers["authorization"] = f"Bearer {token}"
+    return headers
+
+
+# ---- the endpoints (diffed against the service's OpenAPI document in tests/protocol) --------
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """One kind of exchange with the service, named as its OpenAPI document names it.
+
+    ``path`` is the OpenAPI template (``/skills/{name}``); ``request`` the protocol model of
+    the JSON body (``None``: no JSON body); ``response`` the model the answer is read as
+    (``None``: no JSON answer); ``query`` the query parameters the client may send;
+    ``status`` the success status.
+    """
+
+    method: str
+    path: str
+    request: type[BaseModel] | None = None
+    response: type[BaseModel] | None = None
+    query: tuple[str, ...] = ()
+    status: int = 200
+    #: The request's media type when it is not ``request``'s JSON (a multipart upload).
+    media_type: str | None = None
+
+    def url(self, **params: object) -> str:
+        """``path`` with its ``{...}`` parameters filled in, each percent-encoded."""
+        return self.path.format(**{k: quote(str(v), safe="") for k, v in params.items()})
+
+
+_PAGED = ("offset", "limit")
+_MODEL = "/skills/{name}/models/{version}"
+
+HEALTH = Endpoint("GET", "/healthz", response=Health)
+CREATE_SKILL = Endpoint("POST", "/skills", SkillCreate, Skill, status=201)
+LIST_SKILLS = Endpoint("GET", "/skills", response=Page[Skill], query=_PAGED)
+GET_SKILL = Endpoint("GET", "/skills/{name}", response=Skill)
+DELETE_SKILL = Endpoint("DELETE", "/skills/{name}", status=204)
+ADD_DEMO = Endpoint("POST", "/skills/{name}/demonstrations", DemonstrationIn, DemoCreated,
+                    status=201)
+# The same route, as a multipart file upload (its parameters travel in the query string).
+UPLOAD_DEMO = Endpoint("POST", "/skills/{name}/demonstrations", None, DemoCreated,
+                       query=("format", "topic", "label"), status=201,
+                       media_type="multipart/form-data")
+LIST_DEMOS = Endpoint("GET", "/skills/{name}/demonstrations", response=Page[DemoSummary],
+                      query=_PAGED)
+GET_DEMO = Endpoint("GET", "/skills/{name}/demonstrations/{demo_id}", response=Demonstration)
+DELETE_DEMO = Endpoint("DELETE", "/skills/{name}/demonstrations/{demo_id}", status=204)
+FIT = Endpoint("POST", "/skills/{name}/fit", FitRequest, ModelSummary, status=201)
+LIST_MODELS = Endpoint("GET", "/skills/{name}/models", response=Page[ModelSummary],
+                       query=_PAGED)
+GET_MODEL = Endpoint("GET", _MODEL, response=Model, query=("serialized",))
+GET_MESH = Endpoint("GET", _MODEL + "/mesh", query=("format", "n_angles", "caps", "envelope"))
+REPRODUCE = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRequest, Reproduction)
+REPRODUCE_MANY = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRequest,
+                          ReproductionBatch)
+RECORDING_RRD = Endpoint("GET", "/skills/{name}/recording.rrd")
+RECORDING_MCAP = Endpoint("GET", "/skills/{name}/recording.mcap", query=("profile",))
+REBUILD_RECORDING = Endpoint("POST", "/skills/{name}/recording/rebuild")
+
+#: Every endpoint the client calls.
+ENDPOINTS: dict[str, Endpoint] = {
+    name: value for name, value in globals().items() if isinstance(value, Endpoint)
+}
+_RECORDINGS: dict[str, Endpoint] = {"rrd": RECORDING_RRD, "mcap": RECORDING_MCAP}
+
+
+# ---- steps: what an operation asks its client to do ------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -100,26 +204,80 @@ class _Request(Generic[T]):
         return kw
 
 
+@dataclass(frozen=True)
+class _Download:
+    """Stream a GET's answer into ``target`` (atomically)."""
+
+    path: str
+    params: dict[str, Any] | None
+    target: Path
+
+
+@dataclass(frozen=True)
+class _ReadFile:
+    """The bytes of a local file (the async client reads it in a worker thread)."""
+
+    path: Path
+
+
+_Step = _Request[Any] | _Download | _ReadFile
+_Steps = Generator[_Step, Any, T]
+
+
+def _read(model: type[M]) -> Callable[[httpx.Response], M]:
+    def parse(resp: httpx.Response) -> M:
+        try:
+            return model.model_validate_json(resp.content)
+        except ValidationError as exc:
+            raise CanalClientError(
+                f"{resp.request.method} {resp.request.url.path}: the service's answer does not "
+                f"match the contract ({model.__name__}): {exc}") from exc
+
+    return parse
+
+
+def _none(_resp: httpx.Response) -> None:
+    return None
+
+
 def _json_body(obj: Any) -> bytes:
     # NaN/inf are sent as written so the service reports them with their field (httpx's own
     # encoder refuses them before anything is sent).
     return json.dumps(obj, allow_nan=True, separators=(",", ":")).encode()
 
 
-def _seg(value: object) -> str:
-    return quote(str(value), safe="")
+def _body(model: type[BaseModel], fields: dict[str, Any]) -> bytes:
+    """The JSON body of ``model`` with the given fields (``None`` ones left out, so the
+    service applies its defaults). The values are not validated here: the service does, and
+    its error names the field."""
+    unknown = set(fields) - set(model.model_fields)
+    if unknown:  # a bug in this module, not in the caller's data
+        raise TypeError(f"{model.__name__} has no field {sorted(unknown)}")
+    return _json_body({k: v for k, v in fields.items() if v is not None})
 
 
-def _skill_path(skill: str, *rest: object) -> str:
-    return "/".join(["/skills", _seg(skill), *(_seg(r) for r in rest)])
+def _request(endpoint: Endpoint, *, params: dict[str, Any] | None = None,
+             body: dict[str, Any] | None = None, **path: object) -> _Request[Any]:
+    parse: Callable[[httpx.Response], Any] = (
+        _none if endpoint.response is None else _read(endpoint.response))
+    if body is None:
+        return _Request(endpoint.method, endpoint.url(**path), parse, params=params)
+    assert endpoint.request is not None
+    return _Request(endpoint.method, endpoint.url(**path), parse, params=params,
+                    body=_body(endpoint.request, body), content_type="application/json")
 
 
-def _json_of(parse: Callable[[dict[str, Any]], T]) -> Callable[[httpx.Response], T]:
-    return lambda resp: parse(resp.json())
-
-
-def _none(_resp: httpx.Response) -> None:
-    return None
+def _all_pages(endpoint: Endpoint, **path: object) -> _Steps[list[Any]]:
+    """Every item of a paged list, page after page."""
+    assert endpoint.response is not None
+    read, url = _read(endpoint.response), endpoint.url(**path)
+    items: list[Any] = []
+    while True:
+        page = yield _Request("GET", url, read,
+                              params={"offset": len(items), "limit": PAGE_SIZE})
+        items.extend(page.items)
+        if not page.items or len(items) >= page.total:
+            return items
 
 
 def _rows(value: ArrayLike, name: str) -> list[Any]:
@@ -129,56 +287,21 @@ def _rows(value: ArrayLike, name: str) -> list[Any]:
     return rows.tolist()  # type: ignore[no-any-return]
 
 
-def _point(value: ArrayLike, name: str = "start") -> list[float]:
+def _point(value: ArrayLike | None, name: str = "start") -> list[float] | None:
+    if value is None:
+        return None
     p = np.asarray(value, dtype=np.float64)
     if p.ndim != 1:
         raise ValueError(f"{name}: expected one point (D,), got shape {p.shape}")
     return p.tolist()  # type: ignore[no-any-return]
 
 
-def _post_json(path: str, payload: Any, parse: Callable[[httpx.Response], T],
-               params: dict[str, Any] | None = None) -> _Request[T]:
-    return _Request("POST", path, parse, params=params, body=_json_body(payload),
-                    content_type="application/json")
+def _vector(value: ArrayLike | None) -> list[float] | None:
+    return None if value is None else np.asarray(value, dtype=np.float64).ravel().tolist()
 
 
-def _health() -> _Request[Health]:
-    return _Request("GET", "/healthz", _json_of(Health.from_json))
-
-
-def _create_skill(name: str, dim: int, description: str) -> _Request[Skill]:
-    return _post_json("/skills", {"name": name, "dim": dim, "description": description},
-                      _json_of(Skill.from_json))
-
-
-def _get_skill(name: str) -> _Request[Skill]:
-    return _Request("GET", _skill_path(name), _json_of(Skill.from_json))
-
-
-def _get_demo(skill: str, id: int) -> _Request[Demonstration]:
-    return _Request("GET", _skill_path(skill, "demonstrations", int(id)),
-                    _json_of(Demonstration.from_json))
-
-
-def _delete(path: str) -> _Request[None]:
-    return _Request("DELETE", path, _none)
-
-
-def _demo_payload(positions: ArrayLike, timestamps: ArrayLike | None,
-                  orientations: ArrayLike | None, label: str | None) -> dict[str, Any]:
-    payload: dict[str, Any] = {"positions": _rows(positions, "positions")}
-    if timestamps is not None:
-        payload["timestamps"] = np.asarray(timestamps, dtype=np.float64).ravel().tolist()
-    if orientations is not None:
-        payload["orientations"] = _rows(orientations, "orientations")
-    if label is not None:
-        payload["label"] = label
-    return payload
-
-
-def _add_demo(skill: str, payload: dict[str, Any]) -> _Request[DemoCreated]:
-    return _post_json(_skill_path(skill, "demonstrations"), payload,
-                      _json_of(DemoCreated.from_json))
+def _model_ref(model: Version) -> int | str:
+    return model if model == "latest" else int(model)
 
 
 def guess_format(path: str | os.PathLike[str], format: str | None = None) -> str:
@@ -191,84 +314,140 @@ def guess_format(path: str | os.PathLike[str], format: str | None = None) -> str
     return fmt
 
 
-def _upload(skill: str, path: Path, data: bytes, format: str | None, topic: str | None,
-            label: str | None) -> _Request[DemoCreated]:
-    fmt = guess_format(path, format)
+def _json_file_body(path: Path, data: bytes, label: str | None) -> dict[str, Any]:
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise CanalClientError(f"{path.name}: not valid JSON: {exc}") from exc
+    if isinstance(doc, list):
+        doc = {"positions": doc}
+    if not isinstance(doc, dict):
+        raise CanalClientError(f"{path.name}: expected a JSON object with 'positions' "
+                               f"or a list of rows")
+    if label is not None:
+        doc["label"] = label
+    # Sent as it is, unknown keys too: the service names them in its 422.
+    return doc
+
+
+# ---- the operations: each method of both clients, described once ----------------------------
+# A generator of steps returning the method's result; its docstring is the method's.
+
+
+def _health() -> _Steps[Health]:
+    """``GET /healthz`` (never needs a token): status, database, recorder, bridge, version."""
+    return (yield _request(HEALTH))
+
+
+def _create_skill(name: str, dim: int = 3, description: str = "") -> _Steps[Skill]:
+    """Create a skill; its dimension (2 or 3) is fixed for life. 409 if the name is taken."""
+    return (yield _request(CREATE_SKILL, body={"name": name, "dim": dim,
+                                               "description": description}))
+
+
+def _list_skills() -> _Steps[list[Skill]]:
+    """Every skill, by name (all pages)."""
+    return (yield from _all_pages(LIST_SKILLS))
+
+
+def _get_skill(name: str) -> _Steps[Skill]:
+    """One skill with its counts and latest model version."""
+    return (yield _request(GET_SKILL, name=name))
+
+
+def _delete_skill(name: str) -> _Steps[None]:
+    """Delete a skill with its demonstrations and models."""
+    yield _request(DELETE_SKILL, name=name)
+
+
+def _add_demo(skill: str, positions: ArrayLike, timestamps: ArrayLike | None = None,
+              orientations: ArrayLike | None = None, label: str | None = None
+              ) -> _Steps[DemoCreated]:
+    """Add one demonstration: positions (T, D), optional timestamps (T,) and unit
+    quaternions (T, 4) as qx, qy, qz, qw. Numpy arrays or nested lists."""
+    return (yield _request(ADD_DEMO, name=skill, body={
+        "positions": _rows(positions, "positions"), "timestamps": _vector(timestamps),
+        "orientations": None if orientations is None else _rows(orientations, "orientations"),
+        "label": label}))
+
+
+def _upload_demo_file(skill: str, path: str | os.PathLike[str], *, format: str | None = None,
+                      topic: str | None = None, label: str | None = None
+                      ) -> _Steps[DemoCreated]:
+    """Add one demonstration from a file: CSV, NPY or MCAP (``topic`` picks the pose
+    topic) are uploaded as they are; a JSON file (``{"positions": ..., "timestamps"?, ...}``
+    or a list of rows) is sent like :meth:`add_demo`. ``format`` overrides the suffix
+    (the async client reads the file in a worker thread)."""
+    p = Path(path)
+    fmt = guess_format(p, format)
+    data: bytes = yield _ReadFile(p)
     if fmt == "json":
-        try:
-            doc = json.loads(data)
-        except ValueError as exc:
-            raise CanalClientError(f"{path.name}: not valid JSON: {exc}") from exc
-        if isinstance(doc, list):
-            doc = {"positions": doc}
-        if not isinstance(doc, dict):
-            raise CanalClientError(f"{path.name}: expected a JSON object with 'positions' "
-                                   f"or a list of rows")
-        if label is not None:
-            doc["label"] = label
-        return _add_demo(skill, doc)
+        doc = _json_file_body(p, data, label)
+        return (yield _Request(ADD_DEMO.method, ADD_DEMO.url(name=skill), _read(DemoCreated),
+                               body=_json_body(doc), content_type="application/json"))
     params = {k: v for k, v in (("format", fmt), ("topic", topic), ("label", label))
               if v is not None}
-    return _Request("POST", _skill_path(skill, "demonstrations"),
-                    _json_of(DemoCreated.from_json), params=params,
-                    files={"file": (path.name, data, _FILE_TYPES[fmt])})
+    return (yield _Request(UPLOAD_DEMO.method, UPLOAD_DEMO.url(name=skill), _read(DemoCreated),
+                           params=params, files={"file": (p.name, data, _FILE_TYPES[fmt])}))
 
 
-def _page(path: str, offset: int, parse: Callable[[dict[str, Any]], T]
-          ) -> _Request[tuple[list[T], int]]:
-    def read(resp: httpx.Response) -> tuple[list[T], int]:
-        d = resp.json()
-        return [parse(item) for item in d["items"]], int(d["total"])
-
-    return _Request("GET", path, read, params={"offset": offset, "limit": PAGE_SIZE})
+def _list_demos(skill: str) -> _Steps[list[DemoSummary]]:
+    """Summaries (no arrays) of every demonstration of a skill, oldest first."""
+    return (yield from _all_pages(LIST_DEMOS, name=skill))
 
 
-_Pages = Generator[_Request[tuple[list[T], int]], tuple[list[T], int], list[T]]
+def _get_demo(skill: str, id: int) -> _Steps[Demonstration]:
+    """One demonstration with its arrays as numpy."""
+    return (yield _request(GET_DEMO, name=skill, demo_id=int(id)))
 
 
-def _all_pages(path: str, parse: Callable[[dict[str, Any]], T]) -> _Pages[T]:
-    """Every item of a paged list: yields page requests, is sent their answers."""
-    items: list[T] = []
-    while True:
-        page, total = yield _page(path, len(items), parse)
-        items.extend(page)
-        if not page or len(items) >= total:
-            return items
+def _delete_demo(skill: str, id: int) -> _Steps[None]:
+    """Delete one demonstration (model versions keep the ids they used)."""
+    yield _request(DELETE_DEMO, name=skill, demo_id=int(id))
 
 
-def _version(version: Version) -> str:
-    return str(version)
+def _fit(skill: str, *, cross_section: CrossSection | None = None,
+         frames: FrameKind | None = None, alignment: Alignment | None = None,
+         directrix: Directrix | None = None, n_samples: int | None = None,
+         frame_smoothing: float | None = None, by_time: bool | None = None,
+         demo_ids: Iterable[int] | None = None, orientation: bool | None = None
+         ) -> _Steps[ModelSummary]:
+    """Fit a new model version; options left ``None`` take the service's defaults, which
+    are canal_core's (:class:`canal_protocol.schemas.FitRequest` lists them)."""
+    return (yield _request(FIT, name=skill, body={
+        "cross_section": cross_section, "frames": frames, "alignment": alignment,
+        "directrix": directrix, "n_samples": n_samples, "frame_smoothing": frame_smoothing,
+        "by_time": by_time, "demo_ids": None if demo_ids is None else [int(i) for i in demo_ids],
+        "orientation": orientation}))
 
 
-def _fit(skill: str, options: dict[str, Any]) -> _Request[ModelSummary]:
-    payload = {k: v for k, v in options.items() if v is not None}
-    if "demo_ids" in payload:
-        payload["demo_ids"] = [int(i) for i in payload["demo_ids"]]
-    return _post_json(_skill_path(skill, "fit"), payload, _json_of(ModelSummary.from_json))
+def _list_models(skill: str) -> _Steps[list[ModelSummary]]:
+    """Every model version of a skill, newest first."""
+    return (yield from _all_pages(LIST_MODELS, name=skill))
 
 
-def _get_model(skill: str, version: Version, serialized: bool) -> _Request[Model]:
-    params = {"serialized": "true"} if serialized else None
-    return _Request("GET", _skill_path(skill, "models", _version(version)),
-                    _json_of(Model.from_json), params=params)
+def _get_model(skill: str, version: Version = "latest", serialized: bool = False
+               ) -> _Steps[Model]:
+    """A model version's geometry (with the canal_core dict when ``serialized``)."""
+    return (yield _request(GET_MODEL, name=skill, version=version,
+                           params={"serialized": "true"} if serialized else None))
 
 
-def _canal_from(resp: httpx.Response) -> canal_core.Canal:
+def _get_canal(skill: str, version: Version = "latest") -> _Steps[canal_core.Canal]:
+    """A model version as a local ``canal_core.Canal`` (reproduce, contains, tracker)."""
     import canal_core
 
-    serialized = resp.json().get("serialized")
-    if not isinstance(serialized, dict):
+    model: Model = yield _request(GET_MODEL, name=skill, version=version,
+                                  params={"serialized": "true"})
+    if not isinstance(model.serialized, dict):
         raise CanalClientError("the service did not send the serialized model")
-    return canal_core.Canal.from_dict(serialized)
+    return canal_core.Canal.from_dict(model.serialized)
 
 
-def _get_canal(skill: str, version: Version) -> _Request[canal_core.Canal]:
-    return _Request("GET", _skill_path(skill, "models", _version(version)), _canal_from,
-                    params={"serialized": "true"})
-
-
-def _mesh(skill: str, version: Version, format: str, n_angles: int | None,
-          caps: bool | None, envelope: bool | None) -> _Request[bytes]:
+def _mesh(skill: str, version: Version = "latest", format: str = "ply",
+          n_angles: int | None = None, caps: bool | None = None,
+          envelope: bool | None = None) -> _Steps[bytes]:
+    """The canal surface as ``ply``, ``obj``, ``glb`` or ``json`` bytes."""
     params: dict[str, Any] = {"format": format}
     if n_angles is not None:
         params["n_angles"] = n_angles
@@ -276,56 +455,111 @@ def _mesh(skill: str, version: Version, format: str, n_angles: int | None,
         params["caps"] = str(caps).lower()
     if envelope is not None:
         params["envelope"] = str(envelope).lower()
-    return _Request("GET", _skill_path(skill, "models", _version(version), "mesh"),
-                    lambda resp: resp.content, params=params)
+    return (yield _Request(GET_MESH.method, GET_MESH.url(name=skill, version=version),
+                           lambda resp: resp.content, params=params))
 
 
-def _model_ref(model: Version) -> int | str:
-    return model if model == "latest" else int(model)
+def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
+               outside: Outside = "project", goal: ArrayLike | None = None,
+               duration: float | None = None, start_orientation: ArrayLike | None = None
+               ) -> _Steps[Reproduction]:
+    """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
+    (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
+    (``outside="raise"``). ``goal`` (D,) deforms the canal to end there; ``duration``
+    (seconds) stretches the returned ``times``. ``start_orientation`` (4,) qx, qy, qz, qw:
+    the start pose's orientation, carried along when the model has orientation
+    (``result.orientations``); a model without it ignores it and says so in
+    ``result.notes``."""
+    return (yield _request(REPRODUCE, name=skill, body={
+        "start": _point(start), "model": _model_ref(model), "outside": outside,
+        "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
+        "start_orientation": _point(start_orientation, "start_orientation")}))
 
 
-def _reproduction_options(goal: ArrayLike | None, duration: float | None,
-                          start_orientation: ArrayLike | None) -> dict[str, Any]:
-    """The optional request fields that were given (absent ones are not sent)."""
-    out: dict[str, Any] = {}
-    if goal is not None:
-        out["goal"] = _point(goal, "goal")
-    if duration is not None:
-        out["duration"] = float(duration)
-    if start_orientation is not None:
-        out["start_orientation"] = _point(start_orientation, "start_orientation")
-    return out
+def _reproduce_many(skill: str, starts: ArrayLike, *, model: Version = "latest",
+                    outside: Outside = "project", goal: ArrayLike | None = None,
+                    duration: float | None = None, start_orientation: ArrayLike | None = None
+                    ) -> _Steps[list[Reproduction]]:
+    """Reproduce from each start (at most 1000) in one request, in order
+    (``start_orientation`` is used for every start)."""
+    batch: ReproductionBatch = yield _request(REPRODUCE_MANY, name=skill, body={
+        "starts": _rows(starts, "starts"), "model": _model_ref(model), "outside": outside,
+        "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
+        "start_orientation": _point(start_orientation, "start_orientation")})
+    return batch.reproductions
 
 
-def _reproduce(skill: str, start: ArrayLike, model: Version, outside: str,
-               goal: ArrayLike | None = None, duration: float | None = None,
-               start_orientation: ArrayLike | None = None) -> _Request[Reproduction]:
-    return _post_json(_skill_path(skill, "reproductions"),
-                      {"start": _point(start), "model": _model_ref(model), "outside": outside,
-                       **_reproduction_options(goal, duration, start_orientation)},
-                      _json_of(Reproduction.from_json))
-
-
-def _reproduce_many(skill: str, starts: ArrayLike, model: Version, outside: str,
-                    goal: ArrayLike | None = None, duration: float | None = None,
-                    start_orientation: ArrayLike | None = None) -> _Request[list[Reproduction]]:
-    def read(resp: httpx.Response) -> list[Reproduction]:
-        return [Reproduction.from_json(r) for r in resp.json()["reproductions"]]
-
-    return _post_json(_skill_path(skill, "reproductions"),
-                      {"starts": _rows(starts, "starts"), "model": _model_ref(model),
-                       "outside": outside, **_reproduction_options(goal, duration, start_orientation)},
-                      read)
-
-
-def _rebuild_recording(skill: str) -> _Request[dict[str, Any]]:
-    return _Request("POST", _skill_path(skill, "recording", "rebuild"), _json_of(dict))
-
-
-def _recording_path(skill: str, kind: str) -> str:
-    if kind not in ("rrd", "mcap"):
+def _download_recording(skill: str, kind: RecordingKind, path: str | os.PathLike[str], *,
+                        profile: str | None = None) -> _Steps[Path]:
+    """Stream the skill's ``.rrd`` or ``.mcap`` snapshot to ``path`` (written to a temporary
+    file beside it, then renamed: ``path`` is either the whole file or untouched).
+    ``profile="ros2"`` (mcap only): a rosbag2-compatible CDR file instead of Foxglove JSON."""
+    endpoint = _RECORDINGS.get(kind)
+    if endpoint is None:
         raise ValueError(f"kind: expected 'rrd' or 'mcap', got {kind!r}")
-    return _skill_path(skill, f"recording.{kind}")
+    target = Path(path)
+    yield _Download(endpoint.url(name=skill), None if profile is None else {"profile": profile},
+                    target)
+    return target
+
+
+def _rebuild_recording(skill: str) -> _Steps[dict[str, Any]]:
+    """Regenerate the skill's recordings from the service's database (demonstrations and
+    model versions); answers what was written (``demos``, ``models``)."""
+    return (yield _Request(REBUILD_RECORDING.method, REBUILD_RECORDING.url(name=skill),
+                           lambda resp: dict(resp.json())))
+
+
+class _operation(Generic[P, T]):
+    """One operation, bound as a method of either client: a plain method on
+    :class:`CanalClient`, a coroutine method on :class:`AsyncCanalClient`."""
+
+    def __init__(self, steps: Callable[P, _Steps[T]]) -> None:
+        self.steps = steps
+        self.__doc__ = steps.__doc__
+        self.name = steps.__name__.lstrip("_")
+
+    def __set_name__(self, owner: type[Any], name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, client: None, owner: type[Any]) -> _operation[P, T]: ...
+
+    @overload
+    def __get__(self, client: CanalClient, owner: type[Any]) -> Callable[P, T]: ...
+
+    @overload
+    def __get__(self, client: AsyncCanalClient, owner: type[Any]
+                ) -> Callable[P, Coroutine[Any, Any, T]]: ...
+
+    def __get__(self, client: CanalClient | AsyncCanalClient | None, owner: type[Any]) -> Any:
+        if client is None:
+            return self
+        return client._bind(self.name, self.steps)
+
+
+class _Operations:
+    """The methods both clients have, each from its one description above."""
+
+    health = _operation(_health)
+    create_skill = _operation(_create_skill)
+    list_skills = _operation(_list_skills)
+    get_skill = _operation(_get_skill)
+    delete_skill = _operation(_delete_skill)
+    add_demo = _operation(_add_demo)
+    upload_demo_file = _operation(_upload_demo_file)
+    list_demos = _operation(_list_demos)
+    get_demo = _operation(_get_demo)
+    delete_demo = _operation(_delete_demo)
+    fit = _operation(_fit)
+    list_models = _operation(_list_models)
+    get_model = _operation(_get_model)
+    get_canal = _operation(_get_canal)
+    mesh = _operation(_mesh)
+    reproduce = _operation(_reproduce)
+    reproduce_many = _operation(_reproduce_many)
+    download_recording = _operation(_download_recording)
+    rebuild_recording = _operation(_rebuild_recording)
 
 
 @contextlib.contextmanager
@@ -345,33 +579,10 @@ def _atomic_file(path: Path) -> Iterator[BinaryIO]:
             tmp.unlink()
 
 
-def _timeout_of(timeout: float | httpx.Timeout | None) -> float | None:
-    return timeout.read if isinstance(timeout, httpx.Timeout) else timeout
+# ---- the clients: they differ only in how they run a step ------------------------------------
 
 
-def _transport_error(url: str, timeout: float | None, exc: httpx.TransportError
-                     ) -> CanalClientError:
-    if isinstance(exc, httpx.TimeoutException) and not isinstance(exc, httpx.ConnectTimeout):
-        return RequestTimeoutError(url, timeout)
-    return ConnectionFailedError(url, str(exc) or type(exc).__name__)
-
-
-def _check(resp: httpx.Response) -> None:
-    if not resp.is_success:
-        raise error_from_response(resp.status_code, resp.content)
-
-
-def _headers(token: str | None) -> dict[str, str]:
-    headers = {"accept": "application/json"}
-    if token:
-        headers["authorization"] = f"Bearer {token}"
-    return headers
-
-
-# ---- the clients -----------------------------------------------------------------------------
-
-
-class _Base:
+class _Base(_Operations):
     """Settings shared by both clients."""
 
     def __init__(self, url: str, token: str | None,
@@ -379,6 +590,12 @@ class _Base:
         self.url = url.rstrip("/")
         self.token = token
         self.timeout = timeout
+
+    def _transport_error(self, exc: httpx.TransportError) -> CanalClientError:
+        timeout = self.timeout.read if isinstance(self.timeout, httpx.Timeout) else self.timeout
+        if isinstance(exc, httpx.TimeoutException) and not isinstance(exc, httpx.ConnectTimeout):
+            return RequestTimeoutError(self.url, timeout)
+        return ConnectionFailedError(self.url, str(exc) or type(exc).__name__)
 
 
 class CanalClient(_Base):
@@ -391,7 +608,8 @@ class CanalClient(_Base):
             skills can take a while.
         transport: an ``httpx.BaseTransport`` (e.g. ``httpx.MockTransport`` in tests).
 
-    Use as a context manager, or call :meth:`close`.
+    Use as a context manager, or call :meth:`close`. Its methods are those of
+    :class:`_Operations` (health, skills, demonstrations, models, reproductions, recordings).
     """
 
     def __init__(self, url: str = DEFAULT_URL, token: str | None = None,
@@ -412,157 +630,49 @@ class CanalClient(_Base):
         """Close the connection pool."""
         self._http.close()
 
+    def _bind(self, name: str, steps: Callable[P, _Steps[T]]) -> Callable[P, T]:
+        @functools.wraps(steps)
+        def method(*args: P.args, **kwargs: P.kwargs) -> T:
+            return self._drive(steps(*args, **kwargs))
+
+        method.__name__ = name
+        method.__qualname__ = f"{type(self).__name__}.{name}"
+        return method
+
+    def _drive(self, steps: _Steps[T]) -> T:
+        try:
+            step = next(steps)
+            while True:
+                step = steps.send(self._run(step))
+        except StopIteration as stop:
+            return stop.value  # type: ignore[no-any-return]
+
+    def _run(self, step: _Step) -> Any:
+        if isinstance(step, _ReadFile):
+            return step.path.read_bytes()
+        if isinstance(step, _Download):
+            return self._download(step)
+        return self._call(step)
+
     def _call(self, req: _Request[T]) -> T:
         try:
             resp = self._http.request(req.method, req.path, **req.kwargs())
         except httpx.TransportError as exc:
-            raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
+            raise self._transport_error(exc) from exc
         _check(resp)
         return req.parse(resp)
 
-    def _drive(self, steps: Generator[_Request[Any], Any, T]) -> T:
-        try:
-            req = next(steps)
-            while True:
-                req = steps.send(self._call(req))
-        except StopIteration as stop:
-            return stop.value  # type: ignore[no-any-return]
-
-    # -- health and skills --
-
-    def health(self) -> Health:
-        """``GET /healthz`` (never needs a token)."""
-        return self._call(_health())
-
-    def create_skill(self, name: str, dim: int = 3, description: str = "") -> Skill:
-        """Create a skill; its dimension (2 or 3) is fixed for life. 409 if the name is taken."""
-        return self._call(_create_skill(name, dim, description))
-
-    def list_skills(self) -> list[Skill]:
-        """Every skill, by name (all pages)."""
-        return self._drive(_all_pages("/skills", Skill.from_json))
-
-    def get_skill(self, name: str) -> Skill:
-        """One skill with its counts and latest model version."""
-        return self._call(_get_skill(name))
-
-    def delete_skill(self, name: str) -> None:
-        """Delete a skill with its demonstrations and models."""
-        self._call(_delete(_skill_path(name)))
-
-    # -- demonstrations --
-
-    def add_demo(self, skill: str, positions: ArrayLike, timestamps: ArrayLike | None = None,
-                 orientations: ArrayLike | None = None, label: str | None = None) -> DemoCreated:
-        """Add one demonstration: positions (T, D), optional timestamps (T,) and unit
-        quaternions (T, 4) as qx, qy, qz, qw. Numpy arrays or nested lists."""
-        return self._call(_add_demo(skill, _demo_payload(positions, timestamps, orientations,
-                                                         label)))
-
-    def upload_demo_file(self, skill: str, path: str | os.PathLike[str], *,
-                         format: str | None = None, topic: str | None = None,
-                         label: str | None = None) -> DemoCreated:
-        """Add one demonstration from a file: CSV, NPY or MCAP (``topic`` picks the pose
-        topic) are uploaded as they are; a JSON file (``{"positions": ..., "timestamps"?, ...}``
-        or a list of rows) is sent like :meth:`add_demo`. ``format`` overrides the suffix."""
-        p = Path(path)
-        guess_format(p, format)
-        return self._call(_upload(skill, p, p.read_bytes(), format, topic, label))
-
-    def list_demos(self, skill: str) -> list[DemoSummary]:
-        """Summaries (no arrays) of every demonstration of a skill, oldest first."""
-        return self._drive(_all_pages(_skill_path(skill, "demonstrations"),
-                                      DemoSummary.from_json))
-
-    def get_demo(self, skill: str, id: int) -> Demonstration:
-        """One demonstration with its arrays as numpy."""
-        return self._call(_get_demo(skill, id))
-
-    def delete_demo(self, skill: str, id: int) -> None:
-        """Delete one demonstration (model versions keep the ids they used)."""
-        self._call(_delete(_skill_path(skill, "demonstrations", int(id))))
-
-    # -- models --
-
-    def fit(self, skill: str, *, cross_section: str | None = None, frames: str | None = None,
-            alignment: str | None = None, directrix: str | None = None,
-            n_samples: int | None = None, frame_smoothing: float | None = None,
-            by_time: bool | None = None, demo_ids: Iterable[int] | None = None) -> ModelSummary:
-        """Fit a new model version; options left ``None`` take the service's defaults."""
-        return self._call(_fit(skill, dict(
-            cross_section=cross_section, frames=frames, alignment=alignment,
-            directrix=directrix, n_samples=n_samples, frame_smoothing=frame_smoothing,
-            by_time=by_time, demo_ids=None if demo_ids is None else list(demo_ids))))
-
-    def list_models(self, skill: str) -> list[ModelSummary]:
-        """Every model version of a skill, newest first."""
-        return self._drive(_all_pages(_skill_path(skill, "models"), ModelSummary.from_json))
-
-    def get_model(self, skill: str, version: Version = "latest",
-                  serialized: bool = False) -> Model:
-        """A model version's geometry (with the canal_core dict when ``serialized``)."""
-        return self._call(_get_model(skill, version, serialized))
-
-    def get_canal(self, skill: str, version: Version = "latest") -> canal_core.Canal:
-        """A model version as a local ``canal_core.Canal`` (reproduce, contains, tracker)."""
-        return self._call(_get_canal(skill, version))
-
-    def mesh(self, skill: str, version: Version = "latest", format: str = "ply",
-             n_angles: int | None = None, caps: bool | None = None,
-             envelope: bool | None = None) -> bytes:
-        """The canal surface as ``ply``, ``obj``, ``glb`` or ``json`` bytes."""
-        return self._call(_mesh(skill, version, format, n_angles, caps, envelope))
-
-    # -- reproductions --
-
-    def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                  outside: str = "project", goal: ArrayLike | None = None,
-                  duration: float | None = None,
-                  start_orientation: ArrayLike | None = None) -> Reproduction:
-        """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
-        (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
-        (``outside="raise"``). ``goal`` (D,) deforms the canal to end there; ``duration``
-        (seconds) stretches the returned ``times``. ``start_orientation`` (4,) qx, qy, qz, qw:
-        the start pose's orientation, carried along when the model has orientation
-        (``result.orientations``); a model without it ignores it and says so in
-        ``result.notes``."""
-        return self._call(_reproduce(skill, start, model, outside, goal, duration, start_orientation))
-
-    def reproduce_many(self, skill: str, starts: ArrayLike, *,
-                       model: Version = "latest", outside: str = "project",
-                       goal: ArrayLike | None = None, duration: float | None = None,
-                       start_orientation: ArrayLike | None = None) -> list[Reproduction]:
-        """Reproduce from each start (at most 1000) in one request, in order
-        (``start_orientation`` is used for every start)."""
-        return self._call(_reproduce_many(skill, starts, model, outside, goal, duration,
-                                          start_orientation))
-
-    # -- recordings --
-
-    def download_recording(self, skill: str, kind: RecordingKind,
-                           path: str | os.PathLike[str], *, profile: str | None = None) -> Path:
-        """Stream the skill's ``.rrd`` or ``.mcap`` snapshot to ``path`` (written to a temporary
-        file beside it, then renamed: ``path`` is either the whole file or untouched).
-        ``profile="ros2"`` (mcap only): a rosbag2-compatible CDR file instead of Foxglove JSON."""
-        target = Path(path)
-        url = _recording_path(skill, kind)
-        params = None if profile is None else {"profile": profile}
-        with _atomic_file(target) as out:
+    def _download(self, step: _Download) -> None:
+        with _atomic_file(step.target) as out:
             try:
-                with self._http.stream("GET", url, params=params) as resp:
+                with self._http.stream("GET", step.path, params=step.params) as resp:
                     if not resp.is_success:
                         resp.read()
                         _check(resp)
                     for chunk in resp.iter_bytes(1 << 16):
                         out.write(chunk)
             except httpx.TransportError as exc:
-                raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
-        return target
-
-    def rebuild_recording(self, skill: str) -> dict[str, Any]:
-        """Regenerate the skill's recordings from the service's database (demonstrations and
-        model versions); answers what was written (``demos``, ``models``)."""
-        return self._call(_rebuild_recording(skill))
+                raise self._transport_error(exc) from exc
 
 
 class AsyncCanalClient(_Base):
@@ -589,138 +699,47 @@ class AsyncCanalClient(_Base):
 
     close = aclose
 
+    def _bind(self, name: str, steps: Callable[P, _Steps[T]]
+              ) -> Callable[P, Coroutine[Any, Any, T]]:
+        @functools.wraps(steps)
+        async def method(*args: P.args, **kwargs: P.kwargs) -> T:
+            return await self._drive(steps(*args, **kwargs))
+
+        method.__name__ = name
+        method.__qualname__ = f"{type(self).__name__}.{name}"
+        return method
+
+    async def _drive(self, steps: _Steps[T]) -> T:
+        try:
+            step = next(steps)
+            while True:
+                step = steps.send(await self._run(step))
+        except StopIteration as stop:
+            return stop.value  # type: ignore[no-any-return]
+
+    async def _run(self, step: _Step) -> Any:
+        if isinstance(step, _ReadFile):
+            return await asyncio.to_thread(step.path.read_bytes)
+        if isinstance(step, _Download):
+            return await self._download(step)
+        return await self._call(step)
+
     async def _call(self, req: _Request[T]) -> T:
         try:
             resp = await self._http.request(req.method, req.path, **req.kwargs())
         except httpx.TransportError as exc:
-            raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
+            raise self._transport_error(exc) from exc
         _check(resp)
         return req.parse(resp)
 
-    async def _drive(self, steps: Generator[_Request[Any], Any, T]) -> T:
-        try:
-            req = next(steps)
-            while True:
-                req = steps.send(await self._call(req))
-        except StopIteration as stop:
-            return stop.value  # type: ignore[no-any-return]
-
-    async def health(self) -> Health:
-        """See :meth:`CanalClient.health`."""
-        return await self._call(_health())
-
-    async def create_skill(self, name: str, dim: int = 3, description: str = "") -> Skill:
-        """See :meth:`CanalClient.create_skill`."""
-        return await self._call(_create_skill(name, dim, description))
-
-    async def list_skills(self) -> list[Skill]:
-        """See :meth:`CanalClient.list_skills`."""
-        return await self._drive(_all_pages("/skills", Skill.from_json))
-
-    async def get_skill(self, name: str) -> Skill:
-        """See :meth:`CanalClient.get_skill`."""
-        return await self._call(_get_skill(name))
-
-    async def delete_skill(self, name: str) -> None:
-        """See :meth:`CanalClient.delete_skill`."""
-        await self._call(_delete(_skill_path(name)))
-
-    async def add_demo(self, skill: str, positions: ArrayLike,
-                       timestamps: ArrayLike | None = None,
-                       orientations: ArrayLike | None = None,
-                       label: str | None = None) -> DemoCreated:
-        """See :meth:`CanalClient.add_demo`."""
-        return await self._call(_add_demo(skill, _demo_payload(positions, timestamps,
-                                                               orientations, label)))
-
-    async def upload_demo_file(self, skill: str, path: str | os.PathLike[str], *,
-                               format: str | None = None, topic: str | None = None,
-                               label: str | None = None) -> DemoCreated:
-        """See :meth:`CanalClient.upload_demo_file` (the file is read in a worker thread)."""
-        p = Path(path)
-        guess_format(p, format)
-        data = await asyncio.to_thread(p.read_bytes)
-        return await self._call(_upload(skill, p, data, format, topic, label))
-
-    async def list_demos(self, skill: str) -> list[DemoSummary]:
-        """See :meth:`CanalClient.list_demos`."""
-        return await self._drive(_all_pages(_skill_path(skill, "demonstrations"),
-                                            DemoSummary.from_json))
-
-    async def get_demo(self, skill: str, id: int) -> Demonstration:
-        """See :meth:`CanalClient.get_demo`."""
-        return await self._call(_get_demo(skill, id))
-
-    async def delete_demo(self, skill: str, id: int) -> None:
-        """See :meth:`CanalClient.delete_demo`."""
-        await self._call(_delete(_skill_path(skill, "demonstrations", int(id))))
-
-    async def fit(self, skill: str, *, cross_section: str | None = None,
-                  frames: str | None = None, alignment: str | None = None,
-                  directrix: str | None = None, n_samples: int | None = None,
-                  frame_smoothing: float | None = None, by_time: bool | None = None,
-                  demo_ids: Iterable[int] | None = None) -> ModelSummary:
-        """See :meth:`CanalClient.fit`."""
-        return await self._call(_fit(skill, dict(
-            cross_section=cross_section, frames=frames, alignment=alignment,
-            directrix=directrix, n_samples=n_samples, frame_smoothing=frame_smoothing,
-            by_time=by_time, demo_ids=None if demo_ids is None else list(demo_ids))))
-
-    async def list_models(self, skill: str) -> list[ModelSummary]:
-        """See :meth:`CanalClient.list_models`."""
-        return await self._drive(_all_pages(_skill_path(skill, "models"),
-                                            ModelSummary.from_json))
-
-    async def get_model(self, skill: str, version: Version = "latest",
-                        serialized: bool = False) -> Model:
-        """See :meth:`CanalClient.get_model`."""
-        return await self._call(_get_model(skill, version, serialized))
-
-    async def get_canal(self, skill: str, version: Version = "latest") -> canal_core.Canal:
-        """See :meth:`CanalClient.get_canal`."""
-        return await self._call(_get_canal(skill, version))
-
-    async def mesh(self, skill: str, version: Version = "latest", format: str = "ply",
-                   n_angles: int | None = None, caps: bool | None = None,
-                   envelope: bool | None = None) -> bytes:
-        """See :meth:`CanalClient.mesh`."""
-        return await self._call(_mesh(skill, version, format, n_angles, caps, envelope))
-
-    async def reproduce(self, skill: str, start: ArrayLike, *, model: Version = "latest",
-                        outside: str = "project", goal: ArrayLike | None = None,
-                        duration: float | None = None,
-                        start_orientation: ArrayLike | None = None) -> Reproduction:
-        """See :meth:`CanalClient.reproduce`."""
-        return await self._call(_reproduce(skill, start, model, outside, goal, duration,
-                                           start_orientation))
-
-    async def reproduce_many(self, skill: str, starts: ArrayLike, *,
-                             model: Version = "latest", outside: str = "project",
-                             goal: ArrayLike | None = None, duration: float | None = None,
-                             start_orientation: ArrayLike | None = None) -> list[Reproduction]:
-        """See :meth:`CanalClient.reproduce_many`."""
-        return await self._call(_reproduce_many(skill, starts, model, outside, goal, duration,
-                                                start_orientation))
-
-    async def download_recording(self, skill: str, kind: RecordingKind,
-                                 path: str | os.PathLike[str], *,
-                                 profile: str | None = None) -> Path:
-        """See :meth:`CanalClient.download_recording`."""
-        target = Path(path)
-        url = _recording_path(skill, kind)
-        params = None if profile is None else {"profile": profile}
-        with _atomic_file(target) as out:
+    async def _download(self, step: _Download) -> None:
+        with _atomic_file(step.target) as out:
             try:
-                async with self._http.stream("GET", url, params=params) as resp:
+                async with self._http.stream("GET", step.path, params=step.params) as resp:
                     if not resp.is_success:
                         await resp.aread()
                         _check(resp)
                     async for chunk in resp.aiter_bytes(1 << 16):
                         out.write(chunk)
             except httpx.TransportError as exc:
-                raise _transport_error(self.url, _timeout_of(self.timeout), exc) from exc
-        return target
-
-    async def rebuild_recording(self, skill: str) -> dict[str, Any]:
-        """See :meth:`CanalClient.rebuild_recording`."""
-        return await self._call(_rebuild_recording(skill))
+                raise self._transport_error(exc) from exc
