@@ -142,11 +142,28 @@ def test_compose_healthchecks() -> None:
     assert services["canal"]["depends_on"]["zenoh"]["condition"] == "service_healthy"
 
 
-def pyproject_dependencies() -> list[str]:
+def pyproject_dependencies(extra: str = "service") -> list[str]:
+    """What the image installs: the core's dependencies and the ``service`` extra's, with the
+    project's own extras it names (``canal-lfd[client,live]``) expanded."""
     import tomllib
 
-    doc = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    return [d.replace(" ", "") for d in doc["project"]["dependencies"]]
+    from packaging.requirements import Requirement
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras, todo, deps = project["optional-dependencies"], [extra], list(project["dependencies"])
+    done: set[str] = set()
+    while todo:
+        name = todo.pop()
+        if name in done:
+            continue
+        done.add(name)
+        for dep in extras[name]:
+            req = Requirement(dep)
+            if req.name == project["name"]:
+                todo.extend(req.extras)
+            else:
+                deps.append(dep)
+    return [d.replace(" ", "") for d in deps]
 
 
 def constraints() -> dict[str, str]:
@@ -361,7 +378,7 @@ def test_dockerfile_promises() -> None:
 
     assert re.search(r"pip install\b[^\n]*\s-e\b|--editable", text) is None
     assert "[dev]" not in text
-    assert re.search(r"pip install -c constraints\.txt \.(\s|$)", text)
+    assert re.search(r"pip install -c constraints\.txt '\.\[service\]'(\s|$)", text)
     assert re.search(r"COPY docker/constraints\.txt \./constraints\.txt", text)
     assert re.search(r'pip install --upgrade "pip==[0-9.]+"', text)  # pip pinned too
 
