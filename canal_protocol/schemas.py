@@ -47,7 +47,7 @@ class ErrorDetail(BaseModel):
     """One problem with a request."""
 
     type: str = Field(description="Stable machine-readable kind, e.g. invalid_input, not_found.")
-    field: str | None = Field(description="The request part at fault, e.g. positions[3].")
+    field: str | None = Field(None, description="The request part at fault, e.g. positions[3].")
     message: str
     details: list[dict[str, Any]] | None = None
 

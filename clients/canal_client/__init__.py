@@ -1,6 +1,8 @@
 """Python client of the Canal service.
 
 - :class:`CanalClient` / :class:`AsyncCanalClient`: typed REST clients (httpx), numpy in and out;
+  they return the contract's models (:mod:`canal_protocol.schemas`; the resources with arrays
+  as numpy subclasses, :mod:`canal_client.resources`);
 - :mod:`canal_client.errors`: the errors they raise, carrying the service's message;
 - ``canal``: the command line (:mod:`canal_client.cli`);
 - ``PoseStreamer`` (:mod:`canal_client.live`) and ``run_sim``/``SimResult``
@@ -36,8 +38,10 @@ from .resources import (
     DemoSummary,
     Health,
     Model,
+    ModelFrames,
     ModelSummary,
     Reproduction,
+    ReproductionBatch,
     Skill,
 )
 
@@ -63,12 +67,14 @@ __all__ = [
     "InvalidInputError",
     "LiveError",
     "Model",
+    "ModelFrames",
     "ModelSummary",
     "NotFoundError",
     "OutsideCanalError",
     "PayloadTooLargeError",
     "PoseStreamer",
     "Reproduction",
+    "ReproductionBatch",
     "RequestTimeoutError",
     "ServerError",
     "SimResult",

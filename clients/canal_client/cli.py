@@ -462,11 +462,13 @@ def fit(
     busy = (contextlib.nullcontext() if _opts(ctx).json
             else err.status(f"fitting {escape(skill)}..."))
     with _client(ctx) as c, busy:
-        model = c.fit(skill, cross_section=cross_section and cross_section.value,
-                      frames=frames and frames.value, alignment=alignment and alignment.value,
-                      directrix=directrix and directrix.value, n_samples=samples,
-                      frame_smoothing=frame_smoothing, by_time=by_time or None,
-                      demo_ids=demo or None)
+        # The enums' values are canal_protocol.options' names; the service checks them.
+        names: dict[str, Any] = {
+            "cross_section": cross_section and cross_section.value,
+            "frames": frames and frames.value, "alignment": alignment and alignment.value,
+            "directrix": directrix and directrix.value}
+        model = c.fit(skill, **names, n_samples=samples, frame_smoothing=frame_smoothing,
+                      by_time=by_time or None, demo_ids=demo or None)
     if _opts(ctx).json:
         _print_json(model)
         return

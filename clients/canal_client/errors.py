@@ -13,8 +13,13 @@ Everything raised on purpose is a :class:`CanalClientError`:
 
 from __future__ import annotations
 
+import contextlib
 import json
 from typing import Any
+
+from pydantic import ValidationError
+
+from canal_protocol.schemas import ErrorDetail, ErrorResponse
 
 __all__ = [
     "ApiError",
@@ -146,23 +151,24 @@ _BY_TYPE: dict[str, type[ApiError]] = {
 
 
 def error_from_response(status: int, body: bytes | str) -> ApiError:
-    """The :class:`ApiError` subclass for an error answer, parsed from the service's JSON
-    error body; any other body (a proxy's HTML page, plain text) becomes the message."""
+    """The :class:`ApiError` subclass for an error answer, read as the protocol's
+    :class:`~canal_protocol.schemas.ErrorResponse`; any other body (a proxy's HTML page, plain
+    text, a bare FastAPI ``detail``) becomes the message."""
     text = body.decode("utf-8", "replace") if isinstance(body, bytes) else body
     error_type, field, details = f"http_{status}", None, None
     message = text.strip() or f"HTTP {status}"
     try:
-        parsed = json.loads(text)
-    except ValueError:
-        parsed = None
-    err = parsed.get("error") if isinstance(parsed, dict) else None
-    if isinstance(err, dict) and isinstance(err.get("message"), str):
-        message = err["message"]
-        error_type = str(err.get("type") or error_type)
-        field = err.get("field") if isinstance(err.get("field"), str) else None
-        details = err.get("details") if isinstance(err.get("details"), list) else None
-    elif isinstance(parsed, dict) and isinstance(parsed.get("detail"), str):
-        message = parsed["detail"]  # a plain FastAPI/Starlette error
+        error: ErrorDetail | None = ErrorResponse.model_validate_json(text).error
+    except ValidationError:
+        error = None
+    if error is not None:
+        message, error_type, field, details = (error.message, error.type or error_type,
+                                               error.field, error.details)
+    else:
+        with contextlib.suppress(ValueError):
+            parsed = json.loads(text)
+            if isinstance(parsed, dict) and isinstance(parsed.get("detail"), str):
+                message = parsed["detail"]  # a plain FastAPI/Starlette error
     if len(message) > 2000:
         message = message[:2000] + "..."
     cls: type[ApiError]

@@ -154,3 +154,19 @@ def test_numpy_arguments_are_checked_locally(client: CanalClient) -> None:
         client.add_demo("anything", np.zeros(5))
     with pytest.raises(ValueError, match="start"):
         client.reproduce("anything", np.zeros((2, 3)))
+
+
+def test_error_bodies_are_read_as_the_protocols_error_response() -> None:
+    """The protocol's ErrorResponse shape (``field`` optional) gives the typed error; any
+    other body becomes the message of the status's class."""
+    outside = error_from_response(422, b'{"error": {"type": "outside_canal", "message": "m"}}')
+    assert isinstance(outside, OutsideCanalError) and (outside.message, outside.field) == ("m", None)
+    bad = error_from_response(422, b'{"error": {"type": "invalid_input", "field": "positions[3]",'
+                                   b' "message": "bad", "details": [{"loc": "x"}]}}')
+    assert (bad.type, bad.field, bad.details) == ("invalid_input", "positions[3]", [{"loc": "x"}])
+    assert str(bad) == "bad (field: positions[3])"
+    plain = error_from_response(404, b'{"detail": "Not Found"}')
+    assert isinstance(plain, NotFoundError) and (plain.type, plain.message) == ("http_404",
+                                                                                "Not Found")
+    html = error_from_response(502, b"<html>bad gateway</html>")
+    assert isinstance(html, ServerError) and html.message == "<html>bad gateway</html>"
