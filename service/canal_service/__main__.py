@@ -21,13 +21,17 @@ import typing
 from collections.abc import Awaitable, Callable, MutableMapping, Sequence
 from contextlib import AbstractAsyncContextManager
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import SecretStr, ValidationError
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
 from .core.config import Flag, Settings
+
+if TYPE_CHECKING:  # both take seconds to import; the port is bound before they load
+    import uvicorn
+    from fastapi import FastAPI
 
 log = logging.getLogger("uvicorn.error")  # configured by uvicorn: our lines beside its own
 READY_WAIT_S = 300.0
@@ -161,12 +165,13 @@ class Bootstrap:
     """The ASGI app uvicorn serves: answers ``/healthz`` while the real app loads, then hands
     every request to it (its lifespan, middleware and routes unchanged)."""
 
-    def __init__(self, settings: Settings, build: Callable[[Settings], Any] | None = None) -> None:
+    def __init__(self, settings: Settings,
+                 build: Callable[[Settings], FastAPI] | None = None) -> None:
         self.settings = settings
         self.build = build
-        self.app: Any = None
+        self.app: FastAPI | None = None
         self.error: BaseException | None = None
-        self.server: Any = None  # uvicorn.Server, told to exit when loading fails
+        self.server: uvicorn.Server | None = None  # told to exit when loading fails
         self._ready: asyncio.Event | None = None
         self._lifespan: AbstractAsyncContextManager[Any] | None = None
         self._t0 = time.perf_counter()
@@ -256,7 +261,7 @@ class Bootstrap:
             self._ready.set()
 
 
-def _create_app(settings: Settings) -> Any:
+def _create_app(settings: Settings) -> FastAPI:
     """``create_app`` imported here, in the loading thread: its imports take seconds."""
     from .app import create_app
 
