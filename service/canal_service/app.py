@@ -81,10 +81,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     db.migrate()
     metrics = Metrics()
     recorder = make_recorder(settings, db)
-    fit_listeners = FitListeners()
-    service = CanalService(db, metrics, cache_size=settings.model_cache_size,
-                           recorder=recorder, fit_listeners=fit_listeners)
-    bridge = make_bridge(settings, service)
+    try:
+        service = CanalService(db, metrics, cache_size=settings.model_cache_size,
+                               recorder=recorder, fit_listeners=FitListeners())
+        bridge = make_bridge(settings, service)
+    except BaseException:
+        # No lifespan will run to close what was opened: close it here.
+        if recorder is not None:
+            recorder.close()
+        db.dispose()
+        raise
     health_check = ServiceHealth(db, recorder, bridge)
 
     @asynccontextmanager
