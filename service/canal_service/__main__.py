@@ -17,12 +17,21 @@ import json
 import logging
 import sys
 import time
+import typing
 from collections.abc import Awaitable, Callable, MutableMapping, Sequence
 from contextlib import AbstractAsyncContextManager
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
 
-from .core.config import Settings
+from pydantic import SecretStr, ValidationError
+from pydantic.fields import FieldInfo
+from pydantic_core import PydanticUndefined
+
+from .core.config import Flag, Settings
+
+if TYPE_CHECKING:  # both take seconds to import; the port is bound before they load
+    import uvicorn
+    from fastapi import FastAPI
 
 log = logging.getLogger("uvicorn.error")  # configured by uvicorn: our lines beside its own
 READY_WAIT_S = 300.0
@@ -32,60 +41,108 @@ Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
 Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command line; every flag also exists as a CANAL_* variable."""
+# Settings whose names start with these are listed under a heading of their own in --help.
+_GROUPS = {"recordings_": "recordings", "upload_": "upload limits",
+           "zenoh_": "live bridge (Zenoh)"}
+
+
+@dataclass(frozen=True)
+class _Option:
+    """One command-line flag, derived from one ``Settings`` field."""
+
+    field: str
+    flag: str
+    kind: Literal["value", "list", "switch"]
+    help: str
+    metavar: str | None
+    const: bool | None = None  # what a switch sets
+
+
+def _default_text(info: FieldInfo) -> str | None:
+    if info.default_factory is not None:
+        value = info.get_default(call_default_factory=True)
+        return json.dumps(value) if value else None
+    value = info.default
+    if value is None or value is PydanticUndefined or isinstance(value, SecretStr):
+        return None
+    return str(value)
+
+
+def settings_options(model: type[Settings] = Settings) -> list[_Option]:
+    """One flag per field of ``model`` (``Settings``), in the model's order.
+
+    ``--field-name`` unless a :class:`Flag` in the field's annotation spells it; a bool is a
+    switch setting the opposite of its default; a list is repeated once per item. The help
+    is the field's description, its ``CANAL_*`` variable and its default.
+    """
+    options = []
+    for name, info in model.model_fields.items():
+        spelling = next((m for m in info.metadata if isinstance(m, Flag)), Flag())
+        flag = spelling.name or "--" + name.replace("_", "-")
+        env = f"CANAL_{name.upper()}"
+        description = (info.description or name.replace("_", " ")).rstrip(".")
+        if info.annotation is bool:
+            const = not info.default
+            state = "on" if const else "off"
+            options.append(_Option(name, flag, "switch", f"{description} (this flag turns it "
+                                   f"{state}: {env}={str(const).lower()})", None, const))
+            continue
+        origin = typing.get_origin(info.annotation)
+        kind: Literal["value", "list"] = "list" if origin is list else "value"
+        extra = [env + (" as a JSON list; the flag is repeatable" if kind == "list" else "")]
+        default = _default_text(info)
+        if default is not None:
+            extra.append(f"default {default}")
+        options.append(_Option(name, flag, kind, f"{description} ({', '.join(extra)})",
+                               spelling.metavar))
+    return options
+
+
+def build_parser(model: type[Settings] = Settings) -> argparse.ArgumentParser:
+    """The command line, generated from ``model`` (``Settings``): every flag is also a CANAL_*
+    variable."""
     p = argparse.ArgumentParser(prog="python -m canal_service", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--host", help="interface to bind (CANAL_HOST, default 127.0.0.1)")
-    p.add_argument("--port", type=int, help="port (CANAL_PORT, default 8000)")
-    p.add_argument("--data-dir", type=Path, help="data folder (CANAL_DATA_DIR, default ./data)")
-    p.add_argument("--database-url",
-                   help="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db "
-                        "(CANAL_DATABASE_URL, default SQLite in the data folder)")
-    p.add_argument("--recordings-dir", type=Path,
-                   help="recordings folder (CANAL_RECORDINGS_DIR, default DATA_DIR/recordings)")
-    p.add_argument("--no-recordings", action="store_true",
-                   help="turn the recorder off (CANAL_RECORDINGS_ENABLED=false)")
-    p.add_argument("--token", help="require 'Authorization: Bearer TOKEN' (CANAL_TOKEN)")
-    p.add_argument("--cors-origin", action="append", dest="cors_origins",
-                   help="allow this CORS origin; repeatable (CANAL_CORS_ORIGINS, JSON list)")
-    p.add_argument("--max-body-bytes", type=int,
-                   help="request size limit (CANAL_MAX_BODY_BYTES, default 64 MiB)")
-    p.add_argument("--log-level", help="uvicorn log level (CANAL_LOG_LEVEL, default info)")
-    add_zenoh_arguments(p)
+    groups: dict[str, argparse._ArgumentGroup] = {}
+    for option in settings_options(model):
+        heading = next((h for prefix, h in _GROUPS.items() if option.field.startswith(prefix)),
+                       None)
+        target: argparse._ActionsContainer = p
+        if heading is not None:
+            if heading not in groups:
+                groups[heading] = p.add_argument_group(heading)
+            target = groups[heading]
+        # Defaults stay None: only flags given on the command line override the environment.
+        if option.kind == "switch":
+            target.add_argument(option.flag, dest=option.field, action="store_const",
+                                const=option.const, default=None, help=option.help)
+        else:
+            target.add_argument(option.flag, dest=option.field, default=None,
+                                action="append" if option.kind == "list" else "store",
+                                metavar=option.metavar, help=option.help)
     return p
 
 
-def add_zenoh_arguments(p: argparse.ArgumentParser) -> None:
-    """The live bridge's flags (shared with ``python -m canal_service.bridge``)."""
-    g = p.add_argument_group("live bridge (Zenoh)")
-    g.add_argument("--zenoh-config", type=Path, metavar="FILE",
-                   help="a standard Zenoh JSON5 config file, used unchanged (CANAL_ZENOH_CONFIG)")
-    g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                   help="listen endpoint; repeatable (CANAL_ZENOH_LISTEN, JSON list, "
-                        "default tcp/127.0.0.1:7447)")
-    g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
-                   help="connect endpoint, e.g. a zenohd router; repeatable (CANAL_ZENOH_CONNECT)")
-    g.add_argument("--zenoh-prefix", help="key expression prefix (CANAL_ZENOH_PREFIX, default canal)")
-    g.add_argument("--zenoh-processes", type=int, metavar="N",
-                   help="bridge processes to start, sharing the robots (CANAL_ZENOH_PROCESSES, "
-                        "default 1; 0 = inside the service process)")
-    g.add_argument("--no-zenoh", action="store_true",
-                   help="do not run the live bridge (CANAL_ZENOH_ENABLED=false)")
+def settings_from_args(argv: Sequence[str] | None = None,
+                       model: type[Settings] = Settings) -> Settings:
+    """Settings from the environment, with the given flags on top.
 
-
-def settings_from_args(argv: Sequence[str] | None = None) -> Settings:
-    """Settings from the environment, with the given flags on top."""
-    args = build_parser().parse_args(argv)
-    overrides: dict[str, Any] = {
-        key: value for key, value in vars(args).items()
-        if value is not None and key not in ("no_recordings", "no_zenoh")
-    }
-    if args.no_recordings:
-        overrides["recordings_enabled"] = False
-    if args.no_zenoh:
-        overrides["zenoh_enabled"] = False
-    return Settings(**overrides)
+    A value that does not validate exits with a usage error naming its flag (status 2).
+    """
+    parser = build_parser(model)
+    args = parser.parse_args(argv)
+    overrides: dict[str, Any] = {k: v for k, v in vars(args).items() if v is not None}
+    try:
+        return model(**overrides)
+    except ValidationError as exc:
+        flags = {o.field: o.flag for o in settings_options(model)}
+        problems = []
+        for error in exc.errors(include_url=False):
+            field = str(error["loc"][0]) if error["loc"] else ""
+            where = (f"{flags[field]} (or CANAL_{field.upper()})" if field in flags
+                     else field or "settings")
+            problems.append(f"{where}: {error['msg']}")
+        parser.error("; ".join(problems))
 
 
 def endpoints_line(settings: Settings) -> str:
@@ -108,12 +165,13 @@ class Bootstrap:
     """The ASGI app uvicorn serves: answers ``/healthz`` while the real app loads, then hands
     every request to it (its lifespan, middleware and routes unchanged)."""
 
-    def __init__(self, settings: Settings, build: Callable[[Settings], Any] | None = None) -> None:
+    def __init__(self, settings: Settings,
+                 build: Callable[[Settings], FastAPI] | None = None) -> None:
         self.settings = settings
         self.build = build
-        self.app: Any = None
+        self.app: FastAPI | None = None
         self.error: BaseException | None = None
-        self.server: Any = None  # uvicorn.Server, told to exit when loading fails
+        self.server: uvicorn.Server | None = None  # told to exit when loading fails
         self._ready: asyncio.Event | None = None
         self._lifespan: AbstractAsyncContextManager[Any] | None = None
         self._t0 = time.perf_counter()
@@ -203,7 +261,7 @@ class Bootstrap:
             self._ready.set()
 
 
-def _create_app(settings: Settings) -> Any:
+def _create_app(settings: Settings) -> FastAPI:
     """``create_app`` imported here, in the loading thread: its imports take seconds."""
     from .app import create_app
 

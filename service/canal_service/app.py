@@ -1,4 +1,9 @@
-"""``create_app(settings)``: the FastAPI application, its storage, recorder and middleware."""
+"""``create_app(settings)``: the FastAPI application, its storage, recorder and middleware.
+
+Every part is built here, in dependency order, and handed to the constructors of the parts
+that use it: nothing is attached afterwards. Recording and the live bridge are off only when
+the settings say so (``--no-recordings``, ``--no-zenoh``); ``/healthz`` then says "disabled".
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,7 @@ import logging
 import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
 from fastapi.concurrency import run_in_threadpool
@@ -18,8 +23,11 @@ from .errors import install_error_handlers
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, RequestMetrics
 from .routes import api_router, health, view
-from .service import CanalService, RecorderLike
+from .service import CanalService, FitListeners, RecorderLike, ServiceHealth
 from .storage import Database
+
+if TYPE_CHECKING:
+    from .bridge import Bridge, BridgeProcesses
 
 log = logging.getLogger("canal_service")
 
@@ -35,7 +43,7 @@ Every error is JSON: `{"error": {"type", "field", "message"}}`.
 
 
 def make_recorder(settings: Settings, db: Database | None = None) -> RecorderLike | None:
-    """The recorder from config, or None when disabled or not installed.
+    """The recorder from config (its writer thread started), or None when switched off.
 
     With ``db`` the recorder reads what it logs from the database (the request path queues
     only ids) and fills in what a crash kept out of the recordings; it records live poses
@@ -43,43 +51,50 @@ def make_recorder(settings: Settings, db: Database | None = None) -> RecorderLik
     """
     if not settings.recordings_enabled:
         return None
-    try:
-        from .recording import recorder_from_settings
-    except ImportError as exc:
-        log.warning("recordings disabled: canal_service.recording not importable (%s)", exc)
-        return None
+    # Imported only when wanted (rerun-sdk takes a second to import); a failure is an error.
+    from .recording import recorder_from_settings
+
     # Rerun phones home on first use unless told not to; a lab service should not.
     os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
     recorder: RecorderLike = recorder_from_settings(settings, db)
     return recorder
 
 
-def make_bridge(settings: Settings, service: CanalService) -> Any | None:
+def make_bridge(settings: Settings, service: CanalService) -> Bridge | BridgeProcesses | None:
     """The live Zenoh bridge (not started yet), or None when disabled: bridge processes of
     their own (``zenoh_processes``, default 1), or a bridge in this process when 0."""
     if not settings.zenoh_enabled:
         return None
     from .bridge import Bridge, BridgeOptions, BridgeProcesses
 
-    bridge: Any = (BridgeProcesses(settings, service) if settings.zenoh_processes > 0
-                   else Bridge(service, BridgeOptions.from_settings(settings)))
-    service.bridge_health = bridge.health
-    return bridge
+    if settings.zenoh_processes > 0:
+        return BridgeProcesses(settings, service)
+    return Bridge(service, BridgeOptions.from_settings(settings))
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
-    """Build the app: migrate the database now, open the recorder in the lifespan."""
+    """Build the app: migrate the database and open the recorder now; the lifespan starts the
+    bridge and closes everything."""
     settings = settings or Settings()
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     db = Database(settings.resolved_database_url)
     db.migrate()
     metrics = Metrics()
-    service = CanalService(db, metrics, cache_size=settings.model_cache_size)
-    bridge = make_bridge(settings, service)
+    recorder = make_recorder(settings, db)
+    try:
+        service = CanalService(db, metrics, cache_size=settings.model_cache_size,
+                               recorder=recorder, fit_listeners=FitListeners())
+        bridge = make_bridge(settings, service)
+    except BaseException:
+        # No lifespan will run to close what was opened: close it here.
+        if recorder is not None:
+            recorder.close()
+        db.dispose()
+        raise
+    health_check = ServiceHealth(db, recorder, bridge)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        service.recorder = await run_in_threadpool(make_recorder, settings, db)
         if bridge is not None:
             # A bridge that cannot start (port taken) leaves the REST API up; /healthz says so.
             await run_in_threadpool(bridge.start)
@@ -88,7 +103,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if bridge is not None:
                 await run_in_threadpool(bridge.close)
-            recorder, service.recorder = service.recorder, None
             if recorder is not None:
                 await run_in_threadpool(recorder.close)
             db.dispose()
@@ -102,6 +116,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.service = service
+    app.state.health = health_check
     app.state.metrics = metrics
     app.state.bridge = bridge
     install_error_handlers(app)

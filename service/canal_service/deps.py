@@ -8,7 +8,9 @@ from fastapi import Depends, Path, Query, Request
 
 from canal_protocol.schemas import MAX_ID, SKILL_NAME_PATTERN
 
-from .service import CanalService
+from .core.config import Settings
+from .errors import InvalidInput
+from .service import CanalService, ServiceHealth
 
 
 def get_service(request: Request) -> CanalService:
@@ -17,7 +19,21 @@ def get_service(request: Request) -> CanalService:
     return service
 
 
+def get_health(request: Request) -> ServiceHealth:
+    """The app's health check (built by ``create_app``)."""
+    health: ServiceHealth = request.app.state.health
+    return health
+
+
+def get_settings(request: Request) -> Settings:
+    """The settings the app was built with."""
+    settings: Settings = request.app.state.settings
+    return settings
+
+
 ServiceDep = Annotated[CanalService, Depends(get_service)]
+HealthDep = Annotated[ServiceHealth, Depends(get_health)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
 SkillName = Annotated[
     str, Path(pattern=SKILL_NAME_PATTERN, description="Skill name", examples=["pour"])
 ]
@@ -27,9 +43,7 @@ Limit = Annotated[int, Query(ge=1, le=1000, description="Page size")]
 
 
 def parse_version(value: str, field: str = "version") -> int | None:
-    """'latest' -> None, a positive number -> int; anything else is a 422 naming ``field``."""
-    from .errors import InvalidInput
-
+    """'latest' -> None, a positive number -> int; anything else is InvalidInput naming ``field``."""
     if value == "latest":
         return None
     if value.isascii() and value.isdigit() and 1 <= int(value) <= MAX_ID:

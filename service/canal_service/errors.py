@@ -1,4 +1,11 @@
-"""One place that turns every error into HTTP.
+"""The service's domain errors, and the one table that turns every error into HTTP.
+
+Below the HTTP layer (repository, service, validation, bridge) code raises the domain errors
+defined here: they say what went wrong (``SkillNotFound``, ``NoModelYet``, ...) and carry a
+message and the request ``field`` at fault, never a status code. :data:`HTTP_STATUS` maps
+them, and canal_core's :class:`~canal_core.errors.CanalError` hierarchy, to a status and a
+stable machine-readable ``type`` word; :func:`install_error_handlers` is the only user of it.
+The bridge replies over Zenoh with the same words (:func:`error_type`).
 
 Body shape, for every 4xx the service sends::
 
@@ -7,12 +14,13 @@ Body shape, for every 4xx the service sends::
 
 ``type`` is a stable machine-readable word; ``field`` names the request part at fault
 (a JSON path like ``positions[3]``, a query parameter, a header, ``body``); ``message`` is for
-humans. canal_core's errors are mapped here and nowhere else.
+humans.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -33,11 +41,11 @@ from canal_core.errors import (
 log = logging.getLogger("canal_service")
 
 
-class ServiceError(Exception):
-    """An error the service raises on purpose; carries its HTTP status and JSON fields."""
+# ---- domain errors (no HTTP in them) -----------------------------------------------------------
 
-    status_code = 400
-    error_type = "bad_request"
+
+class ServiceError(Exception):
+    """Base of every error the service raises on purpose: a message and the field at fault."""
 
     def __init__(self, message: str, *, field: str | None = None) -> None:
         super().__init__(message)
@@ -48,50 +56,99 @@ class ServiceError(Exception):
 class InvalidInput(ServiceError):
     """A well-formed request whose content is wrong (NaN, ragged, wrong dimension, ...)."""
 
-    status_code = 422
-    error_type = "invalid_input"
-
 
 class BadUpload(ServiceError):
     """An uploaded file that cannot be parsed as the format it claims to be."""
-
-    status_code = 400
-    error_type = "bad_upload"
-
-
-class NotFound(ServiceError):
-    """An unknown skill, demonstration or model version."""
-
-    status_code = 404
-    error_type = "not_found"
-
-
-class Conflict(ServiceError):
-    """The request clashes with stored state (duplicate name, nothing fitted yet, ...)."""
-
-    status_code = 409
-    error_type = "conflict"
 
 
 class UnsupportedMediaType(ServiceError):
     """A body in a content type the route does not take."""
 
-    status_code = 415
-    error_type = "unsupported_media_type"
+
+class TooLarge(ServiceError):
+    """An upload whose content exceeds a resource limit (points, decompressed bytes, ...)."""
+
+
+class TooSlow(ServiceError):
+    """An upload that needs more server time to parse than one upload may take."""
+
+
+class NotFound(ServiceError):
+    """Something the request names does not exist (base of the specific kinds below)."""
+
+
+class SkillNotFound(NotFound):
+    """No skill of that name."""
+
+
+class DemoNotFound(NotFound):
+    """The skill has no demonstration of that id."""
+
+
+class ModelVersionNotFound(NotFound):
+    """The skill has models, but not the version asked for (or it was deleted meanwhile)."""
+
+
+class Conflict(ServiceError):
+    """The request clashes with stored state (base of the specific kinds below)."""
+
+
+class SkillExists(Conflict):
+    """A skill of that name exists already."""
+
+
+class NoModelYet(Conflict):
+    """The skill exists but has no fitted model; fit one first.
+
+    Carries the skill's ``dim``: a live client is told what to send once a model exists.
+    """
+
+    def __init__(self, skill: str, dim: int, *, field: str | None = "model") -> None:
+        super().__init__(f"skill {skill!r} has no fitted model yet; POST "
+                         f"/skills/{skill}/fit first", field=field)
+        self.skill = skill
+        self.dim = dim
+
+
+class NotEnoughDemonstrations(Conflict):
+    """Fitting needs at least two demonstrations."""
+
+
+class VersionConflict(Conflict):
+    """Concurrent fits kept taking the model version number this fit tried to store."""
+
+
+class RecordingFailed(Conflict):
+    """The recorder could not produce the recording asked for (e.g. a rebuild failed)."""
 
 
 class Disabled(ServiceError):
-    """A feature switched off in this deployment (e.g. recordings).
+    """A feature switched off in this deployment (e.g. recordings)."""
 
-    404, not 503: the resource does not exist here, and retrying will not make it appear.
+
+class Busy(ServiceError):
+    """A clash with a concurrent request that a retry will resolve."""
+
+    def __init__(self, message: str, *, field: str | None = None, retry_after: int = 1) -> None:
+        super().__init__(message, field=field)
+        self.retry_after = retry_after
+
+
+class CanalRejected(ServiceError):
+    """canal_core refused the request's data; ``cause`` is its error, unchanged.
+
+    The service wraps core errors in this (``raise CanalRejected(...) from exc``) to name
+    the field as the client knows it (a stored demonstration id rather than a list index):
+    the core error itself is never altered. It answers with the cause's status and type.
     """
 
-    status_code = 404
-    error_type = "disabled"
+    def __init__(self, cause: CanalError, message: str, *, field: str | None = None) -> None:
+        super().__init__(message, field=field)
+        self.cause = cause
 
 
 class PayloadTooLarge(StarletteHTTPException):
-    """Raised from the size-limited ``receive``.
+    """Raised from the size-limited ``receive`` (an HTTP-layer error: middleware only).
 
     An HTTPException so that FastAPI's body reader re-raises it as is instead of
     turning it into a generic 400.
@@ -102,37 +159,29 @@ class PayloadTooLarge(StarletteHTTPException):
         self.limit = limit
 
 
-class TooLarge(ServiceError):
-    """An upload whose content exceeds a resource limit (points, decompressed bytes, ...)."""
+# ---- the one table -----------------------------------------------------------------------------
 
-    status_code = 413
-    error_type = "payload_too_large"
-
-
-class TooSlow(ServiceError):
-    """An upload that needs more server time to parse than one upload may take."""
-
-    status_code = 422
-    error_type = "upload_too_slow"
-
-
-class Busy(ServiceError):
-    """A clash with a concurrent request that a retry will resolve (503 + Retry-After)."""
-
-    status_code = 503
-    error_type = "busy"
-
-    def __init__(self, message: str, *, field: str | None = None, retry_after: int = 1) -> None:
-        super().__init__(message, field=field)
-        self.retry_after = retry_after
-
-
-_CANAL_STATUS: list[tuple[type[CanalError], int, str]] = [
-    (InvalidInputError, 422, "invalid_input"),
-    (DegenerateCanalError, 422, "degenerate_canal"),
-    (OutsideCanalError, 422, "outside_canal"),
-    (ModelFormatError, 400, "model_format"),
-]
+#: Every error class the service answers on purpose -> (HTTP status, ``type`` word). An error
+#: takes the entry of the nearest class in its MRO, so a subclass without its own entry
+#: answers as its base.
+HTTP_STATUS: Mapping[type[Exception], tuple[int, str]] = {
+    ServiceError: (400, "bad_request"),
+    InvalidInput: (422, "invalid_input"),
+    BadUpload: (400, "bad_upload"),
+    UnsupportedMediaType: (415, "unsupported_media_type"),
+    TooLarge: (413, "payload_too_large"),
+    TooSlow: (422, "upload_too_slow"),
+    NotFound: (404, "not_found"),
+    Conflict: (409, "conflict"),
+    # 404, not 503: the resource does not exist here, and retrying will not make it appear.
+    Disabled: (404, "disabled"),
+    Busy: (503, "busy"),
+    CanalError: (422, "canal_error"),
+    InvalidInputError: (422, "invalid_input"),
+    DegenerateCanalError: (422, "degenerate_canal"),
+    OutsideCanalError: (422, "outside_canal"),
+    ModelFormatError: (400, "model_format"),
+}
 
 _HTTP_TYPES = {
     401: "unauthorized",
@@ -143,11 +192,29 @@ _HTTP_TYPES = {
 }
 
 
+def http_status(exc: ServiceError | CanalError) -> tuple[int, str]:
+    """(HTTP status, ``type`` word) of a domain or canal_core error, from :data:`HTTP_STATUS`.
+
+    A :class:`CanalRejected` answers as the core error it wraps.
+    """
+    target: Exception = exc.cause if isinstance(exc, CanalRejected) else exc
+    for cls in type(target).__mro__:
+        entry = HTTP_STATUS.get(cls)
+        if entry is not None:
+            return entry
+    raise TypeError(f"no HTTP status for {type(exc).__name__}")  # unreachable: bases are listed
+
+
+def error_type(exc: ServiceError | CanalError) -> str:
+    """The stable ``type`` word of an error (the HTTP body's, and the bridge's Zenoh replies')."""
+    return http_status(exc)[1]
+
+
 def error_body(
-    error_type: str, message: str, field: str | None = None, details: list[Any] | None = None
+    kind: str, message: str, field: str | None = None, details: list[Any] | None = None
 ) -> dict[str, Any]:
-    """The JSON error envelope every failure uses."""
-    error: dict[str, Any] = {"type": error_type, "field": field, "message": message}
+    """The JSON error envelope every failure uses (``kind`` is the ``type`` word)."""
+    error: dict[str, Any] = {"type": kind, "field": field, "message": message}
     if details is not None:
         error["details"] = details
     return {"error": error}
@@ -186,29 +253,19 @@ def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
                       details)
 
 
-def canal_error_status(exc: CanalError) -> tuple[int, str]:
-    """HTTP status and error type for a canal_core error."""
-    for cls, status, error_type in _CANAL_STATUS:
-        if isinstance(exc, cls):
-            return status, error_type
-    return 422, "canal_error"
-
-
 def install_error_handlers(app: FastAPI) -> None:
     """Register the handlers; after this no expected error leaves as HTML or a 500."""
 
     @app.exception_handler(ServiceError)
     async def _service_error(_request: Request, exc: ServiceError) -> JSONResponse:
-        headers = None
-        if isinstance(exc, Busy):
-            headers = {"Retry-After": str(exc.retry_after)}
-        return JSONResponse(error_body(exc.error_type, exc.message, exc.field), exc.status_code,
-                            headers=headers)
+        status, kind = http_status(exc)
+        headers = {"Retry-After": str(exc.retry_after)} if isinstance(exc, Busy) else None
+        return JSONResponse(error_body(kind, exc.message, exc.field), status, headers=headers)
 
     @app.exception_handler(CanalError)
     async def _canal_error(_request: Request, exc: CanalError) -> JSONResponse:
-        status, error_type = canal_error_status(exc)
-        return JSONResponse(error_body(error_type, exc.message, exc.field), status)
+        status, kind = http_status(exc)
+        return JSONResponse(error_body(kind, exc.message, exc.field), status)
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Literal
 
 import numpy as np
 import orjson
 import trimesh
+
+from canal_core import Mesh
+
+MeshFormat = Literal["ply", "obj", "glb", "json"]
 
 MESH_MEDIA_TYPES = {
     "ply": "application/octet-stream",
@@ -16,7 +20,7 @@ MESH_MEDIA_TYPES = {
 }
 
 
-def export_mesh(mesh: Any, fmt: str) -> bytes:
+def export_mesh(mesh: Mesh, fmt: MeshFormat) -> bytes:
     """Encode ``mesh`` (vertices, faces, normals) in ``fmt``; pure function of its input."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)

@@ -12,17 +12,27 @@ import re
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable, Iterator, Sequence
+from functools import partial
+from pathlib import Path
+from typing import Any, Literal, Protocol
 
 import numpy as np
+import numpy.typing as npt
 from sqlalchemy.exc import IntegrityError
 
 import canal_core
 from canal_protocol import schemas
 
-from . import uploads
-from .errors import Conflict, InvalidInput, NotFound
+from . import __version__, uploads
+from .errors import (
+    CanalRejected,
+    Disabled,
+    InvalidInput,
+    NotEnoughDemonstrations,
+    RecordingFailed,
+    VersionConflict,
+)
 from .metrics import Metrics
 from .storage import Database, Demonstration, ModelVersion, Skill, arrays
 from .storage import repository as repo
@@ -34,18 +44,77 @@ _VERSION_RETRIES = 5
 
 
 class RecorderLike(Protocol):
-    """The part of ``canal_service.recording.Recorder`` the service calls."""
+    """What the service, its routes and the live path call on the recorder.
 
-    def demo_added(self, skill: str, dim: int, demo_id: int, positions: Any, timestamps: Any,
-                   label: str | None) -> None: ...
+    ``canal_service.recording.Recorder`` is checked against it where ``create_app`` builds
+    one. Record methods (``demo_added`` ... ``live``) only queue and promise never to raise.
+    """
+
+    def demo_added(self, skill: str, dim: int, demo_id: int, positions: npt.ArrayLike,
+                   timestamps: npt.ArrayLike | None, label: str | None) -> None: ...
     def demo_removed(self, skill: str, demo_id: int) -> None: ...
-    def model_fitted(self, skill: str, version: int, canal: Any) -> None: ...
-    def reproduction(self, skill: str, version: int, result: Any) -> None: ...
+    def model_fitted(self, skill: str, version: int, canal: canal_core.Canal) -> None: ...
+    def reproduction(self, skill: str, version: int, result: canal_core.Reproduction) -> None: ...
+    def live(self, skill: str, robot: str, position: npt.ArrayLike,
+             target: canal_core.TrackerTarget, t_ns: int | None = None,
+             orientation: npt.ArrayLike | None = None) -> None: ...
     def skill_deleted(self, skill: str) -> None: ...
-    def export_rrd(self, skill: str) -> Any: ...
-    def export_mcap(self, skill: str) -> Any: ...
+    def export_rrd(self, skill: str) -> Path: ...
+    def export_mcap(self, skill: str, profile: str = "foxglove") -> Path: ...
+    def rebuild(self, skill: str, timeout_s: float | None = None) -> dict[str, Any]: ...
     def health(self) -> dict[str, Any]: ...
     def close(self) -> None: ...
+
+
+class BridgeHealthSource(Protocol):
+    """The live bridge (in this process or supervising bridge processes), as /healthz sees it."""
+
+    def health(self) -> dict[str, Any]: ...
+
+
+FitListener = Callable[[str, int, canal_core.Canal], None]
+
+
+class FitListeners:
+    """Who hears of each committed fit, as ``listener(skill, version, canal)`` (the bridge).
+
+    Built by ``create_app`` and handed to both the service (which notifies) and the bridge
+    (which subscribes when it starts and unsubscribes when it stops). Thread-safe.
+    """
+
+    def __init__(self, listeners: Sequence[FitListener] = ()) -> None:
+        self._listeners: list[FitListener] = list(listeners)
+        self._lock = threading.Lock()
+
+    def append(self, listener: FitListener) -> None:
+        """Subscribe ``listener``."""
+        with self._lock:
+            self._listeners.append(listener)
+
+    def remove(self, listener: FitListener) -> None:
+        """Unsubscribe ``listener`` (ValueError when it was not subscribed, as list.remove)."""
+        with self._lock:
+            self._listeners.remove(listener)
+
+    def __contains__(self, listener: object) -> bool:
+        with self._lock:
+            return listener in self._listeners
+
+    def __iter__(self) -> Iterator[FitListener]:
+        with self._lock:
+            return iter(list(self._listeners))
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._listeners)
+
+    def notify(self, skill: str, version: int, canal: canal_core.Canal) -> None:
+        """Call every listener; one that raises is logged and does not stop the others."""
+        for listener in self:
+            try:
+                listener(skill, version, canal)
+            except Exception:
+                log.exception("fit listener failed")
 
 
 class CanalCache:
@@ -53,10 +122,10 @@ class CanalCache:
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._items: OrderedDict[int, Any] = OrderedDict()
+        self._items: OrderedDict[int, canal_core.Canal] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, key: int) -> Any | None:
+    def get(self, key: int) -> canal_core.Canal | None:
         """The cached canal, marked recently used, or None."""
         with self._lock:
             canal = self._items.get(key)
@@ -64,7 +133,7 @@ class CanalCache:
                 self._items.move_to_end(key)
             return canal
 
-    def put(self, key: int, canal: Any) -> None:
+    def put(self, key: int, canal: canal_core.Canal) -> None:
         """Keep ``canal``, evicting the least recently used beyond ``size``."""
         if self.size <= 0:
             return
@@ -80,35 +149,47 @@ def _tolist(value: Any) -> Any:
 
 
 class CanalService:
-    """Use cases of the REST API, independent of HTTP."""
+    """Use cases of the REST API, independent of HTTP.
+
+    Parameters
+    ----------
+    db : Database
+        Storage; every query goes through ``storage.repository``.
+    metrics : Metrics
+        The app's Prometheus metrics.
+    cache_size : int
+        Decoded canals kept in memory.
+    recorder : RecorderLike, optional
+        Hears of every committed change; None when recordings are off.
+    fit_listeners : FitListeners, optional
+        Told of every committed fit (the live bridge subscribes); a fresh empty set if None.
+    """
 
     def __init__(self, db: Database, metrics: Metrics, *, cache_size: int = 64,
-                 recorder: RecorderLike | None = None) -> None:
+                 recorder: RecorderLike | None = None,
+                 fit_listeners: FitListeners | None = None) -> None:
         self.db = db
         self.metrics = metrics
         self.recorder = recorder
         self.cache = CanalCache(cache_size)
-        # Called as listener(skill, version, canal) after each fit commits (the live bridge).
-        self.fit_listeners: list[Callable[[str, int, Any], None]] = []
-        # The live bridge's health(), when one runs in this process.
-        self.bridge_health: Callable[[], dict[str, Any]] | None = None
+        self.fit_listeners = fit_listeners if fit_listeners is not None else FitListeners()
 
     # ---- recorder ---------------------------------------------------------------------------
 
-    def _record(self, method: str, *args: Any) -> None:
+    def _record(self, what: str, call: Callable[[RecorderLike], None]) -> None:
         # The recorder promises never to raise; a broken one must still not fail a request
         # whose data is already committed.
         if self.recorder is None:
             return
         try:
-            getattr(self.recorder, method)(*args)
+            call(self.recorder)
         except Exception:
-            log.exception("recorder.%s failed", method)
+            log.exception("recorder.%s failed", what)
 
     # ---- skills -----------------------------------------------------------------------------
 
     def create_skill(self, body: schemas.SkillCreate) -> schemas.SkillOut:
-        """Create a skill (409 when the name is taken)."""
+        """Create a skill (:class:`SkillExists` when the name is taken)."""
         with self.db.write() as s:
             skill = repo.create_skill(s, body.name, body.description, body.dim)
             return self._skill_out(skill, repo.SkillStats(0, 0, None))
@@ -131,7 +212,7 @@ class CanalService:
         """Delete a skill with its demonstrations and models."""
         with self.db.write() as s:
             repo.delete_skill(s, name)
-        self._record("skill_deleted", name)
+        self._record("skill_deleted", lambda r: r.skill_deleted(name))
 
     @staticmethod
     def _skill_out(skill: Skill, stats: repo.SkillStats) -> schemas.SkillOut:
@@ -142,7 +223,7 @@ class CanalService:
         )
 
     def skill_dim(self, name: str) -> int:
-        """The skill's dimension (NotFound for an unknown skill)."""
+        """The skill's dimension (:class:`SkillNotFound` for an unknown skill)."""
         with self.db.read() as s:
             return repo.get_skill(s, name).dim
 
@@ -180,7 +261,8 @@ class CanalService:
                                                checksum=stored.checksum)
         dim = stored.dim
         self.metrics.demos_stored.labels(source).inc()
-        self._record("demo_added", name, dim, created.id, demo.positions, demo.timestamps, label)
+        self._record("demo_added", lambda r: r.demo_added(name, dim, created.id, demo.positions,
+                                                          demo.timestamps, label))
         return created
 
     def list_demonstrations(self, name: str, offset: int, limit: int
@@ -210,7 +292,7 @@ class CanalService:
         with self.db.write() as s:
             skill = repo.get_skill(s, name)
             repo.delete_demonstration(s, skill, demo_id)
-        self._record("demo_removed", name, demo_id)
+        self._record("demo_removed", lambda r: r.demo_removed(name, demo_id))
 
     @staticmethod
     def _demo_summary(row: Demonstration, has_t: bool, has_q: bool
@@ -235,7 +317,7 @@ class CanalService:
                 raise InvalidInput(f"skill {name!r} has no demonstrations {missing}",
                                    field="demo_ids")
         if len(loaded) < 2:
-            raise Conflict(
+            raise NotEnoughDemonstrations(
                 f"fitting needs at least 2 demonstrations, skill {name!r} has {len(loaded)}"
                 + (" selected" if body.demo_ids is not None else ""),
                 field="demonstrations",
@@ -255,10 +337,7 @@ class CanalService:
             canal = canal_core.fit(positions, timestamps=stamped, by_time=bool(body.by_time),
                                    orientations=orientations, **options)
         except canal_core.CanalError as exc:
-            _name_demo_in(exc, demo_ids)
-            # canal_core leaves the field empty when the set as a whole is at fault.
-            exc.field = exc.field or "demonstrations"
-            raise
+            raise _fit_rejected(exc, demo_ids) from exc
         seconds = time.perf_counter() - started
         serialized = canal.to_dict()
         used_options = {**canal.options.to_dict(), "by_time": bool(body.by_time) and stamped is not None,
@@ -267,20 +346,18 @@ class CanalService:
         self.cache.put(model[0], canal)
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
-        self._record("model_fitted", name, model[1].version, canal)
-        for listener in list(self.fit_listeners):
-            try:
-                listener(name, model[1].version, canal)
-            except Exception:
-                log.exception("fit listener failed")
+        version = model[1].version
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal))
+        self.fit_listeners.notify(name, version, canal)
         return model[1]
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                     serialized: dict[str, Any], seconds: float, canal: Any
+                     serialized: dict[str, Any], seconds: float, canal: canal_core.Canal
                      ) -> tuple[int, schemas.ModelSummary]:
         # Versions are max + 1 under a unique constraint: two replicas fitting at once both
         # try the same number, one wins, the other retries with the next.
-        for attempt in range(_VERSION_RETRIES):
+        clash: IntegrityError | None = None
+        for _attempt in range(_VERSION_RETRIES):
             try:
                 with self.db.write() as s:
                     skill = repo.get_skill(s, name)
@@ -288,10 +365,11 @@ class CanalService:
                     row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
                                          int(canal.n_sections), str(canal.section_kind))
                     return row.id, self._model_summary(row, skill.dim, len(demo_ids))
-            except IntegrityError:
-                if attempt == _VERSION_RETRIES - 1:
-                    raise
-        raise AssertionError("unreachable")
+            except IntegrityError as exc:
+                clash = exc
+        raise VersionConflict(
+            f"concurrent fits of skill {name!r} took {_VERSION_RETRIES} version numbers in a "
+            "row; fit again", field="version") from clash
 
     @staticmethod
     def _model_summary(row: ModelVersion, dim: int, n_demos: int | None = None
@@ -313,17 +391,16 @@ class CanalService:
         return schemas.Page[schemas.ModelSummary](items=items, total=total, offset=offset,
                                                    limit=limit)
 
-    def load_canal(self, name: str, version: int | None) -> tuple[Any, ModelVersion | None, int, int]:
-        """(canal, row or None when served from cache, version, dim) of a version or the latest."""
+    def load_canal(self, name: str, version: int | None
+                   ) -> tuple[canal_core.Canal, ModelVersion | None, int, int]:
+        """(canal, row or None when served from cache, version, dim) of a version or the latest.
+
+        Raises :class:`SkillNotFound`, :class:`NoModelYet` (latest of a skill never fitted)
+        or :class:`ModelVersionNotFound`.
+        """
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
-            ref = repo.model_ref(s, skill, version)
-            if ref is None:
-                if version is None:
-                    raise Conflict(f"skill {name!r} has no fitted model yet; POST .../fit first",
-                                   field="model")
-                raise NotFound(f"skill {name!r} has no model version {version}", field="model")
-            model_id, found_version = ref
+            model_id, found_version = repo.require_model_ref(s, skill, version)
             canal = self.cache.get(model_id)
             row = None
             if canal is None:
@@ -336,12 +413,7 @@ class CanalService:
         """A model version with its geometry."""
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
-            ref = repo.model_ref(s, skill, version)
-            if ref is None:
-                if version is None:
-                    raise Conflict(f"skill {name!r} has no fitted model yet", field="model")
-                raise NotFound(f"skill {name!r} has no model version {version}", field="model")
-            row = repo.get_model(s, ref[0])
+            row = repo.get_model(s, repo.require_model_ref(s, skill, version)[0])
             dim = skill.dim
         canal = self.cache.get(row.id)
         if canal is None:
@@ -363,7 +435,7 @@ class CanalService:
         )
 
     def mesh(self, name: str, version: int | None, n_angles: int, caps: bool,
-             envelope: bool) -> Any:
+             envelope: bool) -> canal_core.Mesh:
         """The canal's surface mesh from canal_core."""
         canal, _row, _version, _dim = self.load_canal(name, version)
         return canal.mesh(n_angles=n_angles, caps=caps, envelope=envelope)
@@ -405,13 +477,14 @@ class CanalService:
                                                   duration=body.duration,
                                                   start_orientation=start_orientation)
             except canal_core.CanalError as exc:
-                exc.field = field if exc.field in (None, "start") else exc.field
-                raise
+                # canal_core names its own argument "start"; the client sent starts[i].
+                at = field if exc.field in (None, "start") else exc.field
+                raise CanalRejected(exc, exc.message, field=at) from exc
             results.append(result)
         outs = []
         for result in results:
             self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
-            self._record("reproduction", name, found_version, result)
+            self._record("reproduction", partial(_tell_reproduction, name, found_version, result))
             outs.append(schemas.ReproductionOut(
                 positions=_tolist(result.positions), start=_tolist(result.start),
                 inside=bool(result.inside), eta=float(result.eta),
@@ -425,17 +498,55 @@ class CanalService:
             return outs[0]
         return schemas.ReproductionBatchOut(reproductions=outs)
 
-    # ---- recordings and health --------------------------------------------------------------
+    # ---- recordings -------------------------------------------------------------------------
 
-    def export_recording(self, name: str, kind: str) -> Any:
+    @property
+    def recordings_enabled(self) -> bool:
+        """Whether this service records (``--no-recordings`` turns it off)."""
+        return self.recorder is not None
+
+    def _recorder(self) -> RecorderLike:
+        if self.recorder is None:
+            raise Disabled("recordings are disabled on this service", field="recordings")
+        return self.recorder
+
+    def export_recording(self, name: str, kind: Literal["rrd", "mcap"],
+                         profile: Literal["foxglove", "ros2"] = "foxglove") -> Path:
         """A snapshot file of the skill's recording (the caller deletes it after sending)."""
-        self.skill_dim(name)
-        assert self.recorder is not None
-        return self.recorder.export_rrd(name) if kind == "rrd" else self.recorder.export_mcap(name)
+        recorder = self._recorder()
+        self.skill_dim(name)  # SkillNotFound before any file is made
+        if kind == "rrd":
+            return recorder.export_rrd(name)
+        return recorder.export_mcap(name, profile=profile)
 
-    def health(self) -> schemas.HealthOut:
-        """Database and recorder state; degraded when either is unwell."""
-        status: str = "ok"
+    def rebuild_recording(self, name: str) -> dict[str, Any]:
+        """Regenerate the skill's recording from the database; counts of what was logged."""
+        recorder = self._recorder()
+        self.skill_dim(name)
+        try:
+            result = recorder.rebuild(name)
+        except RuntimeError as exc:
+            raise RecordingFailed(f"could not rebuild the recording of {name!r}: {exc}",
+                                  field="recordings") from exc
+        return {"skill": name, **result}
+
+
+class ServiceHealth:
+    """What ``GET /healthz`` reports: database, recorder and live bridge.
+
+    Separate from :class:`CanalService` because the bridge is built from the service: both
+    exist before this is, so every part is given to the constructor.
+    """
+
+    def __init__(self, db: Database, recorder: RecorderLike | None,
+                 bridge: BridgeHealthSource | None) -> None:
+        self.db = db
+        self.recorder = recorder
+        self.bridge = bridge
+
+    def __call__(self) -> schemas.HealthOut:
+        """Database, recorder and bridge state; degraded when any is unwell."""
+        status: Literal["ok", "degraded"] = "ok"
         try:
             self.db.ping()
             database = "ok"
@@ -452,22 +563,26 @@ class CanalService:
             if recorder.get("status") != "ok":
                 status = "degraded"
         bridge: dict[str, Any] = {"status": "disabled"}
-        if self.bridge_health is not None:
+        if self.bridge is not None:
             try:
-                bridge = dict(self.bridge_health())
+                bridge = dict(self.bridge.health())
             except Exception as exc:
                 bridge = {"status": "down", "detail": f"health() failed: {exc}"}
             # The REST API still serves without the live path, but the service is not whole:
             # a bridge that is down or behind its queue makes the service "degraded".
             if bridge.get("status") in ("down", "behind"):
                 status = "degraded"
-        from . import __version__
-
-        return schemas.HealthOut(status=status, database=database,  # type: ignore[arg-type]
-                                 recorder=recorder, bridge=bridge, version=__version__)
+        return schemas.HealthOut(status=status, database=database, recorder=recorder,
+                                 bridge=bridge, version=__version__)
 
 
-def _orientation_notes(canal: Any, result: Any, start_orientation: Any) -> list[str]:
+def _tell_reproduction(skill: str, version: int, result: canal_core.Reproduction,
+                       recorder: RecorderLike) -> None:
+    recorder.reproduction(skill, version, result)
+
+
+def _orientation_notes(canal: canal_core.Canal, result: canal_core.Reproduction,
+                       start_orientation: object) -> list[str]:
     """Say how the orientations were made when the request could not tell."""
     if not canal.has_orientation:
         return []
@@ -484,13 +599,18 @@ def _orientation_notes(canal: Any, result: Any, start_orientation: Any) -> list[
 _INDEXED_FIELD = re.compile(r"^(demos|timestamps)\[(\d+)\]")
 
 
-def _name_demo_in(exc: canal_core.CanalError, demo_ids: Sequence[int]) -> None:
-    """Rewrite canal_core's list index (``demos[2]``) as the stored id the client knows."""
+def _fit_rejected(exc: canal_core.CanalError, demo_ids: Sequence[int]) -> CanalRejected:
+    """canal_core's fit error, wrapped with the field the client knows.
+
+    canal_core names a demonstration by its list index (``demos[2]``); the client knows the
+    stored id. It leaves the field empty when the set as a whole is at fault.
+    """
+    field, message = exc.field or "demonstrations", exc.message
     match = _INDEXED_FIELD.match(exc.field or "")
     if match and int(match.group(2)) < len(demo_ids):
         demo_id = demo_ids[int(match.group(2))]
-        exc.field = f"demonstrations[id={demo_id}]"
-        exc.message = f"demonstration {demo_id}: {exc.message}"
+        field, message = f"demonstrations[id={demo_id}]", f"demonstration {demo_id}: {message}"
+    return CanalRejected(exc, message, field=field)
 
 
 def _demo_arrays(row: Demonstration) -> tuple[arrays.FloatArray, arrays.FloatArray | None,
@@ -501,4 +621,5 @@ def _demo_arrays(row: Demonstration) -> tuple[arrays.FloatArray, arrays.FloatArr
     return positions, times, quats
 
 
-__all__: Sequence[str] = ["CanalCache", "CanalService", "RecorderLike"]
+__all__: Sequence[str] = ["BridgeHealthSource", "CanalCache", "CanalService", "FitListener",
+                          "FitListeners", "RecorderLike", "ServiceHealth"]

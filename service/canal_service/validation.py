@@ -46,12 +46,13 @@ def _matrix(value: Any, field: str, columns: int, what: str) -> FloatArray:
     else:
         # Fast path: a well-formed list converts in one call; only a failure pays for the
         # row-by-row walk that names the bad row.
+        fast: FloatArray | None
         try:
-            array = np.asarray(value, dtype=np.float64)
+            fast = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError):
-            array = None
-        if array is not None and array.ndim == 2 and array.shape[1] == columns:
-            return np.ascontiguousarray(array)
+            fast = None
+        if fast is not None and fast.ndim == 2 and fast.shape[1] == columns:
+            return np.ascontiguousarray(fast)
         if not isinstance(value, Sequence) or isinstance(value, str | bytes):
             raise InvalidInput(f"expected {field} as a list of rows, got {type(value).__name__}",
                                field=field)

@@ -321,18 +321,21 @@ def test_a_service_that_cannot_start_exits_with_the_reason(tmp_path: Path) -> No
 
 
 def test_bootstrap_lifespan_runs_the_real_apps_lifespan(tmp_path: Path) -> None:
-    """The recorder the real lifespan opens is there after start and closed at shutdown."""
+    """The recorder the real app opens is there after start and closed at shutdown."""
     settings = Settings(data_dir=tmp_path, zenoh_enabled=False, recordings_enabled=True)
     boot = Bootstrap(settings)
+    before = {t for t in threading.enumerate() if t.name == "canal-recorder"}
     with LiveServer(boot) as live:
         boot.server = live.server
         deadline = time.monotonic() + 60
         while httpx.get(f"{live.url}/healthz", timeout=10).status_code != 200:
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        service = boot.app.state.service
-        assert service.recorder is not None
-    assert service.recorder is None  # closed by the real lifespan's exit
+        assert boot.app.state.service.recorder is not None
+        ours = {t for t in threading.enumerate() if t.name == "canal-recorder"} - before
+        assert len(ours) == 1 and all(t.is_alive() for t in ours)
+    # closed by the real lifespan's exit: its writer thread has finished
+    assert not any(t.is_alive() for t in ours)
 
 
 # ---- license and citation ------------------------------------------------------------------

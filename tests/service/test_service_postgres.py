@@ -5,11 +5,16 @@ from __future__ import annotations
 import threading
 
 import pytest
+from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.storage import Database
+from canal_service.storage import repository as repo
+from canal_service.storage.db import alembic_config
 from fastapi.testclient import TestClient
 from service_helpers import PostgresServer, demo_positions
+from sqlalchemy import inspect, text
 
 pytestmark = pytest.mark.postgres
 
@@ -47,8 +52,21 @@ def test_two_replicas_share_one_database(postgres_server: PostgresServer, tmp_pa
 
 
 def test_migrations_are_idempotent(postgres_server: PostgresServer) -> None:
+    """A second migrate (every replica runs one at start) changes neither schema nor data."""
     db = Database(postgres_server.new_database())
     db.migrate()
+    head = ScriptDirectory.from_config(alembic_config(db.url)).get_current_head()
+    with db.write() as s:
+        repo.create_skill(s, "kept", "", 3)
+    with db.read_engine.connect() as connection:
+        tables = set(inspect(connection).get_table_names())
+        revision = MigrationContext.configure(connection).get_current_revision()
+    assert {"skills", "demonstrations", "models"} <= tables and revision == head
     db.migrate()
-    db.ping()
+    with db.read_engine.connect() as connection:
+        assert set(inspect(connection).get_table_names()) == tables
+        assert MigrationContext.configure(connection).get_current_revision() == head
+        assert connection.execute(text("SELECT count(*) FROM alembic_version")).scalar() == 1
+    with db.read() as s:
+        assert repo.get_skill(s, "kept").dim == 3
     db.dispose()

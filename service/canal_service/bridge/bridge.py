@@ -58,7 +58,7 @@ import zenoh
 from canal_core.tracker import Tracker, step_trackers, tracker_geometry
 from canal_protocol import wire
 
-from ..errors import Conflict, NotFound, ServiceError
+from ..errors import NoModelYet, ServiceError, SkillNotFound, error_type
 from ..validation import check_demonstration
 
 log = logging.getLogger("canal_service.bridge")
@@ -378,16 +378,11 @@ class Bridge:
     def _load(self, skill: str) -> ModelEntry:
         """The skill's latest model from the service (database, decoded-canal cache)."""
         try:
-            canal, _row, version, dim = self.service.load_canal(skill, None)
-        except NotFound as exc:
+            canal, _row, version, _dim = self.service.load_canal(skill, None)
+        except SkillNotFound as exc:
             return ModelEntry("unknown_skill", message=exc.message)
-        except Conflict:
-            try:
-                dim = self.service.skill_dim(skill)
-            except NotFound as exc:
-                return ModelEntry("unknown_skill", message=exc.message)
-            return ModelEntry("no_model", dim=dim,
-                              message=f"skill {skill!r} has no fitted model yet")
+        except NoModelYet as exc:
+            return ModelEntry("no_model", dim=exc.dim, message=exc.message)
         return _ok_entry(version, canal)
 
     def _install(self, skill: str, entry: ModelEntry) -> None:
@@ -815,7 +810,7 @@ class Bridge:
         try:
             model = self.service.get_model(skill, None, True)
         except ServiceError as exc:
-            _reply_error(query, exc.error_type, exc.message, exc.field)
+            _reply_error(query, error_type(exc), exc.message, exc.field)
             return
         query.reply(query.key_expr, orjson.dumps(model.model_dump(mode="json")),
                     encoding=ENC_JSON)
@@ -849,7 +844,7 @@ class Bridge:
         try:
             created = self._store_demo(st.skill, poses, label)
         except ServiceError as exc:
-            _reply_error(query, exc.error_type, exc.message, exc.field)
+            _reply_error(query, error_type(exc), exc.message, exc.field)
             return
         query.reply(query.key_expr, orjson.dumps(created), encoding=ENC_JSON)
 

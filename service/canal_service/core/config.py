@@ -3,11 +3,17 @@
 The defaults are the embedded deployment: loopback only, a SQLite file and a recordings
 folder inside one local data folder, no token, no CORS. A multi-instance deployment points
 ``CANAL_DATABASE_URL`` at PostgreSQL and keeps everything else.
+
+The command line (``python -m canal_service``, ``canal serve``) is generated from these
+fields: each is a ``--kebab-case`` flag, its help is the field's description, and a
+:class:`Flag` in the annotation spells the few flags that differ. A new setting is one field.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -19,34 +25,51 @@ DEFAULT_UPLOAD_MAX_DECOMPRESSED_BYTES = 64 * 1024 * 1024
 DEFAULT_UPLOAD_MAX_SECONDS = 10.0
 
 
+@dataclass(frozen=True)
+class Flag:
+    """A setting's command-line spelling, when it is not ``--field-name``.
+
+    ``name`` replaces the flag (a bool flag sets the opposite of the field's default, e.g.
+    ``--no-recordings`` for ``recordings_enabled``; a list flag is given once per item, e.g.
+    ``--cors-origin``); ``metavar`` names the value in ``--help``.
+    """
+
+    name: str | None = None
+    metavar: str | None = None
+
+
 class Settings(BaseSettings):
     """Everything the service can be told at start."""
 
     model_config = SettingsConfigDict(env_prefix="CANAL_", extra="ignore")
 
     host: str = Field("127.0.0.1", description="Interface to bind; loopback unless told otherwise.")
-    port: int = Field(8000, ge=0, le=65535)
+    port: int = Field(8000, ge=0, le=65535, description="TCP port of the REST API.")
     data_dir: Path = Field(Path("data"), description="Folder for the SQLite file and recordings.")
-    database_url: str | None = Field(
-        None, description="SQLAlchemy URL; default is a SQLite file in data_dir."
+    database_url: Annotated[str | None, Flag(metavar="URL")] = Field(
+        None, description="SQLAlchemy URL, e.g. postgresql+psycopg://user@host/db; default is "
+                          "a SQLite file in the data folder."
     )
     recordings_dir: Path | None = Field(
         None, description="Where the recorder writes; default is data_dir/recordings."
     )
-    recordings_enabled: bool = True
+    recordings_enabled: Annotated[bool, Flag("--no-recordings")] = Field(
+        True, description="Record demonstrations, fits, reproductions and live poses in .rrd "
+                          "and .mcap files; when off, /healthz says the recorder is disabled.")
     recordings_live_hz: float = Field(
         100.0, ge=0.0,
         description="Live poses kept in the recordings per (skill, robot) stream and second; "
                     "changes of the inside/done flags are always kept; 0 keeps every pose.")
     recordings_view_coordinates: str = Field(
         "RIGHT_HAND_Z_UP", description="rr.ViewCoordinates of the world in the .rrd recordings.")
-    token: SecretStr | None = Field(
+    token: Annotated[SecretStr | None, Flag(metavar="TOKEN")] = Field(
         None, description="When set, every route except /healthz needs 'Authorization: Bearer ...'."
     )
-    cors_origins: list[str] = Field(
+    cors_origins: Annotated[list[str], Flag("--cors-origin", metavar="ORIGIN")] = Field(
         default_factory=list, description="Allowed CORS origins; CORS stays off when empty."
     )
-    max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, gt=0)
+    max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, gt=0,
+                                description="Request size limit in bytes (413 above).")
     upload_max_points: int = Field(
         DEFAULT_UPLOAD_MAX_POINTS, gt=0,
         description="Samples one demonstration may have, in any format (413 above).")
@@ -58,19 +81,22 @@ class Settings(BaseSettings):
         DEFAULT_UPLOAD_MAX_SECONDS, gt=0,
         description="Server time one file upload may take to parse (413 above).")
     model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
-    log_level: str = "info"
+    log_level: str = Field("info", description="Log level (uvicorn's: debug, info, warning, "
+                                               "error, critical).")
 
     # ---- live bridge over Zenoh (docs/live.md) ----
-    zenoh_enabled: bool = Field(True, description="Run the live Zenoh bridge with the service.")
-    zenoh_listen: list[str] = Field(
+    zenoh_enabled: Annotated[bool, Flag("--no-zenoh")] = Field(
+        True, description="Run the live Zenoh bridge beside the REST API; when off, /healthz "
+                          "says the bridge is disabled.")
+    zenoh_listen: Annotated[list[str], Flag(metavar="ENDPOINT")] = Field(
         default_factory=lambda: ["tcp/127.0.0.1:7447"],
         description="Zenoh endpoints to listen on (ignored when zenoh_config is set).",
     )
-    zenoh_connect: list[str] = Field(
+    zenoh_connect: Annotated[list[str], Flag(metavar="ENDPOINT")] = Field(
         default_factory=list,
         description="Zenoh endpoints to connect to, e.g. a zenohd router (ignored with zenoh_config).",
     )
-    zenoh_config: Path | None = Field(
+    zenoh_config: Annotated[Path | None, Flag(metavar="FILE")] = Field(
         None, description="A standard Zenoh JSON5 config file, used unchanged (TLS, ACL, routers)."
     )
     zenoh_prefix: str = Field("canal", min_length=1, description="First chunk of every key.")
@@ -82,7 +108,7 @@ class Settings(BaseSettings):
     zenoh_refresh_s: float = Field(
         2.0, gt=0, description="How often the bridge re-checks each skill's latest model version."
     )
-    zenoh_processes: int = Field(
+    zenoh_processes: Annotated[int, Flag(metavar="N")] = Field(
         1, ge=0, le=64, description="Bridge processes `canal serve` starts (robots shared by "
         "hash of skill/robot); 0 runs the bridge inside the service process."
     )

@@ -21,6 +21,7 @@ from canal_protocol.schemas import (
     demonstration_from_json,
 )
 
+from ..core.config import Settings
 from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
 from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
 from ..uploads import UploadLimits, detect_format
@@ -115,7 +116,7 @@ async def add_demonstration(
 
 def upload_limits(request: Request) -> UploadLimits:
     """The deployment's per-upload limits (``CANAL_UPLOAD_*``)."""
-    settings = request.app.state.settings
+    settings: Settings = request.app.state.settings
     return UploadLimits(max_points=settings.upload_max_points,
                         max_decompressed_bytes=settings.upload_max_decompressed_bytes,
                         max_seconds=settings.upload_max_seconds)

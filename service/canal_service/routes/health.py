@@ -9,15 +9,16 @@ from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
 from canal_protocol.schemas import HealthOut
 
-from ..deps import ServiceDep
+from ..deps import HealthDep
+from ..metrics import Metrics
 
 router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=HealthOut, summary="Health (no token needed)")
-async def healthz(service: ServiceDep) -> JSONResponse:
+async def healthz(check: HealthDep) -> JSONResponse:
     """200 when the database answers and the recorder is ok or disabled, 503 when degraded."""
-    health = await run_in_threadpool(service.health)
+    health = await run_in_threadpool(check)
     return JSONResponse(health.model_dump(), status_code=200 if health.status == "ok" else 503)
 
 
@@ -25,5 +26,5 @@ async def healthz(service: ServiceDep) -> JSONResponse:
             responses={200: {"content": {"text/plain": {}}}})
 async def metrics(request: Request) -> Response:
     """Prometheus text exposition of this app's registry."""
-    registry = request.app.state.metrics.registry
-    return Response(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
+    metrics: Metrics = request.app.state.metrics
+    return Response(generate_latest(metrics.registry), media_type=CONTENT_TYPE_LATEST)

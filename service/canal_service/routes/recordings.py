@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, Literal
 
 from fastapi import APIRouter, Query
@@ -13,7 +12,7 @@ from starlette.background import BackgroundTask
 from canal_protocol.schemas import ErrorResponse
 
 from ..deps import ServiceDep, SkillName
-from ..errors import Conflict, Disabled
+from ..service import CanalService
 
 router = APIRouter(prefix="/skills/{name}", tags=["recordings"])
 _RESPONSES: dict[int | str, dict[str, Any]] = {
@@ -22,17 +21,9 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 _MEDIA = {"rrd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
-def _snapshot(service: Any, name: str, kind: str, profile: str) -> Any:
-    if profile == "foxglove":
-        return service.export_recording(name, kind)
-    service.skill_dim(name)  # 404 for an unknown skill, as the default export
-    return service.recorder.export_mcap(name, profile=profile)
-
-
-async def _export(service: Any, name: str, kind: str, profile: str = "foxglove") -> FileResponse:
-    if service.recorder is None:
-        raise Disabled("recordings are disabled on this service", field="recordings")
-    path = Path(await run_in_threadpool(_snapshot, service, name, kind, profile))
+async def _export(service: CanalService, name: str, kind: Literal["rrd", "mcap"],
+                  profile: Literal["foxglove", "ros2"] = "foxglove") -> FileResponse:
+    path = await run_in_threadpool(service.export_recording, name, kind, profile)
     # The snapshot is ours to delete once sent (Recorder contract).
     return FileResponse(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
                         background=BackgroundTask(path.unlink, missing_ok=True))
@@ -58,21 +49,9 @@ async def recording_mcap(
     return await _export(service, name, "mcap", profile)
 
 
-def _rebuild(service: Any, name: str) -> dict[str, Any]:
-    service.skill_dim(name)  # 404 for an unknown skill
-    try:
-        result = service.recorder.rebuild(name)
-    except RuntimeError as exc:
-        raise Conflict(f"could not rebuild the recording of {name!r}: {exc}",
-                       field="recordings") from exc
-    return {"skill": name, **result}
-
-
 @router.post("/recording/rebuild", responses={**_RESPONSES, 409: {"model": ErrorResponse}})
 async def rebuild_recording(name: SkillName, service: ServiceDep) -> dict[str, Any]:
     """Regenerate the skill's .rrd and .mcap from the database: every stored demonstration and
     model version. Live poses and reproductions are not stored, so a rebuilt recording does
     not have them. Answers how many demonstrations and models were logged."""
-    if service.recorder is None or not hasattr(service.recorder, "rebuild"):
-        raise Disabled("recordings are disabled on this service", field="recordings")
-    return await run_in_threadpool(_rebuild, service, name)
+    return await run_in_threadpool(service.rebuild_recording, name)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter, Response, status
 
 from canal_protocol.schemas import ErrorResponse, Page, SkillCreate, SkillOut
@@ -9,7 +11,9 @@ from canal_protocol.schemas import ErrorResponse, Page, SkillCreate, SkillOut
 from ..deps import Limit, Offset, ServiceDep, SkillName
 
 router = APIRouter(prefix="/skills", tags=["skills"])
-_ERRORS = {404: {"model": ErrorResponse}, 422: {"model": ErrorResponse}}
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse} for code in (404, 422)
+}
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=SkillOut,

@@ -33,6 +33,7 @@ from fastapi.responses import FileResponse, RedirectResponse
 
 from canal_protocol.schemas import ErrorResponse
 
+from ..core.config import Settings
 from ..deps import ServiceDep, SkillName
 from ..errors import Disabled, NotFound
 
@@ -68,11 +69,8 @@ def viewer_dir(data_dir: Path) -> Path:
 
 
 def _rerun_exe() -> list[str]:
-    try:
-        import rerun_cli
-    except ImportError as exc:
-        raise ViewerUnavailable(f"rerun-sdk is not installed here ({exc})",
-                                field="viewer") from None
+    import rerun_cli  # part of rerun-sdk, a dependency: imported here, where it is used
+
     exe = Path(rerun_cli.__file__).with_name("rerun.exe" if sys.platform == "win32" else "rerun")
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "rerun_cli"]
 
@@ -170,7 +168,7 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 async def view_skill(name: SkillName, request: Request, service: ServiceDep) -> RedirectResponse:
     """Redirects to ``/viewer/?url=...recording.rrd``: a browser shows the skill's demos,
     canal and reproductions in Rerun's web viewer served by this service."""
-    if service.recorder is None:
+    if not service.recordings_enabled:
         raise Disabled("recordings are disabled on this service", field="recordings")
     await run_in_threadpool(service.get_skill, name)  # 404 for an unknown skill
     recording = str(request.url_for("recording_rrd", name=name))
@@ -194,7 +192,8 @@ async def viewer_asset(asset: str, request: Request) -> FileResponse:
 async def _asset(request: Request, asset: str) -> FileResponse:
     if asset not in ASSETS:
         raise NotFound(f"no viewer file {asset!r}", field="asset")
-    folder = await run_in_threadpool(ensure_viewer, request.app.state.settings.data_dir)
+    settings: Settings = request.app.state.settings
+    folder = await run_in_threadpool(ensure_viewer, settings.data_dir)
     path = folder / asset
     if not path.is_file():
         raise NotFound(f"no viewer file {asset!r}", field="asset")

@@ -1,7 +1,8 @@
 """Repository functions: every query the service runs, each taking the caller's session.
 
-They raise the service's own errors (NotFound, Conflict) so callers never see SQLAlchemy
-exceptions for expected situations. Transactions belong to the caller.
+They raise the service's domain errors (``SkillNotFound``, ``SkillExists``, ...; no HTTP in
+them) so callers never see SQLAlchemy exceptions for expected situations. Transactions
+belong to the caller.
 """
 
 from __future__ import annotations
@@ -14,7 +15,14 @@ from sqlalchemy import Connection, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
-from ..errors import Conflict, InvalidInput, NotFound
+from ..errors import (
+    DemoNotFound,
+    InvalidInput,
+    ModelVersionNotFound,
+    NoModelYet,
+    SkillExists,
+    SkillNotFound,
+)
 from . import arrays
 from .models import Demonstration, ModelVersion, Skill, utcnow
 
@@ -29,21 +37,21 @@ class SkillStats:
 
 
 def create_skill(session: Session, name: str, description: str, dim: int) -> Skill:
-    """Insert a skill; a name already taken is a Conflict."""
+    """Insert a skill; a name already taken is :class:`SkillExists`."""
     skill = Skill(name=name, description=description, dim=dim)
     session.add(skill)
     try:
         session.flush()
     except IntegrityError as exc:
-        raise Conflict(f"skill {name!r} already exists", field="name") from exc
+        raise SkillExists(f"skill {name!r} already exists", field="name") from exc
     return skill
 
 
 def get_skill(session: Session, name: str) -> Skill:
-    """The skill called ``name`` or NotFound."""
+    """The skill called ``name``, or :class:`SkillNotFound`."""
     skill = session.scalars(select(Skill).where(Skill.name == name)).one_or_none()
     if skill is None:
-        raise NotFound(f"no skill named {name!r}", field="name")
+        raise SkillNotFound(f"no skill named {name!r}", field="name")
     return skill
 
 
@@ -144,7 +152,7 @@ def insert_demonstration(
     """
     found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
     if found is None:
-        raise NotFound(f"no skill named {skill_name!r}", field="name")
+        raise SkillNotFound(f"no skill named {skill_name!r}", field="name")
     skill_id, dim = int(found[0]), int(found[1])
     if positions.shape[1] != dim:
         axes = "x, y, z" if dim == 3 else "x, y"
@@ -196,12 +204,12 @@ def list_demonstrations(
 
 
 def get_demonstration(session: Session, skill: Skill, demo_id: int) -> Demonstration:
-    """One demonstration of ``skill`` with its arrays, or NotFound."""
+    """One demonstration of ``skill`` with its arrays, or :class:`DemoNotFound`."""
     demo = session.scalars(
         select(Demonstration).where(Demonstration.skill_id == skill.id, Demonstration.id == demo_id)
     ).one_or_none()
     if demo is None:
-        raise NotFound(f"skill {skill.name!r} has no demonstration {demo_id}", field="id")
+        raise DemoNotFound(f"skill {skill.name!r} has no demonstration {demo_id}", field="id")
     return demo
 
 
@@ -214,7 +222,7 @@ def delete_demonstration(session: Session, skill: Skill, demo_id: int) -> None:
 def demonstrations_for_fit(
     session: Session, skill: Skill, ids: Sequence[int] | None
 ) -> list[Demonstration]:
-    """The demonstrations to fit, in id order; unknown ids are NotFound-free 422s upstream."""
+    """The demonstrations to fit, in id order (the caller names unknown ids)."""
     query = select(Demonstration).where(Demonstration.skill_id == skill.id)
     if ids is not None:
         query = query.where(Demonstration.id.in_(list(ids)))
@@ -284,9 +292,24 @@ def model_ref(session: Session, skill: Skill, version: int | None) -> tuple[int,
     return None if row is None else (int(row[0]), int(row[1]))
 
 
+def require_model_ref(session: Session, skill: Skill, version: int | None) -> tuple[int, int]:
+    """(row id, version) of a version, or of the latest when ``version`` is None.
+
+    :class:`NoModelYet` when the latest is asked of a skill never fitted,
+    :class:`ModelVersionNotFound` when that version does not exist.
+    """
+    ref = model_ref(session, skill, version)
+    if ref is not None:
+        return ref
+    if version is None:
+        raise NoModelYet(skill.name, skill.dim)
+    raise ModelVersionNotFound(f"skill {skill.name!r} has no model version {version}",
+                               field="model")
+
+
 def get_model(session: Session, model_id: int) -> ModelVersion:
     """A model row by its primary key (the caller got the id from :func:`model_ref`)."""
     model = session.get(ModelVersion, model_id)
     if model is None:
-        raise NotFound(f"model {model_id} is gone", field="model")
+        raise ModelVersionNotFound(f"model {model_id} is gone", field="model")
     return model

@@ -1,0 +1,104 @@
+"""The command line is generated from ``Settings``: one field is one flag, with its help."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import pytest
+from canal_service.__main__ import build_parser, settings_from_args, settings_options
+from canal_service.core.config import Flag, Settings
+from pydantic import Field
+
+
+def _help(parser_help: str) -> str:
+    return " ".join(parser_help.split())  # argparse wraps lines
+
+
+def test_every_setting_is_a_flag_with_its_help_and_variable() -> None:
+    text = _help(build_parser().format_help())
+    options = {o.field: o for o in settings_options()}
+    assert set(options) == set(Settings.model_fields)
+    for name, info in Settings.model_fields.items():
+        assert info.description, f"Settings.{name} has no description (it is its --help)"
+        option = options[name]
+        assert option.flag in text and f"CANAL_{name.upper()}" in text
+        assert " ".join(info.description.rstrip(".").split()) in text
+
+
+def test_documented_spellings_parse(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.delenv("CANAL_PORT", raising=False)
+    s = settings_from_args([
+        "--host", "0.0.0.0", "--port", "8123", "--data-dir", str(tmp_path),
+        "--database-url", "postgresql+psycopg://u@h/db", "--recordings-dir", str(tmp_path / "r"),
+        "--no-recordings", "--token", "t0k", "--cors-origin", "http://a", "--cors-origin",
+        "http://b", "--max-body-bytes", "1000", "--log-level", "warning", "--no-zenoh",
+        "--zenoh-listen", "tcp/127.0.0.1:1", "--zenoh-listen", "tcp/127.0.0.1:2",
+        "--zenoh-connect", "tcp/10.0.0.1:7447", "--zenoh-config", "z.json5",
+        "--zenoh-prefix", "lab", "--zenoh-processes", "0", "--upload-max-seconds", "2.5",
+        "--zenoh-idle-s", "5"])
+    assert (s.host, s.port, s.data_dir) == ("0.0.0.0", 8123, tmp_path)
+    assert s.database_url == "postgresql+psycopg://u@h/db"
+    assert s.recordings_dir == tmp_path / "r" and not s.recordings_enabled
+    assert s.token is not None and s.token.get_secret_value() == "t0k"
+    assert s.cors_origins == ["http://a", "http://b"] and s.max_body_bytes == 1000
+    assert s.log_level == "warning" and not s.zenoh_enabled
+    assert s.zenoh_listen == ["tcp/127.0.0.1:1", "tcp/127.0.0.1:2"]
+    assert s.zenoh_connect == ["tcp/10.0.0.1:7447"] and s.zenoh_config == Path("z.json5")
+    assert s.zenoh_prefix == "lab" and s.zenoh_processes == 0
+    assert s.upload_max_seconds == 2.5 and s.zenoh_idle_s == 5.0
+
+
+def test_flags_override_the_environment_which_overrides_defaults(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CANAL_PORT", "9001")
+    monkeypatch.setenv("CANAL_ZENOH_LISTEN", '["tcp/127.0.0.1:7600"]')
+    monkeypatch.setenv("CANAL_RECORDINGS_ENABLED", "false")
+    s = settings_from_args([])
+    assert s.port == 9001 and s.zenoh_listen == ["tcp/127.0.0.1:7600"]
+    assert not s.recordings_enabled and s.zenoh_enabled  # untouched switch keeps its default
+    s = settings_from_args(["--port", "9002", "--zenoh-listen", "tcp/127.0.0.1:7601"])
+    assert s.port == 9002 and s.zenoh_listen == ["tcp/127.0.0.1:7601"]
+
+
+@pytest.mark.parametrize(("argv", "named"), [
+    (["--port", "70000"], "--port"),
+    (["--port", "eighty"], "--port"),
+    (["--zenoh-processes", "-1"], "--zenoh-processes"),
+    (["--upload-max-seconds", "0"], "--upload-max-seconds"),
+])
+def test_a_bad_value_is_a_usage_error_naming_the_flag(
+        argv: list[str], named: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        settings_from_args(argv)
+    assert exit_info.value.code == 2
+    assert f"error: {named} (or CANAL_" in capsys.readouterr().err
+
+
+def test_a_new_setting_is_one_field() -> None:
+    class Extended(Settings):
+        widget_count: int = Field(3, ge=1, description="Widgets to keep.")
+        zenoh_widget: Annotated[list[str], Flag("--zenoh-gadget", metavar="G")] = Field(
+            default_factory=list, description="Gadgets.")
+        fancy_enabled: Annotated[bool, Flag("--no-fancy")] = Field(
+            True, description="Be fancy.")
+
+    text = _help(build_parser(Extended).format_help())
+    assert "--widget-count WIDGET_COUNT Widgets to keep (CANAL_WIDGET_COUNT, default 3)" in text
+    assert "--zenoh-gadget G Gadgets (CANAL_ZENOH_WIDGET as a JSON list" in text
+    assert "--zenoh-gadget G Gadgets" in text.split("live bridge (Zenoh):")[1]
+    assert "--no-fancy Be fancy (this flag turns it off: CANAL_FANCY_ENABLED=false)" in text
+    s = settings_from_args(["--widget-count", "7", "--zenoh-gadget", "a", "--zenoh-gadget",
+                            "b", "--no-fancy"], Extended)
+    assert isinstance(s, Extended)
+    assert (s.widget_count, s.zenoh_widget, s.fancy_enabled) == (7, ["a", "b"], False)
+
+
+def test_python_m_canal_service_help_lists_every_flag() -> None:
+    p = subprocess.run([sys.executable, "-m", "canal_service", "--help"], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0
+    for option in settings_options():
+        assert option.flag in p.stdout
