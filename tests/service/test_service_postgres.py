@@ -5,11 +5,16 @@ from __future__ import annotations
 import threading
 
 import pytest
+from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.storage import Database
+from canal_service.storage.db import alembic_config
+from canal_service.storage.models import Skill
 from fastapi.testclient import TestClient
 from service_helpers import PostgresServer, demo_positions
+from sqlalchemy import select
 
 pytestmark = pytest.mark.postgres
 
@@ -49,6 +54,14 @@ def test_two_replicas_share_one_database(postgres_server: PostgresServer, tmp_pa
 def test_migrations_are_idempotent(postgres_server: PostgresServer) -> None:
     db = Database(postgres_server.new_database())
     db.migrate()
-    db.migrate()
+    with db.write() as session:
+        session.add(Skill(name="kept", description="survives a second migration", dim=3))
+    db.migrate()  # a replica starting against an up-to-date database: no change, no error
     db.ping()
+    head = ScriptDirectory.from_config(alembic_config(db.url)).get_current_head()
+    with db.read_engine.connect() as connection:
+        assert MigrationContext.configure(connection).get_current_revision() == head
+    with db.read() as session:
+        kept = session.scalars(select(Skill).where(Skill.name == "kept")).one()
+        assert kept.description == "survives a second migration" and kept.dim == 3
     db.dispose()

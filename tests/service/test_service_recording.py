@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 
 import httpx
-import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from fastapi.testclient import TestClient
@@ -25,8 +24,6 @@ def test_recordings_disabled_is_a_clean_404(client: TestClient, skill: str) -> N
 
 
 def test_recording_exports(tmp_path: Path) -> None:
-    pytest.importorskip("canal_service.recording",
-                        reason="canal_service.recording (the Recorder) is not importable yet")
     settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
     with TestClient(create_app(settings)) as c:
         health = c.get("/healthz").json()
