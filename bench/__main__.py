@@ -20,10 +20,10 @@ import tempfile
 import time
 from pathlib import Path
 
-try:
+if __package__:
     from bench.common import BENCHMARKS, SUMMARY_ENV, read_summary, summary_markdown, write_block
     from bench.plots import markdown_images, write_plots
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import BENCHMARKS, SUMMARY_ENV, read_summary, summary_markdown, write_block
     from plots import markdown_images, write_plots
 

@@ -13,9 +13,9 @@ table shows ours / peer), ``better`` ("lower" or "higher").
 
 To add rows from a script (e.g. ``bench/live.py``), three lines::
 
-    try:
+    if __package__:
         from bench.common import summary_row, write_summary  # python -m bench.live
-    except ImportError:
+    else:
         from common import summary_row, write_summary  # python bench/live.py
     ...
     write_summary("live", [summary_row("live round trip p50", p50_ms, "ms",

@@ -34,9 +34,9 @@ import canal_core
 from canal_core import datasets
 from canal_core.cross_sections import boundary_distance
 
-try:
+if __package__:
     from bench.common import best_of, summary_row, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import best_of, summary_row, write_summary
 
 

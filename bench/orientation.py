@@ -46,9 +46,9 @@ from canal_core.orientation import (
 )
 from canal_core.preprocess import prepared_rows
 
-try:
+if __package__:
     from bench.common import best_of, summary_row, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import best_of, summary_row, write_summary
 
 ROOT = Path(__file__).resolve().parent.parent

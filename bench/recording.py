@@ -41,9 +41,9 @@ from canal_service.recording.rerun_log import RerunSegment
 
 import canal_core
 
-try:
+if __package__:
     from bench.common import summary_row, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import summary_row, write_summary
 
 os.environ.setdefault("XDG_CONFIG_HOME", tempfile.mkdtemp(prefix="canal-bench-rerun-"))

@@ -32,9 +32,9 @@ import numpy as np
 import canal_core
 from canal_core import datasets
 
-try:
+if __package__:
     from bench.common import ROOT, best_of, summary_row, write_block, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import ROOT, best_of, summary_row, write_block, write_summary
 
 KINDS = ("circle", "ellipse")

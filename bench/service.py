@@ -36,9 +36,9 @@ import httpx
 import numpy as np
 import orjson
 
-try:
+if __package__:
     from bench.common import summary_row, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import summary_row, write_summary
 
 ROOT = Path(__file__).resolve().parent.parent

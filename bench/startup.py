@@ -21,9 +21,9 @@ from pathlib import Path
 
 import httpx
 
-try:
+if __package__:
     from bench.common import summary_row, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
+else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from common import summary_row, write_summary
 
 

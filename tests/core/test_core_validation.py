@@ -1,4 +1,5 @@
-"""Bad input raises a CanalError subclass naming the field; degenerate-but-valid input does not crash."""
+"""Bad input raises a CanalError subclass naming the field, what was expected and what came;
+degenerate-but-valid input does not crash."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import numpy as np
 import pytest
 
 import canal_core
-from canal_core import DegenerateCanalError, InvalidInputError, datasets
+from canal_core import DegenerateCanalError, InvalidInputError, datasets, validation
 
 
 def good() -> list[np.ndarray]:
@@ -131,9 +132,119 @@ def test_zero_radius_sections_and_collinear_demos_do_not_crash() -> None:
         assert np.isfinite(canal.mesh().vertices).all()
 
 
-def test_errors_share_one_base() -> None:
-    for cls in (InvalidInputError, DegenerateCanalError, canal_core.OutsideCanalError, canal_core.ModelFormatError):
-        assert issubclass(cls, canal_core.CanalError)
+def _two_demos() -> list[np.ndarray]:
+    return good()[:2]
+
+
+# (validator, call, field, what it expected, what it got): every message says all three.
+VALIDATOR_CASES = [
+    ("check_finite", lambda: validation.check_finite(np.array([[0.0, 0.0], [1.0, np.nan]]), "demos[0]"),
+     "demos[0]", "expected finite demos[0]", "got NaN or Inf at row 1"),
+    ("check_positions", lambda: validation.check_positions(np.ones((5, 4)), "demos[2]"),
+     "demos[2]", "expected demos[2] of shape (T, D) with D in {2, 3}", "got (5, 4)"),
+    ("check_positions", lambda: validation.check_positions(np.ones((3, 3)), "demos[1]"),
+     "demos[1]", "expected at least 4 points in demos[1]", "got 3"),
+    ("check_positions", lambda: validation.check_positions(np.ones((6, 2)), "positions", dim=3),
+     "positions", "expected positions of shape (T, 3)", "got (6, 2)"),
+    ("check_positions", lambda: validation.check_positions([[0, 1, 2], [3, 4]], "demos[0]"),
+     "demos[0]", "expected demos[0] as an array of numbers", "got list"),
+    ("check_timestamps", lambda: validation.check_timestamps(np.arange(4.0), 5, "timestamps[1]"),
+     "timestamps[1]", "expected timestamps[1] of shape (5,)", "got (4,)"),
+    ("check_timestamps", lambda: validation.check_timestamps([0, 1, np.inf], 3, "timestamps[0]"),
+     "timestamps[0]", "expected finite timestamps[0]", "got NaN or Inf at row 2"),
+    ("check_demonstrations", lambda: validation.check_demonstrations("abc"),
+     "demos", "expected demos as a list of (T_j, D) arrays", "got str"),
+    ("check_demonstrations", lambda: validation.check_demonstrations([np.ones((10, 3))]),
+     "demos", "expected at least 2 demonstrations in demos", "got 1"),
+    ("check_demonstrations",
+     lambda: validation.check_demonstrations([np.ones((10, 3)), np.ones((10, 2))]),
+     "demos", "expected every demonstration in demos to have the same dimension D",
+     "got shapes [(10, 3), (10, 2)]"),
+    ("check_demonstrations",
+     lambda: validation.check_demonstrations(_two_demos(), timestamps=[np.arange(30.0)]),
+     "timestamps", "expected timestamps as a list of 2 arrays (one per demo)", "got 1"),
+    ("check_point", lambda: validation.check_point([0.0, 1.0], 3),
+     "start", "expected start of shape (3,)", "got (2,)"),
+    ("check_point", lambda: validation.check_point([0.0, np.nan], 2, "goal"),
+     "goal", "expected finite goal", "got NaN or Inf"),
+    ("check_points", lambda: validation.check_points(np.ones((5, 2)), 3),
+     "points", "expected points of shape (M, 3)", "got (5, 2)"),
+    ("check_choice", lambda: validation.check_choice("square", ("circle", "mec"), "cross_section"),
+     "cross_section", "expected cross_section to be one of 'circle', 'mec'", "got 'square'"),
+    ("check_int", lambda: validation.check_int(2.5, 2, "n_samples"),
+     "n_samples", "expected n_samples as an integer", "got float"),
+    ("check_int", lambda: validation.check_int(True, 2, "n_samples"),
+     "n_samples", "expected n_samples as an integer", "got bool"),
+    ("check_int", lambda: validation.check_int(1, 2, "n_samples", 10),
+     "n_samples", "expected n_samples >= 2 and <= 10", "got 1"),
+    ("check_positive", lambda: validation.check_positive(0.0, "duration"),
+     "duration", "expected duration as a finite number > 0", "got 0.0"),
+    ("check_positive", lambda: validation.check_positive("2", "duration"),
+     "duration", "expected duration as a number", "got str"),
+    ("check_fraction", lambda: validation.check_fraction(0.5, "frame_smoothing"),
+     "frame_smoothing", "expected frame_smoothing in [0, 0.25]", "got 0.5"),
+    ("check_fraction", lambda: validation.check_fraction(None, "frame_smoothing"),
+     "frame_smoothing", "expected frame_smoothing as a number", "got NoneType"),
+    ("check_quaternions", lambda: validation.check_quaternions(np.ones((3, 3)), 3, "orientations[0]"),
+     "orientations[0]", "expected orientations[0] of shape (3, 4)", "got (3, 3)"),
+    ("check_quaternions",
+     lambda: validation.check_quaternions([[0, 0, 0, 1], [0, 0, 0, 2]], None, "orientations"),
+     "orientations[1]", "expected unit quaternions in orientations", "got norm 2 at row 1"),
+    ("check_quaternion", lambda: validation.check_quaternion([0.0, 0.0, 1.0]),
+     "start_orientation", "expected start_orientation of shape (4,)", "got (3,)"),
+    ("check_quaternion", lambda: validation.check_quaternion([0.0, 0.0, 0.0, 0.5]),
+     "start_orientation", "expected start_orientation as a unit quaternion", "got norm 0.5"),
+    ("check_demonstration_orientations",
+     lambda: validation.check_demonstration_orientations([np.tile([0, 0, 0, 1.0], (30, 1))],
+                                                         _two_demos()),
+     "orientations", "expected orientations as a list of 2 (T_j, 4) arrays (one per demo)",
+     "got 1"),
+]
+
+
+@pytest.mark.parametrize(("validator", "call", "field", "expected", "got"), VALIDATOR_CASES,
+                         ids=[f"{c[0]}-{i}" for i, c in enumerate(VALIDATOR_CASES)])
+def test_validator_message_names_field_expected_and_got(validator, call, field, expected,
+                                                        got) -> None:
+    with pytest.raises(InvalidInputError) as err:
+        call()
+    message = str(err.value)
+    assert err.value.field == field
+    assert field.split("[")[0] in message, message
+    assert message.startswith("expected ") and expected in message, message
+    assert got in message and message.index(got) > message.index(expected), message
+
+
+def test_every_validator_has_a_message_case() -> None:
+    validators = {name for name, value in vars(validation).items()
+                  if name.startswith("check_") and callable(value)}
+    covered = {case[0] for case in VALIDATOR_CASES}
+    assert validators - covered == set(), "add a row to VALIDATOR_CASES for each new check_*"
+    assert covered <= validators
+
+
+def test_every_raised_error_is_caught_as_canal_error() -> None:
+    # The one base class is what callers (the service's error table) catch: the real errors
+    # raised by real calls, not the class tree, are what must share it.
+    canal = canal_core.fit(good())
+    demo = good()[0]
+    raised: dict[type, canal_core.CanalError] = {}
+    calls = [
+        lambda: canal_core.fit([demo]),
+        lambda: canal_core.fit([demo, demo.copy(), demo.copy()]),
+        lambda: canal.reproduce_detailed(canal.directrix[0] + 5.0, outside="raise"),
+        lambda: canal_core.Canal.from_dict({"format": "something-else"}),
+    ]
+    for call in calls:
+        try:
+            call()
+        except canal_core.CanalError as exc:
+            raised[type(exc)] = exc
+    assert set(raised) == {InvalidInputError, DegenerateCanalError,
+                           canal_core.OutsideCanalError, canal_core.ModelFormatError}
+    assert all(str(exc) for exc in raised.values())
+    assert raised[InvalidInputError].field == "demos"
+    assert raised[canal_core.OutsideCanalError].field == "start"
 
 
 def test_bad_points_for_queries() -> None:

@@ -258,12 +258,12 @@ def test_compose_environment_builds_valid_settings(monkeypatch: pytest.MonkeyPat
     assert settings.zenoh_config == Path("/etc/canal/zenoh.json5")
 
 
-@pytest.mark.skipif(shutil.which("docker") is None, reason="no docker CLI")
+@pytest.mark.skipif(shutil.which("docker") is None, reason="needs the docker CLI")
 def test_docker_compose_config_when_the_plugin_exists() -> None:
     """`docker compose config` validates offline; the plugin is missing on these machines."""
     probe = subprocess.run(["docker", "compose", "version"], capture_output=True, text=True)
     if probe.returncode != 0:
-        pytest.skip("docker CLI has no compose plugin here")
+        pytest.skip("needs the docker compose plugin (the docker CLI here has none)")
     env = {**os.environ, "CANAL_DB_PASSWORD": TEST_PASSWORD}
     result = subprocess.run(["docker", "compose", "-f", str(COMPOSE), "config", "--quiet"],
                             capture_output=True, text=True, env=env, timeout=60)

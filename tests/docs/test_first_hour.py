@@ -18,7 +18,8 @@ import httpx
 import numpy as np
 import pytest
 from canal_client.cli import app as cli_app
-from canal_client.cli import cli_wording, live_endpoint
+from canal_client.cli.demos import cli_wording
+from canal_client.cli.simulation import live_endpoint
 from canal_service.__main__ import Bootstrap, endpoints_line, settings_from_args
 from canal_service.app import create_app
 from canal_service.core.config import Settings

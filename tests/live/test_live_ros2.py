@@ -11,10 +11,10 @@ import orjson
 import pytest
 import zenoh
 from canal_client.live import PoseStreamer, client_config
+from rosbags import typesys as rosbags_typesys
 
 from canal_protocol import wire
 
-rosbags_typesys = pytest.importorskip("rosbags.typesys")
 TS = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_HUMBLE)
 T = TS.types
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"

@@ -101,7 +101,8 @@ def test_json_and_binary_poses_and_targets_are_recorded_with_orientations(live: 
 
 
 def test_ros2_cdr_pose_stamped_is_decoded_with_its_orientation(live: Any) -> None:
-    rosbags = pytest.importorskip("rosbags.typesys")
+    from rosbags import typesys as rosbags
+
     store = rosbags.get_typestore(rosbags.Stores.ROS2_HUMBLE)
     names = "geometry_msgs/msg/"
     msg_t = store.types[f"{names}PoseStamped"]

@@ -8,13 +8,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
 from canal_service.recording import Recorder
 from mcap.reader import make_reader
 from recording_helpers import mcap_messages, record_session
-
-highlevel = pytest.importorskip("rosbags.highlevel")
-typesys = pytest.importorskip("rosbags.typesys")
+from rosbags import highlevel
 
 
 def _read(path: Path) -> list[tuple[str, str, Any]]:

@@ -89,16 +89,17 @@ def live_server(settings: Settings) -> Iterator[LiveServer]:
 def postgres_server() -> Iterator[PostgresServer]:
     missing = [b for b in ("initdb", "pg_ctl", "postgres") if shutil.which(b) is None]
     if missing:
-        pytest.skip(f"PostgreSQL server binaries not found: {', '.join(missing)}")
+        pytest.skip(f"needs the PostgreSQL server binaries on PATH (missing: {', '.join(missing)})")
     if os.geteuid() == 0 and shutil.which("runuser") is None:
-        pytest.skip("running as root without runuser: cannot start PostgreSQL as 'postgres'")
+        pytest.skip("needs runuser to start PostgreSQL as 'postgres' when running as root")
     server = PostgresServer()
     try:
         server.start()
     except (subprocess.CalledProcessError, subprocess.TimeoutExpired, KeyError, OSError) as exc:
         detail = getattr(exc, "stderr", "") or str(exc)
         server.stop()
-        pytest.skip(f"could not start a PostgreSQL server: {detail.strip()[:300]}")
+        # the binaries are here, so a server that does not start is a failure, not a skip
+        pytest.fail(f"could not start a PostgreSQL server: {detail.strip()[:300]}")
     yield server
     server.stop()
 

@@ -1,0 +1,168 @@
+"""``canal fit`` and ``canal reproduce``: model versions and the trajectories they give.
+
+The choices and limits of the options are not written here: the fit choices are
+canal_core's (:data:`canal_core.model.CROSS_SECTIONS`, ``FRAMES``, ``ALIGNMENTS``,
+``DIRECTRICES``), the numeric limits and ``--outside`` are the HTTP contract's
+(:class:`canal_protocol.schemas.FitRequest`, :class:`~canal_protocol.schemas.ReproductionRequest`),
+so a kind or a limit added there shows up in ``canal fit --help`` by itself.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import typing
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
+
+import numpy as np
+import typer
+from pydantic import BaseModel
+from rich.markup import escape
+
+from canal_core.model import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
+from canal_core.validation import FloatArray
+from canal_protocol.schemas import FitRequest, ReproductionRequest
+
+from .output import err, out, plain, print_json
+from .parsing import parse_point, parse_quaternion
+from .session import connected, options
+
+OUTSIDE_CHOICES: tuple[str, ...] = typing.get_args(
+    ReproductionRequest.model_fields["outside"].annotation)
+
+# typer shows and checks a Literal's values as choices; mypy cannot read a Literal built from
+# a runtime tuple, so it sees the plain str the command receives.
+if TYPE_CHECKING:
+    CrossSection: TypeAlias = str
+    FrameKind: TypeAlias = str
+    Alignment: TypeAlias = str
+    Directrix: TypeAlias = str
+    Outside: TypeAlias = str
+else:
+    CrossSection = Literal[CROSS_SECTIONS]
+    FrameKind = Literal[FRAMES]
+    Alignment = Literal[ALIGNMENTS]
+    Directrix = Literal[DIRECTRICES]
+    Outside = Literal[OUTSIDE_CHOICES]
+
+
+def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
+    """The (minimum, maximum) a pydantic model's field accepts (``ge``/``le``), None when open."""
+    low = high = None
+    for rule in model.model_fields[field].metadata:  # annotated_types.Ge, Le (or Interval)
+        low = getattr(rule, "ge", None) if low is None else low
+        high = getattr(rule, "le", None) if high is None else high
+    return low, high
+
+
+SAMPLES_MIN, SAMPLES_MAX = field_bounds(FitRequest, "n_samples")
+SMOOTHING_MIN, SMOOTHING_MAX = field_bounds(FitRequest, "frame_smoothing")
+
+
+def fit(
+    ctx: typer.Context,
+    skill: str,
+    cross_section: Annotated[CrossSection | None, typer.Option("--cross-section", "-c")] = None,
+    frames: Annotated[FrameKind | None, typer.Option("--frames")] = None,
+    alignment: Annotated[Alignment | None, typer.Option("--alignment")] = None,
+    directrix: Annotated[Directrix | None, typer.Option("--directrix")] = None,
+    samples: Annotated[int | None, typer.Option(
+        "--samples", "-n", min=SAMPLES_MIN, max=SAMPLES_MAX,
+        help="Sections along the canal.")] = None,
+    frame_smoothing: Annotated[float | None, typer.Option(
+        "--frame-smoothing", min=SMOOTHING_MIN, max=SMOOTHING_MAX,
+        help="Smooth the curve the frames are computed on (fraction of the sections; "
+             "0 = the paper's raw frames).")] = None,
+    by_time: Annotated[bool, typer.Option(
+        "--by-time", help="Align by the demos' time stamps instead of arc length.")] = False,
+    demo: Annotated[list[int] | None, typer.Option(
+        "--demo", help="Fit only these demonstration ids (repeat).")] = None,
+) -> None:
+    """Fit a new model version from the skill's demonstrations (service defaults otherwise)."""
+    busy = (contextlib.nullcontext() if options(ctx).json
+            else err.status(f"fitting {escape(skill)}..."))
+    with connected(ctx) as c, busy:
+        model = c.fit(skill, cross_section=cross_section, frames=frames, alignment=alignment,
+                      directrix=directrix, n_samples=samples, frame_smoothing=frame_smoothing,
+                      by_time=by_time or None, demo_ids=demo or None)
+    if options(ctx).json:
+        print_json(model)
+        return
+    out.print(f"fitted {escape(skill)}: version [bold]{model.version}[/bold], "
+              f"{model.n_demos} demos, {model.n_sections} {model.section_kind} sections, "
+              f"{model.fit_seconds:.3f} s")
+
+
+def write_trajectory(path: Path, positions: FloatArray, payload: Any,
+                     orientations: FloatArray | None = None) -> None:
+    """Save a reproduction: .csv (x,y[,z] header, qx..qw columns with orientations),
+    .npy (positions only) or .json (``payload``, the whole reproduction)."""
+    suffix = path.suffix.lower()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".csv":
+        header = "x,y,z" if positions.shape[1] == 3 else "x,y"
+        table = positions
+        if orientations is not None:
+            header, table = header + ",qx,qy,qz,qw", np.hstack([positions, orientations])
+        np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.17g")
+    elif suffix == ".npy":
+        np.save(path, positions)
+    else:
+        path.write_text(json.dumps(plain(payload), indent=2) + "\n")
+
+
+def reproduce(
+    ctx: typer.Context,
+    skill: str,
+    start: Annotated[str, typer.Option("--start", "-s", help="x,y[,z] start point.")],
+    model: Annotated[str, typer.Option("--model", "-m",
+                                       help="Model version or 'latest'.")] = "latest",
+    out_path: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Save the trajectory: .csv (x,y,z header), .npy (N, D) or .json "
+        "(with times and velocities).")
+    ] = None,
+    outside: Annotated[Outside, typer.Option(
+        "--outside", help="A start outside the canal: enter the canal over a short blend, or refuse.")
+    ] = OUTSIDE_CHOICES[0],
+    start_orientation: Annotated[str | None, typer.Option(
+        "--start-orientation", "-q",
+        help="qx,qy,qz,qw unit quaternion of the start pose (models with orientation carry it; "
+             "--out .csv then adds qx,qy,qz,qw columns).")] = None,
+    goal: Annotated[str | None, typer.Option(
+        "--goal", "-g", help="x,y[,z] goal: the canal is deformed to end there.")] = None,
+    duration: Annotated[float | None, typer.Option(
+        "--duration", "-d", help="Seconds: stretch the reproduction's times to end there.")
+    ] = None,
+) -> None:
+    """Reproduce a trajectory from a new start (optionally to a new goal, in a given time)."""
+    point = parse_point(start)
+    quat = None if start_orientation is None else parse_quaternion(start_orientation)
+    goal_point = None if goal is None else parse_point(goal, "--goal")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise typer.BadParameter(f"expected seconds > 0, got {duration}", param_hint="--duration")
+    if model != "latest" and not model.isdigit():
+        raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
+    if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
+        raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
+    with connected(ctx) as c:
+        r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
+                        duration=duration, start_orientation=quat)
+    if out_path is not None:
+        write_trajectory(out_path, r.positions, r, r.orientations)
+    if options(ctx).json:
+        print_json({**plain(r), "out": None if out_path is None else str(out_path)})
+        return
+    state = "inside" if r.inside else "outside, entering the canal" if r.projected \
+        else "outside"
+    end = ", ".join(f"{v:.4g}" for v in r.positions[-1])
+    timing = "" if r.times is None else f" in {r.times[-1]:.3g} s"
+    out.print(f"reproduced {len(r.positions)} points{timing} with model version {r.model_version}; "
+              f"start {state} (eta {r.eta:.3f}, section {r.section_index}); ends at ({end})")
+    if r.orientations is not None:
+        last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])
+        out.print(f"with orientations; ends at qx,qy,qz,qw ({last})")
+    for note in r.notes:
+        out.print(f"note: {escape(note)}")
+    if out_path is not None:
+        out.print(f"wrote {escape(str(out_path))}")

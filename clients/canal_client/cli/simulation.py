@@ -1,0 +1,171 @@
+"""``canal sim``: a simulated robot driven along a skill's canal over Zenoh
+(:func:`canal_client.sim.run_sim`)."""
+
+from __future__ import annotations
+
+import importlib.util
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+from urllib.parse import urlsplit
+
+import numpy as np
+import typer
+from rich.markup import escape
+
+from canal_core.validation import FloatArray
+
+from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
+from .output import EXIT_REFUSED, err, error, out, print_json
+from .parsing import parse_point
+from .session import fail_unreachable, health_document, options
+
+#: What ``canal sim`` needs beyond the REST client, and how to get it.
+ZENOH_MODULE = "zenoh"
+ZENOH_INSTALL = "pip install eclipse-zenoh==1.10.2"
+
+
+class Lag(StrEnum):
+    first_order = "first-order"
+    pd = "pd"
+
+
+class Encoding(StrEnum):
+    binary = "binary"
+    json = "json"
+
+
+def parse_push(text: str) -> tuple[float | str, FloatArray]:
+    """``T:dx,dy[,dz]`` (seconds after the start) or ``P%:dx,dy[,dz]`` (progress along the canal)."""
+    when_text, _, offset = text.partition(":")
+    when_text = when_text.strip()
+    when: float | str
+    try:
+        value = float(when_text[:-1] if when_text.endswith("%") else when_text)
+    except ValueError:
+        value = float("nan")
+    if not offset or not np.isfinite(value) or value < 0 or (
+            when_text.endswith("%") and value > 100):
+        raise typer.BadParameter(f"expected T:dx,dy[,dz] (seconds) or P%:dx,dy[,dz] (progress) "
+                                 f"like 1.5:0,0.05,0 or 50%:0,0.05,0, got {text!r}",
+                                 param_hint="--push")
+    when = when_text if when_text.endswith("%") else value
+    return when, parse_point(offset, "--push")
+
+
+def live_endpoint(health: dict[str, Any], url: str) -> tuple[list[str], str]:
+    """The Zenoh endpoints and key prefix a client should use, from the service's /healthz.
+
+    The bridge reports the endpoints it listens on; one bound to every interface
+    (``0.0.0.0`` / ``[::]``) is reached through the host of the service's URL."""
+    bridge = health.get("bridge") or {}
+    if bridge.get("status") in (None, "disabled"):
+        raise CanalClientError("the service at this --url runs no live bridge (started with "
+                               "--no-zenoh?); pass --endpoint to reach another one")
+    host = urlsplit(url).hostname or "127.0.0.1"
+    endpoints = []
+    for ep in bridge.get("listen") or []:
+        for wildcard in ("0.0.0.0", "[::]"):
+            if f"/{wildcard}:" in ep:
+                ep = ep.replace(f"/{wildcard}:", f"/{host}:")
+        endpoints.append(ep)
+    if not endpoints:
+        raise CanalClientError("the service's live bridge listens on no endpoint (it connects "
+                               "to a router?); pass --endpoint or --zenoh-config")
+    return endpoints, str(bridge.get("prefix") or "canal")
+
+
+_SIM_SUMMARY = ("reached_end", "all_inside", "n_steps", "duration", "min_eta", "max_eta",
+                "model_version", "start", "missed", "pushes_done", "pushes_pending", "statuses",
+                "seed")
+
+
+def _eta(result: Any, which: str) -> float:
+    value = getattr(result, f"{which}_eta", None)
+    return float("nan") if value is None else float(value)
+
+
+def sim(
+    ctx: typer.Context,
+    skill: str,
+    robot: Annotated[str | None, typer.Option("--robot", help="Robot id on the bus.")] = None,
+    rate: Annotated[float | None, typer.Option("--rate", min=0.1, help="Control rate, Hz.")
+                    ] = None,
+    start: Annotated[str | None, typer.Option("--start", help="x,y[,z] start point.")] = None,
+    lag: Annotated[Lag | None, typer.Option("--lag", help="Simulated robot dynamics.")] = None,
+    gain: Annotated[float | None, typer.Option("--gain", help="Dynamics gain.")] = None,
+    push: Annotated[list[str] | None, typer.Option(
+        "--push", help="T:dx,dy,dz pushes the robot by (dx,dy,dz) at T s (repeat).")] = None,
+    timeout: Annotated[float | None, typer.Option("--timeout", help="Give up after S s.")
+                       ] = None,
+    endpoint: Annotated[str | None, typer.Option(
+        "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 "
+                           "(default: the one the service's /healthz reports).")] = None,
+    prefix: Annotated[str | None, typer.Option(
+        "--prefix", help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
+    zenoh_config: Annotated[Path | None, typer.Option("--zenoh-config",
+                                                      help="Zenoh config file.")] = None,
+    encoding: Annotated[Encoding | None, typer.Option("--encoding")] = None,
+    seed: Annotated[int | None, typer.Option(
+        "--seed", help="Seed of the random start (same seed, same start).")] = None,
+) -> None:
+    """Drive a simulated robot along the skill's canal over Zenoh. The Zenoh endpoint and
+    key prefix come from the service at --url (its /healthz) unless --endpoint/--prefix or
+    --zenoh-config say otherwise. Exit code 0 when the robot reached the end of the canal and
+    stayed inside it, 1 otherwise; a push that never happened (the run ended first) is
+    reported on its own line."""
+    pushes = [parse_push(p) for p in push or []]
+    point = parse_point(start) if start is not None else None
+    if importlib.util.find_spec(ZENOH_MODULE) is None:
+        error(f"canal sim talks to the service over Zenoh, which is not installed here: "
+              f"{ZENOH_INSTALL}")
+        raise typer.Exit(EXIT_REFUSED)
+    from .. import sim as sim_module  # imports zenoh: only for this command
+
+    opts = options(ctx)
+    if (endpoint is None and zenoh_config is None) or prefix is None:
+        try:
+            found, found_prefix = live_endpoint(health_document(opts), opts.url)
+        except CanalClientError as exc:
+            if endpoint is None and zenoh_config is None:
+                if isinstance(exc, ConnectionFailedError | RequestTimeoutError):
+                    raise fail_unreachable(exc, opts.url) from None
+                error(str(exc))
+                raise typer.Exit(EXIT_REFUSED) from None
+            found, found_prefix = [], "canal"  # --endpoint given: the service is optional
+        if endpoint is None and zenoh_config is None:
+            endpoint = ",".join(found)
+        prefix = prefix or found_prefix
+    kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed}
+    for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
+                       ("lag", lag.value if lag else None), ("gain", gain),
+                       ("timeout_s", timeout),
+                       ("endpoint", endpoint.split(",") if endpoint else None),
+                       ("zenoh_config", str(zenoh_config) if zenoh_config else None),
+                       ("encoding", encoding.value if encoding else None)):
+        if value is not None:
+            kwargs[key] = value
+    try:
+        result = sim_module.run_sim(skill, **kwargs)
+    except ApiError as exc:
+        error(str(exc))
+        raise typer.Exit(EXIT_REFUSED) from None
+    except (ConnectionFailedError, RequestTimeoutError) as exc:
+        raise fail_unreachable(exc, opts.url) from None
+    except (CanalClientError, TimeoutError, OSError, ValueError, RuntimeError) as exc:
+        error(f"simulation failed: {exc}")
+        raise typer.Exit(EXIT_REFUSED) from None
+    ok = bool(result.reached_end) and bool(result.all_inside)
+    if opts.json:
+        print_json({key: getattr(result, key, None) for key in _SIM_SUMMARY})
+    else:
+        out.print(
+            f"{'[green]ok[/green]' if ok else '[red]failed[/red]'}: "
+            f"{'reached the end' if result.reached_end else 'did not reach the end'}, "
+            f"{'always inside' if result.all_inside else 'left the canal'}; "
+            f"{result.n_steps} steps in {float(result.duration):.2f} s, "
+            f"eta {_eta(result, 'min'):.3f}..{_eta(result, 'max'):.3f}")
+        for line in sim_module.describe_pending(result):
+            err.print(f"[yellow]note:[/yellow] {escape(line)}")
+    if not ok:
+        raise typer.Exit(EXIT_REFUSED)
