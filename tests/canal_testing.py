@@ -38,7 +38,9 @@ class LiveServer:
 
     def __enter__(self) -> LiveServer:
         self.thread.start()
-        deadline = time.monotonic() + 20
+        # generous: the app's startup (imports, migrations, bridge) takes seconds on an idle
+        # machine and tens of seconds on a shared, loaded one; a real failure still ends it
+        deadline = time.monotonic() + 90
         while not self.server.started:
             if time.monotonic() > deadline or not self.thread.is_alive():
                 raise RuntimeError("uvicorn did not start")
