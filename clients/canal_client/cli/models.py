@@ -83,8 +83,10 @@ def fit(
     busy = (contextlib.nullcontext() if options(ctx).json
             else err.status(f"fitting {escape(skill)}..."))
     with connected(ctx) as c, busy:
-        model = c.fit(skill, cross_section=cross_section, frames=frames, alignment=alignment,
-                      directrix=directrix, n_samples=samples, frame_smoothing=frame_smoothing,
+        # typer hands back the choice's value; the service checks it against the contract.
+        names: dict[str, Any] = {"cross_section": cross_section, "frames": frames,
+                                 "alignment": alignment, "directrix": directrix}
+        model = c.fit(skill, **names, n_samples=samples, frame_smoothing=frame_smoothing,
                       by_time=by_time or None, demo_ids=demo or None)
     if options(ctx).json:
         print_json(model)
@@ -146,7 +148,8 @@ def reproduce(
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:
-        r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
+        rule: dict[str, Any] = {"outside": outside}
+        r = c.reproduce(skill, point, model=model, **rule, goal=goal_point,
                         duration=duration, start_orientation=quat)
     if out_path is not None:
         write_trajectory(out_path, r.positions, r, r.orientations)
