@@ -141,7 +141,9 @@ def settings_from_args(argv: Sequence[str] | None = None,
             field = str(error["loc"][0]) if error["loc"] else ""
             where = (f"{flags[field]} (or CANAL_{field.upper()})" if field in flags
                      else field or "settings")
-            problems.append(f"{where}: {error['msg']}")
+            got = error.get("input")
+            came = "" if isinstance(got, dict) or got is None else f", got {got!r}"
+            problems.append(f"{where}: {error['msg']}{came}")
         parser.error("; ".join(problems))
 
 
