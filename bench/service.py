@@ -272,8 +272,14 @@ def serve_and_bench(extra: list[str], label: str, args: argparse.Namespace, n_up
                 return asyncio.run(bench(url, label, n_uploads, 1000, n_fits, n_repro,
                                          args.concurrency, args.repro_concurrency, server.pid))
             finally:
+                # A graceful stop: the recorder first writes what the burst left queued
+                # (a few seconds for 1,000 demos on a busy machine).
                 server.terminate()
-                server.wait(15)
+                try:
+                    server.wait(180)
+                except subprocess.TimeoutExpired:
+                    server.kill()
+                    server.wait(15)
 
 
 def upload_stages(n: int, n_points: int = 1000) -> list[tuple[str, float]]:
