@@ -259,7 +259,7 @@ def serve_and_bench(extra: list[str], label: str, args: argparse.Namespace, n_up
             server = subprocess.Popen(command, env=env, stdout=log, stderr=log)
             url = f"http://127.0.0.1:{port}"
             try:
-                deadline = time.monotonic() + 60
+                deadline = time.monotonic() + 180  # imports take long on a busy machine
                 while True:
                     try:
                         if httpx.get(f"{url}/healthz", timeout=1).status_code == 200:
