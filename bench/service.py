@@ -10,7 +10,10 @@ with a fresh data folder, and drives it with a concurrent httpx client:
 3. 1,000 reproductions against the fitted model.
 
 Then the uploads again on ``canal serve --no-recordings`` (the second row: what recordings
-cost). Prints uploads/s and p50/p99 latency with the targets of issues #3 and #12 (on a
+cost), and the upload path taken apart in this process: server CPU (process time) per upload
+for each stage (parse, validate, prepare, DB insert, commit, recorder enqueue, recorder
+write), meaningful even on a busy machine where rates are not. The HTTP rows also give the
+recorder's writer-thread CPU spent during the burst (``rec cpu ms``, from ``/healthz``). Prints uploads/s and p50/p99 latency with the targets of issues #3 and #12 (on a
 2-core machine: uploads >= 200/s at 8 clients with the defaults, fit p99 < 100 ms for
 10 x 1,000, reproduction p99 < 20 ms) and exits 1 when a target or the storage check fails.
 ``--quick`` runs a tenth of the work.
@@ -83,6 +86,11 @@ class Row:
     target: str = ""
     ok: bool | None = None
     server_cpu: float = float("nan")  # server CPU seconds spent on the step
+    recorder_cpu: float = float("nan")  # of which the recorder's writer thread
+
+    @property
+    def rec_ms(self) -> float:
+        return self.recorder_cpu / self.count * 1000 if self.count else float("nan")
 
     @property
     def cpu_ms(self) -> float:
@@ -116,6 +124,12 @@ async def run_many(n: int, concurrency: int, make: object) -> tuple[list[object]
     return list(results), time.perf_counter() - t0
 
 
+async def writer_cpu(client: httpx.AsyncClient) -> float:
+    """CPU seconds of the recorder's writer thread so far (0 with recordings off)."""
+    recorder = (await client.get("/healthz")).json().get("recorder", {})
+    return float(recorder.get("writer_cpu_s", 0.0))
+
+
 async def uploads(client: httpx.AsyncClient, skill: str, n: int, n_points: int,
                   concurrency: int, rng: np.random.Generator, label: str,
                   problems: list[str], pid: int | None = None) -> Row:
@@ -130,15 +144,17 @@ async def uploads(client: httpx.AsyncClient, skill: str, n: int, n_points: int,
         return await timed(client, "POST", f"/skills/{skill}/demonstrations",
                            content=bodies[i], headers=headers)
 
+    rec0 = await writer_cpu(client)
     cpu0 = cpu_seconds(pid)
     results, seconds = await run_many(n, concurrency, upload)
     cpu = cpu_seconds(pid) - cpu0
+    rec = await writer_cpu(client) - rec0
     bad = [r for r, _ in results if r.status_code != 201]  # type: ignore[misc]
     if bad:
         problems.append(f"{len(bad)} uploads failed, first: {bad[0].status_code} {bad[0].text}")
     row = Row(f"upload {label} x{concurrency}", n, seconds,
               [lat for _, lat in results],  # type: ignore[misc]
-              ">= 200/s" if concurrency > 1 else "", server_cpu=cpu)
+              ">= 200/s" if concurrency > 1 else "", server_cpu=cpu, recorder_cpu=rec)
     if concurrency > 1:
         row.ok = row.rate >= 200
     # every upload stored: count and checksums
@@ -243,7 +259,7 @@ def serve_and_bench(extra: list[str], label: str, args: argparse.Namespace, n_up
             server = subprocess.Popen(command, env=env, stdout=log, stderr=log)
             url = f"http://127.0.0.1:{port}"
             try:
-                deadline = time.monotonic() + 60
+                deadline = time.monotonic() + 180  # imports take long on a busy machine
                 while True:
                     try:
                         if httpx.get(f"{url}/healthz", timeout=1).status_code == 200:
@@ -256,22 +272,114 @@ def serve_and_bench(extra: list[str], label: str, args: argparse.Namespace, n_up
                 return asyncio.run(bench(url, label, n_uploads, 1000, n_fits, n_repro,
                                          args.concurrency, args.repro_concurrency, server.pid))
             finally:
+                # A graceful stop: the recorder first writes what the burst left queued
+                # (a few seconds for 1,000 demos on a busy machine).
                 server.terminate()
-                server.wait(15)
+                try:
+                    server.wait(180)
+                except subprocess.TimeoutExpired:
+                    server.kill()
+                    server.wait(15)
+
+
+def upload_stages(n: int, n_points: int = 1000) -> list[tuple[str, float]]:
+    """CPU ms per upload of each stage of the JSON upload path, run here in one thread.
+
+    The same calls the service makes, in its order, on ``n`` demos of ``n_points`` points,
+    against a real SQLite file and a real recorder reading from it (as ``canal serve``
+    runs them). Process time: the writer's row includes Rerun's own threads.
+    """
+    sys.path[:0] = [str(ROOT / "service")]
+    from canal_service.recording import Recorder
+    from canal_service.recording.source import DbSource
+    from canal_service.storage import Database
+    from canal_service.storage import repository as repo
+    from canal_service.validation import check_fittable, check_positions
+
+    from canal_protocol.schemas import demonstration_from_json
+
+    rng = np.random.default_rng(1)
+    bodies = [orjson.dumps({"positions": demo(j, n_points, rng), "label": f"d{j}"},
+                           option=orjson.OPT_SERIALIZE_NUMPY) for j in range(n)]
+    cpu = time.process_time
+    out: list[tuple[str, float]] = []
+
+    def stage(name: str, t0: float) -> None:
+        out.append((name, (cpu() - t0) / n * 1000))
+
+    with tempfile.TemporaryDirectory(prefix="canal-bench-stages-") as data:
+        db = Database(f"sqlite:///{data}/canal.db")
+        db.migrate()
+        with db.write() as session:
+            repo.create_skill(session, "stages", "", 3)
+        # Warm-up outside the timings: first calls import and build what they use.
+        check_fittable(check_positions(demonstration_from_json(bodies[0]).positions, 3), None)
+        t0 = cpu()
+        parsed = [demonstration_from_json(b) for b in bodies]
+        stage("parse (JSON to arrays)", t0)
+        t0 = cpu()
+        checked = [check_positions(p.positions, 3) for p in parsed]
+        stage("validate (shape, finite)", t0)
+        t0 = cpu()
+        for positions in checked:
+            check_fittable(positions, None)
+        stage("prepare (canal_core, once)", t0)
+        ids: list[int] = []
+        insert_s = commit_s = 0.0
+        for positions, p in zip(checked, parsed, strict=True):
+            with db.write_engine.connect() as connection:
+                transaction = connection.begin()
+                t0 = cpu()
+                ids.append(repo.insert_demonstration(connection, "stages", positions, None, None,
+                                                     p.label, "json").id)
+                t1 = cpu()
+                transaction.commit()
+                insert_s += t1 - t0
+                commit_s += cpu() - t1
+        out += [("DB insert (1 statement)", insert_s / n * 1000),
+                ("DB commit", commit_s / n * 1000)]
+        recorder = Recorder(Path(data) / "recordings", source=DbSource(db))
+        try:
+            recorder.reconcile()  # the start-up pass, not part of any upload
+            t0 = cpu()
+            for demo_id in ids:
+                recorder.demo_added("stages", 3, demo_id, None, None, None)
+            stage("recorder enqueue (request path)", t0)
+            t0 = cpu()
+            recorder.export_rrd("stages").unlink()  # writes everything queued, then exports
+            stage("recorder write (writer thread)", t0)
+        finally:
+            recorder.close()
+            db.dispose()
+    return out
+
+
+def print_stages(stages: list[tuple[str, float]], rows: list[Row]) -> None:
+    print("\nupload path by stage, CPU ms per 1,000-point JSON upload (process time, this process)")
+    for name, ms in stages:
+        print(f"  {name:<34} {ms:>7.2f}")
+    inside = sum(ms for name, ms in stages if not name.startswith("recorder write"))
+    print(f"  {'sum before the writer':<34} {inside:>7.2f}")
+    for r in rows:
+        if r.name.startswith("upload") and r.cpu_ms == r.cpu_ms:
+            rec = r.rec_ms if r.rec_ms == r.rec_ms else 0.0
+            print(f"  {r.name:<34} {r.cpu_ms:>7.2f} server CPU per upload over HTTP, of which "
+                  f"{rec:.2f} recorder writer, ~{r.cpu_ms - inside - rec:.2f} HTTP/framework")
 
 
 def print_table(rows: list[Row]) -> None:
     print(f"\n{os.cpu_count()} CPUs shared by client and server")
     print("(srv cpu ms: server process CPU per request, the load-independent figure)")
     head = (f"{'step':<30} {'n':>6} {'total s':>8} {'per s':>9} {'p50 ms':>8} {'p99 ms':>8} "
-            f"{'srv cpu ms':>10}  target")
+            f"{'srv cpu ms':>10} {'rec cpu ms':>10}  target")
     print(head)
     print("-" * len(head) + "-" * 12)
     for r in rows:
         verdict = "" if r.ok is None else ("  PASS" if r.ok else "  FAIL")
         cpu = f"{r.cpu_ms:>10.2f}" if r.cpu_ms == r.cpu_ms else f"{'':>10}"
+        rec = f"{r.rec_ms:>10.2f}" if r.rec_ms == r.rec_ms else f"{'':>10}"
         print(f"{r.name:<30} {r.count:>6} {r.seconds:>8.2f} {r.rate:>9.1f} {r.pct(50):>8.1f} "
-              f"{r.pct(99):>8.1f} {cpu}  {r.target}{verdict}")
+              f"{r.pct(99):>8.1f} {cpu} {rec}  {r.target}{verdict}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -292,7 +400,9 @@ def main(argv: list[str] | None = None) -> int:
         row.target, row.ok = "", None  # the target is for the defaults
     rows += rows_off
     problems += problems_off
+    stages = upload_stages(50 if args.quick else 300)
     print_table(rows)
+    print_stages(stages, rows)
     summary = [summary_row(f"service {r.name}", r.rate, "1/s", "target", 200, better="higher")
                for r in rows if r.target == ">= 200/s"]
     summary += [summary_row(f"service {r.name}", r.rate, "1/s", better="higher")

@@ -532,7 +532,7 @@ class _McapScan:
             self.keep.clear()
             self.messages.clear()
 
-    def _chunk(self, buf: bytes | memoryview, body: int, stop: int) -> None:
+    def _chunk(self, buf: bytes | bytearray | memoryview, body: int, stop: int) -> None:
         try:
             _start, _end, _declared, crc = _CHUNK_HEAD.unpack_from(buf, body)
             compression, pos = _string(buf, body + _CHUNK_HEAD.size)
@@ -593,7 +593,7 @@ def _skip_run(buf: bytes | bytearray | memoryview, pos: int, end: int, head: byt
             return pos
 
 
-def _string(buf: bytes | memoryview, pos: int) -> tuple[str, int]:
+def _string(buf: bytes | bytearray | memoryview, pos: int) -> tuple[str, int]:
     size = _U32.unpack_from(buf, pos)[0]
     end = pos + 4 + size
     if end > len(buf):
@@ -614,7 +614,7 @@ def _decompressed_pieces(compression: str, data: memoryview) -> Iterator[bytes]:
             reader: Any = zstandard.ZstdDecompressor().stream_reader(
                 io.BytesIO(data), read_across_frames=True)
         elif compression == "lz4":
-            import lz4.frame
+            import lz4.frame  # type: ignore[import-untyped]
 
             reader = lz4.frame.LZ4FrameFile(io.BytesIO(data), mode="rb")
         else:
@@ -680,8 +680,9 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
             fast = _ros2_pose_arrays(messages)
             if fast is not None:
                 scan.budget.tick()
-                positions, quats, times = fast
-                return ParsedUpload(np.ascontiguousarray(positions[:, :dim]), times, quats)
+                fast_positions, fast_quats, fast_times = fast
+                return ParsedUpload(np.ascontiguousarray(fast_positions[:, :dim]), fast_times,
+                                    fast_quats)
             samples = list(_ros2_poses(schema, channel, messages, scan.budget))
         elif schema.name == FOXGLOVE_POSE:
             samples = []
@@ -711,7 +712,7 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
     positions = np.array([s[1] for s in samples], dtype=np.float64).reshape(-1, 3)
     quats = np.array([s[2] for s in samples], dtype=np.float64).reshape(-1, 4)
     stamps = [s[0] for s in samples]
-    times = None
+    times: FloatArray | None = None
     if stamps and all(s is not None for s in stamps):
         t = np.array(stamps, dtype=np.int64)
         times = (t - t[0]).astype(np.float64) * 1e-9

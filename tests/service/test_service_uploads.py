@@ -235,3 +235,36 @@ def test_skills_list_and_cascade(client: TestClient, fitted: str) -> None:
     s = client.get(f"/skills/{fitted}").json()
     assert s["n_demonstrations"] == 0 and s["n_models"] == 0
     assert client.get(f"/skills/{fitted}/demonstrations").json()["total"] == 0
+
+
+@pytest.mark.parametrize("how", ["json", "csv"])
+def test_wrong_dimension_or_skill_is_refused_by_the_single_insert(client: TestClient, skill: str,
+                                                                 how: str) -> None:
+    """The insert itself checks the skill and its dimension (one statement): a 2-D demo for
+    the 3-D skill is a 422 naming positions[0] with the skill's axes, an unknown skill a 404,
+    and neither stores anything."""
+    client.post("/skills", json={"name": "flat", "dim": 2})
+    good = demo_positions(0)
+    assert client.post(f"/skills/{skill}/demonstrations",
+                       json={"positions": good.tolist()}).status_code == 201
+    flat = good[:, :2]
+    if how == "json":
+        r = client.post(f"/skills/{skill}/demonstrations", json={"positions": flat.tolist()})
+    else:
+        text = "x,y\n" + "\n".join(f"{a!r},{b!r}" for a, b in flat)
+        r = client.post(f"/skills/{skill}/demonstrations?format=csv", content=text,
+                        headers={"content-type": "text/csv"})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    if how == "json":
+        assert error["field"] == "positions[0]"
+        assert "x, y, z for the 3-D skill 'pour'" in error["message"]
+    r = client.post("/skills/nope/demonstrations", json={"positions": good.tolist()})
+    assert r.status_code == 404 and r.json()["error"]["field"] == "name"
+    assert client.get(f"/skills/{skill}").json()["n_demonstrations"] == 1
+    assert client.get("/skills/flat").json()["n_demonstrations"] == 0
+    # the 2-D skill takes the same rows, and its checksum is of what was sent
+    r = client.post("/skills/flat/demonstrations", json={"positions": flat.tolist()})
+    assert r.status_code == 201 and r.json()["checksum"] == checksum(flat)
+    stored = client.get(f"/skills/flat/demonstrations/{r.json()['id']}").json()
+    assert stored["dim"] == 2 and np.array_equal(np.asarray(stored["positions"]), flat)

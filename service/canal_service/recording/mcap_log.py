@@ -182,13 +182,13 @@ class McapSegment:
     def flush(self) -> None:
         """Close the open chunk and push it to the OS (a crash keeps everything before)."""
         if self._dirty:
-            self._writer.flush()
+            self._writer.flush()  # type: ignore[no-untyped-call]  # mcap's Writer is untyped
             self._dirty = False
 
     def close(self) -> None:
         """Write the summary and close the file."""
         try:
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._stream.close()
 
@@ -263,7 +263,7 @@ def merge_mcap(inputs: list[Path], out: Path, *, recover: bool = False) -> int:
                     n += _copy(recovered_messages(f), writer, channels)
                 else:
                     n += _copy(make_reader(f).iter_messages(log_time_order=False), writer, channels)
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]
         stream.flush()
         os.fsync(stream.fileno())
     except BaseException:

@@ -50,6 +50,8 @@ from .source import DbSource
 log = logging.getLogger("canal_service.recording")
 
 EXPORTS = ".exports"
+#: Demonstrations the writer reads and logs in one go before it checks for new requests.
+DEMO_BATCH = 32
 RERUN_CONFIG = ".rerun"
 
 
@@ -58,6 +60,16 @@ def _vector(value: Any) -> list[float]:
     if arr.ndim != 1 or not 1 <= arr.shape[0] <= 16:
         raise ValueError(f"expected a position of 1 to 16 coordinates, got shape {arr.shape}")
     return arr.tolist()
+
+
+def batch_writer_rerun(batch: Any) -> Callable[[RerunSegment], None]:
+    """Log one live batch to a Rerun segment (bound now, called by ``_write``)."""
+    return lambda r: r.live(batch)
+
+
+def batch_writer_mcap(batch: Any) -> Callable[[McapSegment], None]:
+    """Log one live batch to an MCAP segment (bound now, called by ``_write``)."""
+    return lambda m: m.live(batch)
 
 
 class _SkillState:
@@ -150,6 +162,9 @@ class Recorder:
         self._rerun_env: dict[str, str] | None = None
         self.dropped_events = 0
         self.dropped_live = 0
+        # CPU seconds the writer thread spent on its work (not waiting): what the recorder
+        # costs the process, whatever else runs in it (the upload benchmark reads it).
+        self.writer_cpu_s = 0.0
         self.decimated_live = 0
         self.written_live = 0
         self._closed = not enabled
@@ -407,6 +422,7 @@ class Recorder:
             "decimated": self.decimated_live,
             "live_written": self.written_live,
             "reconciled": dict(self.reconciled),
+            "writer_cpu_s": round(self.writer_cpu_s, 6),
             "live": self.live_source.health() if self.live_source is not None else {
                 "status": "disabled"},
         }
@@ -481,6 +497,7 @@ class Recorder:
                 timeout = min(timeout, self.quiet_s)
             self._wake.wait(max(0.0, timeout))
             self._wake.clear()
+            started = time.thread_time()
             try:
                 if self._events and not self._busy() and self._drain_events():
                     break
@@ -491,6 +508,8 @@ class Recorder:
             except Exception as exc:  # the writer must outlive any bug in one event
                 log.exception("recorder writer loop")
                 self._note("writer", f"{type(exc).__name__}: {exc}")
+            finally:
+                self.writer_cpu_s += time.thread_time() - started
         self._drain_live()
         for state in list(self._skills.values()):
             self._close_segment(state)
@@ -521,7 +540,7 @@ class Recorder:
                 return True
             if isinstance(event, DemoRef):
                 self._demo_refs(event)
-                continue
+                continue  # at most DEMO_BATCH demos, then _busy() is asked again
             try:
                 self._handle(event)
             except Exception as exc:
@@ -538,9 +557,15 @@ class Recorder:
                     event.done.set()
 
     def _demo_refs(self, first: DemoRef) -> None:
-        """``first`` and the demo refs queued right behind it: one database read per skill."""
+        """``first`` and the demo refs queued right behind it (at most :data:`DEMO_BATCH`):
+        one database read per skill.
+
+        Bounded so that a burst of requests starting meanwhile waits for one batch (about
+        0.1 s of writing), not for everything queued.
+        """
         refs = [first]
-        while self._events and isinstance(self._events[0], DemoRef):
+        while (len(refs) < DEMO_BATCH and self._events
+               and isinstance(self._events[0], DemoRef)):
             refs.append(self._events.popleft())  # type: ignore[arg-type]
         by_skill: dict[str, list[DemoRef]] = {}
         for ref in refs:
@@ -596,18 +621,18 @@ class Recorder:
             state.n_reproductions = number
         elif isinstance(event, Rotate):
             self._drain_live()
-            state = self._skills.get(event.skill)
-            if state is not None:
-                self._close_segment(state)
+            open_state = self._skills.get(event.skill)
+            if open_state is not None:
+                self._close_segment(open_state)
             self._recover(SkillDir.of(self.root, event.skill))
         elif isinstance(event, SkillDeleted):
             self._delete(event.skill)
         elif isinstance(event, Rebuild):
             self._delete(event.skill)
             event.result.update(self._reconcile_skill(event.skill, full=True))
-            state = self._skills.get(event.skill)
-            if state is not None:
-                self._close_segment(state)
+            rebuilt = self._skills.get(event.skill)
+            if rebuilt is not None:
+                self._close_segment(rebuilt)
         elif isinstance(event, Reconcile):
             event.result.update(self._reconcile(event.skill))
 
@@ -730,8 +755,8 @@ class Recorder:
                 self._dims[skill] = self._source_dim(skill)
             for batch in batches:
                 try:
-                    self._write(skill, int(batch.t_ns[0]), lambda r, b=batch: r.live(b),
-                                lambda m, b=batch: m.live(b), n_live=len(batch))
+                    self._write(skill, int(batch.t_ns[0]), batch_writer_rerun(batch),
+                                batch_writer_mcap(batch), n_live=len(batch))
                 except Exception as exc:
                     log.exception("recorder could not record live samples of %s", skill)
                     self.dropped_live += len(batch)

@@ -133,7 +133,7 @@ class RerunSegment:
         self.dim = 2 if dim == 2 else 3
         self._file = open(path, "wb")
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
-        self._stream = self.rec.binary_stream()
+        self._stream = self.rec.binary_stream()  # type: ignore[misc]  # rerun's stub types it as a free function
         if blueprint:
             self.rec.send_blueprint(review_blueprint(self.dim), make_active=False,
                                     make_default=True)

@@ -183,7 +183,7 @@ def foxglove_to_ros2(src: Path, out: Path) -> int:
                                                                         MSGDEFS[ros_type])
                 writer.write_message(topic, schema, message, log_time=t, publish_time=t)
                 n += 1
-            writer.finish()
+            writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer is untyped
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

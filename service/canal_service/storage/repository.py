@@ -132,7 +132,25 @@ class StoredDemo:
 
 # Built once: constructing a statement per call costs more than running it on SQLite.
 _SKILL_ID_AND_DIM = select(Skill.id, Skill.dim).where(Skill.name == bindparam("name"))
-_INSERT_DEMONSTRATION = insert(Demonstration).returning(Demonstration.id)
+# One round trip: the row is inserted only when a skill of that name has the demo's
+# dimension (INSERT ... SELECT ... RETURNING); no row back means one of the two is wrong,
+# and only that error path looks up which.
+_INSERT_DEMONSTRATION = insert(Demonstration).from_select(
+    ["skill_id", "label", "n_points", "dim", "positions", "timestamps", "orientations",
+     "checksum", "source", "created_at"],
+    select(
+        Skill.id,
+        bindparam("label", type_=Demonstration.label.type),
+        bindparam("n_points", type_=Demonstration.n_points.type),
+        Skill.dim,
+        bindparam("positions", type_=Demonstration.positions.type),
+        bindparam("timestamps", type_=Demonstration.timestamps.type),
+        bindparam("orientations", type_=Demonstration.orientations.type),
+        bindparam("checksum", type_=Demonstration.checksum.type),
+        bindparam("source", type_=Demonstration.source.type),
+        bindparam("created_at", type_=Demonstration.created_at.type),
+    ).where(Skill.name == bindparam("name"), Skill.dim == bindparam("dim")),
+).returning(Demonstration.id)
 
 
 def insert_demonstration(
@@ -144,37 +162,42 @@ def insert_demonstration(
     label: str | None,
     source: str,
 ) -> StoredDemo:
-    """Store a checked demonstration in the caller's transaction: two Core statements.
+    """Store a checked demonstration in the caller's transaction: one Core statement.
 
-    The upload hot path: the skill is looked up and its dimension compared inside the same
-    transaction as the insert (a skill deleted or recreated meanwhile cannot slip through),
-    and no ORM objects are built for a row that is only written.
+    The upload hot path: the skill is looked up and its dimension compared by the insert
+    itself (a skill deleted or recreated meanwhile cannot slip through), and no ORM objects
+    are built for a row that is only written.
     """
-    found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
-    if found is None:
-        raise SkillNotFound(f"no skill named {skill_name!r}", field="name")
-    skill_id, dim = int(found[0]), int(found[1])
-    if positions.shape[1] != dim:
-        axes = "x, y, z" if dim == 3 else "x, y"
-        raise InvalidInput(
-            f"expected {dim} values per row ({axes} for the {dim}-D skill {skill_name!r}), "
-            f"got {positions.shape[1]} at row 0",
-            field="positions[0]",
-        )
     packed = arrays.pack(positions)
     digest = arrays.checksum_of_packed(packed)
-    n_points = int(positions.shape[0])
+    n_points, dim = int(positions.shape[0]), int(positions.shape[1])
     demo_id = connection.execute(
         _INSERT_DEMONSTRATION,
         {
-            "skill_id": skill_id, "label": label, "n_points": n_points, "dim": dim,
+            "name": skill_name, "dim": dim, "label": label, "n_points": n_points,
             "positions": packed,
             "timestamps": None if timestamps is None else arrays.pack(timestamps),
             "orientations": None if orientations is None else arrays.pack(orientations),
             "checksum": digest, "source": source, "created_at": utcnow(),
         },
-    ).scalar_one()
+    ).scalar()
+    if demo_id is None:
+        raise _refused_insert(connection, skill_name, dim)
     return StoredDemo(int(demo_id), n_points, digest, dim)
+
+
+def _refused_insert(connection: Connection, skill_name: str, dim: int) -> SkillNotFound | InvalidInput:
+    """Why :data:`_INSERT_DEMONSTRATION` inserted nothing: no such skill, or another dimension."""
+    found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
+    if found is None:
+        return SkillNotFound(f"no skill named {skill_name!r}", field="name")
+    skill_dim = int(found[1])
+    axes = "x, y, z" if skill_dim == 3 else "x, y"
+    return InvalidInput(
+        f"expected {skill_dim} values per row ({axes} for the {skill_dim}-D skill "
+        f"{skill_name!r}), got {dim} at row 0",
+        field="positions[0]",
+    )
 
 
 _BLOBS = (defer(Demonstration.positions), defer(Demonstration.timestamps),
