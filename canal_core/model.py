@@ -20,12 +20,13 @@ from .alignment import (
     spline_parameter,
 )
 from .cross_sections import (
-    KINDS,
     KINDS_3D,
     CrossSections,
     fitted_sections,
     floored_sections,
     scaled_sections,
+    section_kind,
+    section_kinds,
     section_radii,
 )
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
@@ -72,6 +73,8 @@ from .validation import (
 FORMAT = "canal-model"
 FORMAT_VERSION = 1
 
+#: The built-in choices of ``cross_section``; kinds registered later are accepted too
+#: (:func:`canal_core.sections.section_kinds` with dim=3 lists them all).
 CROSS_SECTIONS = KINDS_3D
 FRAMES = ("rmf", "frenet")
 ALIGNMENTS = ("spline", "dtw")
@@ -407,9 +410,10 @@ class Canal:
             return strip_mesh(self.directrix, self.normals, self.sections)
         check_int(n_angles, 3, "n_angles")
         if envelope:
-            if self.sections.kind != "circle":
+            if not self.sections.spec.isotropic:
                 raise InvalidInputError(
-                    f"expected envelope=True only with circle sections, got {self.sections.kind!r}",
+                    "expected envelope=True only with isotropic (circle) sections, "
+                    f"got {self.sections.kind!r}",
                     field="envelope",
                 )
             rings = envelope_vertices(
@@ -461,9 +465,19 @@ class Canal:
             n = arr["directrix"].shape[0]
             sec = dict(data["sections"])
             kind = sec.pop("kind")
-            if kind not in KINDS:
-                raise ModelFormatError(f"unknown cross-section kind {kind!r}", field="sections")
+            if kind not in section_kinds(dim):
+                raise ModelFormatError(
+                    f"expected a {dim}-D cross-section kind among {', '.join(map(repr, section_kinds(dim)))}, "
+                    f"got {kind!r}",
+                    field="sections",
+                )
             params = {k: np.asarray(v, dtype=np.float64) for k, v in sec.items()}
+            expected_params = section_kind(kind).params
+            if sorted(params) != sorted(expected_params):
+                raise ModelFormatError(
+                    f"expected {kind} section parameters {', '.join(expected_params)}, got {', '.join(params)}",
+                    field="sections",
+                )
             binormals = None if data["binormals"] is None else np.asarray(data["binormals"], dtype=np.float64)
             expected = {
                 "directrix": (n, dim), "tangents": (n, dim), "normals": (n, dim), "arclength": (n,),
@@ -550,7 +564,7 @@ def fit_options(
 ) -> FitOptions:
     """Validated :class:`FitOptions`."""
     return FitOptions(
-        cross_section=check_choice(cross_section, CROSS_SECTIONS, "cross_section"),
+        cross_section=check_choice(cross_section, section_kinds(3), "cross_section"),
         frames=check_choice(frames, FRAMES, "frames"),
         alignment=check_choice(alignment, ALIGNMENTS, "alignment"),
         directrix=check_choice(directrix, DIRECTRICES, "directrix"),
@@ -621,10 +635,11 @@ def fit(
     options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
     demos_, times_, dim = check_demonstrations(demos, timestamps)
     quats_ = None if orientations is None else check_demonstration_orientations(orientations, demos_)
-    if options.cross_section in ("spline", "ellipse") and dim == 3 and len(demos_) < 3:
-        # Two crossings per plane fix one axis only: the other would be made up.
+    min_demos = section_kind(options.cross_section).min_demos
+    if dim == 3 and len(demos_) < min_demos:
+        # Two crossings per plane fix one axis only (spline, ellipse): the other would be made up.
         raise InvalidInputError(
-            f"expected at least 3 demonstrations for {options.cross_section} cross-sections, "
+            f"expected at least {min_demos} demonstrations for {options.cross_section} cross-sections, "
             f"got {len(demos_)}; use circle or mec with 2",
             field="cross_section",
         )
