@@ -31,6 +31,7 @@ from .cross_sections import (
 )
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
+from .envelope import enclosing_scales
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
 from .goal import goal_displacements
@@ -40,7 +41,6 @@ from .reproduce import (
     END_DECAY,
     ENTRY_FRACTION,
     Location,
-    enclosing_scales,
     located_points,
     path_ratios,
     ratio_rule_positions,
@@ -175,7 +175,7 @@ class Canal:
     envelope_margin : float
         The fit's report of how much the sections fitted to the plane crossings had to grow
         so that every demonstrated sample is inside: the largest relative enlargement of
-        any section (0.02 = 2 %). See :func:`canal_core.reproduce.enclosing_scales`.
+        any section (0.02 = 2 %). See :func:`canal_core.envelope.enclosing_scales`.
     """
 
     directrix: FloatArray
