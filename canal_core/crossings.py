@@ -136,29 +136,6 @@ def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
     return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
 
 
-def _block_keys(
-    sections: np.ndarray,
-    t: FloatArray,
-    plane: FloatArray,
-    ball_centres: FloatArray,
-    reach: FloatArray,
-    seg_lo: np.ndarray,
-    seg_hi: np.ndarray,
-) -> FloatArray:
-    """Per pair and block of one demo, shape (P, nb): the smallest |s + 0.5 - i| of the
-    block's segments inside the window when the plane may cut the block's ball (radius
-    plus rounding slack: ``reach``), else inf."""
-    offset = t @ ball_centres.T - plane[:, None]  # (P, nb), one matrix product per demo
-    start = np.arange(reach.size)[None, :] * BLOCK
-    first = np.maximum(start, seg_lo[:, None])
-    last = np.minimum(start + (BLOCK - 1), seg_hi[:, None])
-    cut = (np.abs(offset) <= reach[None, :]) & (first <= last)
-    i = sections[:, None] - 0.5
-    # min over s in [first, last] of |s + 0.5 - i|: 0.5 when the range holds i - 1 or i.
-    near = np.maximum(np.maximum(first - i, i - last), 0.5)
-    return np.where(cut, near, np.inf)
-
-
 def _far_crossings(
     aligned: FloatArray,
     centres: FloatArray,
@@ -170,10 +147,13 @@ def _far_crossings(
 ) -> tuple[FloatArray, np.ndarray, FloatArray]:
     """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
 
-    Same answer as :func:`_crossings_in_window` with that width, at a cost that does not
-    depend on how far the crossing lies: the planes are tested against the block balls
-    (one matrix product per demo), then only blocks the plane may cut are searched sample
-    by sample, nearest first, until no untested block could hold a nearer crossing.
+    Same answer as :func:`_crossings_in_window` with that width (the lexicographic minimum
+    of (|s + 0.5 - i|, s) over the crossing segments s), at a cost that does not depend on
+    the window: the blocks of ``BLOCK`` segments are visited in rings around section i's
+    block (ring r: blocks b_i - r and b_i + r). A block whose ball the plane misses holds no
+    crossing and costs one dot product; only cut blocks are searched sample by sample. A
+    pair stops once its best score is below 16 r + 0.5, the least score any unvisited
+    segment can have, or when the window is exhausted.
 
     Returns the points, shape (P, D), whether a crossing was found, shape (P,), and its
     fractional sample index in the demo, shape (P,) (NaN where none was found).
@@ -188,46 +168,44 @@ def _far_crossings(
     # bounded by the largest norms of the directrix and of the ball centres.
     bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(balls[0], axis=2).max())
     reach = balls[1] * (1.0 + 1e-9) + 1e-12 * (balls[1] + bound)
-    key = np.empty((n_pairs, balls[1].shape[1]))
-    for j in np.unique(demos).tolist():
-        rows = np.flatnonzero(demos == j)
-        key[rows] = _block_keys(sections[rows], t[rows], plane[rows], balls[0][j], reach[j],
-                                seg_lo[rows], seg_hi[rows])
+    home = sections // BLOCK
+    block_lo, block_hi = seg_lo // BLOCK, seg_hi // BLOCK
     best_score = np.full(n_pairs, np.inf)
     best_seg = np.full(n_pairs, -1, dtype=np.int64)
     q = np.arange(BLOCK)
-    active = np.arange(n_pairs)
+    samples_of_block = np.arange(BLOCK + 1)
+    active = np.flatnonzero(seg_lo <= seg_hi)
+    ring = 0
     while active.size:
-        # The two nearest blocks the plane may cut: the block just before the crossing is
-        # usually cut too (its last sample lies next to the plane), so one round finds most.
-        picked_pairs, picked_blocks = [], []
-        for _ in range(2):
-            k = np.argmin(key[active], axis=1)
-            k_key = key[active, k]
-            go = np.isfinite(k_key) & (k_key <= best_score[active])
-            picked_pairs.append(active[go])
-            picked_blocks.append(k[go])
-            key[active[go], k[go]] = np.inf  # searched
-        rows, b = np.concatenate(picked_pairs), np.concatenate(picked_blocks)
-        if rows.size == 0:
-            break
-        cols = np.minimum(b[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
-        dist = np.einsum("pwd,pd->pw", aligned[demos[rows, None], cols], t[rows]) - plane[rows, None]
-        seg = b[:, None] * BLOCK + q[None, :]
-        inside = (seg >= seg_lo[rows, None]) & (seg <= seg_hi[rows, None])
-        crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
-        score = np.where(crosses, np.abs(seg + 0.5 - sections[rows, None]), np.inf)
-        j = np.argmin(score, axis=1)
-        s_score, s_seg = score[np.arange(rows.size), j], seg[np.arange(rows.size), j]
-        # Lexicographic (score, segment) minimum: a pair may appear twice in ``rows``.
-        order = np.lexsort((s_seg, s_score))
-        rows, s_score, s_seg = rows[order], s_score[order], s_seg[order]
-        first = np.unique(rows, return_index=True)[1]
-        rows, s_score, s_seg = rows[first], s_score[first], s_seg[first]
-        better = (s_score < best_score[rows]) | ((s_score == best_score[rows]) & (s_seg < best_seg[rows]))
-        best_score[rows[better]] = s_score[better]
-        best_seg[rows[better]] = s_seg[better]
-        active = picked_pairs[0]
+        # Left block first: on equal scores the smaller segment wins, as in the dense search.
+        for side in ((0,) if ring == 0 else (-1, 1)):
+            rows = active
+            b = home[rows] + side * ring
+            ok = (b >= block_lo[rows]) & (b <= block_hi[rows])
+            rows, b = rows[ok], b[ok]
+            cut = np.abs(np.einsum("pd,pd->p", t[rows], balls[0][demos[rows], b]) - plane[rows]) <= reach[demos[rows], b]
+            rows, b = rows[cut], b[cut]
+            if rows.size == 0:
+                continue
+            cols = np.minimum(b[:, None] * BLOCK + samples_of_block[None, :], n_samples - 1)
+            dist = np.einsum("pwd,pd->pw", aligned[demos[rows, None], cols], t[rows]) - plane[rows, None]
+            seg = b[:, None] * BLOCK + q[None, :]
+            inside = (seg >= seg_lo[rows, None]) & (seg <= seg_hi[rows, None])
+            crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
+            score = np.where(crosses, np.abs(seg + 0.5 - sections[rows, None]), np.inf)
+            j = np.argmin(score, axis=1)
+            pick = np.arange(rows.size)
+            s_score, s_seg = score[pick, j], seg[pick, j]
+            better = (s_score < best_score[rows]) | ((s_score == best_score[rows]) & (s_seg < best_seg[rows]))
+            best_score[rows[better]] = s_score[better]
+            best_seg[rows[better]] = s_seg[better]
+        nxt = ring + 1
+        left_open = home[active] - nxt >= block_lo[active]
+        right_open = home[active] + nxt <= block_hi[active]
+        # Unvisited segments after ring r score at least BLOCK r + 0.5 (ties go to the left
+        # one, which may be unvisited: hence strictly below).
+        active = active[(best_score[active] >= BLOCK * ring + 0.5) & (left_open | right_open)]
+        ring = nxt
     found = np.isfinite(best_score)
     points = np.zeros((n_pairs, dim))
     index = np.full(n_pairs, np.nan)
@@ -298,7 +276,7 @@ def located_crossings(
                 aligned, centres, tangents, sections[pending[rows]], demos[pending[rows]], wide, balls
             ),
             pending.size,
-            balls[1].shape[1] + 2 * (BLOCK + 1),
+            4 * (BLOCK + 1),
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop

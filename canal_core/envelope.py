@@ -30,8 +30,14 @@ def bracketing_sections(
     tangents: FloatArray,
     plane: FloatArray,
     window: int,
+    inner: int = 0,
 ) -> tuple[IntArray, FloatArray, BoolArray]:
     """For each sample, the pair (i, i + 1) of planes around it nearest ``approx_index``.
+
+    Pairs i = approx_index + o with o in [-window, -inner) or [inner, window) are searched;
+    the one with the smallest |o + 0.5| that the sample lies between wins (the earlier one
+    on a tie). ``inner`` > 0 searches only the shell a previous search of half-width
+    ``inner`` did not cover.
 
     Parameters
     ----------
@@ -42,6 +48,8 @@ def bracketing_sections(
         t_i . c_i.
     window : int
         Half-width of the search, in sections.
+    inner : int
+        Half-width already searched (0: none).
 
     Returns
     -------
@@ -50,42 +58,38 @@ def bracketing_sections(
     found : array of bool, shape (M,)
     """
     n = tangents.shape[0]
-    offsets = np.arange(-window, window)
-    lower = np.clip(approx_index[:, None] + offsets[None, :], 0, n - 2)  # (M, W)
-    dist = np.einsum("md,mwd->mw", samples, tangents[lower]) - plane[lower]
-    dist_next = np.einsum("md,mwd->mw", samples, tangents[lower + 1]) - plane[lower + 1]
-    crossing = crosses_plane(dist, dist_next)
-    score = np.where(crossing, np.abs(offsets + 0.5)[None, :], np.inf)
-    best = np.argmin(score, axis=1)
-    rows = np.arange(samples.shape[0])
-    a, b = dist[rows, best], dist_next[rows, best]
-    alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
-    return lower[rows, best], alpha, np.isfinite(score[rows, best])
-
-
-def nearest_bracketing_pairs(
-    samples: FloatArray, approx_index: IntArray, tangents: FloatArray, plane: FloatArray
-) -> tuple[IntArray, FloatArray, BoolArray]:
-    """:func:`bracketing_sections` over the whole canal: one row of N plane distances per sample."""
-    dist = samples @ tangents.T - plane[None, :]
-    lo, hi = dist[:, :-1], dist[:, 1:]
-    pairs = np.arange(tangents.shape[0] - 1)
-    score = np.where(crosses_plane(lo, hi), np.abs(pairs[None, :] - approx_index[:, None] + 0.5), np.inf)
-    best = np.argmin(score, axis=1)
+    span = np.arange(window - inner + 1)
+    # Plane columns of the left shell (offsets -window .. -inner) and of the right one
+    # (inner .. window); pair o uses columns o and o + 1 of its shell.
+    starts = np.array([-window, inner])
+    cols = approx_index[:, None, None] + (starts[:, None] + span[None, :])[None]  # (M, 2, S + 1)
+    valid = (cols[:, :, :-1] >= 0) & (cols[:, :, :-1] <= n - 2)  # a real pair, not a clipped copy
+    cols = np.clip(cols, 0, n - 1)
+    dist = np.einsum("md,mswd->msw", samples, tangents[cols]) - plane[cols]
+    lo, hi = dist[:, :, :-1].reshape(dist.shape[0], -1), dist[:, :, 1:].reshape(dist.shape[0], -1)
+    offsets = (starts[:, None] + span[None, :-1]).reshape(-1)
+    score = np.where(valid.reshape(lo.shape) & crosses_plane(lo, hi), np.abs(offsets + 0.5)[None, :], np.inf)
+    best = np.argmin(score, axis=1)  # left shell first: the earlier pair wins a tie
     rows = np.arange(samples.shape[0])
     a, b = lo[rows, best], hi[rows, best]
     alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
-    return best.astype(np.int64), alpha, np.isfinite(score[rows, best])
+    index = np.clip(approx_index + offsets[best], 0, n - 2).astype(np.int64)
+    return index, alpha, np.isfinite(score[rows, best])
 
 
 def _blocked_bracketing(
-    samples: FloatArray, approx_index: IntArray, tangents: FloatArray, plane: FloatArray, window: int
+    samples: FloatArray,
+    approx_index: IntArray,
+    tangents: FloatArray,
+    plane: FloatArray,
+    window: int,
+    inner: int = 0,
 ) -> tuple[IntArray, FloatArray, BoolArray]:
     """:func:`bracketing_sections` over blocks of at most ``MAX_BLOCK`` (sample x offset) entries."""
     index, alpha, found = in_row_blocks(
-        lambda rows: bracketing_sections(samples[rows], approx_index[rows], tangents, plane, window),
+        lambda rows: bracketing_sections(samples[rows], approx_index[rows], tangents, plane, window, inner),
         samples.shape[0],
-        2 * window,
+        2 * (window - inner + 1),
     )
     return index, alpha, found
 
@@ -145,7 +149,8 @@ def enclosing_scales(
     Two passes, both vectorised:
 
     1. Near its phase. A sample between planes i and i + 1 (the pair nearest
-       ``approx_index``: searched within ``window`` sections, then along the whole canal) is judged against the blend of sections i and i + 1.
+       ``approx_index``: searched in windows of 4, 8, ... sections around it, up to the
+       whole canal) is judged against the blend of sections i and i + 1.
        Demonstrations that define the boundary lie on it at the planes, but in between the
        blend is a chord and leaves them out by a second-order amount; enlarging both
        sections by the sample's eta (a homothety about c_i, so every boundary distance
@@ -172,7 +177,8 @@ def enclosing_scales(
         Every section must have a positive boundary distance in every direction
         (:func:`canal_core.cross_sections.floored_sections`).
     window : int
-        Largest half-width of the local search (4, 8, ... sections), before the whole canal.
+        Still heads and tails within ``window`` sections of the ends are measured on the end
+        section directly (they are bracketed by no pair of planes).
 
     Returns
     -------
@@ -213,18 +219,16 @@ def enclosing_scales(
         depths[end] = max(depths[end], float(np.abs(pts @ tangents[section] - plane[section]).max()))
     settled_at_end = head | tail
     found |= settled_at_end
-    while width < window and not found.all():
-        width = min(2 * width, window)
+    # Doubling on past ``window`` up to the whole canal finds the same pair as one row of N
+    # plane distances per sample would (the nearest bracketing pair to the phase), at a
+    # cost that grows with how far the pair lies, not with N.
+    # Each step searches only the shell the previous one did not cover.
+    while width < n - 1 and not found.all():
+        inner = width
+        width = min(2 * width, window) if width < window else min(2 * width, n - 1)
         miss = np.flatnonzero(~found)
         index[miss], alpha[miss], found[miss] = _blocked_bracketing(
-            samples[miss], approx_index[miss], tangents, plane, width
-        )
-    miss = np.flatnonzero(~found)
-    if miss.size:
-        index[miss], alpha[miss], found[miss] = in_row_blocks(
-            lambda rows: nearest_bracketing_pairs(samples[miss[rows]], approx_index[miss[rows]], tangents, plane),
-            miss.size,
-            n,
+            samples[miss], approx_index[miss], tangents, plane, width, inner
         )
     _, _, eta = blended_location(samples, index, alpha, centres, basis, sections)
     eta[settled_at_end] = 0.0  # held above; index/alpha of these rows are not a bracket
