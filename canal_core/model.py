@@ -665,7 +665,10 @@ def fit(
     arclength = np.concatenate([[0.0], np.cumsum(steps)])
     spread = float(np.ptp(aligned.reshape(-1, dim), axis=0).max())
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
-        raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
+        raise DegenerateCanalError(
+            "the directrix has zero length: the demonstrations do not move (or cancel out on average)",
+            field="demos",
+        )
 
     tangents, normals, binormals = canal_frames(centres, options)
 
@@ -680,7 +683,7 @@ def fit(
     coords = in_plane_coordinates(crossings, centres, basis)
     if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
         raise DegenerateCanalError(
-            "every demonstration is identical: the canal has zero radius everywhere"
+            "every demonstration is identical: the canal has zero radius everywhere", field="demos"
         )
     size = float(np.abs(coords).max())
     sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
