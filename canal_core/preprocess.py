@@ -271,12 +271,14 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     # Cheap test first: a sample that far from the midpoint makes the path between a and
     # b at least twice that long (dev <= arc / 2), so most windows need no more.
-    found_a, found_m, found_chord = [], [], []
-    for m in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
-        chord_m = np.linalg.norm(positions[m + 1 :] - positions[: -m - 1], axis=1)
-        hit = np.flatnonzero(arc[m + 1 :] - arc[: -m - 1] > 2.0 * CHORD_FACTOR * chord_m)
+    found_a: list[IntArray] = []
+    found_m: list[IntArray] = []
+    found_chord: list[FloatArray] = []
+    for run in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
+        chord_m = np.linalg.norm(positions[run + 1 :] - positions[: -run - 1], axis=1)
+        hit = np.flatnonzero(arc[run + 1 :] - arc[: -run - 1] > 2.0 * CHORD_FACTOR * chord_m)
         found_a.append(hit)
-        found_m.append(np.full(hit.size, m))
+        found_m.append(np.full(hit.size, run))
         found_chord.append(chord_m[hit])
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
     a = np.concatenate(found_a)
