@@ -121,6 +121,9 @@ def _blocked_crossings(
 #: Samples per block of the far search: each block is bounded by a ball, so a plane that
 #: misses the ball is crossed nowhere in the block.
 BLOCK = 16
+#: Rings of blocks visited one at a time around a pair's own block (most crossings lie
+#: within two blocks); after that every remaining block is tested at once.
+RING_ROUNDS = 3
 
 
 def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -153,7 +156,9 @@ def _far_crossings(
     block (ring r: blocks b_i - r and b_i + r). A block whose ball the plane misses holds no
     crossing and costs one dot product; only cut blocks are searched sample by sample. A
     pair stops once its best score is below 16 r + 0.5, the least score any unvisited
-    segment can have, or when the window is exhausted.
+    segment can have. Pairs still open after ``RING_ROUNDS`` rings test every remaining
+    block's ball at once and search all the cut ones, so no pair keeps the loop going
+    across the whole window.
 
     Returns the points, shape (P, D), whether a crossing was found, shape (P,), and its
     fractional sample index in the demo, shape (P,) (NaN where none was found).
@@ -174,38 +179,56 @@ def _far_crossings(
     best_seg = np.full(n_pairs, -1, dtype=np.int64)
     q = np.arange(BLOCK)
     samples_of_block = np.arange(BLOCK + 1)
+
+    def searched(rows: np.ndarray, b: np.ndarray) -> None:
+        """Search blocks ``b`` of pairs ``rows`` sample by sample and keep each pair's best."""
+        for start in range(0, rows.size, MAX_BLOCK // (BLOCK + 1)):
+            r, bb = rows[start : start + MAX_BLOCK // (BLOCK + 1)], b[start : start + MAX_BLOCK // (BLOCK + 1)]
+            cols = np.minimum(bb[:, None] * BLOCK + samples_of_block[None, :], n_samples - 1)
+            dist = np.einsum("pwd,pd->pw", aligned[demos[r, None], cols], t[r]) - plane[r, None]
+            seg = bb[:, None] * BLOCK + q[None, :]
+            inside = (seg >= seg_lo[r, None]) & (seg <= seg_hi[r, None])
+            crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
+            score = np.where(crosses, np.abs(seg + 0.5 - sections[r, None]), np.inf)
+            j = np.argmin(score, axis=1)
+            pick = np.arange(r.size)
+            s_score, s_seg = score[pick, j], seg[pick, j]
+            # A pair may appear more than once: its lexicographic (score, segment) minimum.
+            order = np.lexsort((s_seg, s_score, r))
+            r, s_score, s_seg = r[order], s_score[order], s_seg[order]
+            first = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
+            r, s_score, s_seg = r[first], s_score[first], s_seg[first]
+            better = (s_score < best_score[r]) | ((s_score == best_score[r]) & (s_seg < best_seg[r]))
+            best_score[r[better]] = s_score[better]
+            best_seg[r[better]] = s_seg[better]
+
     active = np.flatnonzero(seg_lo <= seg_hi)
     ring = 0
-    while active.size:
-        # Left block first: on equal scores the smaller segment wins, as in the dense search.
-        for side in ((0,) if ring == 0 else (-1, 1)):
-            rows = active
-            b = home[rows] + side * ring
-            ok = (b >= block_lo[rows]) & (b <= block_hi[rows])
-            rows, b = rows[ok], b[ok]
-            cut = np.abs(np.einsum("pd,pd->p", t[rows], balls[0][demos[rows], b]) - plane[rows]) <= reach[demos[rows], b]
-            rows, b = rows[cut], b[cut]
-            if rows.size == 0:
-                continue
-            cols = np.minimum(b[:, None] * BLOCK + samples_of_block[None, :], n_samples - 1)
-            dist = np.einsum("pwd,pd->pw", aligned[demos[rows, None], cols], t[rows]) - plane[rows, None]
-            seg = b[:, None] * BLOCK + q[None, :]
-            inside = (seg >= seg_lo[rows, None]) & (seg <= seg_hi[rows, None])
-            crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
-            score = np.where(crosses, np.abs(seg + 0.5 - sections[rows, None]), np.inf)
-            j = np.argmin(score, axis=1)
-            pick = np.arange(rows.size)
-            s_score, s_seg = score[pick, j], seg[pick, j]
-            better = (s_score < best_score[rows]) | ((s_score == best_score[rows]) & (s_seg < best_seg[rows]))
-            best_score[rows[better]] = s_score[better]
-            best_seg[rows[better]] = s_seg[better]
-        nxt = ring + 1
-        left_open = home[active] - nxt >= block_lo[active]
-        right_open = home[active] + nxt <= block_hi[active]
-        # Unvisited segments after ring r score at least BLOCK r + 0.5 (ties go to the left
-        # one, which may be unvisited: hence strictly below).
-        active = active[(best_score[active] >= BLOCK * ring + 0.5) & (left_open | right_open)]
-        ring = nxt
+    while active.size and ring < RING_ROUNDS:
+        b = np.concatenate([home[active] - ring, home[active] + ring]) if ring else home[active]
+        rows = np.concatenate([active, active]) if ring else active
+        ok = (b >= block_lo[rows]) & (b <= block_hi[rows])
+        rows, b = rows[ok], b[ok]
+        cut = np.abs(np.einsum("pd,pd->p", t[rows], balls[0][demos[rows], b]) - plane[rows]) <= reach[demos[rows], b]
+        searched(rows[cut], b[cut])
+        ring += 1
+        # Unvisited segments after ring r - 1 score at least BLOCK (r - 1) + 0.5 (ties go
+        # to the left one, which may be unvisited: hence strictly below).
+        active = active[(best_score[active] >= BLOCK * (ring - 1) + 0.5)
+                        & ((home[active] - ring >= block_lo[active]) | (home[active] + ring <= block_hi[active]))]
+    if active.size:
+        # Every remaining block of the window at once: its ball test, then the cut ones.
+        blocks = np.arange(balls[1].shape[1])
+        for start in range(0, active.size, MAX_BLOCK // blocks.size):
+            rows = active[start : start + MAX_BLOCK // blocks.size]
+            offset = np.einsum("pd,pbd->pb", t[rows], balls[0][demos[rows]]) - plane[rows, None]
+            open_block = (
+                (np.abs(blocks[None, :] - home[rows, None]) >= ring)
+                & (blocks[None, :] >= block_lo[rows, None])
+                & (blocks[None, :] <= block_hi[rows, None])
+            )
+            pr, bk = np.nonzero(open_block & (np.abs(offset) <= reach[demos[rows]]))
+            searched(rows[pr], bk)
     found = np.isfinite(best_score)
     points = np.zeros((n_pairs, dim))
     index = np.full(n_pairs, np.nan)
