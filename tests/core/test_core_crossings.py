@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from raw_logs import raw_demo_set
 
+from canal_core import crossings
 from canal_core.alignment import resampled_demonstrations
 from canal_core.crossings import NEAR_WINDOW, plane_crossings
 from canal_core.envelope import bracketing_sections
@@ -51,9 +52,14 @@ def test_block_search_matches_the_dense_rule(shape: str, seed: int, n_samples: i
     np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("rounds", [1, 3])
 @pytest.mark.parametrize("seed", range(3))
-def test_ring_search_matches_the_dense_rule_on_looping_demos(seed: int) -> None:
-    # Random walks that loop back: many crossings per plane, far ones and ties.
+def test_ring_search_matches_the_dense_rule_on_looping_demos(
+    seed: int, rounds: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Random walks that loop back: many crossings per plane, far ones and ties. One ring
+    # round sends most pairs to the all-remaining-blocks step; three keep most in the rings.
+    monkeypatch.setattr(crossings, "RING_ROUNDS", rounds)
     rng = np.random.default_rng(seed)
     n_samples = 90
     base = np.cumsum(rng.normal(size=(n_samples, 3)), axis=0)
