@@ -286,19 +286,25 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
         m = np.concatenate(found_m)
         chord = np.concatenate(found_chord)
         b = a + m + 1
-        step = np.empty(a.size)
-        single = m == 1
-        step[single] = _local_medians(steps, width, a[single] + 1)
-        if not single.all():
-            wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
-            step[~single] = _local_medians(steps, wide, (a[~single] + b[~single]) // 2)
-        limit = np.maximum(CHORD_FACTOR * chord, SPIKE_FACTOR * 0.5 * (m + 1) * step)
-        # Each interior sample a + k (k = 1..m) on its own.
+        # Each interior sample a + k (k = 1..m) on its own; the chord test first, so the
+        # local medians are taken only for windows where some sample passed it.
         owner = np.repeat(np.arange(a.size), m)
         k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
         mid = 0.5 * (positions[a] + positions[b])
         dev = np.linalg.norm(positions[a[owner] + k] - mid[owner], axis=1)
-        spike[(a[owner] + k)[dev > limit[owner]]] = True
+        over = dev > CHORD_FACTOR * chord[owner]
+        if over.any():
+            owner, k, dev = owner[over], k[over], dev[over]
+            need = np.unique(owner)
+            step = np.zeros(a.size)
+            single = need[m[need] == 1]
+            longer = need[m[need] > 1]
+            step[single] = _local_medians(steps, width, a[single] + 1)
+            if longer.size:
+                wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
+                step[longer] = _local_medians(steps, wide, (a[longer] + b[longer]) // 2)
+            limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+            spike[(a[owner] + k)[dev > limit[owner]]] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     end_scale = _local_medians(steps, width, np.array([1, n - 2]))
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
