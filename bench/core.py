@@ -14,7 +14,9 @@ resampled to 1,000 rows as the issue measured them, N = 1,000. ``canal_core.fit`
 raw rows (its preparation stage included). The reference implementation (LFD_Canal_Surface_Pkg,
 MIT, read by path and never copied: its ``get_mean`` + ``get_tnb`` + ``get_canal_surface`` fit and
 ``get_rep_traj`` reproduction) gets the demos already aligned by canal_core (alignment not timed
-for it), so the ratio flatters the reference. When its file is absent the rows say so.
+for it), so the ratio flatters the reference. When its file is absent the rows say so. Both
+sides run best of the same number of interleaved runs; the last columns give CPU time (this
+process), which a loaded shared machine distorts less than wall time.
 """
 
 from __future__ import annotations
@@ -127,16 +129,21 @@ def resampled_rows(positions: np.ndarray, rows: int = 1000) -> np.ndarray:
 
 def interleaved_best(
     ours: list[Callable[[], object]], theirs: list[Callable[[], object]], repeats: int, their_repeats: int
-) -> tuple[float, float, float, float]:
-    """Best wall times (s) of ours[0], ours[1], theirs[0], theirs[1], run in turn (nan if absent)."""
-    best = [math.inf] * 4
+) -> tuple[list[float], list[float]]:
+    """Best wall times and best CPU times (s) of ours[0], ours[1], theirs[0], theirs[1], run in
+    turn (nan if absent). CPU time (this process only) is what a shared, loaded machine
+    distorts least: a call that loses its core for a while keeps its CPU time."""
+    wall = [math.inf] * 4
+    cpu = [math.inf] * 4
     for r in range(repeats):
         calls = list(ours) + (list(theirs) if r < their_repeats else [])
         for k, call in enumerate(calls):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             call()
-            best[k] = min(best[k], time.perf_counter() - t0)
-    return tuple(b if math.isfinite(b) else float("nan") for b in best)  # type: ignore[return-value]
+            wall[k] = min(wall[k], time.perf_counter() - t0)
+            cpu[k] = min(cpu[k], time.process_time() - c0)
+    return ([b if math.isfinite(b) else float("nan") for b in wall],
+            [b if math.isfinite(b) else float("nan") for b in cpu])
 
 
 def raw_sets() -> list[tuple[str, list[np.ndarray]]]:
@@ -162,7 +169,8 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
     print("\nraw robot logs, circle, N = 1,000: canal_core vs LFD_Canal_Surface_Pkg (same run, best of", repeats, ")")
     if reference is None:
         print("  reference row skipped: canal_surface_algorithm.py not found (pass --reference PATH)")
-    print(f"{'set':<26} {'fit ms':>8} {'ref fit ms':>11} {'ref/ours':>9} {'repro ms':>9} {'ref repro ms':>13} {'ref/ours':>9}")
+    print(f"{'set':<26} {'fit ms':>8} {'ref fit ms':>11} {'ref/ours':>9} {'repro ms':>9} {'ref repro ms':>13} "
+          f"{'ref/ours':>9} {'fit cpu ms':>11} {'ref cpu ms':>11} {'ref/ours':>9}")
     for name, demos in raw_sets():
         canal = canal_core.fit(demos, n_samples=n)
         start = canal.directrix[0] + 0.5 * canal.radii[0] * canal.normals[0]
@@ -184,9 +192,11 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
             theirs = [ref_fit_once,
                       lambda: reference.get_rep_traj(start, [0, 1], mean, radii, et, en, eb)]  # noqa: B023
         # Interleaved, so both implementations see the same load on a shared machine.
-        fit_s, rep_s, ref_fit, ref_rep = interleaved_best(ours, theirs, repeats, max(3, repeats // 2))
+        # Both sides best of the same number of runs, interleaved.
+        (fit_s, rep_s, ref_fit, ref_rep), (fit_c, _, ref_fit_c, _) = interleaved_best(ours, theirs, repeats, repeats)
         print(f"{name:<26} {1e3 * fit_s:>8.2f} {1e3 * ref_fit:>11.1f} {ref_fit / fit_s:>8.1f}x "
-              f"{1e3 * rep_s:>9.3f} {1e3 * ref_rep:>13.2f} {ref_rep / rep_s:>8.0f}x")
+              f"{1e3 * rep_s:>9.3f} {1e3 * ref_rep:>13.2f} {ref_rep / rep_s:>8.0f}x "
+              f"{1e3 * fit_c:>11.2f} {1e3 * ref_fit_c:>11.1f} {ref_fit_c / fit_c:>8.1f}x")
         peer = None if reference is None else "LFD_Canal_Surface_Pkg"
         rows.append(summary_row(f"fit, circle, {name}, N={n}", 1e3 * fit_s, "ms", peer_name=peer,
                                 peer_value=None if reference is None else 1e3 * ref_fit))

@@ -23,6 +23,7 @@ from .errors import (
 )
 from .model import Canal, FitOptions, Reproduction, fit, fit_options
 from .orientation import OrientationModel
+from .sections import SectionKind, register_section_kind, section_kind, section_kinds
 from .surface import Mesh
 from .tracker import Tracker, TrackerTarget
 
@@ -40,6 +41,7 @@ __all__ = [
     "OrientationModel",
     "OutsideCanalError",
     "Reproduction",
+    "SectionKind",
     "Tracker",
     "TrackerTarget",
     "__version__",
@@ -47,4 +49,7 @@ __all__ = [
     "fit",
     "fit_options",
     "metrics",
+    "register_section_kind",
+    "section_kind",
+    "section_kinds",
 ]

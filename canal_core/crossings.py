@@ -121,6 +121,9 @@ def _blocked_crossings(
 #: Samples per block of the far search: each block is bounded by a ball, so a plane that
 #: misses the ball is crossed nowhere in the block.
 BLOCK = 16
+#: Rings of blocks visited one at a time around a pair's own block (most crossings lie
+#: within two blocks); after that every remaining block is tested at once.
+RING_ROUNDS = 3
 
 
 def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -136,29 +139,6 @@ def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
     return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
 
 
-def _block_keys(
-    sections: np.ndarray,
-    t: FloatArray,
-    plane: FloatArray,
-    ball_centres: FloatArray,
-    reach: FloatArray,
-    seg_lo: np.ndarray,
-    seg_hi: np.ndarray,
-) -> FloatArray:
-    """Per pair and block of one demo, shape (P, nb): the smallest |s + 0.5 - i| of the
-    block's segments inside the window when the plane may cut the block's ball (radius
-    plus rounding slack: ``reach``), else inf."""
-    offset = t @ ball_centres.T - plane[:, None]  # (P, nb), one matrix product per demo
-    start = np.arange(reach.size)[None, :] * BLOCK
-    first = np.maximum(start, seg_lo[:, None])
-    last = np.minimum(start + (BLOCK - 1), seg_hi[:, None])
-    cut = (np.abs(offset) <= reach[None, :]) & (first <= last)
-    i = sections[:, None] - 0.5
-    # min over s in [first, last] of |s + 0.5 - i|: 0.5 when the range holds i - 1 or i.
-    near = np.maximum(np.maximum(first - i, i - last), 0.5)
-    return np.where(cut, near, np.inf)
-
-
 def _far_crossings(
     aligned: FloatArray,
     centres: FloatArray,
@@ -170,10 +150,15 @@ def _far_crossings(
 ) -> tuple[FloatArray, np.ndarray, FloatArray]:
     """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
 
-    Same answer as :func:`_crossings_in_window` with that width, at a cost that does not
-    depend on how far the crossing lies: the planes are tested against the block balls
-    (one matrix product per demo), then only blocks the plane may cut are searched sample
-    by sample, nearest first, until no untested block could hold a nearer crossing.
+    Same answer as :func:`_crossings_in_window` with that width (the lexicographic minimum
+    of (|s + 0.5 - i|, s) over the crossing segments s), at a cost that does not depend on
+    the window: the blocks of ``BLOCK`` segments are visited in rings around section i's
+    block (ring r: blocks b_i - r and b_i + r). A block whose ball the plane misses holds no
+    crossing and costs one dot product; only cut blocks are searched sample by sample. A
+    pair stops once its best score is below 16 r + 0.5, the least score any unvisited
+    segment can have. Pairs still open after ``RING_ROUNDS`` rings test every remaining
+    block's ball at once and search all the cut ones, so no pair keeps the loop going
+    across the whole window.
 
     Returns the points, shape (P, D), whether a crossing was found, shape (P,), and its
     fractional sample index in the demo, shape (P,) (NaN where none was found).
@@ -188,46 +173,62 @@ def _far_crossings(
     # bounded by the largest norms of the directrix and of the ball centres.
     bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(balls[0], axis=2).max())
     reach = balls[1] * (1.0 + 1e-9) + 1e-12 * (balls[1] + bound)
-    key = np.empty((n_pairs, balls[1].shape[1]))
-    for j in np.unique(demos).tolist():
-        rows = np.flatnonzero(demos == j)
-        key[rows] = _block_keys(sections[rows], t[rows], plane[rows], balls[0][j], reach[j],
-                                seg_lo[rows], seg_hi[rows])
+    home = sections // BLOCK
+    block_lo, block_hi = seg_lo // BLOCK, seg_hi // BLOCK
     best_score = np.full(n_pairs, np.inf)
     best_seg = np.full(n_pairs, -1, dtype=np.int64)
     q = np.arange(BLOCK)
-    active = np.arange(n_pairs)
-    while active.size:
-        # The two nearest blocks the plane may cut: the block just before the crossing is
-        # usually cut too (its last sample lies next to the plane), so one round finds most.
-        picked_pairs, picked_blocks = [], []
-        for _ in range(2):
-            k = np.argmin(key[active], axis=1)
-            k_key = key[active, k]
-            go = np.isfinite(k_key) & (k_key <= best_score[active])
-            picked_pairs.append(active[go])
-            picked_blocks.append(k[go])
-            key[active[go], k[go]] = np.inf  # searched
-        rows, b = np.concatenate(picked_pairs), np.concatenate(picked_blocks)
-        if rows.size == 0:
-            break
-        cols = np.minimum(b[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
-        dist = np.einsum("pwd,pd->pw", aligned[demos[rows, None], cols], t[rows]) - plane[rows, None]
-        seg = b[:, None] * BLOCK + q[None, :]
-        inside = (seg >= seg_lo[rows, None]) & (seg <= seg_hi[rows, None])
-        crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
-        score = np.where(crosses, np.abs(seg + 0.5 - sections[rows, None]), np.inf)
-        j = np.argmin(score, axis=1)
-        s_score, s_seg = score[np.arange(rows.size), j], seg[np.arange(rows.size), j]
-        # Lexicographic (score, segment) minimum: a pair may appear twice in ``rows``.
-        order = np.lexsort((s_seg, s_score))
-        rows, s_score, s_seg = rows[order], s_score[order], s_seg[order]
-        first = np.unique(rows, return_index=True)[1]
-        rows, s_score, s_seg = rows[first], s_score[first], s_seg[first]
-        better = (s_score < best_score[rows]) | ((s_score == best_score[rows]) & (s_seg < best_seg[rows]))
-        best_score[rows[better]] = s_score[better]
-        best_seg[rows[better]] = s_seg[better]
-        active = picked_pairs[0]
+    samples_of_block = np.arange(BLOCK + 1)
+
+    def searched(rows: np.ndarray, b: np.ndarray) -> None:
+        """Search blocks ``b`` of pairs ``rows`` sample by sample and keep each pair's best."""
+        for start in range(0, rows.size, MAX_BLOCK // (BLOCK + 1)):
+            r, bb = rows[start : start + MAX_BLOCK // (BLOCK + 1)], b[start : start + MAX_BLOCK // (BLOCK + 1)]
+            cols = np.minimum(bb[:, None] * BLOCK + samples_of_block[None, :], n_samples - 1)
+            dist = np.einsum("pwd,pd->pw", aligned[demos[r, None], cols], t[r]) - plane[r, None]
+            seg = bb[:, None] * BLOCK + q[None, :]
+            inside = (seg >= seg_lo[r, None]) & (seg <= seg_hi[r, None])
+            crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
+            score = np.where(crosses, np.abs(seg + 0.5 - sections[r, None]), np.inf)
+            j = np.argmin(score, axis=1)
+            pick = np.arange(r.size)
+            s_score, s_seg = score[pick, j], seg[pick, j]
+            # A pair may appear more than once: its lexicographic (score, segment) minimum.
+            order = np.lexsort((s_seg, s_score, r))
+            r, s_score, s_seg = r[order], s_score[order], s_seg[order]
+            first = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
+            r, s_score, s_seg = r[first], s_score[first], s_seg[first]
+            better = (s_score < best_score[r]) | ((s_score == best_score[r]) & (s_seg < best_seg[r]))
+            best_score[r[better]] = s_score[better]
+            best_seg[r[better]] = s_seg[better]
+
+    active = np.flatnonzero(seg_lo <= seg_hi)
+    ring = 0
+    while active.size and ring < RING_ROUNDS:
+        b = np.concatenate([home[active] - ring, home[active] + ring]) if ring else home[active]
+        rows = np.concatenate([active, active]) if ring else active
+        ok = (b >= block_lo[rows]) & (b <= block_hi[rows])
+        rows, b = rows[ok], b[ok]
+        cut = np.abs(np.einsum("pd,pd->p", t[rows], balls[0][demos[rows], b]) - plane[rows]) <= reach[demos[rows], b]
+        searched(rows[cut], b[cut])
+        ring += 1
+        # Unvisited segments after ring r - 1 score at least BLOCK (r - 1) + 0.5 (ties go
+        # to the left one, which may be unvisited: hence strictly below).
+        active = active[(best_score[active] >= BLOCK * (ring - 1) + 0.5)
+                        & ((home[active] - ring >= block_lo[active]) | (home[active] + ring <= block_hi[active]))]
+    if active.size:
+        # Every remaining block of the window at once: its ball test, then the cut ones.
+        blocks = np.arange(balls[1].shape[1])
+        for start in range(0, active.size, MAX_BLOCK // blocks.size):
+            rows = active[start : start + MAX_BLOCK // blocks.size]
+            offset = np.einsum("pd,pbd->pb", t[rows], balls[0][demos[rows]]) - plane[rows, None]
+            open_block = (
+                (np.abs(blocks[None, :] - home[rows, None]) >= ring)
+                & (blocks[None, :] >= block_lo[rows, None])
+                & (blocks[None, :] <= block_hi[rows, None])
+            )
+            pr, bk = np.nonzero(open_block & (np.abs(offset) <= reach[demos[rows]]))
+            searched(rows[pr], bk)
     found = np.isfinite(best_score)
     points = np.zeros((n_pairs, dim))
     index = np.full(n_pairs, np.nan)
@@ -298,7 +299,7 @@ def located_crossings(
                 aligned, centres, tangents, sections[pending[rows]], demos[pending[rows]], wide, balls
             ),
             pending.size,
-            balls[1].shape[1] + 2 * (BLOCK + 1),
+            4 * (BLOCK + 1),
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop

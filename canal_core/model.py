@@ -20,16 +20,18 @@ from .alignment import (
     spline_parameter,
 )
 from .cross_sections import (
-    KINDS,
     KINDS_3D,
     CrossSections,
     fitted_sections,
     floored_sections,
     scaled_sections,
+    section_kind,
+    section_kinds,
     section_radii,
 )
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
+from .envelope import enclosing_scales
 from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, OutsideCanalError
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
 from .goal import goal_displacements
@@ -39,7 +41,6 @@ from .reproduce import (
     END_DECAY,
     ENTRY_FRACTION,
     Location,
-    enclosing_scales,
     located_points,
     path_ratios,
     ratio_rule_positions,
@@ -77,8 +78,9 @@ FORMAT_VERSION = 1
 FrameKind = Literal["rmf", "frenet"]
 AlignmentKind = Literal["spline", "dtw"]
 DirectrixKind = Literal["mean", "gmr"]
-#: Cross-section names fitted from demonstrations ("interval" is the 2-D form of each and is
-#: not chosen by name).
+#: The built-in choices of ``cross_section`` ("interval" is the 2-D form of each and is not
+#: chosen by name); kinds registered later are accepted by :func:`fit` too
+#: (:func:`canal_core.sections.section_kinds` with dim=3 lists them all).
 CROSS_SECTIONS: tuple[str, ...] = KINDS_3D
 FRAMES: tuple[FrameKind, ...] = get_args(FrameKind)
 ALIGNMENTS: tuple[AlignmentKind, ...] = get_args(AlignmentKind)
@@ -188,7 +190,7 @@ class Canal:
     envelope_margin : float
         The fit's report of how much the sections fitted to the plane crossings had to grow
         so that every demonstrated sample is inside: the largest relative enlargement of
-        any section (0.02 = 2 %). See :func:`canal_core.reproduce.enclosing_scales`.
+        any section (0.02 = 2 %). See :func:`canal_core.envelope.enclosing_scales`.
     """
 
     directrix: FloatArray
@@ -423,9 +425,10 @@ class Canal:
             return strip_mesh(self.directrix, self.normals, self.sections)
         check_int(n_angles, 3, "n_angles")
         if envelope:
-            if self.sections.kind != "circle":
+            if not self.sections.spec.isotropic:
                 raise InvalidInputError(
-                    f"expected envelope=True only with circle sections, got {self.sections.kind!r}",
+                    "expected envelope=True only with isotropic (circle) sections, "
+                    f"got {self.sections.kind!r}",
                     field="envelope",
                 )
             rings = envelope_vertices(
@@ -477,9 +480,19 @@ class Canal:
             n = arr["directrix"].shape[0]
             sec = dict(data["sections"])
             kind = sec.pop("kind")
-            if kind not in KINDS:
-                raise ModelFormatError(f"unknown cross-section kind {kind!r}", field="sections")
+            if kind not in section_kinds(dim):
+                raise ModelFormatError(
+                    f"expected a {dim}-D cross-section kind among {', '.join(map(repr, section_kinds(dim)))}, "
+                    f"got {kind!r}",
+                    field="sections",
+                )
             params = {k: np.asarray(v, dtype=np.float64) for k, v in sec.items()}
+            expected_params = section_kind(kind).params
+            if sorted(params) != sorted(expected_params):
+                raise ModelFormatError(
+                    f"expected {kind} section parameters {', '.join(expected_params)}, got {', '.join(params)}",
+                    field="sections",
+                )
             binormals = None if data["binormals"] is None else np.asarray(data["binormals"], dtype=np.float64)
             expected = {
                 "directrix": (n, dim), "tangents": (n, dim), "normals": (n, dim), "arclength": (n,),
@@ -566,7 +579,7 @@ def fit_options(
 ) -> FitOptions:
     """Validated :class:`FitOptions`."""
     return FitOptions(
-        cross_section=check_choice(cross_section, CROSS_SECTIONS, "cross_section"),
+        cross_section=check_choice(cross_section, section_kinds(3), "cross_section"),
         frames=cast(FrameKind, check_choice(frames, FRAMES, "frames")),
         alignment=cast(AlignmentKind, check_choice(alignment, ALIGNMENTS, "alignment")),
         directrix=cast(DirectrixKind, check_choice(directrix, DIRECTRICES, "directrix")),
@@ -638,10 +651,11 @@ def fit(
     options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
     demos_, times_, dim = check_demonstrations(demos, timestamps)
     quats_ = None if orientations is None else check_demonstration_orientations(orientations, demos_)
-    if options.cross_section in ("spline", "ellipse") and dim == 3 and len(demos_) < 3:
-        # Two crossings per plane fix one axis only: the other would be made up.
+    min_demos = section_kind(options.cross_section).min_demos
+    if dim == 3 and len(demos_) < min_demos:
+        # Two crossings per plane fix one axis only (spline, ellipse): the other would be made up.
         raise InvalidInputError(
-            f"expected at least 3 demonstrations for {options.cross_section} cross-sections, "
+            f"expected at least {min_demos} demonstrations for {options.cross_section} cross-sections, "
             f"got {len(demos_)}; use circle or mec with 2",
             field="cross_section",
         )
@@ -667,7 +681,10 @@ def fit(
     arclength = np.concatenate([[0.0], np.cumsum(steps)])
     spread = float(np.ptp(aligned.reshape(-1, dim), axis=0).max())
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
-        raise DegenerateCanalError("the directrix has zero length: the demonstrations do not move")
+        raise DegenerateCanalError(
+            "the directrix has zero length: the demonstrations do not move (or cancel out on average)",
+            field="demos",
+        )
 
     tangents, normals, binormals = canal_frames(centres, options)
 
@@ -682,7 +699,7 @@ def fit(
     coords = in_plane_coordinates(crossings, centres, basis)
     if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
         raise DegenerateCanalError(
-            "every demonstration is identical: the canal has zero radius everywhere"
+            "every demonstration is identical: the canal has zero radius everywhere", field="demos"
         )
     size = float(np.abs(coords).max())
     sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)

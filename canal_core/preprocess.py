@@ -53,7 +53,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from .errors import InvalidInputError
 from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
@@ -246,6 +245,13 @@ def _repeat_mask(positions: FloatArray, tolerance: float) -> np.ndarray:
     return keep
 
 
+def _local_medians(steps: FloatArray, width: int, at: IntArray) -> FloatArray:
+    """Median of the ``width`` steps centred on each sample in ``at`` (clipped at the ends)."""
+    start = np.clip(at - width // 2, 0, steps.size - width)
+    windows = steps[start[:, None] + np.arange(width)[None, :]]
+    return np.asarray(np.partition(windows, width // 2, axis=1)[:, width // 2], dtype=np.float64)
+
+
 def _spike_mask(positions: FloatArray) -> np.ndarray:
     """True for glitch samples (step 4 of the module docstring).
 
@@ -253,48 +259,56 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
     x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
     5 steps around a single sample, of the 17 steps around a longer excursion (a resampled
-    glitch brings its own ramps).
+    glitch brings its own ramps). Every m is tested at once; medians are taken only where
+    a window passed the cheap test.
     """
     n = positions.shape[0]
     spike = np.zeros(n, dtype=bool)
     if n < 5:
         return spike
-    steps = np.sqrt(np.einsum("ij,ij->i", np.diff(positions, axis=0), np.diff(positions, axis=0)))
-    width = min(2 * SPIKE_WINDOW + 1, steps.size)
-    # The median of 5 steps ignores the two large steps a glitch makes around itself.
-    local = np.partition(sliding_window_view(steps, width), width // 2, axis=1)[:, width // 2]
-    centre = np.clip(np.arange(n) - width // 2, 0, local.size - 1)
-    scale = local[centre]  # local step per sample, the window centred on it
-    wide_scale: FloatArray | None = None  # the same over 17 steps, for longer excursions
+    diffs = np.diff(positions, axis=0)
+    steps = np.sqrt(np.einsum("ij,ij->i", diffs, diffs))
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    for m in range(1, MAX_GLITCH_RUN + 1):
-        if n < m + 2:
-            break
-        a_all = np.arange(n - m - 1)
-        chord_all = np.linalg.norm(positions[a_all + m + 1] - positions[a_all], axis=1)
-        # Cheap test first: a sample that far from the midpoint makes the path between a and
-        # b at least twice that long (dev <= arc / 2), so most windows need no more.
-        cand = np.flatnonzero(arc[a_all + m + 1] - arc[a_all] > 2.0 * CHORD_FACTOR * chord_all)
-        if cand.size == 0:
-            continue
-        a, chord = a_all[cand], chord_all[cand]
+    # Cheap test first: a sample that far from the midpoint makes the path between a and
+    # b at least twice that long (dev <= arc / 2), so most windows need no more.
+    found_a: list[IntArray] = []
+    found_m: list[IntArray] = []
+    found_chord: list[FloatArray] = []
+    for run in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
+        chord_m = np.linalg.norm(positions[run + 1 :] - positions[: -run - 1], axis=1)
+        hit = np.flatnonzero(arc[run + 1 :] - arc[: -run - 1] > 2.0 * CHORD_FACTOR * chord_m)
+        found_a.append(hit)
+        found_m.append(np.full(hit.size, run))
+        found_chord.append(chord_m[hit])
+    width = min(2 * SPIKE_WINDOW + 1, steps.size)
+    a = np.concatenate(found_a)
+    if a.size:
+        m = np.concatenate(found_m)
+        chord = np.concatenate(found_chord)
         b = a + m + 1
+        # Each interior sample a + k (k = 1..m) on its own; the chord test first, so the
+        # local medians are taken only for windows where some sample passed it.
+        owner = np.repeat(np.arange(a.size), m)
+        k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
         mid = 0.5 * (positions[a] + positions[b])
-        dev = np.stack([np.linalg.norm(positions[a + k] - mid, axis=1) for k in range(1, m + 1)], axis=1)
-        if m == 1:
-            step = scale[a + 1]
-        else:
-            if wide_scale is None:
+        dev = np.linalg.norm(positions[a[owner] + k] - mid[owner], axis=1)
+        over = dev > CHORD_FACTOR * chord[owner]
+        if over.any():
+            owner, k, dev = owner[over], k[over], dev[over]
+            need = np.unique(owner)
+            step = np.zeros(a.size)
+            single = need[m[need] == 1]
+            longer = need[m[need] > 1]
+            step[single] = _local_medians(steps, width, a[single] + 1)
+            if longer.size:
                 wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
-                rolling = np.partition(sliding_window_view(steps, wide), wide // 2, axis=1)[:, wide // 2]
-                wide_scale = rolling[np.clip(np.arange(n) - wide // 2, 0, rolling.size - 1)]
-            step = wide_scale[(a + b) // 2]
-        limit = np.maximum(CHORD_FACTOR * chord, SPIKE_FACTOR * 0.5 * (m + 1) * step)
-        rows, k = np.nonzero(dev > limit[:, None])  # each interior sample on its own
-        spike[a[rows] + 1 + k] = True
+                step[longer] = _local_medians(steps, wide, (a[longer] + b[longer]) // 2)
+            limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+            spike[(a[owner] + k)[dev > limit[owner]]] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
-    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], scale[1]) * 2.0
-    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], scale[-2]) * 2.0
+    end_scale = _local_medians(steps, width, np.array([1, n - 2]))
+    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
+    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], end_scale[1]) * 2.0
     return spike
 
 

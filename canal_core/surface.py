@@ -163,11 +163,14 @@ def strip_mesh(centres: FloatArray, normals: FloatArray, sections: CrossSections
     ----------
     centres, normals : arrays, shape (N, 2)
     sections : CrossSections
-        Of kind ``interval``.
+        Of a kind with in-plane dimension 1 (``interval``).
     """
     n = centres.shape[0]
-    lower = centres + sections.params["lower"][:, None] * normals
-    upper = centres + sections.params["upper"][:, None] * normals
+    index = np.arange(n)
+    reach_up = sections.spec.boundary_distance(sections, index, np.ones((n, 1)))
+    reach_down = sections.spec.boundary_distance(sections, index, -np.ones((n, 1)))
+    lower = centres - reach_down[:, None] * normals
+    upper = centres + reach_up[:, None] * normals
     flat = np.stack([lower, upper], axis=1).reshape(-1, 2)
     vertices = np.column_stack([flat, np.zeros(2 * n)])
     i = np.arange(n - 1)

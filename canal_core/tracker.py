@@ -203,7 +203,7 @@ def tracker_step(
     direction = q / norm if norm > 0.0 else _DEFAULT_DIRECTIONS[q.shape[0]]
     target_index = min(index + max(lookahead, 1), n - 1)
     planned = state.direction is not None and state.eta is not None
-    if g.sections.kind == "circle":
+    if g.sections.spec.isotropic:
         # The default kind: the boundary distance does not depend on the direction.
         radius = g.sections.params["radius"]
         r3 = (float(radius[index]), float(radius[upper]), float(radius[target_index]))
@@ -303,7 +303,7 @@ def tracker_steps(
     positions = np.asarray(positions, dtype=np.float64)
     if b == 0:
         return [], []
-    if g.sections.kind != "circle" or n < 3 or b == 1:
+    if not g.sections.spec.isotropic or n < 3 or b == 1:
         for i in range(b):
             out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
         return out_t, out_s  # type: ignore[return-value]
@@ -423,7 +423,7 @@ def _feed_forward(
     dt = float(g.section_times[nxt] - g.section_times[index])
     if dt <= 0.0:
         return np.zeros_like(target)
-    if g.sections.kind == "circle":
+    if g.sections.spec.isotropic:
         reach = float(g.sections.params["radius"][nxt])
     else:
         reach = float(boundary_distance(g.sections, np.array([nxt]), direction[None, :])[0])

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from raw_logs import raw_demo_set
 
+from canal_core import crossings
 from canal_core.alignment import resampled_demonstrations
 from canal_core.crossings import NEAR_WINDOW, plane_crossings
+from canal_core.envelope import bracketing_sections
 from canal_core.frames import rotation_minimizing_frames, smoothed_curve
 from canal_core.preprocess import prepared_demonstration
 
@@ -48,3 +50,51 @@ def test_block_search_matches_the_dense_rule(shape: str, seed: int, n_samples: i
     tangents, _, _ = rotation_minimizing_frames(smoothed_curve(centres, 0.02 * n_samples))
     fast = plane_crossings(aligned, centres, tangents)
     np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("rounds", [1, 3])
+@pytest.mark.parametrize("seed", range(3))
+def test_ring_search_matches_the_dense_rule_on_looping_demos(
+    seed: int, rounds: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Random walks that loop back: many crossings per plane, far ones and ties. One ring
+    # round sends most pairs to the all-remaining-blocks step; three keep most in the rings.
+    monkeypatch.setattr(crossings, "RING_ROUNDS", rounds)
+    rng = np.random.default_rng(seed)
+    n_samples = 90
+    base = np.cumsum(rng.normal(size=(n_samples, 3)), axis=0)
+    aligned = np.stack([np.roll(base + rng.normal(scale=1.5, size=base.shape), k, axis=0) for k in (-12, 0, 7)])
+    centres = aligned.mean(axis=0)
+    tangents, _, _ = rotation_minimizing_frames(smoothed_curve(centres, 0.02 * n_samples))
+    fast = plane_crossings(aligned, centres, tangents)
+    np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
+
+
+def nearest_bracket(sample: np.ndarray, approx: int, tangents: np.ndarray, plane: np.ndarray) -> int | None:
+    d = tangents @ sample - plane
+    pairs = [i for i in range(len(d) - 1) if d[i] == 0.0 or np.sign(d[i]) != np.sign(d[i + 1])]
+    return min(pairs, key=lambda i: (abs(i - approx + 0.5), i)) if pairs else None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bracketing_shells_find_the_nearest_pair_of_planes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 60))
+    tangents = rng.normal(size=(n, 3)) + [2.0, 0.0, 0.0]
+    tangents /= np.linalg.norm(tangents, axis=1)[:, None]
+    plane = np.einsum("nd,nd->n", rng.normal(size=(n, 3)), tangents)
+    samples = 2.0 * rng.normal(size=(40, 3))
+    approx = rng.integers(0, n, size=40)
+    # The envelope's doubling: a window of 4, then shells (4, 8], (8, 16], ... to the whole canal.
+    index, _, found = bracketing_sections(samples, approx, tangents, plane, 4)
+    width = 4
+    while width < n - 1:
+        inner, width = width, min(2 * width, n - 1)
+        shell = bracketing_sections(samples, approx, tangents, plane, width, inner)
+        index = np.where(found, index, shell[0])
+        found = found | shell[2]
+    for k in range(40):
+        expected = nearest_bracket(samples[k], int(approx[k]), tangents, plane)
+        assert found[k] == (expected is not None)
+        if expected is not None:
+            assert index[k] == expected

@@ -280,3 +280,11 @@ def test_a_glitch_spread_by_row_resampling_is_dropped_with_its_ramps() -> None:
     positions, _ = prepared_demonstration(resampled, field="d")
     off_path = np.abs(positions[:, 2]) > 1e-9
     assert not off_path.any(), positions[off_path]
+
+
+def test_a_demo_and_its_reverse_are_refused_naming_the_demos() -> None:
+    # Found by the property test above: the mean of a path and its reverse stands still.
+    demo = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    with pytest.raises(canal_core.DegenerateCanalError) as info:
+        canal_core.fit([demo, demo[::-1].copy()], n_samples=20)
+    assert info.value.field == "demos"

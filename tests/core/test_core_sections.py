@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 from collections import Counter
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -11,6 +13,13 @@ from core_data import helix_demos, tube_demos
 import canal_core
 from canal_core import datasets
 from canal_core.cross_sections import boundary_distance
+from canal_core.sections import (
+    CrossSections,
+    SectionKind,
+    register_section_kind,
+    section_kinds,
+    unregister_section_kind,
+)
 
 KINDS = ("circle", "mec", "ellipse", "spline")
 
@@ -80,7 +89,7 @@ def test_mec_is_never_larger_than_the_max_distance_circle() -> None:
 
 def test_many_demos_mec_matches_enumeration() -> None:
     # 20 demos goes through Welzl per section; it must agree with the vectorised enumeration.
-    from canal_core.cross_sections import _mec_by_enumeration, _mec_welzl
+    from canal_core.sections.mec import _mec_by_enumeration, _mec_welzl
 
     rng = np.random.default_rng(3)
     pts = rng.normal(size=(30, 12, 2))
@@ -165,3 +174,104 @@ def test_two_dimensional_canal_is_an_interval() -> None:
     assert mesh.vertices.shape == (120, 3) and np.all(mesh.vertices[:, 2] == 0)
     for demo in demos:
         assert tight.contains(demo, tol=1e-2).all()
+
+
+# ---------------------------------------------------------------------------------------
+# A fifth kind defined only here: the registry is the one place a kind plugs in.
+
+
+def _box_sections(coords: np.ndarray) -> CrossSections:
+    """Axis-aligned boxes in (n_i, b_i) about c_i holding every crossing: half-widths (N, 2)."""
+    return CrossSections("box", {"half": np.abs(coords).max(axis=1)})
+
+
+def _box_distance(sections: CrossSections, index: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    half = sections.params["half"][index]
+    with np.errstate(divide="ignore"):
+        along = np.where(np.abs(direction) > 0, half / np.abs(direction), np.inf)
+    return np.asarray(along.min(axis=1), dtype=np.float64)
+
+
+BOX = SectionKind(
+    name="box",
+    params=("half",),
+    fitted=_box_sections,
+    boundary_distance=_box_distance,
+    scaled=lambda s, scale: CrossSections("box", {"half": s.params["half"] * scale[:, None]}),
+    floored=lambda s, floor: CrossSections("box", {"half": np.maximum(s.params["half"], floor)}),
+)
+
+
+@pytest.fixture
+def box_kind() -> Iterator[SectionKind]:
+    register_section_kind(BOX)
+    yield BOX
+    unregister_section_kind("box")
+
+
+def test_a_kind_registered_in_a_test_fits_reproduces_meshes_tracks_and_round_trips(box_kind: SectionKind) -> None:
+    demos = helix_demos()
+    assert "box" in section_kinds(3) and "box" in canal_core.section_kinds()
+    canal = canal_core.fit(demos, cross_section="box", n_samples=120)
+    assert canal.section_kind == "box" and canal.sections.params["half"].shape == (120, 2)
+    assert_points_inside(canal)
+    assert canal.contains(np.vstack(demos)).all()
+    # A box holds the circle of its half-width's smaller side and sits inside the one of
+    # its diagonal: the radii say so.
+    half = canal.sections.params["half"]
+    assert (canal.radii >= half.max(axis=1) * (1 - 1e-12)).all()
+    assert (canal.radii <= np.linalg.norm(half, axis=1) * (1 + 1e-12)).all()
+
+    start = demos[2][0] + 0.3 * (canal.directrix[0] - demos[2][0])
+    path = canal.reproduce(start)
+    assert canal.contains(path).all()
+    np.testing.assert_allclose(path[-1], canal.directrix[-1], atol=1e-9)
+
+    mesh = canal.mesh(n_angles=8)
+    rings = mesh.vertices.reshape(120, 8, 3)
+    # Vertex k = 0 sits along n_i at the half-width, k = 2 along b_i.
+    np.testing.assert_allclose(np.linalg.norm(rings[:, 0] - canal.directrix, axis=1), half[:, 0], rtol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(rings[:, 2] - canal.directrix, axis=1), half[:, 1], rtol=1e-9)
+
+    # A robot that reaches every target exactly (lookahead 1 stalls such a robot on the
+    # plane it was sent to, whatever the kind: a tracker matter, not a section one).
+    tracker = canal.tracker(lookahead=2)
+    position = start.copy()
+    for _ in range(400):
+        step = tracker.step(position)
+        assert step.inside and canal.contains(step.target[None])[0]
+        if step.done:
+            break
+        position = step.target
+    assert step.done
+
+    again = canal_core.Canal.from_dict(json.loads(json.dumps(canal.to_dict())))
+    assert again.section_kind == "box"
+    np.testing.assert_array_equal(again.sections.params["half"], half)
+    np.testing.assert_array_equal(again.reproduce(start), path)
+
+
+def test_an_unregistered_kind_is_refused_by_name(box_kind: SectionKind) -> None:
+    stored = canal_core.fit(helix_demos(), cross_section="box", n_samples=40).to_dict()
+    unregister_section_kind("box")
+    with pytest.raises(canal_core.InvalidInputError, match="box") as info:
+        canal_core.fit(helix_demos(), cross_section="box")
+    assert info.value.field == "cross_section"
+    with pytest.raises(canal_core.ModelFormatError, match="box"):
+        canal_core.Canal.from_dict(stored)
+
+
+def test_a_stored_model_with_the_wrong_parameters_is_refused() -> None:
+    stored = canal_core.fit(helix_demos(), cross_section="mec", n_samples=40).to_dict()
+    stored["sections"]["kind"] = "circle"  # mec's center and radius are not a circle's radius
+    with pytest.raises(canal_core.ModelFormatError, match="radius") as info:
+        canal_core.Canal.from_dict(stored)
+    assert info.value.field == "sections"
+
+
+def test_a_kind_name_cannot_be_taken_twice() -> None:
+    clash = SectionKind(name="circle", params=("half",), fitted=_box_sections, boundary_distance=_box_distance,
+                        scaled=BOX.scaled, floored=BOX.floored)
+    with pytest.raises(canal_core.InvalidInputError, match="already registered"):
+        register_section_kind(clash)
+    assert canal_core.fit(helix_demos(), n_samples=40).sections.spec.isotropic
