@@ -336,7 +336,7 @@ class Canal:
                 field="start",
             )
         first = min(index + 1, canal.n_sections - 1)
-        s0 = float(np.interp(index + alpha, np.arange(canal.n_sections), canal.arclength))
+        s0 = float(canal.arclength[index] + alpha * (canal.arclength[first] - canal.arclength[index]))
         u = loc.direction[0]
         reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
         share: FloatArray | None = None

@@ -89,9 +89,13 @@ def section_basis(normals: FloatArray, binormals: FloatArray | None) -> FloatArr
     return np.stack([normals, binormals], axis=1)
 
 
-def unit_directions(coords: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Norms, shape (M,), and unit directions, shape (M, K), of in-plane coordinates."""
-    norm = np.linalg.norm(coords, axis=1)
+def unit_directions(coords: FloatArray, norm: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+    """Norms, shape (M,), and unit directions, shape (M, K), of in-plane coordinates.
+
+    ``norm`` is |coords| per row when the caller has it already.
+    """
+    if norm is None:
+        norm = np.sqrt(np.einsum("mk,mk->m", coords, coords))
     direction = np.zeros_like(coords)
     direction[:, 0] = 1.0  # arbitrary on the directrix, where eta = 0 makes it irrelevant
     moved = norm > 0.0
@@ -101,8 +105,9 @@ def unit_directions(coords: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def ratio(norm: FloatArray, reach: FloatArray) -> FloatArray:
     """eta = |p c| / |g c|, with 0/0 = 0 (start on the directrix) and x/0 = inf."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        eta = np.where(reach > 0.0, norm / np.where(reach > 0.0, reach, 1.0), np.where(norm > 0.0, np.inf, 0.0))
+    # np.divide's ``where`` instead of an errstate block: this runs once per reproduction.
+    held = reach > 0.0
+    eta = np.divide(norm, reach, out=np.where(norm > 0.0, np.inf, 0.0), where=held)
     return np.asarray(eta, dtype=np.float64)
 
 
@@ -131,8 +136,11 @@ def blended_location(
     coords = (1.0 - alpha)[:, None] * q0 + alpha[:, None] * q1
     # Offsets at rounding level (a point on the directrix) count as zero, not as a
     # direction: a zero-size section would otherwise turn them into eta = inf.
-    coords[np.linalg.norm(coords, axis=1) <= 1e-12 * (1.0 + np.abs(centres).max())] = 0.0
-    norm, direction = unit_directions(coords)
+    norm = np.sqrt(np.einsum("mk,mk->m", coords, coords))
+    rounding = norm <= 1e-12 * (1.0 + np.abs(centres).max())
+    coords[rounding] = 0.0
+    norm[rounding] = 0.0
+    norm, direction = unit_directions(coords, norm)
     reach = (1.0 - alpha) * boundary_distance(sections, index, direction) + alpha * boundary_distance(
         sections, upper, direction
     )
