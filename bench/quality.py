@@ -155,8 +155,9 @@ def raw3d_sets(instances: int) -> dict[str, list[Demo]]:
 
 
 def canal_method(by_time: bool = False, entry: float | None = None, end_decay: float | None = None,
-                 **options: Any):
-    schedule = {k: v for k, v in (("entry", entry), ("end_decay", end_decay)) if v is not None}
+                 persistence: str | None = None, **options: Any):
+    schedule = {k: v for k, v in (("entry", entry), ("end_decay", end_decay), ("persistence", persistence))
+                if v is not None}
 
     def fit(train: list[Demo]) -> canal_core.Canal:
         return canal_core.fit([p for _, p in train], [t for t, _ in train], n_samples=N,
@@ -227,7 +228,9 @@ METHODS_2D = {
     "canal interval (tight)": canal_method(cross_section="ellipse"),
     "canal circle, aligned by time": canal_method(by_time=True),
     "canal circle, no end decay": canal_method(end_decay=0.0),
-    "canal paper (constant ratio, raw frames)": canal_method(entry=0.0, end_decay=0.0, frame_smoothing=0.0),
+    "canal circle, constant persistence": canal_method(persistence="constant"),
+    "canal paper (constant ratio, raw frames)": canal_method(entry=0.0, end_decay=0.0, persistence="constant",
+                                                             frame_smoothing=0.0),
     **PEERS,
 }
 METHODS_3D = {
@@ -237,7 +240,8 @@ METHODS_3D = {
     "canal spline": canal_method(cross_section="spline"),
     "canal circle, aligned by time": canal_method(by_time=True),
     "canal circle, no end decay": canal_method(end_decay=0.0),
-    PAPER: canal_method(entry=0.0, end_decay=0.0, frames="frenet", frame_smoothing=0.0),
+    "canal circle, constant persistence": canal_method(persistence="constant"),
+    PAPER: canal_method(entry=0.0, end_decay=0.0, persistence="constant", frames="frenet", frame_smoothing=0.0),
     **PEERS,
 }
 

@@ -40,10 +40,14 @@ from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples
 from .reproduce import (
     END_DECAY,
     ENTRY_FRACTION,
+    PERSISTENCE_PRIOR_WEIGHT,
+    PERSISTENCES,
     Location,
+    learned_persistence,
     located_points,
     path_ratios,
     ratio_rule_positions,
+    reach_along,
     section_basis,
     start_and_located_points,
 )
@@ -294,6 +298,7 @@ class Canal:
         *,
         entry: float = ENTRY_FRACTION,
         end_decay: float = END_DECAY,
+        persistence: str = "learned",
     ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15).
 
@@ -319,13 +324,20 @@ class Canal:
             Seconds; the times are stretched to end there (constant speed along the path
             when the model has no speed profile).
         entry, end_decay : float
-            Fractions of the canal's length (0 and 0: the paper's constant, clamped ratio).
+            Fractions of the canal's length (0 and 0 with ``persistence="constant"``: the
+            paper's constant, clamped ratio).
+        persistence : {"learned", "constant"}
+            How much of the start's ratio is kept along the canal before the end decay:
+            what the demonstrations themselves kept of their start offsets, section by
+            section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
+            paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
         """
         point = check_point(start, self.dim, "start")
         check_choice(outside, ("project", "raise"), "outside")
         quat = None if start_orientation is None else check_quaternion(start_orientation)
         entry = check_fraction(entry, "entry", maximum=1.0)
         end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
+        check_choice(persistence, PERSISTENCES, "persistence")
         seconds = None if duration is None else check_positive(duration, "duration")
         target = None if goal is None else check_point(goal, self.dim, "goal")
         canal = self if target is None else self.with_goal(target)
@@ -342,9 +354,19 @@ class Canal:
                 field="start",
             )
         first = min(index + 1, canal.n_sections - 1)
-        s0 = float(np.interp(index + alpha, np.arange(canal.n_sections), canal.arclength))
-        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay)
-        path = ratio_rule_positions(first, ratios, loc.direction[0], canal.directrix, canal.basis, canal.sections)
+        s0 = float(canal.arclength[index] + alpha * (canal.arclength[first] - canal.arclength[index]))
+        u = loc.direction[0]
+        reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
+        share: FloatArray | None = None
+        if persistence == "learned":
+            kept = learned_persistence(
+                canal.section_points[index:], reach, u, alpha, prior=1.0, weight=PERSISTENCE_PRIOR_WEIGHT
+            )
+            if kept is not None:
+                # At most the start's own ratio: an inside start stays inside by construction.
+                share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
+        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share)
+        path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
         positions = np.vstack([point, path])
         times = None
         if canal.section_times is not None:

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 import canal_core
 from canal_core.preprocess import prepared_samples
+from canal_core.reproduce import learned_persistence
 from canal_core.timing import section_times
 
 KINDS = ("circle", "mec", "ellipse", "spline")
@@ -135,7 +136,7 @@ def test_reproduction_lands_on_the_demonstrations_end(kind: str) -> None:
     np.testing.assert_allclose(result.positions[-1], canal.directrix[-1], atol=1e-12)
     assert canal.contains(result.positions).all()
     # the paper's constant ratio ends off the goal by the start's offset
-    paper = canal.reproduce_detailed(start, end_decay=0.0)
+    paper = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant")
     assert np.linalg.norm(paper.positions[-1] - canal.directrix[-1]) > 1e-3
 
 
@@ -270,3 +271,54 @@ def test_real_ur5e_demos_are_all_inside_and_starts_are_found_early(kind: str) ->
         assert result.section_index < 20  # within the first 10 % of the motion
         assert result.times is not None
         assert 0.5 * min(t[-1] for t in train_t) < result.times[-1] < max(t[-1] for t in train_t)
+
+
+# -- learned persistence: how much of a start's offset the demonstrations keep ------------------
+
+
+@pytest.mark.parametrize("axes", [1, 2])
+def test_learned_persistence_recovers_the_demonstrations_own_fade(axes: int) -> None:
+    rng = np.random.default_rng(5)
+    k = 50
+    fade = np.linspace(1.0, 0.0, k + 1) ** 2  # each demo keeps this share of its start ratio
+    start = rng.uniform(-0.9, 0.9, size=(6, axes))
+    reach = np.full(k + 1, 2.0)
+    points = fade[:, None, None] * start[None, :, :] * reach[0]
+    u = np.zeros(axes)
+    u[0] = 1.0
+    np.testing.assert_allclose(learned_persistence(points, reach, u, 0.0), fade[1:], atol=1e-12)
+    # A pseudo-demonstration on the prior pulls the estimate towards it, never past it.
+    shrunk = learned_persistence(points, reach, u, 0.0, prior=1.0, weight=1.0)
+    assert shrunk is not None
+    assert np.all(shrunk >= fade[1:] - 1e-12) and np.all(shrunk <= 1.0 + 1e-12)
+    assert shrunk[-1] > 0.05
+    # Demonstrations that do not spread along u at the start teach nothing: no profile.
+    flat = points.copy()
+    flat[0, :, 0] = 0.0
+    assert learned_persistence(flat, reach, u, 0.0) is None
+
+
+def crossing_demos() -> list[np.ndarray]:
+    """2-D demos whose start offsets (a_j) fade out while other offsets (b_j, uncorrelated
+    with a_j) fade in: the canal keeps its width, the demos forget where they started."""
+    x = np.linspace(0.0, 1.0, 150)
+    w = 0.5 - 0.5 * np.cos(np.pi * np.clip(2.0 * x, 0.0, 1.0))  # 0 -> 1 over the first half
+    a = [0.1, 0.05, -0.05, -0.1, 0.0]
+    b = [-0.02, 0.1, -0.1, 0.05, -0.03]
+    return [np.column_stack([x, 0.3 * np.sin(np.pi * x) + aj * (1 - w) + bj * w]) for aj, bj in zip(a, b, strict=True)]
+
+
+def test_offset_the_demonstrations_forget_is_not_carried() -> None:
+    demos = crossing_demos()
+    canal = canal_core.fit(demos, n_samples=150)
+    start = demos[0][0]
+    learned = canal.reproduce_detailed(start, end_decay=0.0)
+    paper = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant")
+    assert canal.contains(learned.positions).all() and canal.contains(paper.positions).all()
+    late = np.arange(110, 140)  # past the crossover: offsets there are the b_j
+    off_learned = np.abs((learned.positions[late - learned.section_index] - canal.directrix[late]) @ np.array([0.0, 1.0]))
+    off_paper = np.abs((paper.positions[late - paper.section_index] - canal.directrix[late]) @ np.array([0.0, 1.0]))
+    # The constant ratio keeps demo 0's large start offset; the learned profile lets it go.
+    assert off_learned.max() < 0.4 * off_paper.min()
+    # Early on both follow the start's offset (the demos still remember it there).
+    np.testing.assert_allclose(learned.positions[1:4], paper.positions[1:4], atol=0.01)

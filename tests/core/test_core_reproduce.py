@@ -44,7 +44,7 @@ def test_eta_is_preserved_along_the_reproduction(kind: str) -> None:
     start = canal.directrix[10] + 0.6 * 0.05 * canal.normals[10] + 0.2 * 0.05 * canal.binormals[10]
     # The paper's schedule (no end decay): each reproduced point sits exactly in its
     # cross-section at ratio eta.
-    result = canal.reproduce_detailed(start, end_decay=0.0)
+    result = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant")
     idx = np.arange(result.section_index + 1, canal.n_sections)
     rel = result.positions[1:] - canal.directrix[idx]
     q = np.einsum("nkd,nd->nk", canal.basis[idx], rel)
@@ -63,7 +63,7 @@ def test_start_is_matched_to_its_nearest_section_not_the_first() -> None:
     assert result.positions.shape[0] == 1 + canal.n_sections - 1 - result.section_index
     # The offset fades into the last sections: the reproduction lands on the canal's end.
     np.testing.assert_allclose(result.positions[-1], canal.directrix[-1], atol=1e-12)
-    paper = canal.reproduce_detailed(start, end_decay=0.0)
+    paper = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant")
     np.testing.assert_allclose(paper.positions[-1], canal.directrix[-1] + result.eta * canal.radii[-1] * canal.normals[-1], atol=1e-9)
 
 
@@ -98,7 +98,7 @@ def test_two_dimensional_reproduction_keeps_its_side() -> None:
     demos = [np.column_stack([x, 0.3 * np.sin(np.pi * x) + d * (1.2 - x)]) for d in (-0.05, 0.02, 0.1)]
     canal = canal_core.fit(demos, cross_section="ellipse", n_samples=80)
     start = canal.directrix[0] + 0.5 * canal.sections.params["lower"][0] * canal.normals[0]
-    path = canal.reproduce_detailed(start, end_decay=0.0).positions
+    path = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant").positions
     side = np.einsum("nd,nd->n", path[1:] - canal.directrix[1:], canal.normals[1:])
     np.testing.assert_allclose(side, 0.5 * canal.sections.params["lower"][1:], rtol=1e-9, atol=1e-15)
 
@@ -163,7 +163,7 @@ def test_smoothed_frames_do_not_twist_on_noisy_demos() -> None:
 
     def end_offset(smoothing: float) -> np.ndarray:
         canal = canal_core.fit(demos, frame_smoothing=smoothing)
-        path = canal.reproduce_detailed(start, end_decay=0.0).positions
+        path = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant").positions
         return path[-1, 1:] - canal.directrix[-1, 1:]
 
     def angle(v: np.ndarray) -> float:
