@@ -101,3 +101,18 @@ def test_two_sharded_bridges_receive_only_their_own_poses(live):
     finally:
         for b in bridges:
             b.close()
+
+
+@pytest.mark.parametrize("key", ["canal/*/model/updated", "canal/**/model/updated",
+                                 "canal/a$*/model/updated", "canal/s/model", "other/s/model/updated",
+                                 "canal/s/x/model/updated", "canal/@s/model/updated"])
+def test_only_a_plain_skill_s_update_notice_names_a_skill(key):
+    assert keyspace.skill_of_update(key, "canal") is None
+    assert keyspace.skill_of_update("canal/pour/model/updated", "canal/") == "pour"
+    assert keyspace.model_updated_key("pour", "canal") == "canal/pour/model/updated"
+
+
+def test_query_keys_with_wildcards_name_nothing():
+    assert keyspace.query_of("canal/pour/arm1/demo/start") == ["pour", "arm1", "demo", "start"]
+    for key in ("canal/*/arm1/demo/start", "canal/**", "canal/pour/arm$*/demo/stop", "x/pour"):
+        assert keyspace.query_of(key) is None
