@@ -599,21 +599,26 @@ def soak(data: Path, path: np.ndarray, seconds: float) -> None:
     print(f"\nSoak: 16 x 1 kHz JSON for {seconds:g} s through canal serve (shared 2-core "
           f"machine: other jobs ran too): {run.answered:.3f} % answered, "
           f"{run.out_of_order} out of order, p50 {run.pct(50):.0f} us, p99 {run.pct(99):.0f} us\n")
-    print("| process | RSS at 1 min MiB | peak later MiB | last MiB | growth % |")
+    # growth: the median of the last minute against the value at 1 min (a single sample's
+    # transient, such as a burst of queued poses, is the peak column, not growth)
+    print("| process | RSS at 1 min MiB | peak later MiB | median of last minute MiB "
+          "| growth % |")
     print("|---|---|---|---|---|")
     names = ["canal serve"] + [f"bridge {i}" for i in range(len(bridge_pids))]
     for j, name in enumerate(names):
         series = [x[1] if j == 0 else x[2][j - 1] for x in warm]
         if not series or not series[0]:
             continue
-        growth = 100.0 * (max(series) - series[0]) / series[0]
+        end = float(np.median(series[-6:]))
+        growth = 100.0 * (end - series[0]) / series[0]
         print(f"| {name} | {series[0] / 1024:.1f} | {max(series) / 1024:.1f} | "
-              f"{series[-1] / 1024:.1f} | {growth:+.1f} ({'flat' if growth < 5 else 'GROWING'}) |")
+              f"{end / 1024:.1f} | {growth:+.1f} ({'flat' if growth < 5 else 'GROWING'}) |")
     rec = health.get("recorder", {})
     live = rec.get("live", {})
     sent = run.sent + int(0.5 * RATE_HZ) * run.streams  # the warm-up poses are recorded too
+    answered = run.received + int(0.5 * RATE_HZ) * run.streams
     print(f"\nRecording: the recorder's subscriber received {live.get('received', '?')} samples "
-          f"(poses + targets; ~{2 * sent} sent), missed poses {live.get('missed_poses', '?')}, "
+          f"(poses + targets; at most {sent} poses and ~{answered} targets), missed poses {live.get('missed_poses', '?')}, "
           f"full rings {live.get('full_rings', '?')}, dropped {rec.get('dropped', '?')}, "
           f"decimated by the rate limit {rec.get('decimated', '?')}, written "
           f"{rec.get('live_written', '?')}, status {rec.get('status', '?')}")

@@ -40,19 +40,27 @@ def test_numbered_robots_spread_evenly_and_one_shard_is_everything():
     counts = [sum(keyspace.shard_of("s", r, 2) == k for r in robots) for k in range(2)]
     assert counts == [8, 8]
     assert keyspace.shard_pose_keys(0, 1, "canal/") == ["canal/*/*/pose"]
+    assert not BridgeOptions(shards=2).subscribes_by_key()  # "auto": by key from 4 shards
+    assert BridgeOptions(shards=4).subscribes_by_key()
+    assert BridgeOptions(shards=2, shard_subscribe="keys").subscribes_by_key()
+    assert not BridgeOptions(shards=8, shard_subscribe="all").subscribes_by_key()
+    with pytest.raises(ValueError, match="shard_subscribe"):
+        BridgeOptions(shards=2, shard_subscribe="some").subscribes_by_key()
     with pytest.raises(ValueError, match=r"shard in 0\.\.1"):
         keyspace.shard_pose_keys(2, 2)
 
 
-def test_two_sharded_bridges_receive_only_their_own_poses(live):
+@pytest.mark.parametrize("subscribe", ["keys", "all"])
+def test_two_sharded_bridges_answer_each_robot_once(live, subscribe):
     service = live.client.app.state.service
     prefix = "shardtest"  # the module's own bridge serves "canal": it must not answer these
     first = f"tcp/127.0.0.1:{free_port()}"
     second = f"tcp/127.0.0.1:{free_port()}"
     bridges = [
-        Bridge(service, BridgeOptions(prefix=prefix, listen=(first,), shard=0, shards=2)),
+        Bridge(service, BridgeOptions(prefix=prefix, listen=(first,), shard=0, shards=2,
+                                      shard_subscribe=subscribe)),
         Bridge(service, BridgeOptions(prefix=prefix, listen=(second,), connect=(first,),
-                                      shard=1, shards=2)),
+                                      shard=1, shards=2, shard_subscribe=subscribe)),
     ]
     robots = [f"r{i}" for i in range(6)]
     owner = {r: keyspace.shard_of("arc3", r, 2) for r in robots}
@@ -96,8 +104,12 @@ def test_two_sharded_bridges_receive_only_their_own_poses(live):
             mine = [r for r in robots if owner[r] == shard]
             # Zenoh delivered only this shard's poses: no stray sample was even decoded
             assert bridge.counts.poses == 20 * len(mine)
-            assert bridge.path.others == set()
             assert sorted(st.robot for st in bridge.streams.values()) == sorted(mine)
+            others = {keyspace.keys("arc3", r, prefix).pose for r in robots if r not in mine}
+            if subscribe == "keys":  # Zenoh delivered only this shard's poses
+                assert bridge.path.others == set()
+            else:  # every pose arrived; the others' were dropped before decoding
+                assert bridge.path.others == others
     finally:
         for b in bridges:
             b.close()

@@ -17,11 +17,14 @@ through a Zenoh FIFO channel):
   ``idle_s`` and expired negative cache entries.
 - **metrics** and **updates** (fit notices from other bridges).
 
-Sharding: with ``shards = K > 1`` this bridge subscribes only to the pose keys of its own
-streams (:func:`canal_protocol.keys.shard_pose_keys`: robots whose name ends with a
-character ``c`` with ``ord(c) % K == shard``), so Zenoh delivers each pose to one bridge
-only. Those subscribers hand samples to the worker through one queue (a C-level
-``SimpleQueue.put`` called on Zenoh's callback thread, no Python frame). When a fit lands,
+Sharding: with ``shards = K > 1`` this bridge answers the robots whose name ends with a
+character ``c`` with ``ord(c) % K == shard``. Subscribing by key
+(``BridgeOptions.shard_subscribe``, by default from K = 4 on) declares one subscriber per
+such character (:func:`canal_protocol.keys.shard_pose_keys`), so Zenoh delivers each pose to
+one bridge only; those subscribers hand samples to the worker through one queue (a C-level
+``SimpleQueue.put`` called on Zenoh's callback thread, no Python frame, but a GIL
+acquisition per sample). Otherwise the bridge receives every pose through its FIFO channel
+and drops the others' after a set lookup. When a fit lands,
 every bridge hears it (``fit`` lines on stdin from ``canal serve``, and
 ``{prefix}/{skill}/model/updated`` puts between bridges).
 
@@ -148,7 +151,7 @@ class Bridge:
     def _subscribe_poses(self, s: Any) -> tuple[Any, Any]:
         """The pose subscribers and the worker's (blocking, non-blocking) receive calls."""
         o = self.options
-        if o.shards <= 1:
+        if not o.subscribes_by_key():
             sub = s.declare_subscriber(keyspace.pose_wildcard(self.prefix),
                                        zenoh.handlers.FifoChannel(o.queue_capacity))
             self._subscribers = [sub]
