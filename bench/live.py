@@ -31,6 +31,7 @@ minute), then reads what the recorder heard from /healthz (recording completenes
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import socket
 import struct
@@ -110,6 +111,93 @@ def echo_server(endpoint: str) -> int:
         sub.undeclare()
         worker.join(2)
     return 0
+
+
+# ---- receive cost: FIFO channel vs key-expression subscribers ---------------------------------
+
+
+def receiver(mode: str, endpoint: str) -> int:
+    """A bare receiver (``--receiver MODE ENDPOINT``): every pose counted by one worker, as
+    the bridge receives them. ``fifo``: one ``canal/*/*/pose`` FIFO channel; ``callback`` /
+    ``indirect``: every shard key expression of 2 shards (``canal/*/$*c/pose``) feeding one
+    ``SimpleQueue`` through a direct / indirect Zenoh callback. Prints the process CPU time
+    per received sample over 5 s (Zenoh's threads included)."""
+    import queue
+
+    import zenoh
+
+    from canal_protocol import keys as keyspace
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", f'["{endpoint}"]')
+    session = zenoh.open(config)
+    count = [0]
+    if mode == "fifo":
+        sub = session.declare_subscriber("canal/*/*/pose", zenoh.handlers.FifoChannel(4096))
+        recv, try_recv = sub.handler.recv, sub.handler.try_recv
+    else:
+        q: queue.SimpleQueue[object] = queue.SimpleQueue()
+        subs = [session.declare_subscriber(k, zenoh.handlers.Callback(
+                    q.put, indirect=mode == "indirect"))
+                for k in keyspace.shard_pose_keys(0, 2) + keyspace.shard_pose_keys(1, 2)]
+        assert subs
+        recv = q.get
+
+        def try_recv():
+            try:
+                return q.get_nowait()
+            except queue.Empty:
+                return None
+
+    def work() -> None:
+        while True:
+            recv()
+            count[0] += 1
+            while try_recv() is not None:
+                count[0] += 1
+
+    threading.Thread(target=work, daemon=True).start()
+    print("receiver ready", flush=True)
+    time.sleep(2.0)
+    cpu, n = time.process_time(), count[0]
+    time.sleep(5.0)
+    n = count[0] - n
+    print(f"{(time.process_time() - cpu) / max(n, 1) * 1e6:.1f} {n}", flush=True)
+    os._exit(0)
+
+
+def receive_cost(n_streams: int = 16) -> list[tuple[str, float, int]]:
+    """Process CPU per received pose of each receiver mode, 16 x 1 kHz from this process."""
+    import zenoh
+    from canal_client.live import client_config
+
+    rows = []
+    for mode in ("fifo", "callback", "indirect"):
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receiver",
+                                 mode, endpoint], stdout=subprocess.PIPE, text=True,
+                                env=bench_env(), cwd=ROOT)
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        with zenoh.open(client_config(endpoint)) as session:
+            pubs = [session.declare_publisher(f"canal/{SKILL}/r{i}/pose", express=False)
+                    for i in range(n_streams)]
+            time.sleep(0.5)
+            body = b'{"seq": 1, "position": [0.1, 0.2, 0.3]}'
+            t0, k = time.perf_counter(), 0
+            while proc.poll() is None and time.perf_counter() - t0 < 10.0:
+                for p in pubs:
+                    p.put(body)
+                k += 1
+                wait = t0 + k / RATE_HZ - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+        out = proc.stdout.read().split()
+        proc.wait()
+        rows.append((mode, float(out[0]), int(out[1])) if len(out) == 2 else (mode, math.nan, 0))
+    return rows
 
 
 # ---- setup ------------------------------------------------------------------------------------
@@ -646,10 +734,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stages-only", action="store_true",
                         help="only the per-stage table (CPU time in this process: needs no "
                              "quiet machine)")
+    parser.add_argument("--receive-cost", action="store_true",
+                        help="only the CPU per received pose: FIFO channel vs key-expression "
+                             "subscribers with callbacks (why 2 shards receive everything)")
     parser.add_argument("--echo", metavar="ENDPOINT", help=argparse.SUPPRESS)
+    parser.add_argument("--receiver", nargs=2, metavar=("MODE", "ENDPOINT"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.echo:
         return echo_server(args.echo)
+    if args.receiver:
+        return receiver(*args.receiver)
+    if args.receive_cost:
+        print("\nReceive cost, 16 x 1 kHz puts from another process, 5 s (process CPU per "
+              "received pose, Zenoh threads included)\n")
+        print("| receiver | us per pose | received |")
+        print("|---|---|---|")
+        for mode, us, n in receive_cost():
+            print(f"| {mode} | {us:.1f} | {n} |")
+        return 0
     os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     seconds = args.seconds or (2.0 if args.quick else 20.0)
     one_seconds = min(seconds, 2.0 if args.quick else 5.0)
