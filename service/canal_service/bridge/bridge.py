@@ -400,8 +400,11 @@ class Bridge:
     def _housekeep(self) -> None:
         period = max(self.options.refresh_s, 0.05)
         while not self._stop.wait(period):
-            live_skills = self.path.forget_idle(time.monotonic())
-            self.models.refresh(live_skills)
+            try:
+                live_skills = self.path.forget_idle(time.monotonic())
+                self.models.refresh(live_skills)
+            except Exception:  # one bad pass must not end every later refresh
+                log.exception("bridge housekeeping failed")
 
 
 def _reply_error(query: Any, key: str, message: str, field: str | None = None) -> None:

@@ -123,8 +123,12 @@ class ModelTable:
             if old is None or old.status != entry.status or old.version != entry.version:
                 self.install(skill, entry)
         now = time.monotonic()
-        for skill in [s for s, e in self.unknown.items() if e.expires <= now]:
-            self.unknown.pop(skill, None)
+        # list() copies in one C call, with the GIL held: the worker installs entries
+        # meanwhile, and iterating the live OrderedDict in Python raised "mutated during
+        # iteration" and killed the housekeeper
+        for skill, entry in list(self.unknown.items()):
+            if entry.expires <= now:
+                self.unknown.pop(skill, None)
 
 
 __all__ = ["ModelEntry", "ModelTable", "ok_entry"]
