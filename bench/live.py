@@ -19,16 +19,19 @@ the echo's; one robot, JSON: p50 <= 1.5x echo and p99 < 1 ms.
 
 It also prints the per-pose cost by stage of the bridge's pose path (in this process, no
 network in the loop), and with ``--processes 1,2`` the 16 x 1 kHz JSON drive against 1 and 2
-bridge processes. ``--soak MINUTES`` runs 16 x 1 kHz JSON that long and samples the resident
-memory of the service and its bridge processes (target: < 5 % growth after the first minute).
+bridge processes. ``--soak SECONDS`` runs 16 x 1 kHz JSON that long and samples the resident
+memory of the service and of each bridge process (target: < 5 % growth after the first
+minute), then reads what the recorder heard from /healthz (recording completeness).
+``--stages-only`` prints the per-stage table alone (CPU time: needs no quiet machine).
 
     python bench/live.py [--quick] [--seconds 20] [--formats json,binary,cdr]
-                         [--processes 1] [--soak 10]
+                         [--processes 1,2] [--soak 600] [--stages-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import socket
 import struct
@@ -37,6 +40,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
 import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,6 +111,93 @@ def echo_server(endpoint: str) -> int:
         sub.undeclare()
         worker.join(2)
     return 0
+
+
+# ---- receive cost: FIFO channel vs key-expression subscribers ---------------------------------
+
+
+def receiver(mode: str, endpoint: str) -> int:
+    """A bare receiver (``--receiver MODE ENDPOINT``): every pose counted by one worker, as
+    the bridge receives them. ``fifo``: one ``canal/*/*/pose`` FIFO channel; ``callback`` /
+    ``indirect``: every shard key expression of 2 shards (``canal/*/$*c/pose``) feeding one
+    ``SimpleQueue`` through a direct / indirect Zenoh callback. Prints the process CPU time
+    per received sample over 5 s (Zenoh's threads included)."""
+    import queue
+
+    import zenoh
+
+    from canal_protocol import keys as keyspace
+
+    config = zenoh.Config()
+    config.insert_json5("mode", '"peer"')
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", f'["{endpoint}"]')
+    session = zenoh.open(config)
+    count = [0]
+    if mode == "fifo":
+        sub = session.declare_subscriber("canal/*/*/pose", zenoh.handlers.FifoChannel(4096))
+        recv, try_recv = sub.handler.recv, sub.handler.try_recv
+    else:
+        q: queue.SimpleQueue[object] = queue.SimpleQueue()
+        subs = [session.declare_subscriber(k, zenoh.handlers.Callback(
+                    q.put, indirect=mode == "indirect"))
+                for k in keyspace.shard_pose_keys(0, 2) + keyspace.shard_pose_keys(1, 2)]
+        assert subs
+        recv = q.get
+
+        def try_recv():
+            try:
+                return q.get_nowait()
+            except queue.Empty:
+                return None
+
+    def work() -> None:
+        while True:
+            recv()
+            count[0] += 1
+            while try_recv() is not None:
+                count[0] += 1
+
+    threading.Thread(target=work, daemon=True).start()
+    print("receiver ready", flush=True)
+    time.sleep(2.0)
+    cpu, n = time.process_time(), count[0]
+    time.sleep(5.0)
+    n = count[0] - n
+    print(f"{(time.process_time() - cpu) / max(n, 1) * 1e6:.1f} {n}", flush=True)
+    os._exit(0)
+
+
+def receive_cost(n_streams: int = 16) -> list[tuple[str, float, int]]:
+    """Process CPU per received pose of each receiver mode, 16 x 1 kHz from this process."""
+    import zenoh
+    from canal_client.live import client_config
+
+    rows = []
+    for mode in ("fifo", "callback", "indirect"):
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--receiver",
+                                 mode, endpoint], stdout=subprocess.PIPE, text=True,
+                                env=bench_env(), cwd=ROOT)
+        assert proc.stdout is not None
+        proc.stdout.readline()
+        with zenoh.open(client_config(endpoint)) as session:
+            pubs = [session.declare_publisher(f"canal/{SKILL}/r{i}/pose", express=False)
+                    for i in range(n_streams)]
+            time.sleep(0.5)
+            body = b'{"seq": 1, "position": [0.1, 0.2, 0.3]}'
+            t0, k = time.perf_counter(), 0
+            while proc.poll() is None and time.perf_counter() - t0 < 10.0:
+                for p in pubs:
+                    p.put(body)
+                k += 1
+                wait = t0 + k / RATE_HZ - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+        out = proc.stdout.read().split()
+        proc.wait()
+        rows.append((mode, float(out[0]), int(out[1])) if len(out) == 2 else (mode, math.nan, 0))
+    return rows
 
 
 # ---- setup ------------------------------------------------------------------------------------
@@ -222,25 +313,23 @@ def stop(proc: subprocess.Popen[bytes] | subprocess.Popen[str]) -> None:
 # ---- payloads ---------------------------------------------------------------------------------
 
 
-def payloads(fmt: str, n_streams: int, total: int, path: np.ndarray) -> list[list[bytes]]:
-    """Every pose of every stream, encoded up front (the client must not be the bottleneck)."""
+def payload(fmt: str, i: int, k: int, path: np.ndarray) -> bytes:
+    """Robot ``i``'s pose number ``k``: along the path, restarting at each traversal."""
     from canal_protocol import wire
 
-    out = []
-    for i in range(n_streams):
-        row = []
-        for k in range(total):
-            x = path[(k + 97 * i) % len(path)]
-            restart = (k + 97 * i) % len(path) == 0 or k == 0
-            if fmt == "json":
-                row.append(wire.encode_pose_json(k, x, restart=restart))
-            elif fmt == "binary":
-                row.append(wire.encode_pose(k, x, restart=restart))
-            else:
-                row.append(wire.encode_pose_stamped_cdr(
-                    wire.RosStamp(i, k, "base_link"), x, (0.0, 0.0, 0.0, 1.0)))
-        out.append(row)
-    return out
+    x = path[(k + 97 * i) % len(path)]
+    restart = (k + 97 * i) % len(path) == 0 or k == 0
+    if fmt == "json":
+        return wire.encode_pose_json(k, x, restart=restart)
+    if fmt == "binary":
+        return wire.encode_pose(k, x, restart=restart)
+    return wire.encode_pose_stamped_cdr(wire.RosStamp(i, k, "base_link"), x,
+                                        (0.0, 0.0, 0.0, 1.0))
+
+
+def payloads(fmt: str, n_streams: int, total: int, path: np.ndarray) -> list[list[bytes]]:
+    """Every pose of every stream, encoded up front (the client must not be the bottleneck)."""
+    return [[payload(fmt, i, k, path) for k in range(total)] for i in range(n_streams)]
 
 
 def seq_reader(fmt: str):
@@ -290,7 +379,8 @@ def drive(endpoint: str, server: str, fmt: str, n_streams: int, seconds: float,
     disorder = [0]
     robots = [f"r{i}" for i in range(n_streams)]
     index = {f"canal/{SKILL}/{r}/target": i for i, r in enumerate(robots)}
-    data = payloads(fmt, n_streams, total, path)
+    # a long drive (a soak) encodes on the fly: 16 x 600,000 payloads would not fit in memory
+    data = payloads(fmt, n_streams, total, path) if total <= 60_000 else None
     seq_of = seq_reader(fmt)
     encoding = {"json": zenoh.Encoding.APPLICATION_JSON,
                 "binary": zenoh.Encoding.APPLICATION_OCTET_STREAM,
@@ -340,7 +430,7 @@ def drive(endpoint: str, server: str, fmt: str, n_streams: int, seconds: float,
                 time.sleep(wait)
             for i in range(n_streams):
                 sent_ns[i, k] = clock()
-                pubs[i].put(data[i][k])
+                pubs[i].put(data[i][k] if data is not None else payload(fmt, i, k, path))
         time.sleep(1.0)  # let the last answers arrive
         sub.undeclare()
         receiver.join(2)
@@ -438,9 +528,17 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     return rows
 
 
-def old_vs_new_bridge(path: np.ndarray, canal, data: Path, n_batch: int = 16,
-                      rounds: int = 250) -> list[tuple[str, float]]:
-    """The whole in-process pose path per pose: the bridge's batch handler on real samples."""
+def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: int = 250
+                     ) -> list[tuple[str, float]]:
+    """The bridge's own pose path on real Zenoh samples, per pose by stage (CPU time of this
+    thread, ``time.thread_time``: independent of what else the machine runs).
+
+    The bridge's worker is parked; its samples are fed to the pose path by hand in drains of
+    ``n_batch`` (one pose per robot) and one at a time. Stages: wire decode; the rest of
+    decoding (grouping by key, stream lookup, counts: "bookkeeping"); locate/step (the model
+    lookup and one vectorised tracker call); encode (the wire encoder alone, on the same
+    targets); put and answer logic (the rest of answering).
+    """
     import zenoh
     from canal_client.live import client_config
     from canal_service.bridge import Bridge, BridgeOptions
@@ -454,39 +552,85 @@ def old_vs_new_bridge(path: np.ndarray, canal, data: Path, n_batch: int = 16,
     service = CanalService(db, Metrics())
     port = free_port()
     bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",)))
-    rows = []
+    rows: list[tuple[str, float]] = []
+    clock = time.thread_time_ns
     try:
         assert bridge.start()
-        # the bridge's own worker is parked: samples are fed to its batch handler by hand
-        bridge._subscriber.undeclare()
-        time.sleep(0.1)
-        with zenoh.open(client_config(f"tcp/127.0.0.1:{port}")) as sb:
-            sub = bridge.session.declare_subscriber("canal/*/*/pose",
-                                                    zenoh.handlers.FifoChannel(1 << 16))
-            pubs = [sb.declare_publisher(f"canal/{SKILL}/r{i}/pose",
-                                         encoding=zenoh.Encoding.APPLICATION_JSON)
-                    for i in range(n_batch)]
-            time.sleep(0.3)
-            for k in range(rounds):
-                for i, p in enumerate(pubs):
-                    p.put(wire.encode_pose_json(k, path[(k + 97 * i) % len(path)],
-                                                restart=k == 0))
-            time.sleep(1.0)
-            samples = list(iter(sub.handler.try_recv, None))
-            batches = [samples[j:j + n_batch] for j in range(0, len(samples), n_batch)]
-            bridge._batch(batches[0])
-            t0 = time.thread_time()
-            for b in batches[1:]:
-                bridge._batch(b)
-            per_batch = (time.thread_time() - t0) / (len(samples) - n_batch) * 1e6
-            rows.append((f"whole bridge pose path, JSON, batch of {n_batch} (per pose)",
-                         per_batch))
-            t0 = time.thread_time()
-            for s in samples[:2000]:
-                bridge._batch([s])
-            rows.append(("whole bridge pose path, JSON, one at a time (per pose)",
-                         (time.thread_time() - t0) / min(len(samples), 2000) * 1e6))
+        for sub in bridge._subscribers:  # park the worker: we feed its pose path ourselves
             sub.undeclare()
+        time.sleep(0.1)
+        pp = bridge.path
+        with zenoh.open(client_config(f"tcp/127.0.0.1:{port}")) as sb:
+            for fmt in ("json", "binary"):
+                sub = bridge.session.declare_subscriber("canal/*/*/pose",
+                                                        zenoh.handlers.FifoChannel(1 << 16))
+                enc = (zenoh.Encoding.APPLICATION_JSON if fmt == "json"
+                       else zenoh.Encoding.APPLICATION_OCTET_STREAM)
+                pubs = [sb.declare_publisher(f"canal/{SKILL}/{fmt}{i}/pose", encoding=enc)
+                        for i in range(n_batch)]
+                time.sleep(0.3)
+                encode_pose = wire.encode_pose_json if fmt == "json" else wire.encode_pose
+                for k in range(rounds):
+                    for i, p in enumerate(pubs):
+                        p.put(encode_pose(k, path[(k + 97 * i) % len(path)], restart=k == 0))
+                time.sleep(1.0)
+                samples = list(iter(sub.handler.try_recv, None))
+                sub.undeclare()
+                for p in pubs:
+                    p.undeclare()
+                batches = [samples[j:j + n_batch] for j in range(0, len(samples), n_batch)]
+                pp.batch(batches[0])  # streams and trackers created
+                t = dict.fromkeys(("decode", "decode_batch", "step", "encode", "answer"), 0)
+                decode = wire.decode_pose_json if fmt == "json" else wire.decode_pose
+                for b in batches[1:]:
+                    payloads = [s.payload.to_bytes() for s in b]
+                    t0 = clock()
+                    for d in payloads:
+                        decode(d)
+                    t1 = clock()
+                    rounds_ = pp.decode_batch(b)
+                    t2 = clock()
+                    stepped = [pp.step(jobs) for jobs in rounds_]
+                    t3 = clock()
+                    for groups in stepped:
+                        for entry, jobs, targets in groups:
+                            for (st, pose, _f, _r), tt in zip(jobs, targets, strict=True):
+                                if fmt == "json":
+                                    wire.pack_target_json(
+                                        pose.seq, "ok", tt.target, tt.progress, tt.eta,
+                                        tt.section_index, tt.inside, tt.done, entry.version,
+                                        pose.orientation, tt.velocity, st.coalesced)
+                                else:
+                                    wire.pack_target(
+                                        pose.seq, 0, tt.target.tolist(), tt.progress, tt.eta,
+                                        tt.section_index, tt.inside, tt.done, entry.version,
+                                        pose.orientation, tt.velocity, st.coalesced)
+                    t4 = clock()
+                    for groups in stepped:
+                        for entry, jobs, targets in groups:
+                            pp.answer_all(entry, jobs, targets)
+                    t5 = clock()
+                    for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4),
+                                       strict=True):
+                        t[key] += dt
+                n = len(samples) - len(batches[0])
+                us = {k: v / n / 1e3 for k, v in t.items()}
+                label = f"bridge pose path, {fmt.upper() if fmt == 'json' else fmt}, " \
+                        f"drains of {n_batch}"
+                rows += [
+                    (f"{label}: decode (wire)", us["decode"]),
+                    (f"{label}: bookkeeping (group, stream lookup, counts)",
+                     us["decode_batch"] - us["decode"]),
+                    (f"{label}: locate/step (vectorised tracker)", us["step"]),
+                    (f"{label}: encode (wire)", us["encode"]),
+                    (f"{label}: put and answer logic", us["answer"] - us["encode"]),
+                    (f"{label}: TOTAL", us["decode_batch"] + us["step"] + us["answer"]),
+                ]
+                t0 = clock()
+                for s in samples[:2000]:
+                    pp.batch([s])
+                rows.append((f"bridge pose path, {fmt}, one pose at a time: TOTAL",
+                             (clock() - t0) / min(len(samples), 2000) / 1e3))
     finally:
         bridge.close()
         db.dispose()
@@ -506,51 +650,69 @@ def rss_kib(pid: int) -> int:
     return 0
 
 
-def family(pid: int) -> list[int]:
-    """The process and its descendants (the bridge processes of canal serve), by parent pid."""
-    parents: dict[int, list[int]] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-            parents.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-        except (OSError, IndexError, ValueError):
-            continue
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        out.append(p)
-        todo += parents.get(p, [])
-    return out
+def healthz(port: int) -> dict:
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=10) as r:
+            return orjson.loads(r.read())
+    except urllib.error.HTTPError as exc:  # 503 (degraded) still has the body
+        return orjson.loads(exc.read())
 
 
-def soak(data: Path, path: np.ndarray, minutes: float) -> None:
+def soak(data: Path, path: np.ndarray, seconds: float) -> None:
+    """16 x 1 kHz JSON through ``canal serve`` for ``seconds``: resident memory of the service
+    and of each bridge process sampled every 10 s (growth after the first minute), and what
+    the recorder heard of it (recording completeness)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    serve, _ = start_serve(data, endpoint)
-    samples: list[tuple[float, int, int]] = []
+    serve, port = start_serve(data, endpoint)
+    bridge_pids = [b["pid"] for b in healthz(port)["bridge"].get("bridges", [])]
+    samples: list[tuple[float, int, list[int]]] = []
     stop_flag = threading.Event()
 
     def sample() -> None:
         t0 = time.monotonic()
         while not stop_flag.wait(10.0):
-            pids = family(serve.pid)
-            samples.append((time.monotonic() - t0, sum(rss_kib(p) for p in pids), len(pids)))
+            samples.append((time.monotonic() - t0, rss_kib(serve.pid),
+                            [rss_kib(p) for p in bridge_pids]))
 
     threading.Thread(target=sample, daemon=True).start()
+    health: dict = {}
     try:
-        run = drive(endpoint, "canal serve", "json", 16, minutes * 60.0, path)
+        run = drive(endpoint, "canal serve", "json", 16, seconds, path)
+        time.sleep(2.0)  # the recorder drains every 50 ms and writes in batches
+        health = healthz(port)
     finally:
         stop_flag.set()
         stop(serve)
-    after_1 = [kib for t, kib, _ in samples if t >= 60.0]
-    base = after_1[0] if after_1 else (samples[0][1] if samples else 0)
-    peak = max(after_1) if after_1 else base
-    growth = 100.0 * (peak - base) / base if base else float("nan")
-    print(f"\nSoak: 16 x 1 kHz JSON for {minutes:g} min through canal serve: "
-          f"{run.answered:.2f} % answered, p99 {run.pct(99):.0f} us; RSS (service + bridge) "
-          f"{base / 1024:.0f} MiB after 1 min, peak {peak / 1024:.0f} MiB later: "
-          f"{growth:+.1f} % ({'flat' if growth < 5 else 'GROWING'})")
-    for t, kib, n in samples:
-        print(f"  t={t:5.0f} s  RSS {kib / 1024:7.1f} MiB ({n} processes)")
+    warm = [x for x in samples if x[0] >= 60.0] or samples
+    print(f"\nSoak: 16 x 1 kHz JSON for {seconds:g} s through canal serve (shared 2-core "
+          f"machine: other jobs ran too): {run.answered:.3f} % answered, "
+          f"{run.out_of_order} out of order, p50 {run.pct(50):.0f} us, p99 {run.pct(99):.0f} us\n")
+    # growth: the median of the last minute against the value at 1 min (a single sample's
+    # transient, such as a burst of queued poses, is the peak column, not growth)
+    print("| process | RSS at 1 min MiB | peak later MiB | median of last minute MiB "
+          "| growth % |")
+    print("|---|---|---|---|---|")
+    names = ["canal serve"] + [f"bridge {i}" for i in range(len(bridge_pids))]
+    for j, name in enumerate(names):
+        series = [x[1] if j == 0 else x[2][j - 1] for x in warm]
+        if not series or not series[0]:
+            continue
+        end = float(np.median(series[-6:]))
+        growth = 100.0 * (end - series[0]) / series[0]
+        print(f"| {name} | {series[0] / 1024:.1f} | {max(series) / 1024:.1f} | "
+              f"{end / 1024:.1f} | {growth:+.1f} ({'flat' if growth < 5 else 'GROWING'}) |")
+    rec = health.get("recorder", {})
+    live = rec.get("live", {})
+    sent = run.sent + int(0.5 * RATE_HZ) * run.streams  # the warm-up poses are recorded too
+    answered = run.received + int(0.5 * RATE_HZ) * run.streams
+    print(f"\nRecording: the recorder's subscriber received {live.get('received', '?')} samples "
+          f"(poses + targets; at most {sent} poses and ~{answered} targets), missed poses {live.get('missed_poses', '?')}, "
+          f"full rings {live.get('full_rings', '?')}, dropped {rec.get('dropped', '?')}, "
+          f"decimated by the rate limit {rec.get('decimated', '?')}, written "
+          f"{rec.get('live_written', '?')}, status {rec.get('status', '?')}")
+    print("\nRSS every 10 s (MiB): t, canal serve, bridges")
+    for t, kib, bridges in samples:
+        print(f"  t={t:5.0f} s  {kib / 1024:7.1f}  " + "  ".join(f"{b / 1024:7.1f}" for b in bridges))
 
 
 # ---- main -------------------------------------------------------------------------------------
@@ -565,13 +727,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--formats", default=None, help="comma list of json,binary,cdr")
     parser.add_argument("--processes", default="",
                         help="also compare bridge process counts, e.g. 1,2 (JSON, 16 robots)")
-    parser.add_argument("--soak", type=float, default=0.0, metavar="MINUTES",
-                        help="only the 16 x 1 kHz RSS soak, this many minutes")
+    parser.add_argument("--soak", type=float, default=0.0, metavar="SECONDS",
+                        help="only the 16 x 1 kHz JSON soak, this many seconds (600 = the "
+                             "issue's 10 minutes): RSS growth and recording completeness")
     parser.add_argument("--no-stages", action="store_true", help="skip the per-stage table")
+    parser.add_argument("--stages-only", action="store_true",
+                        help="only the per-stage table (CPU time in this process: needs no "
+                             "quiet machine)")
+    parser.add_argument("--receive-cost", action="store_true",
+                        help="only the CPU per received pose: FIFO channel vs key-expression "
+                             "subscribers with callbacks (why 2 shards receive everything)")
     parser.add_argument("--echo", metavar="ENDPOINT", help=argparse.SUPPRESS)
+    parser.add_argument("--receiver", nargs=2, metavar=("MODE", "ENDPOINT"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.echo:
         return echo_server(args.echo)
+    if args.receiver:
+        return receiver(*args.receiver)
+    if args.receive_cost:
+        print("\nReceive cost, 16 x 1 kHz puts from another process, 5 s (process CPU per "
+              "received pose, Zenoh threads included)\n")
+        print("| receiver | us per pose | received |")
+        print("|---|---|---|")
+        for mode, us, n in receive_cost():
+            print(f"| {mode} | {us:.1f} | {n} |")
+        return 0
     os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     seconds = args.seconds or (2.0 if args.quick else 20.0)
     one_seconds = min(seconds, 2.0 if args.quick else 5.0)
@@ -583,8 +764,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.soak:
             soak(data, path, args.soak)
             return 0
-        stage_rows = [] if args.no_stages else stages(path, canal) + old_vs_new_bridge(
-            path, canal, data)
+        stage_rows = [] if args.no_stages else stages(path, canal) + pose_path_stages(
+            path, data)
+        if args.stages_only:
+            report([], [], stage_rows, seconds)
+            return 0
         echo_ep = f"tcp/127.0.0.1:{free_port()}"
         serve_ep = f"tcp/127.0.0.1:{free_port()}"
         echo = start_echo(echo_ep)
@@ -624,6 +808,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def report(runs, scale, stage_rows, seconds) -> None:
+    if runs:
+        report_runs(runs, scale, seconds)
+    if stage_rows:
+        print("\nPer-pose cost by stage (this process, CPU time of the calling thread, us per "
+              "pose)\n")
+        print("| stage | us per pose |")
+        print("|---|---|")
+        for name, us in stage_rows:
+            print(f"| {name} | {us:.1f} |")
+
+
+def report_runs(runs, scale, seconds) -> None:
     print(f"\nLive round trip, pose -> target, loopback, {RATE_HZ:.0f} Hz per robot, open loop, "
           f"canal serve with its defaults (recordings on) against a bare Zenoh echo process, "
           f"same drive, same run ({os.cpu_count()} CPUs)\n")
@@ -659,13 +855,6 @@ def report(runs, scale, stage_rows, seconds) -> None:
         for k, e, b in scale:
             print(f"| {k} | {b.answered:.2f} | {b.pct(50):.0f} | {b.pct(99):.0f} | "
                   f"{e.pct(99):.0f} | {b.pct(99) / e.pct(99):.2f} |")
-    if stage_rows:
-        print("\nPer-pose cost by stage (this process, CPU time of the calling thread, us per "
-              "pose)\n")
-        print("| stage | us per pose |")
-        print("|---|---|")
-        for name, us in stage_rows:
-            print(f"| {name} | {us:.1f} |")
     print("\nTargets: " + "; ".join(verdicts))
     write_summary("live", summary)
 

@@ -111,6 +111,10 @@ class TrackerGeometry:
     done_tolerance: float
     orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
     section_times: FloatArray | None = None  # (N,) mean seconds to each section
+    # each section pair's bases and centres side by side, (N - 1, 2, D - 1, D) and
+    # (N - 1, 2, D): the batched step reads both planes of a pair with one gather
+    pair_basis: FloatArray | None = None
+    pair_centres: FloatArray | None = None
 
 
 def tracker_geometry(
@@ -132,6 +136,8 @@ def tracker_geometry(
         centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
         orientations,
         section_times,
+        np.ascontiguousarray(np.stack([basis[:-1], basis[1:]], axis=1)),
+        np.ascontiguousarray(np.stack([centres[:-1], centres[1:]], axis=1)),
     )
 
 
@@ -307,35 +313,58 @@ def tracker_steps(
         for i in range(b):
             out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
         return out_t, out_s  # type: ignore[return-value]
-    last_index = np.fromiter((s.index for s in states), dtype=np.intp, count=b)
-    # every plane's signed distance for every robot in one product, (B, N): cheaper than
-    # gathering B windows of tangents, and it holds d0, d1 and the last plane too
-    dist_all = positions @ g.tangents.T - g.offsets
-    lo = np.maximum(last_index - 1, 0)
-    hi = np.minimum(last_index + WINDOW, n - 1)
-    cols = lo[:, None] + _WINDOW_COLUMNS
-    valid = cols <= hi[:, None]
-    np.minimum(cols, n - 1, out=cols)
-    dist = np.take_along_axis(dist_all, cols, axis=1)
-    above = dist > 0.0
-    change = ((dist[:, :-1] == 0.0) | (above[:, :-1] != above[:, 1:])) & valid[:, 1:]
-    found = change.any(axis=1)
-    index = np.minimum(lo + change.argmax(axis=1), n - 2)
-    if found.all():
-        rows = np.arange(b)
-    else:
-        rows = np.flatnonzero(found)
-        for i in np.flatnonzero(~found).tolist():
-            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
-        index = index[rows]
-        last_index = last_index[rows]
-    if rows.size:
-        _steps_found(g, states, positions[rows], dist_all[rows], rows, index, last_index,
-                     lookahead, replan_tolerance, out_t, out_s)
+    with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
+        _steps_vectorised(g, states, positions, lookahead, replan_tolerance, out_t, out_s)
     return out_t, out_s  # type: ignore[return-value]
 
 
 _WINDOW_COLUMNS = np.arange(WINDOW + 2)[None, :]
+
+
+def _steps_vectorised(
+    g: TrackerGeometry,
+    states: list[TrackerState],
+    positions: FloatArray,
+    lookahead: int,
+    replan_tolerance: float,
+    out_t: list[TrackerTarget | None],
+    out_s: list[TrackerState | None],
+) -> None:
+    """The window search for every row in one pass; rows it places take the vectorised rest
+    of :func:`tracker_step` (circle sections), the others the scalar step."""
+    b = len(states)
+    n = g.centres.shape[0]
+    last_index = np.fromiter([s.index for s in states], dtype=np.intp, count=b)
+    # every plane's signed distance for every robot in one product, (B, N): cheaper than
+    # gathering B windows of tangents, and it holds d0, d1 and the last plane too
+    dist_all = positions @ g.tangents.T
+    dist_all -= g.offsets
+    lo = np.maximum(last_index - 1, 0)
+    cols = lo[:, None] + _WINDOW_COLUMNS
+    valid = cols[:, 1:] <= np.minimum(last_index + WINDOW, n - 1)[:, None]
+    np.minimum(cols, n - 1, out=cols)
+    dist = dist_all[np.arange(b)[:, None], cols]
+    above = dist > 0.0
+    change = above[:, :-1] != above[:, 1:]
+    change |= dist[:, :-1] == 0.0
+    change &= valid
+    first = change.argmax(axis=1)
+    found = change[np.arange(b), first]
+    index = np.minimum(lo + first, n - 2)
+    if found.all():
+        rows = None
+    else:
+        rows = np.flatnonzero(found)
+        for i in np.flatnonzero(~found).tolist():
+            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead,
+                                              replan_tolerance)
+        if rows.size == 0:
+            return
+        states = [states[r] for r in rows.tolist()]
+        positions, dist_all = positions[rows], dist_all[rows]
+        index, last_index = index[rows], last_index[rows]
+    _steps_found(g, states, positions, dist_all, rows, index, last_index, lookahead,
+                 replan_tolerance, out_t, out_s)
 
 
 def _steps_found(
@@ -343,7 +372,7 @@ def _steps_found(
     states: list[TrackerState],
     p: FloatArray,
     dist_all: FloatArray,
-    rows: np.ndarray,
+    rows: np.ndarray | None,
     index: np.ndarray,
     last_index: np.ndarray,
     lookahead: int,
@@ -352,66 +381,68 @@ def _steps_found(
     out_s: list[TrackerState | None],
 ) -> None:
     """The vectorised rest of :func:`tracker_step` for circle sections, rows located in
-    their window (``index`` in [0, n - 2]); ``p`` and ``dist_all`` are those rows'."""
+    their window (``index`` in [0, n - 2]); ``states``, ``p`` and ``dist_all`` are those
+    rows' (``rows`` None: all rows). Few numpy calls on (B, ...) arrays and one Python loop
+    that only packs the answers: this runs for every live pose."""
     n = g.centres.shape[0]
     b = index.shape[0]
+    ar = np.arange(b)
     upper = index + 1
     target_index = np.minimum(index + max(lookahead, 1), n - 1)
-    ar = np.arange(b)
     d0 = dist_all[ar, index]
     d1 = dist_all[ar, upper]
-    pair = np.stack([index, upper])  # (2, B)
-    # in-plane coordinates at both planes of the pair: basis_i (x - c_i), shape (2, B, K)
-    q01 = (g.basis[pair] * (p[None, :, None, :] - g.centres[pair][:, :, None, :])).sum(axis=-1)
-    radius = g.sections.params["radius"][np.stack([index, upper, target_index])]  # (3, B)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        alpha = np.where(d0 != d1, np.clip(d0 / (d0 - d1), 0.0, 1.0), 0.0)
-        a1 = alpha[:, None]
-        q = (1.0 - a1) * q01[0] + a1 * q01[1]
-        norm = np.sqrt((q * q).sum(axis=1))
-        default = _DEFAULT_DIRECTIONS[q.shape[1]]
-        direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default)
-        reach = (1.0 - alpha) * radius[0] + alpha * radius[1]
-        eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
+    # in-plane coordinates at both planes of the pair, basis_i (x - c_i): (B, K) each
+    if g.pair_basis is not None and g.pair_centres is not None:
+        q01 = (g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None])
+        q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
+    else:
+        q0 = (g.basis[index] @ (p - g.centres[index])[:, :, None])[:, :, 0]
+        q1 = (g.basis[upper] @ (p - g.centres[upper])[:, :, None])[:, :, 0]
+    r0, r1, r2 = g.sections.params["radius"][np.stack([index, upper, target_index])]
+    span = d0 - d1
+    alpha = np.where(span != 0.0, np.clip(d0 / span, 0.0, 1.0), 0.0)
+    a1 = alpha[:, None]
+    q = (1.0 - a1) * q0 + a1 * q1
+    norm = np.sqrt(np.einsum("bk,bk->b", q, q))
+    default = _DEFAULT_DIRECTIONS[q.shape[1]]
+    direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default)
+    reach = (1.0 - alpha) * r0 + alpha * r1
+    eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
     plan_eta = np.minimum(eta, MAX_PLAN_ETA)
     plan_dir = direction
-    kept_states = [states[r] for r in rows.tolist()]
-    olds = [(st.eta, st.direction) for st in kept_states
-            if st.eta is not None and st.direction is not None]
-    if olds:
-        if len(olds) == b:
-            old_eta = np.array([o[0] for o in olds])
-            old_dir = np.array([o[1] for o in olds])
-            planned = np.ones(b, dtype=bool)
-        else:
-            planned = np.array([st.eta is not None and st.direction is not None
-                                for st in kept_states])
-            old_eta = np.array([st.eta if ok else 0.0 for st, ok in zip(kept_states, planned, strict=True)])
-            old_dir = np.array([st.direction if ok else default
-                                for st, ok in zip(kept_states, planned, strict=True)])
+    if states[0].eta is not None or any(st.eta is not None for st in states):
+        planned = np.fromiter([st.eta is not None and st.direction is not None
+                               for st in states], dtype=bool, count=b)
+        old_eta = np.fromiter([0.0 if st.eta is None else st.eta for st in states],
+                              dtype=np.float64, count=b)
+        old_dir = np.array([default if st.direction is None else st.direction
+                            for st in states])
         # circle sections: the reference reach equals the live one
         gap = q - (old_eta * reach)[:, None] * old_dir
-        with np.errstate(invalid="ignore", over="ignore"):
-            keep = planned & (np.sqrt((gap * gap).sum(axis=1)) <= replan_tolerance * reach)
+        keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap)) <= replan_tolerance * reach)
         plan_eta = np.where(keep, old_eta, plan_eta)
         plan_dir = np.where(keep[:, None], old_dir, direction)
     inside = (eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0)) & ~((index == n - 2) & (d1 > 0.0))
-    with np.errstate(invalid="ignore", over="ignore"):
-        target = g.centres[target_index] + ((plan_eta * radius[2])[:, None, None] * plan_dir[:, :, None]
-                                            * g.basis[target_index]).sum(axis=1)
+    target = g.centres[target_index] + (
+        (plan_eta * r2)[:, None, None] * plan_dir[:, :, None] * g.basis[target_index]).sum(axis=1)
     done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
     progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
     new_index = np.maximum(last_index, index)
     orientations = None if g.orientations is None else g.orientations[target_index]
-    for k, (r, tgt, prog, et, ix, ins, dn, ni, pe, pd) in enumerate(zip(
-            rows.tolist(), target, progress.tolist(), eta.tolist(), index.tolist(),
-            inside.tolist(), done.tolist(), new_index.tolist(), plan_eta.tolist(), plan_dir,
-            strict=True)):
-        velocity = (None if g.section_times is None
-                    else _feed_forward(g, int(target_index[k]), tgt, pe, pd))
+    feed = g.section_times is not None
+    ti = target_index.tolist() if feed else None
+    for k, (prog, et, ix, ins, dn, ni, pe) in enumerate(zip(
+            progress.tolist(), eta.tolist(), index.tolist(), inside.tolist(), done.tolist(),
+            new_index.tolist(), plan_eta.tolist(), strict=True)):
+        r = k if rows is None else int(rows[k])
+        tgt = target[k]
+        pd = plan_dir[k]
+        velocity = None if ti is None else _feed_forward(g, ti[k], tgt, pe, pd)
         out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn, velocity,
-                                 orientation=None if orientations is None else orientations[k])
+                                 None if orientations is None else orientations[k])
         out_s[r] = TrackerState(ni, pe, pd)
+
+
 def _feed_forward(
     g: TrackerGeometry, index: int, target: FloatArray, eta: float, direction: FloatArray
 ) -> FloatArray:

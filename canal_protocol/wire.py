@@ -3,8 +3,8 @@
 Robots import this module without the service: it names the key expressions and encodes and
 decodes the two messages, a *pose* (robot -> Canal) and a *target* (Canal -> robot).
 
-Key expressions (``prefix`` defaults to ``canal``; ``skill`` and ``robot`` are single chunks,
-no ``/``, ``*``, ``$``, ``?`` or ``#``)::
+Key expressions (defined in :mod:`canal_protocol.keys`; ``prefix`` defaults to ``canal``;
+``skill`` and ``robot`` are single chunks, no ``/``, ``*``, ``$``, ``?`` or ``#``)::
 
     {prefix}/{skill}/{robot}/pose          robot -> Canal   put, one pose per sample
     {prefix}/{skill}/{robot}/target        Canal -> robot   put, one answer per pose
@@ -101,6 +101,8 @@ from typing import Any
 
 import orjson
 
+from .keys import Keys, check_chunk, is_plain_chunk, keys, model_key, pose_wildcard, stream_of
+
 VERSION = 1
 KIND_POSE = 1
 KIND_TARGET = 2
@@ -155,91 +157,6 @@ class WireError(ValueError):
         super().__init__(message)
         self.key = key
         self.message = message
-
-
-# ---- key expressions ----------------------------------------------------------------------------
-
-_BAD_CHUNK = frozenset("/*$?#")
-
-
-def check_chunk(name: str, what: str) -> str:
-    """``name`` if it is a valid single key-expression chunk, else ValueError."""
-    if not name or any(c in _BAD_CHUNK for c in name):
-        raise ValueError(f"expected {what} without '/', '*', '$', '?' or '#', got {name!r}")
-    return name
-
-
-def is_plain_chunk(name: str) -> bool:
-    """Whether ``name`` is one literal key chunk (no wildcard, DSL or verbatim marker)."""
-    if not name or name[0] == "@":
-        return False
-    for c in name:
-        if c in _BAD_CHUNK:
-            return False
-    return True
-
-
-def stream_of(key: str, prefix: str = "canal", leaf: str = "pose") -> tuple[str, str] | None:
-    """``(skill, robot)`` of ``{prefix}/{skill}/{robot}/{leaf}`` when both are plain chunks,
-    else None (a wildcard put such as ``canal/pour/*/pose`` is not anyone's stream)."""
-    head = prefix.rstrip("/") + "/"
-    if not key.startswith(head):
-        return None
-    parts = key[len(head):].split("/")
-    if len(parts) != 3 or parts[2] != leaf:
-        return None
-    skill, robot = parts[0], parts[1]
-    if not is_plain_chunk(skill) or not is_plain_chunk(robot):
-        return None
-    return skill, robot
-
-
-@dataclass(frozen=True)
-class Keys:
-    """Key expressions of one (skill, robot) stream."""
-
-    prefix: str
-    skill: str
-    robot: str
-
-    @property
-    def pose(self) -> str:
-        return f"{self.prefix}/{self.skill}/{self.robot}/pose"
-
-    @property
-    def target(self) -> str:
-        return f"{self.prefix}/{self.skill}/{self.robot}/target"
-
-    @property
-    def status(self) -> str:
-        return f"{self.prefix}/{self.skill}/{self.robot}/status"
-
-    @property
-    def model(self) -> str:
-        return f"{self.prefix}/{self.skill}/model"
-
-    @property
-    def demo_start(self) -> str:
-        return f"{self.prefix}/{self.skill}/{self.robot}/demo/start"
-
-    @property
-    def demo_stop(self) -> str:
-        return f"{self.prefix}/{self.skill}/{self.robot}/demo/stop"
-
-
-def keys(skill: str, robot: str = "robot", prefix: str = "canal") -> Keys:
-    """The key expressions for ``skill`` and ``robot`` under ``prefix``."""
-    return Keys(prefix.rstrip("/"), check_chunk(skill, "skill"), check_chunk(robot, "robot"))
-
-
-def model_key(skill: str, prefix: str = "canal") -> str:
-    """``{prefix}/{skill}/model``."""
-    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/model"
-
-
-def pose_wildcard(prefix: str = "canal") -> str:
-    """What the bridge subscribes to: every stream's poses."""
-    return f"{prefix.rstrip('/')}/*/*/pose"
 
 
 # ---- messages -----------------------------------------------------------------------------------
@@ -507,9 +424,11 @@ def decode_pose_json(data: bytes) -> Pose:
     position = _numbers(body["position"], "position")
     if not 1 <= len(position) <= MAX_DIM:
         raise WireError("bad_payload", f"expected 1..{MAX_DIM} coordinates in 'position'")
-    orientation = body.get("orientation")
-    if orientation is not None:
-        orientation = _numbers(orientation, "orientation", 4)
+    raw_orientation = body.get("orientation")
+    orientation: tuple[float, float, float, float] | None = None
+    if raw_orientation is not None:
+        qx, qy, qz, qw = _numbers(raw_orientation, "orientation", 4)
+        orientation = (qx, qy, qz, qw)
     t = body.get("t")
     if t is not None and type(t) is not float and type(t) is not int:
         raise WireError("bad_payload", "expected 't' as a number of seconds")
@@ -681,6 +600,7 @@ __all__ = [
     "RosStamp",
     "Target",
     "WireError",
+    "check_chunk",
     "decode_any_pose",
     "decode_any_target",
     "decode_pose",

@@ -25,6 +25,7 @@ from typing import Any
 import orjson
 import zenoh
 
+from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
 _ENC_JSON = zenoh.Encoding.APPLICATION_JSON
@@ -108,7 +109,7 @@ class PoseStreamer:
                  session: Any = None, connect_timeout: float = 5.0) -> None:
         if encoding not in ("binary", "json"):
             raise ValueError(f"expected encoding 'binary' or 'json', got {encoding!r}")
-        self.keys = wire.keys(skill, robot, prefix)
+        self.keys = keyspace.keys(skill, robot, prefix)
         self.encoding = encoding
         self.on_target = on_target
         self._own_session = session is None

@@ -57,13 +57,17 @@ def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
 
     canal = canal_core.Canal.from_dict(model["serialized"])
     n = canal.n_sections
+    normals = canal.normals
+    assert normals is not None  # every fitted canal has its frames
     for _ in range(200):
         i = int(rng.integers(0, max(int(max_fraction * (n - 1)), 1)))
         if canal.dim == 3:
             angle = rng.uniform(0.0, 2.0 * math.pi)
-            direction = math.cos(angle) * canal.normals[i] + math.sin(angle) * canal.binormals[i]
+            binormals = canal.binormals
+            assert binormals is not None  # 3-D canals have both
+            direction = math.cos(angle) * normals[i] + math.sin(angle) * binormals[i]
         else:
-            direction = canal.normals[i] * rng.choice([-1.0, 1.0])
+            direction = normals[i] * rng.choice([-1.0, 1.0])
         point = canal.directrix[i] + rng.uniform(0.0, 0.6) * canal.radii[i] * direction
         if bool(canal.contains(point[None, :])[0]):
             return np.asarray(point, dtype=np.float64)
@@ -144,7 +148,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                     x = x + offset
                     pending[k] = (when, None)  # type: ignore[assignment]
                     pushes_done += 1
-            seq = ps.send(x, t=elapsed, restart=not positions)
+            seq = ps.send(x.tolist(), t=elapsed, restart=not positions)
             positions.append(x.copy())
             got = ps.wait_for(seq, wait)
             if got is None:

@@ -93,7 +93,9 @@ def test_taken_port_leaves_rest_up_and_bridge_down(tmp_path):
             assert bridge["status"] == "down" and bridge["detail"]
             assert client.post("/skills", json={"name": "s", "dim": 3}).status_code == 201
             assert "canal_live_bridge_up 0.0" in client.get("/metrics").text
-        assert time.monotonic() - started < 10
+        # the supervisor learns of the failure from the process's exit, not by waiting out
+        # its 60 s ready timeout (a generous bound: the machine may be loaded)
+        assert time.monotonic() - started < 45
 
 
 def test_app_exit_closes_the_session(tmp_path):

@@ -96,7 +96,9 @@ def test_two_bridge_processes_share_the_robots(tmp_path):
 
         def per_shard():
             bridges = client.get("/healthz").json()["bridge"]["bridges"]
-            return [b["streams"] for b in bridges] if all(b["streams"] for b in bridges) else None
+            streams = [b["streams"] for b in bridges]
+            # status lines come every 0.5 s: wait for both to report every stream
+            return streams if all(streams) and sum(streams) == len(robots) else None
 
         streams = _wait(per_shard)
         assert streams is not None and sum(streams) == len(robots)  # one answer per pose

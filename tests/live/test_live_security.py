@@ -95,10 +95,11 @@ def test_junk_skills_leave_nothing_running(live):
     bridge = live.client.app.state.bridge
     before = live.metric("canal_live_errors_total", 'status="unknown_skill"')
     loads = []
-    original, options = bridge._load, bridge.options
-    bridge._load = lambda skill: (loads.append(skill), original(skill))[1]
+    table = bridge.models
+    original, options = table.load, table.options
+    table.load = lambda skill: (loads.append(skill), original(skill))[1]
     # a negative entry lives 10 s; a slow machine must not see it expire mid-test
-    bridge.options = dataclasses.replace(options, negative_ttl_s=300.0)
+    table.options = dataclasses.replace(options, negative_ttl_s=300.0)
     try:
         with zenoh.open(client_config(live.endpoint)) as session:
             for i in range(3000):
@@ -110,7 +111,7 @@ def test_junk_skills_leave_nothing_running(live):
                    < before + 3100 and time.monotonic() < deadline):
                 time.sleep(0.1)
     finally:
-        bridge._load, bridge.options = original, options
+        table.load, table.options = original, options
     assert live.metric("canal_live_errors_total", 'status="unknown_skill"') == before + 3100
     junk = [s for s in loads if s.startswith("junk")]
     assert len(junk) == 3000 == len(set(junk))  # one read per name, none for the repeats
@@ -118,9 +119,9 @@ def test_junk_skills_leave_nothing_running(live):
     cpu = time.process_time()
     time.sleep(1.0)
     assert time.process_time() - cpu < 0.3
-    assert not any(k.startswith("canal/junk") for k in bridge._streams)  # no publishers
-    assert len(bridge._unknown) <= bridge.options.negative_max
-    assert not any(s.startswith("junk") for s in bridge._models)  # nothing to refresh
+    assert not any(k.startswith("canal/junk") for k in bridge.streams)  # no publishers
+    assert len(table.unknown) <= table.options.negative_max
+    assert not any(s.startswith("junk") for s in table.models)  # nothing to refresh
 
 
 @pytest.mark.parametrize("position", [[50.0, 50.0, 50.0], [1e308, 1e308, 1e308],
@@ -161,13 +162,13 @@ def test_coalesced_poses_are_counted_per_robot(tmp_path):
             assert ps.wait_for(ps.send(x, restart=True), 1.0) is not None
             # hold the worker so the burst queues up (the worker takes this lock per batch)
             gate = threading.Event()
-            original = bridge._batch
+            original = bridge.path.batch
 
             def held(batch):
                 gate.wait(5.0)
                 return original(batch)
 
-            bridge._batch = held
+            bridge.path.batch = held
             ps.send(x)  # this one is taken by the held worker
             time.sleep(0.1)
             seqs = [ps.send(x) for _ in range(30)]
@@ -178,7 +179,7 @@ def test_coalesced_poses_are_counted_per_robot(tmp_path):
             assert r.json()["bridge"]["status"] == "behind"
             gate.set()
             answer = ps.wait_for(seqs[-1], 2.0)
-            bridge._batch = original
+            bridge.path.batch = original
         assert answer is not None and answer.seq == seqs[-1]
         assert answer.coalesced >= 20
         time.sleep(1.5)  # idle again, and idle is not behind

@@ -6,7 +6,9 @@ bridges on other machines. Takes the service's flags and ``CANAL_*`` variables
 flags are ignored: the bridge answers poses only, live recording is the recorder's own
 Zenoh subscriber). Extra flags:
 
-  --shard I/K           answer only the streams with crc32("skill/robot") % K == I
+  --shard I/K           answer only the streams of robots whose name ends with a character
+                        c with ord(c) % K == I, and subscribe only to their pose keys
+                        (canal_protocol.keys.shard_pose_keys)
   --metrics-port PORT   serve Prometheus metrics on 127.0.0.1:PORT
   --supervised          (used by ``canal serve``) read fit notices on stdin, print status
                         lines on stdout

@@ -218,7 +218,8 @@ class BridgeProcesses:
                 if state != "ok" and status == "ok":
                     status, detail = state, f"bridge process {c.shard} is {state}"
             per.append({"shard": c.shard, "pid": c.proc.pid, "status": state,
-                        "streams": h.get("streams", 0), "coalesced": h.get("coalesced", 0)})
+                        "streams": h.get("streams", 0), "coalesced": h.get("coalesced", 0),
+                        "poses": int(c.counts.get("poses", 0))})
         first = self.children[0].health
         return {"status": status, "detail": detail, "prefix": first.get("prefix"),
                 "mode": first.get("mode"), "listen": first.get("listen", []),

@@ -1,8 +1,8 @@
 """Live recording: the recorder's own Zenoh session, subscribed to the robots' poses and targets.
 
 The bridge answers poses and never calls the recorder. This subscriber listens to the same
-keys (``{prefix}/*/*/pose`` and ``{prefix}/*/*/target``) with a session of its own, so the
-recorder's work never runs on the bridge's Zenoh callback:
+keys (``{prefix}/*/*/pose`` and ``{prefix}/*/*/target``, from :mod:`canal_protocol.keys`) with
+a session of its own, so the recorder's work never runs on the bridge's Zenoh callback:
 
 - Samples wait in Zenoh ring channels (Rust, no Python callback, no GIL on Zenoh's thread);
   when a ring is full its oldest sample is dropped. A drain thread empties the rings every
@@ -29,6 +29,7 @@ from typing import Any
 import orjson
 import zenoh
 
+from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
 from .events import POSE, TARGET, LiveSample
@@ -136,6 +137,7 @@ def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]]:
     ``rosbags`` in the tests), so a deployment records ROS 2 streams without extra packages.
     Raises ``WireError`` when the payload is not one."""
     pose, _ = wire.decode_pose_cdr(data)
+    assert pose.orientation is not None  # a PoseStamped always has one
     return [float(v) for v in pose.position], [float(v) for v in pose.orientation]
 
 
@@ -150,17 +152,18 @@ class LiveSubscriber:
         self._subs: list[tuple[int, Any]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._depth = options.prefix.rstrip("/").count("/") + 1
+        self._prefix = options.prefix.rstrip("/")
 
     def start(self) -> None:
         """Open the session, subscribe and start draining (errors go to ``stats``)."""
         try:
             self._session = zenoh.open(zenoh_config(self.options))
-            prefix = self.options.prefix.rstrip("/")
-            for kind, leaf in ((POSE, "pose"), (TARGET, "target")):
-                ring = zenoh.handlers.RingChannel(self.options.capacity)
-                self._subs.append((kind, self._session.declare_subscriber(
-                    f"{prefix}/*/*/{leaf}", ring)))
+            prefix = self._prefix
+            for kind, key in ((POSE, keyspace.pose_wildcard(prefix)),
+                              (TARGET, keyspace.target_wildcard(prefix))):
+                ring: zenoh.handlers.RingChannel[zenoh.Sample] = zenoh.handlers.RingChannel(
+                    self.options.capacity)
+                self._subs.append((kind, self._session.declare_subscriber(key, ring)))
         except Exception as exc:
             self.stats.status, self.stats.detail = "down", f"{type(exc).__name__}: {exc}"
             log.warning("live recording is off: %s", self.stats.detail)
@@ -223,10 +226,11 @@ class LiveSubscriber:
     def _sample(self, kind: int, sample: Any) -> None:
         # Most samples at high rates are over the recording rate: decide that from the key,
         # the arrival time and a peek at the payload, and decode only the samples kept.
-        parts = str(sample.key_expr).split("/")
-        if len(parts) != self._depth + 3:
+        found = keyspace.stream_of(str(sample.key_expr), self._prefix,
+                                   keyspace.POSE if kind == POSE else keyspace.TARGET)
+        if found is None:  # a wildcard put is nobody's stream: not recorded as one
             return
-        skill, robot = parts[-3], parts[-2]
+        skill, robot = found
         ts = sample.timestamp
         t_ns = ts.get_time_as_ntp64().as_nanos() if ts is not None else time.time_ns()
         data = sample.payload.to_bytes()

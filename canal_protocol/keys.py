@@ -1,0 +1,207 @@
+"""The Zenoh key layout of Canal's live path, in one place (stdlib only).
+
+Every key the bridge, the live recorder, the client and the simulated robot use is built or
+parsed here. ``prefix`` defaults to ``canal``; ``skill`` and ``robot`` are single plain
+chunks (no ``/``, ``*``, ``$``, ``?``, ``#``, and no leading ``@``)::
+
+    {prefix}/{skill}/{robot}/pose          robot -> Canal   put, one pose per sample
+    {prefix}/{skill}/{robot}/target        Canal -> robot   put, one answer per pose
+    {prefix}/{skill}/{robot}/status        Canal -> robot   put, JSON status of a ROS 2 stream
+    {prefix}/{skill}/model                 queryable: latest model, JSON
+    {prefix}/{skill}/model/updated         bridge -> bridges: a fit landed ({"version": v})
+    {prefix}/{skill}/{robot}/demo/start    queryable: begin capturing this stream's poses
+    {prefix}/{skill}/{robot}/demo/stop     queryable: store them as a new demonstration
+
+Sharding (``shards = K > 1``): a stream belongs to shard ``ord(last character of robot) % K``.
+That rule is chosen because Zenoh can express it: shard I subscribes to
+``{prefix}/*/$*{c}/pose`` for each character ``c`` of :data:`SHARD_ALPHABET` with
+``ord(c) % K == I`` (:func:`shard_pose_keys`), so Zenoh itself delivers each pose to one
+bridge only; a bridge never receives, let alone decodes, another shard's poses. Robots
+numbered ``r0, r1, ...`` spread evenly. A robot whose name ends with a character outside
+:data:`SHARD_ALPHABET` is answered only by a single, unsharded bridge.
+"""
+
+from __future__ import annotations
+
+import string
+from dataclasses import dataclass
+
+POSE = "pose"
+TARGET = "target"
+STATUS = "status"
+MODEL = "model"
+MODEL_UPDATED = "model/updated"
+DEMO_START = "demo/start"
+DEMO_STOP = "demo/stop"
+
+_BAD_CHUNK = frozenset("/*$?#")
+
+#: Last characters of robot names that sharded bridges subscribe to (see the module docstring).
+SHARD_ALPHABET = string.ascii_letters + string.digits + "_-.~+=,;:!%&'()[]{}<>|^`\"\\ "
+
+
+def check_chunk(name: str, what: str) -> str:
+    """``name`` if it is a valid single key-expression chunk, else ValueError."""
+    if not name or any(c in _BAD_CHUNK for c in name):
+        raise ValueError(f"expected {what} without '/', '*', '$', '?' or '#', got {name!r}")
+    return name
+
+
+def is_plain_chunk(name: str) -> bool:
+    """Whether ``name`` is one literal key chunk (no wildcard, DSL or verbatim marker)."""
+    if not name or name[0] == "@":
+        return False
+    for c in name:
+        if c in _BAD_CHUNK:
+            return False
+    return True
+
+
+def head(prefix: str) -> str:
+    """``{prefix}/``: what every Canal key starts with."""
+    return prefix.rstrip("/") + "/"
+
+
+def stream_of(key: str, prefix: str = "canal", leaf: str = POSE) -> tuple[str, str] | None:
+    """``(skill, robot)`` of ``{prefix}/{skill}/{robot}/{leaf}`` when both are plain chunks,
+    else None (a wildcard put such as ``canal/pour/*/pose`` is not anyone's stream)."""
+    start = head(prefix)
+    if not key.startswith(start):
+        return None
+    parts = key[len(start):].split("/")
+    if len(parts) != 3 or parts[2] != leaf:
+        return None
+    skill, robot = parts[0], parts[1]
+    if not is_plain_chunk(skill) or not is_plain_chunk(robot):
+        return None
+    return skill, robot
+
+
+def skill_of_update(key: str, prefix: str = "canal") -> str | None:
+    """The skill of a ``{prefix}/{skill}/model/updated`` key, or None."""
+    start = head(prefix)
+    if not key.startswith(start):
+        return None
+    parts = key[len(start):].split("/")
+    if len(parts) != 3 or parts[1:] != MODEL_UPDATED.split("/") or not is_plain_chunk(parts[0]):
+        return None
+    return parts[0]
+
+
+def query_of(key: str, prefix: str = "canal") -> list[str] | None:
+    """The chunks after the prefix of a query key when all are plain, else None."""
+    start = head(prefix)
+    parts = key[len(start):].split("/") if key.startswith(start) else []
+    if not parts or not all(is_plain_chunk(p) for p in parts):
+        return None
+    return parts
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one (skill, robot) stream."""
+
+    prefix: str
+    skill: str
+    robot: str
+
+    @property
+    def base(self) -> str:
+        return f"{self.prefix}/{self.skill}/{self.robot}"
+
+    @property
+    def pose(self) -> str:
+        return f"{self.base}/{POSE}"
+
+    @property
+    def target(self) -> str:
+        return f"{self.base}/{TARGET}"
+
+    @property
+    def status(self) -> str:
+        return f"{self.base}/{STATUS}"
+
+    @property
+    def model(self) -> str:
+        return f"{self.prefix}/{self.skill}/{MODEL}"
+
+    @property
+    def demo_start(self) -> str:
+        return f"{self.base}/{DEMO_START}"
+
+    @property
+    def demo_stop(self) -> str:
+        return f"{self.base}/{DEMO_STOP}"
+
+
+def keys(skill: str, robot: str = "robot", prefix: str = "canal") -> Keys:
+    """The key expressions for ``skill`` and ``robot`` under ``prefix``."""
+    return Keys(prefix.rstrip("/"), check_chunk(skill, "skill"), check_chunk(robot, "robot"))
+
+
+def stream_keys(skill: str, robot: str, prefix: str = "canal") -> Keys:
+    """:func:`keys` for chunks already checked (the bridge's hot path)."""
+    return Keys(prefix.rstrip("/"), skill, robot)
+
+
+def model_key(skill: str, prefix: str = "canal") -> str:
+    """``{prefix}/{skill}/model``."""
+    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/{MODEL}"
+
+
+def model_updated_key(skill: str, prefix: str = "canal") -> str:
+    """``{prefix}/{skill}/model/updated``."""
+    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/{MODEL_UPDATED}"
+
+
+def pose_wildcard(prefix: str = "canal") -> str:
+    """Every stream's poses: what an unsharded bridge and the live recorder subscribe to."""
+    return f"{prefix.rstrip('/')}/*/*/{POSE}"
+
+
+def target_wildcard(prefix: str = "canal") -> str:
+    """Every stream's targets (the live recorder)."""
+    return f"{prefix.rstrip('/')}/*/*/{TARGET}"
+
+
+def model_updated_wildcard(prefix: str = "canal") -> str:
+    """Every skill's fit notices (between bridges)."""
+    return f"{prefix.rstrip('/')}/*/{MODEL_UPDATED}"
+
+
+def everything(prefix: str = "canal") -> str:
+    """Every key under the prefix (the bridge's queryable)."""
+    return f"{prefix.rstrip('/')}/**"
+
+
+def shard_of(skill: str, robot: str, shards: int) -> int:
+    """The bridge shard (0..shards-1) that answers this stream: ``ord(robot[-1]) % shards``.
+
+    ``skill`` does not take part: every shard serves every skill, so a fleet of one skill
+    spreads too. See the module docstring for why the rule is the robot's last character.
+    """
+    del skill
+    return ord(robot[-1]) % shards if shards > 1 and robot else 0
+
+
+def shard_pose_keys(shard: int, shards: int, prefix: str = "canal") -> list[str]:
+    """The pose key expressions shard ``shard`` of ``shards`` subscribes to.
+
+    One expression (:func:`pose_wildcard`) when ``shards`` is 1; else
+    ``{prefix}/*/$*{c}/pose`` for each character ``c`` of :data:`SHARD_ALPHABET` that
+    :func:`shard_of` gives to this shard.
+    """
+    if shards <= 1:
+        return [pose_wildcard(prefix)]
+    if not 0 <= shard < shards:
+        raise ValueError(f"expected a shard in 0..{shards - 1}, got {shard}")
+    p = prefix.rstrip("/")
+    return [f"{p}/*/$*{c}/{POSE}" for c in SHARD_ALPHABET if ord(c) % shards == shard]
+
+
+__all__ = [
+    "SHARD_ALPHABET", "Keys", "check_chunk", "everything", "head", "is_plain_chunk", "keys",
+    "model_key", "model_updated_key", "model_updated_wildcard", "pose_wildcard", "query_of",
+    "shard_of", "shard_pose_keys", "skill_of_update", "stream_keys", "stream_of",
+    "target_wildcard",
+]

@@ -1,0 +1,128 @@
+"""The bridge's model table: each served skill's latest canal, and a bounded negative cache.
+
+A skill's entry says what a pose of it gets: a tracker geometry (``ok``), or why not
+(``unknown_skill``, ``no_model``). Unknown skills go to a bounded, expiring negative cache
+so that a flood of junk names costs one database read per name and nothing afterwards.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from canal_core.tracker import TrackerGeometry, tracker_geometry
+
+from ..errors import NoModelYet, SkillNotFound
+from .config import BridgeOptions
+
+log = logging.getLogger("canal_service.bridge")
+
+@dataclass(eq=False)
+class ModelEntry:
+    """What the bridge knows about one skill: a model, or why there is none."""
+
+    status: str  # "ok" | "unknown_skill" | "no_model"
+    version: int = -1
+    dim: int = 0
+    canal: Any = None
+    message: str | None = None
+    geometry: TrackerGeometry | None = None
+    expires: float = math.inf
+
+
+def ok_entry(version: int, canal: Any) -> ModelEntry:
+    """A served model: its canal and the tracker geometry every stream of it shares."""
+    geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
+    return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry)
+
+
+def _message(exc: Exception) -> str:
+    return str(getattr(exc, "message", None) or exc)
+
+
+class ModelTable:
+    """Skill -> :class:`ModelEntry`, read through the service (database, decoded-canal cache)."""
+
+    def __init__(self, service: Any, options: BridgeOptions) -> None:
+        self.service = service
+        self.options = options
+        self.models: dict[str, ModelEntry] = {}
+        self.unknown: collections.OrderedDict[str, ModelEntry] = collections.OrderedDict()
+
+    def load(self, skill: str) -> ModelEntry:
+        """The skill's latest model from the service."""
+        try:
+            canal, _row, version, _dim = self.service.load_canal(skill, None)
+        except SkillNotFound as exc:
+            return ModelEntry("unknown_skill", message=exc.message)
+        except NoModelYet as exc:
+            return ModelEntry("no_model", dim=exc.dim, message=exc.message)
+        return ok_entry(version, canal)
+
+    def install(self, skill: str, entry: ModelEntry) -> None:
+        """Replace the skill's entry unless it would go back to an older version. Unknown
+        skills go to the bounded, expiring negative cache instead."""
+        if entry.status == "unknown_skill":
+            self.models.pop(skill, None)
+            entry.expires = time.monotonic() + self.options.negative_ttl_s
+            unknown = self.unknown
+            unknown[skill] = entry
+            unknown.move_to_end(skill)
+            while len(unknown) > self.options.negative_max:
+                unknown.popitem(last=False)
+            return
+        self.unknown.pop(skill, None)
+        old = self.models.get(skill)
+        if (old is not None and old.status == "ok" and entry.status == "ok"
+                and entry.version <= old.version):
+            return
+        self.models[skill] = entry
+
+    def entry(self, skill: str) -> ModelEntry:
+        """The skill's entry, loaded on first use (and after a negative entry expired)."""
+        entry = self.models.get(skill)
+        if entry is not None:
+            return entry
+        entry = self.unknown.get(skill)
+        if entry is not None and entry.expires > time.monotonic():
+            return entry
+        entry = self.load(skill)
+        self.install(skill, entry)
+        return entry
+
+    def updated(self, skill: str, canal: Any, version: int) -> None:
+        """A fit landed: a skill in use is reloaded (from ``canal`` when given)."""
+        self.unknown.pop(skill, None)
+        if skill in self.models:
+            entry = ok_entry(version, canal) if canal is not None else self.load(skill)
+            self.install(skill, entry)
+
+    def refresh(self, live_skills: set[str]) -> None:
+        """Re-read the skills that have streams; forget the others and expired negatives,
+        so the table stays as small as the live fleet."""
+        for skill in list(self.models):
+            if skill not in live_skills:
+                self.models.pop(skill, None)
+                continue
+            try:
+                entry = self.load(skill)
+            except Exception:
+                log.exception("model refresh for %r failed", skill)
+                continue
+            old = self.models.get(skill)
+            if old is None or old.status != entry.status or old.version != entry.version:
+                self.install(skill, entry)
+        now = time.monotonic()
+        # list() copies in one C call, with the GIL held: the worker installs entries
+        # meanwhile, and iterating the live OrderedDict in Python raised "mutated during
+        # iteration" and killed the housekeeper
+        for skill, entry in list(self.unknown.items()):
+            if entry.expires <= now:
+                self.unknown.pop(skill, None)
+
+
+__all__ = ["ModelEntry", "ModelTable", "ok_entry"]

@@ -1,0 +1,473 @@
+"""The pose path: samples in, ratio-rule targets out, on one worker thread.
+
+The worker blocks on its pose channel (GIL released), drains everything else queued without
+blocking and handles the drain as one batch: decode every pose, step the trackers of all
+streams of one model in **one** vectorised numpy call
+(:func:`canal_core.tracker.step_trackers`), then encode and put each answer. A stream with
+several poses in one drain is stepped in order (one pass per pose). Metrics are plain
+integers (:class:`Counts`); the bridge's metrics thread hands them to Prometheus.
+
+*Overload policy*: when one stream has more than ``coalesce_backlog`` poses queued in one
+drain, only its newest pose is answered; the older ones are counted per stream (the
+target's ``coalesced``) and in ``canal_live_poses_coalesced_total``.
+
+Security: a key chunk that is not a plain name is refused, logged (rate-limited) and
+counted as ``bad_key``; nothing is answered. Each stream's state is keyed by its exact key
+and answers only on its own target key.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from canal_core.tracker import Tracker, TrackerTarget, step_trackers
+from canal_protocol import keys as keyspace
+from canal_protocol import wire
+
+from .config import BridgeOptions
+from .models import ModelEntry, ModelTable
+
+log = logging.getLogger("canal_service.bridge")
+
+ENC_JSON = zenoh.Encoding.APPLICATION_JSON
+ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
+ENC_CDR = zenoh.Encoding.APPLICATION_CDR
+_OK = wire.STATUS_CODES["ok"]
+_OUTSIDE = wire.STATUS_CODES["outside_canal"]
+_FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
+MAX_DRAIN = 4096
+ERROR_KEYS = ("outside_canal", "bad_payload", "wrong_dimension", "non_finite",
+              "unknown_skill", "no_model", "internal_error", "bad_key")
+
+Job = tuple["Stream", wire.Pose, int, Any]
+
+
+@dataclass(eq=False)
+class Stream:
+    """One (skill, robot) pose stream."""
+
+    key: str
+    skill: str
+    robot: str
+    publisher: Any
+    tracker: Tracker | None = None
+    version: int = -1
+    last_seen: float = 0.0
+    last_seq: int = -1
+    coalesced: int = 0
+    cdr_seq: int = 0
+    cdr_status: str = ""
+    status_key: str = ""
+    capture: list[wire.Pose] | None = None
+    capture_from: int = 0
+    capture_label: str | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    closed: bool = False
+
+
+class Counts:
+    """The worker's metrics as plain integers (read and reset by the metrics thread)."""
+
+    __slots__ = (
+        "batches",
+        "busy_s",
+        "coalesced",
+        "errors",
+        "last_idle",
+        "poses",
+        "switches",
+        "targets",
+        "waiting",
+    )
+
+    def __init__(self) -> None:
+        self.poses = 0
+        self.targets = 0
+        self.coalesced = 0
+        self.errors: dict[str, int] = dict.fromkeys(ERROR_KEYS, 0)
+        self.switches = 0
+        self.batches: collections.deque[tuple[float, int]] = collections.deque(maxlen=100_000)
+        self.busy_s = 0.0
+        self.last_idle = time.monotonic()
+        self.waiting = True  # blocked on an empty queue
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
+                "errors": dict(self.errors), "switches": self.switches}
+
+
+class PosePath:
+    """The streams of one bridge and the worker that answers their poses."""
+
+    def __init__(self, options: BridgeOptions, models: ModelTable, counts: Counts) -> None:
+        self.options = options
+        self.prefix = options.prefix.rstrip("/")
+        self.models = models
+        self.counts = counts
+        self.session: Any = None
+        self.streams: dict[str, Stream] = {}
+        self.streams_lock = threading.Lock()
+        self.others: set[str] = set()  # keys of other shards' streams (a stray delivery)
+        self._bad_key_logged = 0.0
+
+    # ---- streams ------------------------------------------------------------------------------
+
+    def bad_key(self, key: str) -> None:
+        self.counts.errors["bad_key"] += 1
+        now = time.monotonic()
+        if now - self._bad_key_logged > 1.0:  # a flood must not flood the log
+            self._bad_key_logged = now
+            log.warning("refused a pose on %r: skill and robot must be plain key chunks "
+                        "(no '*', '**', '$*', '?', '#', '@'); not answered", key)
+
+    def stream(self, key: str, skill: str, robot: str) -> Stream:
+        """The stream of ``key``, created (with its target publisher) on first use."""
+        with self.streams_lock:
+            st = self.streams.get(key)
+            if st is not None and not st.closed:
+                return st
+            k = keyspace.stream_keys(skill, robot, self.prefix)
+            # Not express: an express put writes to the socket on the calling thread (10-35 us
+            # measured here), a batched one hands over to Zenoh's TX task (< 1 us).
+            publisher = self.session.declare_publisher(
+                k.target, express=False, congestion_control=zenoh.CongestionControl.BLOCK)
+            st = Stream(key, skill, robot, publisher, last_seen=time.monotonic(),
+                        status_key=k.status)
+            self.streams[key] = st
+            return st
+
+    def resolve(self, key: str) -> Stream | ModelEntry | None:
+        """The stream of a pose key; the negative entry for an unknown skill; None for a key
+        that is refused or another shard's."""
+        if key in self.others:
+            return None
+        found = keyspace.stream_of(key, self.prefix)
+        if found is None:
+            self.bad_key(key)
+            return None
+        skill, robot = found
+        shards = self.options.shards
+        if shards > 1 and keyspace.shard_of(skill, robot, shards) != self.options.shard:
+            if len(self.others) < 100_000:
+                self.others.add(key)
+            return None
+        entry = self.models.entry(skill)
+        if entry.status == "unknown_skill":
+            return entry
+        return self.stream(key, skill, robot)
+
+    def forget_idle(self, now: float) -> set[str]:
+        """Close the streams idle for ``idle_s`` (not capturing); the skills still live."""
+        with self.streams_lock:
+            idle = [k for k, st in self.streams.items()
+                    if now - st.last_seen > self.options.idle_s and st.capture is None]
+            gone = [self.streams.pop(k) for k in idle]
+            live_skills = {st.skill for st in self.streams.values()}
+        for st in gone:
+            _close_stream(st)
+        return live_skills
+
+    def close_streams(self) -> None:
+        with self.streams_lock:
+            streams, self.streams = list(self.streams.values()), {}
+        for st in streams:
+            _close_stream(st)
+
+    # ---- the worker ---------------------------------------------------------------------------
+
+    def work(self, recv: Callable[[], Any], try_recv: Callable[[], Any]) -> None:
+        """The worker loop: ``recv`` blocks for a sample (raises, or returns None, when the
+        channel closes); ``try_recv`` returns one or None."""
+        counts = self.counts
+        clock = time.perf_counter
+        while True:
+            counts.waiting = True
+            try:
+                sample = recv()
+            except Exception:  # channel closed: shutting down
+                return
+            if sample is None:
+                return
+            counts.waiting = False
+            started = clock()
+            batch = [sample]
+            drained = False
+            while len(batch) < MAX_DRAIN:
+                nxt = try_recv()
+                if nxt is None:
+                    drained = True
+                    break
+                batch.append(nxt)
+            try:
+                self.batch(batch)
+            except Exception:
+                log.exception("live step failed")
+                counts.errors["internal_error"] += 1
+            if drained:
+                counts.last_idle = time.monotonic()
+            counts.batches.append((clock() - started, len(batch)))
+
+    def batch(self, batch: list[Any]) -> None:
+        """Decode, group, step and answer one drain of the pose channel."""
+        self.step_rounds(self.decode_batch(batch))
+
+    def decode_batch(self, batch: list[Any]) -> list[list[Job]]:
+        """The drain as rounds of jobs: round k holds each stream's k-th pose to answer."""
+        counts = self.counts
+        groups: dict[str, list[Any]] = {}
+        for s in batch:
+            key = str(s.key_expr)
+            group = groups.get(key)
+            if group is None:
+                groups[key] = [s]
+            else:
+                group.append(s)
+        backlog = self.options.coalesce_backlog
+        now = time.monotonic()
+        rounds: list[list[Job]] = []
+        streams = self.streams
+        for key, samples in groups.items():
+            st = streams.get(key)
+            if st is None or st.closed:
+                found = self.resolve(key)
+                if found is None:
+                    continue
+                if isinstance(found, ModelEntry):
+                    for s in samples:
+                        self.answer_unknown(key, s, found)
+                    continue
+                st = found
+            st.last_seen = now
+            if len(samples) > backlog:
+                skipped = len(samples) - 1
+                if st.capture is not None:
+                    for s in samples[:-1]:
+                        self.decode(st, s, False)
+                st.coalesced += skipped
+                counts.coalesced += skipped
+                samples = samples[-1:]
+            k = 0
+            for s in samples:
+                job = self.decode(st, s, True)
+                if job is None:
+                    continue
+                if k == len(rounds):
+                    rounds.append([])
+                rounds[k].append(job)
+                k += 1
+        return rounds
+
+    def step_rounds(self, rounds: list[list[Job]]) -> None:
+        for jobs in rounds:
+            for entry, group, targets in self.step(jobs):
+                self.answer_all(entry, group, targets)
+
+    def decode(self, st: Stream, sample: Any, answer: bool) -> Job | None:
+        """One sample as a pose job, or None (answered with an error, or not to answer)."""
+        data = sample.payload.to_bytes()
+        encoding = str(sample.encoding)
+        ros = None
+        if answer:
+            self.counts.poses += 1
+        fmt = _FBIN
+        try:
+            if encoding.startswith(("application/json", "text/json")):
+                fmt = _FJSON
+                pose = wire.decode_pose_json(data)
+            elif encoding.startswith(wire.CDR_ENCODING):
+                fmt = _FCDR
+                pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
+                st.cdr_seq += 1
+            elif data[:1] == b"{" and encoding.startswith("zenoh/bytes"):
+                fmt = _FJSON
+                pose = wire.decode_pose_json(data)
+            elif data[:1] == b"\x00":
+                fmt = _FCDR
+                pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
+                st.cdr_seq += 1
+            else:
+                pose = wire.decode_pose(data)
+        except wire.WireError as exc:
+            if answer:
+                self.error(st, None, exc.key, exc.message, fmt)
+            return None
+        st.last_seq = pose.seq
+        if st.capture is not None:
+            with st.lock:
+                if st.capture is not None and pose.seq >= st.capture_from:
+                    st.capture.append(pose)
+        if not answer:
+            return None
+        return st, pose, fmt, ros
+
+    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[TrackerTarget]]]:
+        """Step every job's tracker, one numpy call per model; jobs that cannot be stepped
+        are answered with their error here."""
+        by_model: dict[int, tuple[ModelEntry, list[Job]]] = {}
+        models = self.models.models
+        for job in jobs:
+            st, pose, fmt, _ros = job
+            entry = models.get(st.skill)
+            if entry is None:
+                entry = self.models.entry(st.skill)
+            if entry.status != "ok":
+                self.error(st, pose.seq, entry.status, entry.message, fmt)
+                continue
+            position = pose.position
+            if fmt == _FCDR and entry.dim == 2:
+                position = position[:2]
+            elif len(position) != entry.dim:
+                self.error(st, pose.seq, "wrong_dimension",
+                           f"expected {entry.dim} coordinates for skill {st.skill!r}, "
+                           f"got {len(position)}", fmt)
+                continue
+            if st.version != entry.version or pose.restart or st.tracker is None:
+                self._seed(st, entry, position)
+            group = by_model.get(id(entry))
+            if group is None:
+                by_model[id(entry)] = (entry, [job])
+            else:
+                group[1].append(job)
+        out = []
+        for entry, model_jobs in by_model.values():
+            dim = entry.dim
+            positions = np.array([j[1].position[:dim] for j in model_jobs], dtype=np.float64)
+            trackers = [j[0].tracker for j in model_jobs]
+            with np.errstate(all="ignore"):  # 1e308 poses overflow; they answer outside
+                targets = step_trackers(trackers, positions)  # type: ignore[arg-type]
+            out.append((entry, model_jobs, targets))
+        return out
+
+    def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
+        """A new tracker from the entry's geometry, at the section the robot is located at."""
+        if st.tracker is not None and st.version != entry.version:
+            self.counts.switches += 1
+        assert entry.geometry is not None
+        st.tracker = Tracker(entry.geometry, self.options.lookahead)
+        point = np.array(position, dtype=np.float64)
+        try:
+            st.tracker.reset(int(entry.canal.reproduce_detailed(point).section_index))
+        except Exception:  # a start no section brackets: from the first one
+            st.tracker.reset(0)
+        st.version = entry.version
+
+    def answer_all(self, entry: ModelEntry, group: list[Job],
+                   targets: list[TrackerTarget]) -> None:
+        answer = self.answer
+        for (st, pose, fmt, ros), tt in zip(group, targets, strict=True):
+            answer(st, pose, fmt, ros, entry, tt)
+
+    def answer(self, st: Stream, pose: wire.Pose, fmt: int, ros: Any, entry: ModelEntry,
+               tt: TrackerTarget) -> None:
+        counts = self.counts
+        inside = tt.inside
+        eta = tt.eta
+        # "done" only counts at the end *and* within the last sections: a pose far beyond
+        # the last plane (50, 50, 50; 1e308) is lost, not finished.
+        done = tt.done and eta <= 1.0 + 1e-9
+        target = tt.target
+        progress = tt.progress
+        if inside or done:
+            code, status = _OK, "ok"
+        else:
+            code, status = _OUTSIDE, "outside_canal"
+            if tt.done:  # lost beyond the end is not the end reached
+                progress = tt.section_index / max(entry.canal.n_sections - 1, 1)
+            done = False
+            counts.errors["outside_canal"] += 1
+            if not (math.isfinite(target[0]) and math.isfinite(target[-1])
+                    and np.isfinite(target).all()):
+                # overflowed: the way back in is the section ahead's centre
+                n = entry.canal.n_sections
+                target = entry.canal.directrix[min(tt.section_index + self.options.lookahead,
+                                                   n - 1)]
+            if not math.isfinite(eta):
+                eta = 1e308
+        orientation = tt.orientation if tt.orientation is not None else pose.orientation
+        velocity = tt.velocity
+        if fmt == _FJSON:
+            st.publisher.put(wire.pack_target_json(
+                pose.seq, status, target, progress, eta, tt.section_index, inside, done,
+                entry.version, orientation, velocity, st.coalesced), encoding=ENC_JSON)
+        elif fmt == _FBIN:
+            st.publisher.put(wire.pack_target(
+                pose.seq, code, target.tolist(), progress, eta, tt.section_index, inside,
+                done, entry.version, orientation, velocity, st.coalesced), encoding=ENC_BINARY)
+        else:
+            position = target.tolist()
+            if len(position) == 2:
+                position.append(pose.position[2])
+            st.publisher.put(wire.encode_pose_stamped_cdr(ros, position, orientation),
+                             encoding=ENC_CDR)
+            if status != st.cdr_status:
+                st.cdr_status = status
+                self.session.put(st.status_key, wire.target_json(wire.Target(
+                    pose.seq, status, tuple(position[:entry.dim]), progress, eta,
+                    tt.section_index, inside, done, entry.version, None,
+                    None if orientation is None else tuple(orientation),
+                    coalesced=st.coalesced)), encoding=ENC_JSON)
+        counts.targets += 1
+
+    def error(self, st: Stream, seq: int | None, key: str, message: str | None,
+              fmt: int) -> None:
+        answer = wire.Target(seq=seq, status=key, message=message, coalesced=st.coalesced)
+        if fmt == _FJSON:
+            st.publisher.put(wire.target_json(answer), encoding=ENC_JSON)
+        elif fmt == _FBIN:
+            st.publisher.put(wire.encode_target(answer), encoding=ENC_BINARY)
+        else:
+            st.cdr_status = key
+            self.session.put(st.status_key, wire.target_json(answer), encoding=ENC_JSON)
+        self.counts.targets += 1
+        self.counts.errors[key] += 1
+
+    def answer_unknown(self, key: str, sample: Any, entry: ModelEntry) -> None:
+        """An unknown skill's answer, on a put without a declared publisher (no stream)."""
+        self.counts.poses += 1
+        data = sample.payload.to_bytes()
+        encoding = str(sample.encoding)
+        seq: int | None = None
+        try:
+            if wire.is_json(encoding, data):
+                seq = wire.decode_pose_json(data).seq
+                fmt = _FJSON
+            elif wire.is_cdr(encoding, data):
+                fmt = _FCDR
+            else:
+                seq = wire.decode_pose(data).seq
+                fmt = _FBIN
+        except wire.WireError:
+            fmt = _FJSON if data[:1] == b"{" else _FBIN
+        answer = wire.Target(seq=seq, status=entry.status, message=entry.message)
+        base = key[: -len(keyspace.POSE)]
+        if fmt == _FJSON:
+            self.session.put(base + keyspace.TARGET, wire.target_json(answer), encoding=ENC_JSON)
+        elif fmt == _FBIN:
+            self.session.put(base + keyspace.TARGET, wire.encode_target(answer),
+                             encoding=ENC_BINARY)
+        else:
+            self.session.put(base + keyspace.STATUS, wire.target_json(answer),
+                             encoding=ENC_JSON)
+        self.counts.targets += 1
+        self.counts.errors[entry.status] += 1
+
+
+def _close_stream(st: Stream) -> None:
+    st.closed = True
+    try:
+        st.publisher.undeclare()
+    except Exception:
+        pass
+
+
+__all__ = ["ERROR_KEYS", "Counts", "PosePath", "Stream"]
