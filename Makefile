@@ -27,7 +27,7 @@ figure: $(STAMP)
 
 lint: $(STAMP)
 	$(PY) -m ruff check canal_core canal_protocol service clients tests bench examples
-	$(PY) -m mypy canal_core
+	$(PY) -m mypy canal_core canal_protocol service/canal_service clients/canal_client
 
 test: lint
 	$(PY) -m pytest

@@ -40,10 +40,6 @@ def ok_entry(version: int, canal: Any) -> ModelEntry:
     return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry)
 
 
-def _message(exc: Exception) -> str:
-    return str(getattr(exc, "message", None) or exc)
-
-
 class ModelTable:
     """Skill -> :class:`ModelEntry`, read through the service (database, decoded-canal cache)."""
 
