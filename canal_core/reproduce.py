@@ -423,8 +423,9 @@ def learned_persistence(
     denom = float(e0 @ e0)
     # ``weight`` pseudo-demonstrations that follow the prior, each with a demonstration's mean
     # squared ratio along one in-plane axis (what a demo contributes to ``denom`` on average).
-    full = np.sum(section_points[0] ** 2, axis=1) / max(float(reach[0]), 1e-300) ** 2
-    c = weight * float(np.mean(full)) / direction.size
+    first = section_points[0]
+    mean_square = float(np.einsum("jk,jk->", first, first)) / max(first.shape[0], 1)
+    c = weight * mean_square / max(float(reach[0]), 1e-300) ** 2 / direction.size
     if not np.isfinite(denom + c) or denom + c <= 1e-6 * e0.size:
         return None
     return np.asarray((e[1:] @ e0 + c * prior) / (denom + c), dtype=np.float64)
