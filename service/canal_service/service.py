@@ -603,9 +603,10 @@ def _fit_rejected(exc: canal_core.CanalError, demo_ids: Sequence[int]) -> CanalR
     """canal_core's fit error, wrapped with the field the client knows.
 
     canal_core names a demonstration by its list index (``demos[2]``); the client knows the
-    stored id. It leaves the field empty when the set as a whole is at fault.
+    stored id. The set as a whole (no field, or ``demos``) is the skill's demonstrations.
     """
-    field, message = exc.field or "demonstrations", exc.message
+    field = "demonstrations" if exc.field in (None, "", "demos") else exc.field
+    message = exc.message
     match = _INDEXED_FIELD.match(exc.field or "")
     if match and int(match.group(2)) < len(demo_ids):
         demo_id = demo_ids[int(match.group(2))]

@@ -50,6 +50,7 @@ import zenoh
 from canal_protocol import keys as keyspace
 
 from ..errors import ServiceError, error_type
+from ..service import CanalService
 from ..validation import check_demonstration
 from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, zenoh_config
 from .models import ModelEntry, ModelTable
@@ -65,7 +66,7 @@ SWITCH_INTERVAL_S = 0.0005
 class Bridge:
     """Serve live tracking over Zenoh for a :class:`~canal_service.service.CanalService`."""
 
-    def __init__(self, service: Any, options: BridgeOptions | None = None) -> None:
+    def __init__(self, service: CanalService, options: BridgeOptions | None = None) -> None:
         self.service = service
         self.options = options or BridgeOptions()
         self.prefix = self.options.prefix.rstrip("/")
@@ -130,9 +131,7 @@ class Bridge:
                                               zenoh.handlers.FifoChannel(256))
         self._updates = s.declare_subscriber(keyspace.model_updated_wildcard(self.prefix),
                                              zenoh.handlers.FifoChannel(256))
-        listeners = getattr(self.service, "fit_listeners", None)
-        if listeners is not None:
-            listeners.append(self._on_fit)
+        self.service.fit_listeners.append(self._on_fit)
         for name, target, args in (
                 ("worker", self.path.work, (recv, try_recv)),
                 ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
@@ -180,9 +179,8 @@ class Bridge:
         if self.session is None:
             return
         self._stop.set()
-        listeners = getattr(self.service, "fit_listeners", None)
-        if listeners is not None and self._on_fit in listeners:
-            listeners.remove(self._on_fit)
+        if self._on_fit in self.service.fit_listeners:
+            self.service.fit_listeners.remove(self._on_fit)
         for entity in (*self._subscribers, self._queryable, self._updates):
             try:
                 entity.undeclare()  # unblocks recv() in the worker / control thread

@@ -17,6 +17,7 @@ from typing import Any
 from canal_core.tracker import TrackerGeometry, tracker_geometry
 
 from ..errors import NoModelYet, SkillNotFound
+from ..service import CanalService
 from .config import BridgeOptions
 
 log = logging.getLogger("canal_service.bridge")
@@ -43,7 +44,7 @@ def ok_entry(version: int, canal: Any) -> ModelEntry:
 class ModelTable:
     """Skill -> :class:`ModelEntry`, read through the service (database, decoded-canal cache)."""
 
-    def __init__(self, service: Any, options: BridgeOptions) -> None:
+    def __init__(self, service: CanalService, options: BridgeOptions) -> None:
         self.service = service
         self.options = options
         self.models: dict[str, ModelEntry] = {}

@@ -34,6 +34,9 @@ from typing import Any
 
 import orjson
 
+from ..core.config import Settings
+from ..service import CanalService
+
 log = logging.getLogger("canal_service.bridge")
 
 STATUS_PERIOD_S = 0.5
@@ -63,7 +66,7 @@ class _Child:
 class BridgeProcesses:
     """Start, watch, feed and stop the bridge processes of one service."""
 
-    def __init__(self, settings: Any, service: Any) -> None:
+    def __init__(self, settings: Settings, service: CanalService) -> None:
         self.settings = settings
         self.service = service
         self.children: list[_Child] = []
@@ -128,9 +131,7 @@ class BridgeProcesses:
                 self.close()
                 self.state = "down"
                 return False
-        listeners = getattr(self.service, "fit_listeners", None)
-        if listeners is not None:
-            listeners.append(self._on_fit)
+        self.service.fit_listeners.append(self._on_fit)
         self.state, self.detail = "ok", None
         self.service.metrics.live_up.set(1)
         return True
@@ -234,9 +235,8 @@ class BridgeProcesses:
     def close(self) -> None:
         """Stop every bridge process (SIGTERM, then kill after 10 s)."""
         self._stopping = True
-        listeners = getattr(self.service, "fit_listeners", None)
-        if listeners is not None and self._on_fit in listeners:
-            listeners.remove(self._on_fit)
+        if self._on_fit in self.service.fit_listeners:
+            self.service.fit_listeners.remove(self._on_fit)
         for c in self.children:
             if c.proc.poll() is None:
                 c.proc.terminate()
