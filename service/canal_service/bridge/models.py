@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -49,6 +50,10 @@ class ModelTable:
         self.options = options
         self.models: dict[str, ModelEntry] = {}
         self.unknown: collections.OrderedDict[str, ModelEntry] = collections.OrderedDict()
+        # The worker installs negative entries while the housekeeper expires them: each
+        # compound change of the negative cache happens under this lock (misses only; a
+        # served pose never takes it).
+        self._unknown_lock = threading.Lock()
 
     def load(self, skill: str) -> ModelEntry:
         """The skill's latest model from the service."""
@@ -67,10 +72,11 @@ class ModelTable:
             self.models.pop(skill, None)
             entry.expires = time.monotonic() + self.options.negative_ttl_s
             unknown = self.unknown
-            unknown[skill] = entry
-            unknown.move_to_end(skill)
-            while len(unknown) > self.options.negative_max:
-                unknown.popitem(last=False)
+            with self._unknown_lock:
+                unknown[skill] = entry
+                unknown.move_to_end(skill)
+                while len(unknown) > self.options.negative_max:
+                    unknown.popitem(last=False)
             return
         self.unknown.pop(skill, None)
         old = self.models.get(skill)
@@ -114,12 +120,13 @@ class ModelTable:
             if old is None or old.status != entry.status or old.version != entry.version:
                 self.install(skill, entry)
         now = time.monotonic()
-        # list() copies in one C call, with the GIL held: the worker installs entries
-        # meanwhile, and iterating the live OrderedDict in Python raised "mutated during
-        # iteration" and killed the housekeeper
-        for skill, entry in list(self.unknown.items()):
-            if entry.expires <= now:
-                self.unknown.pop(skill, None)
+        # Under the lock: the worker installs entries meanwhile (iterating the live
+        # OrderedDict raised "mutated during iteration" and killed the housekeeper; popping
+        # between the worker's insert and move_to_end raised KeyError in the worker).
+        with self._unknown_lock:
+            expired = [skill for skill, entry in self.unknown.items() if entry.expires <= now]
+            for skill in expired:
+                del self.unknown[skill]
 
 
 __all__ = ["ModelEntry", "ModelTable", "ok_entry"]
