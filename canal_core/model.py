@@ -89,6 +89,9 @@ CROSS_SECTIONS: tuple[str, ...] = KINDS_3D
 FRAMES: tuple[FrameKind, ...] = get_args(FrameKind)
 ALIGNMENTS: tuple[AlignmentKind, ...] = get_args(AlignmentKind)
 DIRECTRICES: tuple[DirectrixKind, ...] = get_args(DirectrixKind)
+#: What a reproduction does with a start outside the canal (:meth:`Canal.reproduce_detailed`).
+OutsideRule = Literal["project", "raise"]
+OUTSIDE_RULES: tuple[OutsideRule, ...] = get_args(OutsideRule)
 #: Bounds of ``n_samples`` (N, the number of cross-sections) and of ``frame_smoothing``; the
 #: service's limits are these. A fit's cost grows faster than N (5 demos of 1,000 points:
 #: about 1 s at N = 5,000, 38 s at 20,000, over 7 min at 100,000, on a busy 2-core machine),
@@ -333,7 +336,7 @@ class Canal:
             paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
         """
         point = check_point(start, self.dim, "start")
-        check_choice(outside, ("project", "raise"), "outside")
+        check_choice(outside, OUTSIDE_RULES, "outside")
         quat = None if start_orientation is None else check_quaternion(start_orientation)
         entry = check_fraction(entry, "entry", maximum=1.0)
         end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)

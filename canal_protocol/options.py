@@ -23,10 +23,13 @@ __all__ = [
     "MAX_FRAME_SMOOTHING",
     "MAX_SAMPLES",
     "MIN_SAMPLES",
+    "OUTSIDE_RULES",
     "Alignment",
     "CrossSection",
     "Directrix",
     "FrameKind",
+    "OutsideRule",
+    "RecordingKind",
 ]
 
 
@@ -35,6 +38,7 @@ CROSS_SECTIONS: tuple[str, ...] = tuple(_core.CROSS_SECTIONS)
 FRAMES = _core.FRAMES
 ALIGNMENTS = _core.ALIGNMENTS
 DIRECTRICES = _core.DIRECTRICES
+OUTSIDE_RULES = _core.OUTSIDE_RULES
 MIN_SAMPLES = _core.MIN_SAMPLES
 #: The service accepts every N the core fits: one limit (docs/CONTRACTS.md says why 5,000).
 MAX_SAMPLES = _core.MAX_SAMPLES
@@ -45,6 +49,9 @@ DEFAULTS = _core.FitOptions()
 FrameKind = _core.FrameKind
 Alignment = _core.AlignmentKind
 Directrix = _core.DirectrixKind
+OutsideRule = _core.OutsideRule
+#: The recordings a skill has: Rerun (.rrd) and MCAP.
+RecordingKind = Literal["rrd", "mcap"]
 if TYPE_CHECKING:
     # The registry is open (a new kind is one new module), so statically it is a name.
     CrossSection = str

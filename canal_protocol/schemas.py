@@ -10,7 +10,7 @@ import orjson
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
 from . import options
-from .options import Alignment, CrossSection, Directrix, FrameKind
+from .options import Alignment, CrossSection, Directrix, FrameKind, OutsideRule
 
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 MAX_BATCH_STARTS = 1000
@@ -288,7 +288,7 @@ class ReproductionRequest(_In):
     model: Literal["latest"] | Id = Field(
         "latest", description="'latest' or a model version number."
     )
-    outside: Literal["project", "raise"] = Field(
+    outside: OutsideRule = Field(
         "project",
         description="A start outside the canal enters it over a short blend (200, inside=false, "
         "projected=true), or is refused with 422 when 'raise'.",

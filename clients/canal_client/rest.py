@@ -47,7 +47,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ValidationError
 
-from canal_protocol.options import Alignment, CrossSection, Directrix, FrameKind
+from canal_protocol.options import (
+    Alignment,
+    CrossSection,
+    Directrix,
+    FrameKind,
+    OutsideRule,
+    RecordingKind,
+)
 from canal_protocol.schemas import (
     DemonstrationIn,
     FitRequest,
@@ -88,8 +95,7 @@ __all__ = [
 ]
 
 DEFAULT_URL = "http://127.0.0.1:8000"
-RecordingKind = Literal["rrd", "mcap"]
-Outside = Literal["project", "raise"]
+Outside = OutsideRule
 Version = int | Literal["latest"] | str
 PAGE_SIZE = 1000
 

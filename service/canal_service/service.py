@@ -23,6 +23,7 @@ from sqlalchemy.exc import IntegrityError
 
 import canal_core
 from canal_protocol import schemas
+from canal_protocol.options import RecordingKind
 
 from . import __version__, uploads
 from .errors import (
@@ -510,7 +511,7 @@ class CanalService:
             raise Disabled("recordings are disabled on this service", field="recordings")
         return self.recorder
 
-    def export_recording(self, name: str, kind: Literal["rrd", "mcap"],
+    def export_recording(self, name: str, kind: RecordingKind,
                          profile: Literal["foxglove", "ros2"] = "foxglove") -> Path:
         """A snapshot file of the skill's recording (the caller deletes it after sending)."""
         recorder = self._recorder()

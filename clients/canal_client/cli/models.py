@@ -11,40 +11,25 @@ from __future__ import annotations
 
 import contextlib
 import json
-import typing
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeAlias
+from typing import Annotated, Any
 
 import numpy as np
 import typer
 from pydantic import BaseModel
 from rich.markup import escape
 
-from canal_core.model import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
 from canal_core.validation import FloatArray
-from canal_protocol.schemas import FitRequest, ReproductionRequest
+from canal_protocol.options import OUTSIDE_RULES, Alignment, CrossSection, Directrix, FrameKind
+from canal_protocol.options import OutsideRule as Outside
+from canal_protocol.schemas import FitRequest
 
 from .output import err, out, plain, print_json
 from .parsing import parse_point, parse_quaternion
 from .session import connected, options
 
-OUTSIDE_CHOICES: tuple[str, ...] = typing.get_args(
-    ReproductionRequest.model_fields["outside"].annotation)
-
-# typer shows and checks a Literal's values as choices; mypy cannot read a Literal built from
-# a runtime tuple, so it sees the plain str the command receives.
-if TYPE_CHECKING:
-    CrossSection: TypeAlias = str
-    FrameKind: TypeAlias = str
-    Alignment: TypeAlias = str
-    Directrix: TypeAlias = str
-    Outside: TypeAlias = str
-else:
-    CrossSection = Literal[CROSS_SECTIONS]
-    FrameKind = Literal[FRAMES]
-    Alignment = Literal[ALIGNMENTS]
-    Directrix = Literal[DIRECTRICES]
-    Outside = Literal[OUTSIDE_CHOICES]
+# typer shows and checks each Literal's values as choices (canal_protocol's aliases of
+# canal_core's names: never written out here).
 
 
 def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
@@ -83,10 +68,8 @@ def fit(
     busy = (contextlib.nullcontext() if options(ctx).json
             else err.status(f"fitting {escape(skill)}..."))
     with connected(ctx) as c, busy:
-        # typer hands back the choice's value; the service checks it against the contract.
-        names: dict[str, Any] = {"cross_section": cross_section, "frames": frames,
-                                 "alignment": alignment, "directrix": directrix}
-        model = c.fit(skill, **names, n_samples=samples, frame_smoothing=frame_smoothing,
+        model = c.fit(skill, cross_section=cross_section, frames=frames, alignment=alignment,
+                      directrix=directrix, n_samples=samples, frame_smoothing=frame_smoothing,
                       by_time=by_time or None, demo_ids=demo or None)
     if options(ctx).json:
         print_json(model)
@@ -126,7 +109,7 @@ def reproduce(
     ] = None,
     outside: Annotated[Outside, typer.Option(
         "--outside", help="A start outside the canal: enter the canal over a short blend, or refuse.")
-    ] = OUTSIDE_CHOICES[0],
+    ] = OUTSIDE_RULES[0],
     start_orientation: Annotated[str | None, typer.Option(
         "--start-orientation", "-q",
         help="qx,qy,qz,qw unit quaternion of the start pose (models with orientation carry it; "
@@ -148,8 +131,7 @@ def reproduce(
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:
-        rule: dict[str, Any] = {"outside": outside}
-        r = c.reproduce(skill, point, model=model, **rule, goal=goal_point,
+        r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
                         duration=duration, start_orientation=quat)
     if out_path is not None:
         write_trajectory(out_path, r.positions, r, r.orientations)

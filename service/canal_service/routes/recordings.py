@@ -9,6 +9,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
 
+from canal_protocol.options import RecordingKind
 from canal_protocol.schemas import ErrorResponse
 
 from ..deps import ServiceDep, SkillName
@@ -21,7 +22,7 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 _MEDIA = {"rrd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
-async def _export(service: CanalService, name: str, kind: Literal["rrd", "mcap"],
+async def _export(service: CanalService, name: str, kind: RecordingKind,
                   profile: Literal["foxglove", "ros2"] = "foxglove") -> FileResponse:
     path = await run_in_threadpool(service.export_recording, name, kind, profile)
     # The snapshot is ours to delete once sent (Recorder contract).

@@ -94,32 +94,6 @@ def delete_skill(session: Session, name: str) -> None:
     session.execute(delete(Skill).where(Skill.id == skill.id))
 
 
-def add_demonstration(
-    session: Session,
-    skill: Skill,
-    positions: arrays.FloatArray,
-    timestamps: arrays.FloatArray | None,
-    orientations: arrays.FloatArray | None,
-    label: str | None,
-    source: str,
-) -> Demonstration:
-    """Store one checked demonstration as packed arrays."""
-    demo = Demonstration(
-        skill_id=skill.id,
-        label=label,
-        n_points=int(positions.shape[0]),
-        dim=int(positions.shape[1]),
-        positions=arrays.pack(positions),
-        timestamps=None if timestamps is None else arrays.pack(timestamps),
-        orientations=None if orientations is None else arrays.pack(orientations),
-        checksum=arrays.checksum(positions),
-        source=source,
-    )
-    session.add(demo)
-    session.flush()
-    return demo
-
-
 @dataclass(frozen=True)
 class StoredDemo:
     """What the upload path needs back from an insert."""
