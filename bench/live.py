@@ -24,6 +24,12 @@ memory of the service and of each bridge process (target: < 5 % growth after the
 minute), then reads what the recorder heard from /healthz (recording completeness).
 ``--stages-only`` prints the per-stage table alone (CPU time: needs no quiet machine).
 
+For every drive it also reads the CPU time of the server's processes from /proc (the echo;
+canal serve's service process and each bridge process) and reports CPU per pose, a figure
+the shared machine disturbs far less than latency; and after each canal serve drive, what
+the recorder's /healthz says of the recording (poses the bridges handled, recorded,
+decimated, pending, dropped, lost batches: complete when recorded + decimated == handled).
+
     python bench/live.py [--quick] [--seconds 20] [--formats json,binary,cdr]
                          [--processes 1,2] [--soak 600] [--stages-only]
 """
@@ -357,6 +363,8 @@ class Run:
     out_of_order: int
     latencies_us: np.ndarray
     seconds: float
+    cpu_us: dict[str, float] | None = None  # process -> CPU us per pose sent (warm-up in)
+    recording: dict | None = None  # the recorder's live counts for this drive
 
     @property
     def answered(self) -> float:
@@ -551,7 +559,8 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
     db = Database(f"sqlite:///{(data / 'canal.sqlite3').resolve()}")
     service = CanalService(db, Metrics())
     port = free_port()
-    bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",)))
+    # recording on, as canal serve runs it (its batches go nowhere here)
+    bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",), record_hz=100.0))
     rows: list[tuple[str, float]] = []
     clock = time.thread_time_ns
     try:
@@ -637,6 +646,52 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
     return rows
 
 
+# ---- CPU from /proc ----------------------------------------------------------------------------
+
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of a process (all its threads), seconds; 0 when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / _TICK
+
+
+def measured(pids: dict[str, int], port: int | None, fn, *args) -> Run:
+    """``fn(*args)`` (a drive) with the CPU its server's processes spent, per pose sent, and
+    with ``port``, the change in the recorder's live counts over the drive."""
+    before_rec = _live_counts(port) if port else None
+    before = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    run: Run = fn(*args)
+    after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    total = run.sent + int(0.5 * RATE_HZ) * run.streams  # + the warm-up poses
+    run.cpu_us = {name: 1e6 * (after[name] - before[name]) / max(total, 1) for name in pids}
+    if port and before_rec is not None:
+        time.sleep(2.5)  # the last batch (0.1 s) and the recorder's flush (1 s)
+        after_rec = _live_counts(port)
+        run.recording = {k: after_rec.get(k, 0) - before_rec.get(k, 0)
+                         for k in ("poses", "recorded", "decimated", "dropped", "pending",
+                                   "lost_batches", "coalesced")}
+        run.recording["sent"] = total
+        run.recording["complete"] = bool(after_rec.get("complete"))
+    return run
+
+
+def _live_counts(port: int) -> dict:
+    return healthz(port).get("recorder", {}).get("live", {})
+
+
+def server_pids(port: int, serve_pid: int) -> dict[str, int]:
+    pids = {"service": serve_pid}
+    for b in healthz(port).get("bridge", {}).get("bridges", []):
+        pids[f"bridge {b['shard']}"] = int(b["pid"])
+    return pids
+
+
 # ---- resident memory (soak) -------------------------------------------------------------------
 
 
@@ -704,12 +759,13 @@ def soak(data: Path, path: np.ndarray, seconds: float) -> None:
     rec = health.get("recorder", {})
     live = rec.get("live", {})
     sent = run.sent + int(0.5 * RATE_HZ) * run.streams  # the warm-up poses are recorded too
-    answered = run.received + int(0.5 * RATE_HZ) * run.streams
-    print(f"\nRecording: the recorder's subscriber received {live.get('received', '?')} samples "
-          f"(poses + targets; at most {sent} poses and ~{answered} targets), missed poses {live.get('missed_poses', '?')}, "
-          f"full rings {live.get('full_rings', '?')}, dropped {rec.get('dropped', '?')}, "
-          f"decimated by the rate limit {rec.get('decimated', '?')}, written "
-          f"{rec.get('live_written', '?')}, status {rec.get('status', '?')}")
+    adds = live.get("recorded", 0) + live.get("decimated", 0) == live.get("poses", -1)
+    print(f"\nRecording: {sent} poses sent; the bridges handled {live.get('poses', '?')} "
+          f"({live.get('coalesced', '?')} coalesced), recorded {live.get('recorded', '?')}, "
+          f"decimated {live.get('decimated', '?')}, pending {live.get('pending', '?')}, "
+          f"dropped {live.get('dropped', '?')}, lost batches {live.get('lost_batches', '?')}: "
+          + ("complete (recorded + decimated == handled)" if adds and live.get("complete")
+             else "NOT complete") + f"; recorder status {rec.get('status', '?')}")
     print("\nRSS every 10 s (MiB): t, canal serve, bridges")
     for t, kib, bridges in samples:
         print(f"  t={t:5.0f} s  {kib / 1024:7.1f}  " + "  ".join(f"{b / 1024:7.1f}" for b in bridges))
@@ -772,13 +828,16 @@ def main(argv: list[str] | None = None) -> int:
         echo_ep = f"tcp/127.0.0.1:{free_port()}"
         serve_ep = f"tcp/127.0.0.1:{free_port()}"
         echo = start_echo(echo_ep)
-        serve, _ = start_serve(data, serve_ep)
+        serve, serve_port = start_serve(data, serve_ep)
+        echo_pids = {"echo": echo.pid}
+        serve_pids = server_pids(serve_port, serve.pid)
         runs: list[tuple[Run, Run]] = []
         try:
             for fmt in formats:
                 for n, secs in ((1, one_seconds), (16, seconds)):
-                    e = drive(echo_ep, "echo", fmt, n, secs, path)
-                    b = drive(serve_ep, "canal serve", fmt, n, secs, path)
+                    e = measured(echo_pids, None, drive, echo_ep, "echo", fmt, n, secs, path)
+                    b = measured(serve_pids, serve_port, drive, serve_ep, "canal serve", fmt,
+                                 n, secs, path)
                     runs.append((e, b))
                     print(f"  {fmt} x {n:>2}: echo {e.answered:.1f} % p99 {e.pct(99):.0f} us | "
                           f"canal serve {b.answered:.2f} % p99 {b.pct(99):.0f} us",
@@ -790,14 +849,16 @@ def main(argv: list[str] | None = None) -> int:
             for k in [int(v) for v in args.processes.split(",") if v]:
                 serve_ep = f"tcp/127.0.0.1:{free_port()}"  # the last run's may linger
                 try:
-                    serve, _ = start_serve(data, serve_ep, processes=k)
+                    serve, serve_port = start_serve(data, serve_ep, processes=k)
                 except RuntimeError as exc:
                     print(f"  {k} bridge(s): {exc}", file=sys.stderr)
                     continue
                 try:
-                    e = drive(echo_ep, "echo", "json", 16, seconds, path)
-                    b = drive(serve_ep, f"canal serve, {k} bridge(s)", "json", 16, seconds,
-                              path)
+                    e = measured(echo_pids, None, drive, echo_ep, "echo", "json", 16, seconds,
+                                 path)
+                    b = measured(server_pids(serve_port, serve.pid), serve_port, drive,
+                                 serve_ep, f"canal serve, {k} bridge(s)", "json", 16, seconds,
+                                 path)
                 finally:
                     stop(serve)
                 scale.append((k, e, b))
@@ -848,6 +909,29 @@ def report_runs(runs, scale, seconds) -> None:
                             f"{b.pct(99):.0f} us: " + ("met" if ok else "MISSED"))
             summary.append(summary_row("live 1 robot JSON p50", b.pct(50) / 1e3, "ms",
                                        "bare Zenoh echo", e.pct(50) / 1e3))
+    print("\nCPU per pose (from /proc: utime + stime of each process over the drive, all its "
+          "threads, divided by the poses sent; us)\n")
+    print("| format | robots | echo | canal serve: service | bridge(s) | bridge / echo |")
+    print("|---|---|---|---|---|---|")
+    for e, b in runs:
+        if e.cpu_us is None or b.cpu_us is None:
+            continue
+        echo_us = e.cpu_us["echo"]
+        bridge_us = sum(v for k, v in b.cpu_us.items() if k.startswith("bridge"))
+        print(f"| {b.fmt} | {b.streams} | {echo_us:.1f} | {b.cpu_us.get('service', 0):.1f} | "
+              f"{bridge_us:.1f} | {bridge_us / max(echo_us, 1e-9):.2f} |")
+    print("\nRecording during each canal serve drive (from /healthz recorder.live, deltas)\n")
+    print("| format | robots | sent | handled | recorded | decimated | pending | dropped "
+          "| lost batches | complete |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for _, b in runs:
+        r = b.recording
+        if not r:
+            continue
+        adds = r["recorded"] + r["decimated"] == r["poses"] and r["complete"]
+        print(f"| {b.fmt} | {b.streams} | {r['sent']} | {r['poses']} | {r['recorded']} | "
+              f"{r['decimated']} | {r['pending']} | {r['dropped']} | {r['lost_batches']} | "
+              f"{'yes' if adds else 'NO'} |")
     if scale:
         print("\nBridge processes (16 x 1 kHz JSON; echo in the same run)\n")
         print("| bridges | answered % | p50 us | p99 us | echo p99 us | p99 / echo |")

@@ -251,15 +251,17 @@ def _upload_round(recordings: bool, n: int, clients: int, bodies: list[bytes]) -
 
 
 def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
-    """Cost per sample of the recorder's Zenoh subscriber (drain thread), real sessions.
+    """Cost per pose row of the recorder's live subscriber (drain thread), real sessions.
 
-    16 robots' poses and targets (binary and JSON) are put on loopback, then one drain
-    empties the rings; time per sample at the default 100 Hz and keeping every sample.
+    A bridge-like session puts recording batches (16 streams, 0.1 s of a 1 kHz stream each:
+    10 rows per stream at the default 100 Hz, 100 when keeping every pose) on the recorder
+    key; one drain hands them to the recorder; time per row (a pose and its target).
     """
     import orjson
     import zenoh
     from canal_service.recording.live import LiveOptions, LiveSubscriber
 
+    from canal_protocol import keys as keyspace
     from canal_protocol import wire
 
     def config(mode: str, listen: list[str], connect: list[str]) -> Any:
@@ -275,32 +277,27 @@ def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
     rows = []
     try:
         for hz in (100.0, None):
-            rec = Recorder(Path(tempfile.mkdtemp(prefix="canal-bench-drain-")),
-                           live_max_hz=hz, quiet_s=0)
+            per = 10 if hz else 100
+            rec = Recorder(Path(tempfile.mkdtemp(prefix="canal-bench-drain-")), quiet_s=0)
             sub = LiveSubscriber(rec, LiveOptions(listen=(endpoint,), interval_s=3600))
             sub.start()
-            robot = zenoh.open(config("client", [], [endpoint]))
             time.sleep(1.5)
-            for enc in ("binary", "json"):
-                for k in range(n // 2):
-                    key, seq, p = f"canal/b/r{k % 16}", k // 16 + 1, [0.1, 0.2, 0.3]
-                    if enc == "binary":
-                        robot.put(f"{key}/pose", wire.encode_pose(seq, p))
-                        robot.put(f"{key}/target", wire.pack_target(
-                            seq, 0, p, 0.5, 0.3, 4, True, False, 1))
-                    else:
-                        robot.put(f"{key}/pose", wire.encode_pose_json(seq, p),
-                                  encoding=wire.JSON_ENCODING)
-                        robot.put(f"{key}/target", wire.pack_target_json(
-                            seq, "ok", p, 0.5, 0.3, 4, True, False, 1),
-                            encoding=wire.JSON_ENCODING)
-                time.sleep(1.0)
-                t0 = time.perf_counter()
-                got = sub.drain()
-                dt = time.perf_counter() - t0
-                rows.append({"hz": hz or 0, "encoding": enc, "samples": got,
-                             "us": 1e6 * dt / max(got, 1)})
-            robot.close()
+            key = keyspace.recorder_key("bench", "canal")
+            p = [0.1, 0.2, 0.3]
+            row = [0, p, None, p, None, 0.5, 0.3, 4, True, False, "ok"]
+            batches = max(n // (16 * per), 1)
+            for k in range(batches):
+                row[0] = time.time_ns()
+                bridge.put(key, wire.encode_record_batch("bench", k, [
+                    ("b", f"r{i}", 100, 100, 0, 0, 100 - per, [row] * per) for i in range(16)]),
+                    encoding=wire.JSON_ENCODING)
+            time.sleep(1.0)
+            t0 = time.perf_counter()
+            got = sub.drain()
+            dt = time.perf_counter() - t0
+            kept = 16 * per * got
+            rows.append({"hz": hz or 0, "encoding": "batches", "samples": kept,
+                         "us": 1e6 * dt / max(kept, 1)})
             rec.close()
     finally:
         bridge.close()
@@ -337,10 +334,10 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--n-uploads", type=int, default=1000)
     parser.add_argument("--live-drain", action="store_true",
-                        help="only the cost per sample of the recorder's Zenoh subscriber")
+                        help="only the cost per pose row of the recorder's live subscriber")
     args = parser.parse_args()
     if args.live_drain:
-        print("| recorder Zenoh subscriber | kept Hz | samples drained | us/sample |")
+        print("| recorder live subscriber | kept Hz | pose rows drained | us/row |")
         print("|---|---|---|---|")
         for r in bench_live_drain():
             print(f"| {r['encoding']} | {r['hz'] or 'all':>4} | {r['samples']} | {r['us']:.1f} |")

@@ -11,6 +11,12 @@ chunks (no ``/``, ``*``, ``$``, ``?``, ``#``, and no leading ``@``)::
     {prefix}/{skill}/model/updated         bridge -> bridges: a fit landed ({"version": v})
     {prefix}/{skill}/{robot}/demo/start    queryable: begin capturing this stream's poses
     {prefix}/{skill}/{robot}/demo/stop     queryable: store them as a new demonstration
+    {prefix}/@recorder/live/{bridge}       bridge -> recorder   put, the batches to record
+
+The recorder key starts with the *verbatim* chunk ``@recorder``: Zenoh matches such a chunk
+only by the same chunk, never by ``*`` or ``**``, so ``{prefix}/**`` (a stranger's
+subscription, an ACL rule for robots) never covers it, and no skill can be named like it
+(:func:`is_plain_chunk` refuses a leading ``@``). The shipped ACL gives it to the service only.
 
 Sharding (``shards = K > 1``): a stream belongs to shard ``ord(last character of robot) % K``.
 That rule is chosen because Zenoh can express it: shard I subscribes to
@@ -33,6 +39,7 @@ MODEL = "model"
 MODEL_UPDATED = "model/updated"
 DEMO_START = "demo/start"
 DEMO_STOP = "demo/stop"
+RECORDER = "@recorder/live"
 
 _BAD_CHUNK = frozenset("/*$?#")
 
@@ -174,6 +181,25 @@ def everything(prefix: str = "canal") -> str:
     return f"{prefix.rstrip('/')}/**"
 
 
+def recorder_key(bridge: str, prefix: str = "canal") -> str:
+    """``{prefix}/@recorder/live/{bridge}``: where bridge ``bridge`` puts its recording batches."""
+    return f"{prefix.rstrip('/')}/{RECORDER}/{check_chunk(bridge, 'bridge')}"
+
+
+def recorder_wildcard(prefix: str = "canal") -> str:
+    """Every bridge's recording batches (what the service's live recorder subscribes to)."""
+    return f"{prefix.rstrip('/')}/{RECORDER}/*"
+
+
+def bridge_of_batch(key: str, prefix: str = "canal") -> str | None:
+    """The bridge chunk of a :func:`recorder_key`, or None when ``key`` is not one."""
+    start = f"{prefix.rstrip('/')}/{RECORDER}/"
+    if not key.startswith(start):
+        return None
+    bridge = key[len(start):]
+    return bridge if is_plain_chunk(bridge) else None
+
+
 def shard_of(skill: str, robot: str, shards: int) -> int:
     """The bridge shard (0..shards-1) that answers this stream: ``ord(robot[-1]) % shards``.
 
@@ -200,8 +226,9 @@ def shard_pose_keys(shard: int, shards: int, prefix: str = "canal") -> list[str]
 
 
 __all__ = [
-    "SHARD_ALPHABET", "Keys", "check_chunk", "everything", "head", "is_plain_chunk", "keys",
-    "model_key", "model_updated_key", "model_updated_wildcard", "pose_wildcard", "query_of",
-    "shard_of", "shard_pose_keys", "skill_of_update", "stream_keys", "stream_of",
-    "target_wildcard",
+    "RECORDER", "SHARD_ALPHABET", "Keys", "bridge_of_batch", "check_chunk", "everything",
+    "head", "is_plain_chunk", "keys", "model_key", "model_updated_key",
+    "model_updated_wildcard", "pose_wildcard", "query_of", "recorder_key",
+    "recorder_wildcard", "shard_of", "shard_pose_keys", "skill_of_update", "stream_keys",
+    "stream_of", "target_wildcard",
 ]

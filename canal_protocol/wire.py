@@ -585,6 +585,132 @@ def decode_any_pose(encoding: str, data: bytes) -> Pose:
     return decode_pose_json(data) if is_json(encoding, data) else decode_pose(data)
 
 
+# ---- recording batches: bridge -> the service's live recorder ----------------------------------
+#
+# Every ``interval`` (0.1 s by default) a bridge puts one JSON message on
+# ``{prefix}/@recorder/live/{bridge}`` (:func:`canal_protocol.keys.recorder_key`)::
+#
+#     {"v": 1, "bridge": "b0-4711-9f3c", "n": 17, "streams": [
+#         {"skill": "pour", "robot": "arm1", "poses": 100, "answered": 100, "coalesced": 0,
+#          "errors": 0, "decimated": 90,
+#          "rows": [[t_ns, position, orientation|null, target, target_orientation|null,
+#                    progress, eta, section, inside, done, status], ...]}]}
+#
+# ``n`` counts the bridge's batches from 0 (a gap is a lost batch). The counts are *deltas*
+# since the stream's previous batch: ``poses`` received (coalesced included), ``answered``
+# (ok or outside_canal), ``coalesced``, ``errors`` (answered with an error status) and
+# ``decimated`` (not kept for the recording). Each row is one kept pose and its target, so
+# ``poses == len(rows) + decimated`` in every batch.
+
+RECORD_ROW_FIELDS = 11
+
+
+@dataclass(frozen=True, slots=True)
+class RecordRow:
+    """One pose the bridge kept for the recording, with the target it answered."""
+
+    t_ns: int
+    position: tuple[float, ...]
+    orientation: tuple[float, ...] | None
+    target: tuple[float, ...]
+    target_orientation: tuple[float, ...] | None
+    progress: float
+    eta: float
+    section: int
+    inside: bool
+    done: bool
+    status: str
+
+
+@dataclass(frozen=True, slots=True)
+class RecordStream:
+    """One stream's part of a batch: its count deltas and its kept rows."""
+
+    skill: str
+    robot: str
+    poses: int
+    answered: int
+    coalesced: int
+    errors: int
+    decimated: int
+    rows: tuple[RecordRow, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class RecordBatch:
+    """What one bridge hands the recorder in one message."""
+
+    bridge: str
+    n: int
+    streams: tuple[RecordStream, ...]
+
+
+def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]]) -> bytes:
+    """A recording batch as JSON; ``streams`` holds ``(skill, robot, poses, answered,
+    coalesced, errors, decimated, rows)`` with rows as lists/tuples of plain values."""
+    return orjson.dumps({"v": VERSION, "bridge": bridge, "n": n, "streams": [
+        {"skill": st[0], "robot": st[1], "poses": st[2], "answered": st[3],
+         "coalesced": st[4], "errors": st[5], "decimated": st[6], "rows": st[7]}
+        for st in streams]}, option=_NUMPY)
+
+
+def _count(body: dict[str, Any], name: str) -> int:
+    value = body.get(name, 0)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+        raise WireError("bad_payload", f"expected {name} as an integer >= 0, got {value!r}")
+    return value
+
+
+def _floats(value: Any, field: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or not 1 <= len(value) <= MAX_DIM:
+        raise WireError("bad_payload", f"expected {field} as a list of 1..{MAX_DIM} numbers")
+    return tuple(float("nan") if v is None else float(v) for v in value)
+
+
+def _row(raw: Any) -> RecordRow:
+    if not isinstance(raw, list) or len(raw) != RECORD_ROW_FIELDS:
+        raise WireError("bad_payload", f"expected a row of {RECORD_ROW_FIELDS} fields")
+    t, pos, q, target, tq, progress, eta, section, inside, done, status = raw
+    if not isinstance(t, int) or not isinstance(section, int) or not isinstance(status, str):
+        raise WireError("bad_payload", "expected integer t_ns and section and a status string")
+    return RecordRow(
+        t, _floats(pos, "position"), None if q is None else _floats(q, "orientation"),
+        _floats(target, "target"), None if tq is None else _floats(tq, "target_orientation"),
+        float(progress), float("nan") if eta is None else float(eta), section, bool(inside),
+        bool(done), status)
+
+
+def decode_record_batch(data: bytes) -> RecordBatch:
+    """A recording batch; WireError (``bad_payload``) when it is not one."""
+    try:
+        body = orjson.loads(data)
+    except orjson.JSONDecodeError as exc:
+        raise WireError("bad_payload", f"expected JSON: {exc}") from None
+    if not isinstance(body, dict) or body.get("v") != VERSION:
+        raise WireError("bad_payload", f"expected a version {VERSION} recording batch object")
+    bridge, streams = body.get("bridge"), body.get("streams")
+    if not isinstance(bridge, str) or not isinstance(streams, list):
+        raise WireError("bad_payload", "expected 'bridge' (string) and 'streams' (list)")
+    out = []
+    try:
+        for st in streams:
+            if not isinstance(st, dict):
+                raise WireError("bad_payload", "expected each stream as an object")
+            skill, robot, rows = st.get("skill"), st.get("robot"), st.get("rows", [])
+            if not (isinstance(skill, str) and is_plain_chunk(skill) and isinstance(robot, str)
+                    and is_plain_chunk(robot) and isinstance(rows, list)):
+                raise WireError("bad_payload", "expected plain skill and robot names and rows")
+            out.append(RecordStream(
+                skill, robot, _count(st, "poses"), _count(st, "answered"),
+                _count(st, "coalesced"), _count(st, "errors"), _count(st, "decimated"),
+                tuple(_row(r) for r in rows)))
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, WireError):
+            raise
+        raise WireError("bad_payload", f"expected numbers in the rows: {exc}") from None
+    return RecordBatch(bridge, _count(body, "n"), tuple(out))
+
+
 __all__ = [
     "BINARY_ENCODING",
     "CDR_ENCODING",
@@ -597,6 +723,9 @@ __all__ = [
     "VERSION",
     "Keys",
     "Pose",
+    "RecordBatch",
+    "RecordRow",
+    "RecordStream",
     "RosStamp",
     "Target",
     "WireError",
@@ -606,11 +735,13 @@ __all__ = [
     "decode_pose",
     "decode_pose_cdr",
     "decode_pose_json",
+    "decode_record_batch",
     "decode_target",
     "decode_target_json",
     "encode_pose",
     "encode_pose_json",
     "encode_pose_stamped_cdr",
+    "encode_record_batch",
     "encode_target",
     "is_cdr",
     "is_json",

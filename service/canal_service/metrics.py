@@ -51,5 +51,13 @@ class Metrics:
                                            buckets=_LIVE_BUCKETS, registry=r)
         self.live_up = Gauge("canal_live_bridge_up", "1 while the live Zenoh bridge runs",
                              registry=r)
+        self.live_recorded = Counter("canal_live_poses_recorded_total",
+                                     "Poses (with their targets) the bridges handed to the "
+                                     "live recorder", registry=r)
+        self.live_decimated = Counter("canal_live_poses_decimated_total",
+                                      "Poses the bridges answered but did not hand to the live "
+                                      "recorder (over recordings_live_hz, or answered with an "
+                                      "error); with recordings on, canal_live_poses_total = "
+                                      "recorded + decimated", registry=r)
         self.live_model_switches = Counter("canal_live_model_switches_total",
                                            "Streams moved to a newer model version", registry=r)

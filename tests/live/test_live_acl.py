@@ -102,7 +102,9 @@ def secure(tmp_path_factory):
     with zenoh.open(config):
         service_conf = _client_file(tmp, "canal-secure.json5", endpoint, "canal-service",
                                     PASSWORDS["canal-service"])
-        settings = Settings(data_dir=tmp, recordings_enabled=False, zenoh_config=service_conf)
+        # recordings on: the bridge process hands its batches to the service's recorder
+        # through the router, on a key only the service may use
+        settings = Settings(data_dir=tmp, recordings_enabled=True, zenoh_config=service_conf)
         with TestClient(create_app(settings)) as client:
             make_skill(client, "s", 3)
             yield tmp, endpoint, client
@@ -172,3 +174,47 @@ def test_a_robot_cannot_read_or_write_another_robots_stream(secure):
     # own session delivers to its own subscriber locally)
     assert [k for k in seen if "arm2/target" in k] == []
     assert [k for k in seen if "arm2" in k] == ["canal/s/arm2/pose"]
+
+
+def test_recording_batches_flow_between_service_sessions_only(secure):
+    """The bridge's batches reach the recorder through the router; a robot can neither put
+    a forged batch on the recorder key nor hear the real ones."""
+    client = secure[2]
+    directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
+    heard: list[str] = []
+    time.sleep(0.3)  # the earlier tests' last batches
+    before = client.get("/healthz").json()["recorder"]["live"]["streams"].get(
+        "s/arm1", {}).get("poses", 0)
+    arm1 = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "arm1"))))
+    # another robot listens (a session hears its own puts locally, whatever the router says)
+    arm2 = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "arm2"))))
+    try:
+        arm2.declare_subscriber("canal/@recorder/live/*", lambda s: heard.append(str(s.key_expr)))
+        time.sleep(0.3)
+        from canal_protocol import keys as keyspace
+        from canal_protocol import wire
+
+        row = [1, [0.0, 0.0, 0.0], None, [0.0, 0.0, 0.0], None, 0.0, 0.1, 0, True, False, "ok"]
+        arm1.put(keyspace.recorder_key("x1"), wire.encode_record_batch(
+            "x1", 0, [("s", "forged", 1, 1, 0, 0, 0, [row])]))
+        with PoseStreamer("s", "arm1", zenoh_config=_robot(secure, "arm1")) as ps:
+            for k in range(20):
+                answer = ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 2.0)
+                assert answer is not None and answer.status == "ok"
+        deadline = time.monotonic() + 10
+        streams: dict = {}
+        while time.monotonic() < deadline:
+            streams = client.get("/healthz").json()["recorder"]["live"]["streams"]
+            if streams.get("s/arm1", {}).get("poses", 0) >= before + 20:
+                break
+            time.sleep(0.1)
+        arm1.put(keyspace.recorder_key("x1"), wire.encode_record_batch(
+            "x1", 1, [("s", "forged", 1, 1, 0, 0, 0, [row])]))
+        time.sleep(0.5)
+    finally:
+        arm1.close()
+        arm2.close()
+    live = client.get("/healthz").json()["recorder"]["live"]
+    assert live["streams"]["s/arm1"]["poses"] == before + 20  # the real batches went through
+    assert "s/forged" not in live["streams"] and live["bad_payload"] == 0
+    assert heard == []  # and the robot heard none of them

@@ -1,13 +1,17 @@
-"""Live recording from the recorder's own Zenoh session (real sessions on 127.0.0.1).
+"""Live recording fed by the bridge's batches (real app, real Zenoh on 127.0.0.1, the
+recording read back with mcap's reader).
 
-A plain session listens where the bridge would; a robot session (client mode) puts poses and
-targets on the real keys in JSON, binary v1 and ROS 2 CDR (serialised with ``rosbags``, an
-independent implementation). The recording is read back with mcap's reader.
+The bridge runs in the test's process (``zenoh_processes=0``) except in the crash test, where
+``canal serve``'s bridge process is killed. Robots are real Zenoh sessions; ROS 2 poses are
+serialised with ``rosbags`` (an independent implementation).
 """
 
 from __future__ import annotations
 
+import os
+import signal
 import time
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,141 +20,246 @@ import numpy as np
 import orjson
 import pytest
 import zenoh
-from canal_service.recording import Recorder
-from canal_service.recording.live import LiveOptions, LiveSubscriber
-from canal_testing import free_port
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient
+
+from canal_client.live import PoseStreamer, client_config
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from canal_service.recording.live import LiveOptions
+from canal_testing import arc_demo, free_port
 from recording_helpers import mcap_messages
 
+from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
-
-def _config(mode: str, listen: list[str] | None = None,
-            connect: list[str] | None = None) -> zenoh.Config:
-    config = zenoh.Config()
-    config.insert_json5("mode", orjson.dumps(mode).decode())
-    config.insert_json5("scouting/multicast/enabled", "false")
-    config.insert_json5("listen/endpoints", orjson.dumps(listen or []).decode())
-    config.insert_json5("connect/endpoints", orjson.dumps(connect or []).decode())
-    return config
+pytestmark = pytest.mark.timeout(120)
+os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
 
 
-@pytest.fixture
-def live(tmp_path: Path) -> Iterator[tuple[Recorder, LiveSubscriber, Any]]:
+def _make_skill(client: TestClient, name: str) -> np.ndarray:
+    assert client.post("/skills", json={"name": name, "dim": 3}).status_code == 201
+    for j in range(4):
+        r = client.post(f"/skills/{name}/demonstrations",
+                        json={"positions": arc_demo(j, 60, 3, 0, spread=0.03).tolist()})
+        assert r.status_code == 201, r.text
+    assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
+    return np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+
+
+def _app(tmp: Path, **overrides: Any) -> tuple[TestClient, str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bridge = zenoh.open(_config("peer", listen=[endpoint]))  # where the bridge listens
-    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, live_max_hz=None)
-    sub = LiveSubscriber(rec, LiveOptions(listen=(endpoint,), interval_s=0.02))
-    sub.start()
-    rec.live_source = sub
-    robot = zenoh.open(_config("client", connect=[endpoint]))
-    try:
-        # Wait until the recorder's session hears the robot (it connects with retries).
-        deadline = time.monotonic() + 10
-        while sub.stats.received == 0 and time.monotonic() < deadline:
-            robot.put("canal/warmup/r0/pose", wire.encode_pose_json(0, [0.0, 0.0, 0.0]),
-                      encoding=wire.JSON_ENCODING)
-            time.sleep(0.05)
-        assert sub.stats.received > 0, "the recorder's session never heard the robot"
-        yield rec, sub, robot
-    finally:
-        robot.close()
-        rec.close()
-        bridge.close()
+    values: dict[str, Any] = dict(data_dir=tmp, recordings_enabled=True,
+                                  zenoh_listen=[endpoint], zenoh_processes=0)
+    values.update(overrides)
+    return TestClient(create_app(Settings(**values))), endpoint
 
 
-def _wait_for(sub: LiveSubscriber, n: int) -> None:
-    deadline = time.monotonic() + 10
-    while sub.stats.received < n and time.monotonic() < deadline:
-        time.sleep(0.02)
+def _live_health(client: TestClient) -> dict[str, Any]:
+    return client.get("/healthz").json()["recorder"]["live"]  # type: ignore[no-any-return]
 
 
-def test_json_and_binary_poses_and_targets_are_recorded_with_orientations(live: Any) -> None:
-    rec, sub, robot = live
-    base = sub.stats.received
-    angle = np.linspace(0.0, np.pi / 2, 20)
-    quats = np.c_[np.zeros(20), np.zeros(20), np.sin(angle / 2), np.cos(angle / 2)]
-    for k in range(20):
-        pos = [0.1 * k, 0.0, 0.5]
-        robot.put("canal/pour/arm1/pose", wire.encode_pose_json(k + 1, pos, quats[k].tolist()),
-                  encoding=wire.JSON_ENCODING)
-        robot.put("canal/pour/arm2/pose", wire.encode_pose(k + 1, pos, quats[k].tolist()))
-        robot.put("canal/pour/arm1/target", wire.pack_target_json(
-            k + 1, "ok", [0.1 * k + 0.05, 0.0, 0.5], k / 19, 0.3, k, True, k == 19, 1),
-            encoding=wire.JSON_ENCODING)
-        robot.put("canal/pour/arm2/target", wire.pack_target(
-            k + 1, 0, [0.1 * k + 0.05, 0.0, 0.5], k / 19, 0.3, k, True, False, 1))
-        time.sleep(0.002)
-    _wait_for(sub, base + 80)
-    path = rec.export_mcap("pour")
-    for robot_name in ("arm1", "arm2"):
-        poses = mcap_messages(path, f"/live/{robot_name}/pose")
-        assert len(poses) == 20
-        q = poses[-1]["pose"]["orientation"]
-        assert np.allclose([q["x"], q["y"], q["z"], q["w"]], quats[-1])  # not identity
-        assert [p["pose"]["position"]["x"] for p in poses] == pytest.approx(
-            [0.1 * k for k in range(20)])
-        targets = mcap_messages(path, f"/live/{robot_name}/target")
-        assert len(targets) == 20
-        states = mcap_messages(path, f"/live/{robot_name}/state")
-        assert states[-1]["progress"] == pytest.approx(1.0)
-    assert mcap_messages(path, "/live/arm1/state")[-1]["done"] is True
-    # The robot frame in /tf turns with the robot.
-    tf = [m for m in mcap_messages(path, "/tf") if m["child_frame_id"] == "robot/arm1"]
-    assert tf[-1]["rotation"]["z"] == pytest.approx(quats[-1][2])
-    assert sub.stats.missed_poses == 0 and sub.stats.bad_payload == 0
+def _settled(client: TestClient, poses: int, timeout: float = 15.0) -> dict[str, Any]:
+    """The recorder's live block once it has heard of ``poses`` poses and flushed them."""
+    deadline = time.monotonic() + timeout
+    while True:
+        live = _live_health(client)
+        if (live["poses"] >= poses and live["pending"] == 0) or time.monotonic() > deadline:
+            return live
+        time.sleep(0.1)
 
 
-def test_ros2_cdr_pose_stamped_is_decoded_with_its_orientation(live: Any) -> None:
+def _mcap(client: TestClient, skill: str, tmp: Path) -> Path:
+    r = client.get(f"/skills/{skill}/recording.mcap")
+    assert r.status_code == 200, r.text
+    path = tmp / f"{skill}.mcap"
+    path.write_bytes(r.content)
+    return path
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, str, Path]]:
+    tmp = tmp_path_factory.mktemp("live-rec")
+    client, endpoint = _app(tmp, recordings_live_hz=100.0)
+    with client:
+        yield client, endpoint, tmp
+
+
+def test_recording_holds_the_decimated_stream_and_counts_add_up_to_what_was_sent(app):
+    client, endpoint, tmp = app
+    directrix = _make_skill(client, "pour")
+    n = 600
+    path = np.linspace(0, len(directrix) - 1, n)
+    points = np.array([directrix[int(i)] for i in path])
+    q = [0.0, 0.0, np.sin(0.2), np.cos(0.2)]
+    started = time.monotonic()
+    with PoseStreamer("pour", "arm1", endpoint=endpoint, encoding="json") as ps:
+        for k in range(n):
+            ps.send(points[k], q, restart=k == 0)
+            time.sleep(0.001)  # ~1 kHz at most
+        assert ps.wait_for(n - 1, 5.0) is not None
+    seconds = time.monotonic() - started
+    live = _settled(client, n)
+    stream = live["streams"]["pour/arm1"]
+    assert stream["poses"] == n  # every pose the robot sent, as the bridge counted it
+    assert stream["answered"] + stream["errors"] + stream["coalesced"] == n
+    assert stream["recorded"] + stream["decimated"] == n and stream["dropped"] == 0
+    assert live["complete"] is True and live["lost_batches"] == 0
+    # decimated to ~100 Hz: at most one row per 10 ms (plus the flips), far fewer than sent
+    assert 0.5 * seconds * 100 <= stream["recorded"] <= seconds * 100 + 20
+    poses = mcap_messages(_mcap(client, "pour", tmp), "/live/arm1/pose")
+    assert len(poses) == stream["recorded"]
+    xs = np.array([[p["pose"]["position"][c] for c in "xyz"] for p in poses])
+    # the recorded poses are the robot's own positions, in the order sent
+    idx = [int(np.argmin(np.linalg.norm(points - x, axis=1))) for x in xs]
+    assert np.allclose(xs, points[idx]) and idx == sorted(idx)
+    o = poses[-1]["pose"]["orientation"]
+    assert np.allclose([o["x"], o["y"], o["z"], o["w"]], q)
+    targets = mcap_messages(_mcap(client, "pour", tmp), "/live/arm1/target")
+    assert len(targets) == len(poses)
+    # the metrics say the same: every pose handled is recorded or decimated
+    bridge = client.app.state.bridge  # type: ignore[attr-defined]
+    bridge.flush_metrics()
+    text = client.get("/metrics").text
+    values = {line.split()[0]: float(line.split()[1]) for line in text.splitlines()
+              if line.startswith("canal_live_poses_")}
+    assert (values["canal_live_poses_recorded_total"]
+            + values["canal_live_poses_decimated_total"]) == values["canal_live_poses_total"]
+
+
+def test_a_status_flip_is_recorded_between_decimated_samples(tmp_path):
+    client, endpoint = _app(tmp_path, recordings_live_hz=0.5)  # one row per 2 s, flips aside
+    with client:
+        directrix = _make_skill(client, "flip")
+        far = directrix[30] + np.array([5.0, 5.0, 5.0])
+        sent = [directrix[20], directrix[22], far, far, directrix[24], directrix[26]]
+        with PoseStreamer("flip", "arm", endpoint=endpoint) as ps:
+            answers = []
+            for k, p in enumerate(sent):
+                # back in after the excursion: re-located (restart), not lost ahead
+                answers.append(ps.wait_for(ps.send(p, restart=k in (0, 4)), 2.0))
+        assert [a.status for a in answers] == ["ok", "ok", "outside_canal", "outside_canal",
+                                               "ok", "ok"]
+        live = _settled(client, len(sent))
+        stream = live["streams"]["flip/arm"]
+        # the first pose (rate), the flip out (3rd) and the flip back in (5th): 3 of 6
+        assert stream["recorded"] == 3 and stream["decimated"] == 3
+        states = mcap_messages(_mcap(client, "flip", tmp_path), "/live/arm/state")
+        assert [s["inside"] for s in states] == [True, False, True]
+        poses = mcap_messages(_mcap(client, "flip", tmp_path), "/live/arm/pose")
+        assert poses[1]["pose"]["position"]["x"] == pytest.approx(far[0])
+
+
+def test_ros2_cdr_stream_is_recorded_from_the_bridge(app):
     from rosbags import typesys as rosbags
 
+    client, endpoint, tmp = app
+    directrix = _make_skill(client, "ros")
     store = rosbags.get_typestore(rosbags.Stores.ROS2_HUMBLE)
-    names = "geometry_msgs/msg/"
-    msg_t = store.types[f"{names}PoseStamped"]
-    header_t = store.types["std_msgs/msg/Header"]
+    g = "geometry_msgs/msg/"
+    msg_t, header_t = store.types[f"{g}PoseStamped"], store.types["std_msgs/msg/Header"]
     time_t = store.types["builtin_interfaces/msg/Time"]
-    pose_t, point_t, quat_t = (store.types[f"{names}{t}"] for t in ("Pose", "Point", "Quaternion"))
-    rec, sub, robot = live
-    base = sub.stats.received
+    pose_t, point_t, quat_t = (store.types[f"{g}{t}"] for t in ("Pose", "Point", "Quaternion"))
     q = [0.0, 0.0, np.sin(0.3), np.cos(0.3)]
-    for k in range(5):
-        msg = msg_t(header=header_t(stamp=time_t(sec=k, nanosec=0), frame_id="base_link"),
-                    pose=pose_t(position=point_t(x=1.0 + k, y=2.0, z=3.0),
-                                orientation=quat_t(x=q[0], y=q[1], z=q[2], w=q[3])))
-        data = bytes(store.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped"))
-        robot.put("canal/pour/ros/pose", data)
-        time.sleep(0.002)
-    robot.put("canal/pour/ros/pose", b"\x00\x01\x00\x00garbage")  # CDR header, not a pose
-    _wait_for(sub, base + 6)
-    poses = mcap_messages(rec.export_mcap("pour"), "/live/ros/pose")
-    assert [p["pose"]["position"]["x"] for p in poses] == [1.0, 2.0, 3.0, 4.0, 5.0]
+    robot = zenoh.open(client_config(endpoint))
+    try:
+        seen: list[bytes] = []
+        robot.declare_subscriber("canal/ros/cdr/target", lambda s: seen.append(b""))
+        time.sleep(0.3)
+        for k in range(5):
+            p = directrix[10 + 10 * k]
+            msg = msg_t(header=header_t(stamp=time_t(sec=k, nanosec=0), frame_id="base"),
+                        pose=pose_t(position=point_t(x=p[0], y=p[1], z=p[2]),
+                                    orientation=quat_t(x=q[0], y=q[1], z=q[2], w=q[3])))
+            robot.put("canal/ros/cdr/pose", bytes(store.serialize_cdr(msg, f"{g}PoseStamped")),
+                      encoding=wire.CDR_ENCODING)
+            time.sleep(0.03)  # 30 ms apart: every pose is over the 100 Hz rate limit
+        deadline = time.monotonic() + 5
+        while len(seen) < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        robot.close()
+    live = _settled(client, 5)
+    assert live["streams"]["ros/cdr"]["recorded"] == 5
+    poses = mcap_messages(_mcap(client, "ros", tmp), "/live/cdr/pose")
+    assert [p["pose"]["position"]["x"] for p in poses] == pytest.approx(
+        [directrix[10 + 10 * k][0] for k in range(5)])
     o = poses[0]["pose"]["orientation"]
     assert np.allclose([o["x"], o["y"], o["z"], o["w"]], q)
-    assert sub.stats.bad_payload == 1
 
 
-def test_garbage_and_gaps_are_counted_not_recorded(live: Any) -> None:
-    rec, sub, robot = live
-    base = sub.stats.received
-    robot.put("canal/pour/arm1/pose", wire.encode_pose(1, [0.0, 0.0, 0.0]))
-    robot.put("canal/pour/arm1/pose", wire.encode_pose(5, [1.0, 0.0, 0.0]))  # 3 poses missed
-    robot.put("canal/pour/arm1/pose", b"\x07not a pose")
-    robot.put("canal/pour/arm1/pose", b"{not json")
-    _wait_for(sub, base + 4)
-    assert sub.stats.bad_payload == 2
-    assert sub.stats.missed_poses == 3
-    assert len(mcap_messages(rec.export_mcap("pour"), "/live/arm1/pose")) == 2
-    health = rec.health()["live"]
-    assert health["status"] == "ok" and health["missed_poses"] == 3
+def test_forged_garbage_and_missing_batches_are_counted_not_recorded(app):
+    client, endpoint, tmp = app
+    before = _live_health(client)
+    config = client_config(endpoint)
+    # client mode: the bridge's session routes its puts (a peer would need the recorder's
+    # session to listen, and it listens nowhere)
+    config.insert_json5("mode", '"client"')
+    stranger = zenoh.open(config)
+    try:
+        time.sleep(0.3)
+        key = keyspace.recorder_key("x1", "canal")
+        row = [1, [0.0, 0.0, 0.0], None, [0.0, 0.0, 0.0], None, 0.0, 0.1, 0, True, False, "ok"]
+
+        def batch(n: int, bridge: str = "x1", rows: int = 1, poses: int = 1) -> bytes:
+            return wire.encode_record_batch(bridge, n, [
+                ("forged", "r", poses, poses, 0, 0, poses - rows, [row] * rows)])
+
+        stranger.put(key, b"{not json")
+        stranger.put(key, batch(0, bridge="someone-else"))  # the key names another bridge
+        stranger.put(key, batch(0, rows=2, poses=1))  # more rows than poses
+        stranger.put(key, batch(0))
+        stranger.put(key, batch(3))  # batches 1 and 2 never came
+        deadline = time.monotonic() + 5
+        while (_live_health(client)["batches"] < before["batches"] + 2
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+    finally:
+        stranger.close()
+    live = _settled(client, 0)
+    assert live["bad_payload"] == before["bad_payload"] + 3
+    assert live["lost_batches"] == before["lost_batches"] + 2
+    assert live["complete"] is False  # a lost batch: the recording cannot be complete
+    assert live["streams"]["forged/r"]["recorded"] == 2
 
 
-def test_a_zenoh_config_file_is_used_with_its_listen_endpoints_as_connect(tmp_path: Path) -> None:
-    from canal_service.recording.live import zenoh_config
+def test_recorder_keys_are_verbatim_and_never_a_streams() -> None:
+    key = keyspace.recorder_key("b0-12-ab", "canal")
+    assert key == "canal/@recorder/live/b0-12-ab"
+    assert keyspace.bridge_of_batch(key) == "b0-12-ab"
+    assert keyspace.bridge_of_batch("canal/@recorder/live/*") is None
+    assert keyspace.stream_of(key.replace("/live/b0-12-ab", "/x/pose")) is None
+    # Zenoh: '**' (a stranger's or a robot's wildcard) does not reach a verbatim chunk
+    assert not zenoh.KeyExpr("canal/**").intersects(zenoh.KeyExpr(key))
+    assert zenoh.KeyExpr(keyspace.recorder_wildcard()).intersects(zenoh.KeyExpr(key))
+    assert LiveOptions().capacity > 0
 
-    path = tmp_path / "zenoh.json5"
-    path.write_text('{ mode: "peer", listen: { endpoints: ["tcp/0.0.0.0:7447"] },'
-                    ' connect: { endpoints: ["tcp/10.0.0.5:7447"] } }')
-    config = zenoh_config(LiveOptions(config_file=path))
-    assert orjson.loads(config.get_json("listen/endpoints")) == []
-    assert orjson.loads(config.get_json("connect/endpoints")) == ["tcp/10.0.0.5:7447",
-                                                                   "tcp/127.0.0.1:7447"]
-    assert orjson.loads(config.get_json("mode")) == "peer"
+
+def test_a_killed_bridge_process_loses_at_most_its_last_batch(tmp_path):
+    """``canal serve``'s bridge process, kill -9: what it handled up to its last batch is
+    recorded; the poses after it are the only ones missing."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(data_dir=tmp_path, recordings_enabled=True, zenoh_listen=[endpoint],
+                        recordings_live_hz=0.0)  # keep every pose: the count is exact
+    with TestClient(create_app(settings)) as client:
+        directrix = _make_skill(client, "crash")
+        with PoseStreamer("crash", "arm", endpoint=endpoint) as ps:
+            for k in range(200):
+                ps.send(directrix[k % 90], restart=k == 0)
+                time.sleep(0.001)
+            assert ps.wait_for(199, 5.0) is not None
+            time.sleep(0.5)  # several batch intervals: everything handled has been sent
+            pid = client.app.state.bridge.children[0].proc.pid  # type: ignore[attr-defined]
+            os.kill(pid, signal.SIGKILL)
+            for k in range(50):  # into the void: the bridge is gone
+                ps.send(directrix[k], restart=False)
+        live = _settled(client, 200)
+        stream = live["streams"]["crash/arm"]
+        assert stream["poses"] == 200 and stream["recorded"] == 200
+        assert live["complete"] is True
+        body = orjson.loads(client.get("/healthz").content)
+        assert body["bridge"]["status"] == "down"
+        poses = mcap_messages(_mcap(client, "crash", tmp_path), "/live/arm/pose")
+        assert len(poses) == 200

@@ -2,9 +2,10 @@
 
 ``canal serve`` starts these itself (``--zenoh-processes``, default 1); run one by hand to put
 bridges on other machines. Takes the service's flags and ``CANAL_*`` variables
-(``--data-dir``, ``--database-url``, ``--zenoh-*``; ``--host``/``--port`` and the recording
-flags are ignored: the bridge answers poses only, live recording is the recorder's own
-Zenoh subscriber). Extra flags:
+(``--data-dir``, ``--database-url``, ``--zenoh-*``; ``--host``/``--port`` are ignored).
+``--no-recordings`` and ``--recordings-live-hz`` say what the bridge keeps for the service's
+live recorder, which it hands over in batches on ``{prefix}/@recorder/live/{bridge}``
+(docs/recording.md). Extra flags:
 
   --shard I/K           answer only the streams of robots whose name ends with a character
                         c with ord(c) % K == I, and subscribe only to their pose keys

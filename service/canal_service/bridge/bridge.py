@@ -16,6 +16,12 @@ through a Zenoh FIFO channel):
   serves (a fit elsewhere is picked up even without a push), forgets streams idle for
   ``idle_s`` and expired negative cache entries.
 - **metrics** and **updates** (fit notices from other bridges).
+- **recording** (when ``record_hz`` is set): every ``record_interval_s`` one message with
+  what the worker kept for the recording and the per-stream counts, on
+  ``{prefix}/@recorder/live/{bridge}`` (:func:`canal_protocol.keys.recorder_key`) for the
+  service's live recorder (:mod:`canal_service.recording.live`). The service process hears
+  ~10 messages a second per bridge instead of every pose and target. A crash loses at most
+  the batch not yet sent; ``close()`` sends the last one.
 
 Sharding: with ``shards = K > 1`` this bridge answers the robots whose name ends with a
 character ``c`` with ``ord(c) % K == shard``. Subscribing by key
@@ -38,7 +44,9 @@ from __future__ import annotations
 
 import gc
 import logging
+import os
 import queue
+import secrets
 import sys
 import threading
 import time
@@ -48,6 +56,7 @@ import orjson
 import zenoh
 
 from canal_protocol import keys as keyspace
+from canal_protocol import wire
 
 from ..errors import ServiceError, error_type
 from ..service import CanalService
@@ -60,6 +69,9 @@ log = logging.getLogger("canal_service.bridge")
 
 _STOP_WAIT_S = 2.0
 _BEHIND_S = 1.0
+#: How long a bridge holds its recording batches while no recorder hears its key yet (the
+#: service's recorder connects with retries, possibly after the first robots).
+RECORDER_WAIT_S = 10.0
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -94,6 +106,12 @@ class Bridge:
         self._m_step = m.live_step_seconds
         self._m_error_children = {key: m.live_errors.labels(key) for key in ERROR_KEYS}
         self._flushed = Counts().snapshot()
+        #: this bridge's name on the recorder key (a restarted bridge gets a new one)
+        self.bridge_id = f"b{self.options.shard}-{os.getpid()}-{secrets.token_hex(3)}"
+        self._record_n = 0
+        self._record_pub: Any = None
+        self._record_lock = threading.Lock()
+        self._started = time.monotonic()
 
     @property
     def streams(self) -> dict[str, Stream]:
@@ -132,15 +150,23 @@ class Bridge:
         self._updates = s.declare_subscriber(keyspace.model_updated_wildcard(self.prefix),
                                              zenoh.handlers.FifoChannel(256))
         self.service.fit_listeners.append(self._on_fit)
-        for name, target, args in (
-                ("worker", self.path.work, (recv, try_recv)),
-                ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
-                ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ())):
+        threads: list[tuple[str, Any, tuple[Any, ...]]] = [
+            ("worker", self.path.work, (recv, try_recv)),
+            ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
+            ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ())]
+        if self.options.record_hz is not None:
+            # Blocking, not dropping: a batch is the only copy of what it carries.
+            self._record_pub = s.declare_publisher(
+                keyspace.recorder_key(self.bridge_id, self.prefix),
+                congestion_control=zenoh.CongestionControl.BLOCK)
+            threads.append(("recording", self._record_loop, ()))
+        for name, target, args in threads:
             t = threading.Thread(target=target, args=args, name=f"canal-bridge-{name}",
                                  daemon=True)
             t.start()
             self._threads.append(t)
         self.state, self.detail = "ok", None
+        self._started = time.monotonic()
         self._metrics.live_up.set(1)
         log.info("live bridge on %s (prefix %r, shard %d/%d, live path %s)",
                  ", ".join(self.listen) or "(config file)", self.prefix, self.options.shard,
@@ -191,6 +217,13 @@ class Bridge:
         for t in self._threads:
             t.join(timeout=5.0)
         self.path.close_streams()
+        self.send_record()  # the worker has stopped: this is the last batch
+        if self._record_pub is not None:
+            try:
+                self._record_pub.undeclare()
+            except Exception:
+                pass
+            self._record_pub = None
         session, self.session = self.session, None
         try:
             session.close()
@@ -235,6 +268,8 @@ class Bridge:
         m.live_targets.inc(now["targets"] - before["targets"])
         m.live_coalesced.inc(now["coalesced"] - before["coalesced"])
         m.live_model_switches.inc(now["switches"] - before["switches"])
+        m.live_recorded.inc(now["recorded"] - before["recorded"])
+        m.live_decimated.inc(now["decimated"] - before["decimated"])
         for key, n in now["errors"].items():
             if n != before["errors"][key]:
                 self._m_error_children[key].inc(n - before["errors"][key])
@@ -246,6 +281,39 @@ class Bridge:
             for _ in range(min(n, 64)):
                 self._m_step.observe(per)
         self._m_streams.set(len(self.path.streams))
+
+    # ---- recording (off the pose path) ---------------------------------------------------------
+
+    def _record_loop(self) -> None:
+        while not self._stop.wait(self.options.record_interval_s):
+            try:
+                self.send_record()
+            except Exception:
+                log.exception("recording batch failed")
+
+    def send_record(self) -> int:
+        """Put what the streams kept for the recording since the last batch; the number of
+        streams in it (0: nothing new, nothing sent)."""
+        with self._record_lock:
+            pub = self._record_pub
+            if pub is None:
+                return 0
+            if (not pub.matching_status.matching and not self._stop.is_set()
+                    and time.monotonic() - self._started < RECORDER_WAIT_S):
+                return 0  # no recorder yet: keep the rows a little, it is connecting
+            streams = self.path.take_record()
+            if not streams:
+                return 0
+            kept = sum(len(st[7]) for st in streams)
+            # the metrics' identity is canal_live_poses_total == recorded + decimated; the
+            # coalesced poses are not in canal_live_poses_total (they have their own counter)
+            decimated = sum(st[6] - st[4] for st in streams)
+            pub.put(wire.encode_record_batch(self.bridge_id, self._record_n, streams),
+                    encoding=ENC_JSON)
+            self._record_n += 1
+            self.counts.recorded += kept
+            self.counts.decimated += decimated
+            return len(streams)
 
     # ---- models -------------------------------------------------------------------------------
 

@@ -27,6 +27,11 @@ class BridgeOptions:
     with zenoh-python 1.10, measured); ``"all"``, every pose through one FIFO channel,
     others' poses dropped after a set lookup; ``"auto"``, keys from 4 shards on (where
     receiving 1/K of the poses at the callback's cost beats receiving all of them).
+
+    ``record_hz``: None, the bridge sends nothing to record; else every ``record_interval_s``
+    it puts the poses the recording wants (at most ``record_hz`` per stream and second, 0:
+    all; plus every status/inside/done flip) and per-stream counts on
+    :func:`canal_protocol.keys.recorder_key` (see :mod:`.posepath`).
     """
 
     prefix: str = "canal"
@@ -43,6 +48,8 @@ class BridgeOptions:
     negative_ttl_s: float = 10.0
     negative_max: int = 16384
     shard_subscribe: str = "auto"  # "auto" | "keys" | "all"
+    record_hz: float | None = None  # None: no recording batches; 0: every pose
+    record_interval_s: float = 0.1
 
     def subscribes_by_key(self) -> bool:
         """Whether this bridge subscribes only to its own robots' pose keys."""
@@ -63,6 +70,8 @@ class BridgeOptions:
             queue_capacity=settings.zenoh_queue_capacity,
             coalesce_backlog=settings.zenoh_coalesce_backlog, idle_s=settings.zenoh_idle_s,
             refresh_s=settings.zenoh_refresh_s, lookahead=settings.zenoh_lookahead,
+            record_hz=float(settings.recordings_live_hz) if settings.recordings_enabled
+            else None,
         )
         values.update(overrides)
         return cls(**values)

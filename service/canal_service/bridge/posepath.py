@@ -11,6 +11,14 @@ integers (:class:`Counts`); the bridge's metrics thread hands them to Prometheus
 drain, only its newest pose is answered; the older ones are counted per stream (the
 target's ``coalesced``) and in ``canal_live_poses_coalesced_total``.
 
+*Recording*: when the bridge records (``BridgeOptions.record_hz`` set), each stream keeps
+the poses the recording wants, with their answers, as plain rows: at most ``record_hz`` per
+second (0: every pose), plus every pose whose answer flips the status, ``inside`` or
+``done``. The worker counts per stream what it received, answered, coalesced and answered
+with an error; :meth:`PosePath.take_record` hands rows and count deltas to the bridge's
+recording thread (under ``rec_lock``, which the worker holds for one drain at a time), so
+every pose handled is either a row or counted as decimated.
+
 Security: a key chunk that is not a plain name is refused, logged (rate-limited) and
 counted as ``bad_key``; nothing is answered. Each stream's state is keyed by its exact key
 and answers only on its own target key.
@@ -73,6 +81,14 @@ class Stream:
     capture_label: str | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
     closed: bool = False
+    # the recording: count deltas since the last batch, the rows kept, the rate limit
+    rec_poses: int = 0
+    rec_answered: int = 0
+    rec_coalesced: int = 0
+    rec_errors: int = 0
+    rec_rows: list[tuple[Any, ...]] = field(default_factory=list)
+    rec_next: int = 0
+    rec_state: tuple[int, bool, bool] = (-1, False, False)
 
 
 class Counts:
@@ -82,11 +98,14 @@ class Counts:
         "batches",
         "busy_s",
         "coalesced",
+        "decimated",
         "errors",
         "last_idle",
         "poses",
+        "recorded",
         "switches",
         "targets",
+        "unknown",
         "waiting",
     )
 
@@ -100,10 +119,14 @@ class Counts:
         self.busy_s = 0.0
         self.last_idle = time.monotonic()
         self.waiting = True  # blocked on an empty queue
+        self.recorded = 0  # poses handed to the recorder (with their targets)
+        self.decimated = 0  # poses handled but not handed to the recorder (recording thread)
+        self.unknown = 0  # poses of unknown skills while recording (worker thread)
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
-                "errors": dict(self.errors), "switches": self.switches}
+                "errors": dict(self.errors), "switches": self.switches,
+                "recorded": self.recorded, "decimated": self.decimated + self.unknown}
 
 
 class PosePath:
@@ -119,6 +142,13 @@ class PosePath:
         self.streams_lock = threading.Lock()
         self.others: set[str] = set()  # keys of other shards' streams (a stray delivery)
         self._bad_key_logged = 0.0
+        hz = options.record_hz
+        #: None: not recording; else the least time between two kept rows of a stream
+        self.record_period_ns: int | None = None if hz is None else (
+            int(1e9 / hz) if hz > 0 else 0)
+        self.rec_lock = threading.Lock()
+        self.retired: list[Stream] = []  # forgotten streams whose last counts are not sent
+        self.now_ns = 0  # wall clock of the drain being answered (the rows' time)
 
     # ---- streams ------------------------------------------------------------------------------
 
@@ -168,18 +198,22 @@ class PosePath:
 
     def forget_idle(self, now: float) -> set[str]:
         """Close the streams idle for ``idle_s`` (not capturing); the skills still live."""
-        with self.streams_lock:
+        with self.rec_lock, self.streams_lock:
             idle = [k for k, st in self.streams.items()
                     if now - st.last_seen > self.options.idle_s and st.capture is None]
             gone = [self.streams.pop(k) for k in idle]
             live_skills = {st.skill for st in self.streams.values()}
+            if self.record_period_ns is not None:
+                self.retired.extend(gone)
         for st in gone:
             _close_stream(st)
         return live_skills
 
     def close_streams(self) -> None:
-        with self.streams_lock:
+        with self.rec_lock, self.streams_lock:
             streams, self.streams = list(self.streams.values()), {}
+            if self.record_period_ns is not None:
+                self.retired.extend(streams)
         for st in streams:
             _close_stream(st)
 
@@ -219,7 +253,25 @@ class PosePath:
 
     def batch(self, batch: list[Any]) -> None:
         """Decode, group, step and answer one drain of the pose channel."""
-        self.step_rounds(self.decode_batch(batch))
+        with self.rec_lock:
+            self.now_ns = time.time_ns()
+            self.step_rounds(self.decode_batch(batch))
+
+    def take_record(self) -> list[tuple[Any, ...]]:
+        """Each stream's rows and count deltas since the last call, as
+        ``(skill, robot, poses, answered, coalesced, errors, decimated, rows)`` (streams
+        with nothing new are left out); see :func:`canal_protocol.wire.encode_record_batch`."""
+        out = []
+        with self.rec_lock:
+            retired, self.retired = self.retired, []
+            for st in [*self.streams.values(), *retired]:
+                if not (st.rec_poses or st.rec_errors or st.rec_answered):
+                    continue
+                rows, st.rec_rows = st.rec_rows, []
+                out.append((st.skill, st.robot, st.rec_poses, st.rec_answered,
+                            st.rec_coalesced, st.rec_errors, st.rec_poses - len(rows), rows))
+                st.rec_poses = st.rec_answered = st.rec_coalesced = st.rec_errors = 0
+        return out
 
     def decode_batch(self, batch: list[Any]) -> list[list[Job]]:
         """The drain as rounds of jobs: round k holds each stream's k-th pose to answer."""
@@ -248,12 +300,14 @@ class PosePath:
                     continue
                 st = found
             st.last_seen = now
+            st.rec_poses += len(samples)
             if len(samples) > backlog:
                 skipped = len(samples) - 1
                 if st.capture is not None:
                     for s in samples[:-1]:
                         self.decode(st, s, False)
                 st.coalesced += skipped
+                st.rec_coalesced += skipped
                 counts.coalesced += skipped
                 samples = samples[-1:]
             k = 0
@@ -395,6 +449,17 @@ class PosePath:
                 eta = 1e308
         orientation = tt.orientation if tt.orientation is not None else pose.orientation
         velocity = tt.velocity
+        st.rec_answered += 1
+        period = self.record_period_ns
+        if period is not None:
+            now = self.now_ns
+            state = (code, inside, done)
+            if now >= st.rec_next or state != st.rec_state:
+                st.rec_next = now + period
+                st.rec_state = state
+                st.rec_rows.append((now, pose.position, pose.orientation, target.tolist(),
+                                    orientation, progress, eta, tt.section_index, inside,
+                                    done, status))
         if fmt == _FJSON:
             st.publisher.put(wire.pack_target_json(
                 pose.seq, status, target, progress, eta, tt.section_index, inside, done,
@@ -430,6 +495,7 @@ class PosePath:
             self.session.put(st.status_key, wire.target_json(answer), encoding=ENC_JSON)
         self.counts.targets += 1
         self.counts.errors[key] += 1
+        st.rec_errors += 1
 
     def answer_unknown(self, key: str, sample: Any, entry: ModelEntry) -> None:
         """An unknown skill's answer, on a put without a declared publisher (no stream)."""
@@ -460,6 +526,8 @@ class PosePath:
                              encoding=ENC_JSON)
         self.counts.targets += 1
         self.counts.errors[entry.status] += 1
+        if self.record_period_ns is not None:
+            self.counts.unknown += 1  # no stream, nothing to record: decimated
 
 
 def _close_stream(st: Stream) -> None:

@@ -80,7 +80,10 @@ class BridgeProcesses:
         argv = [sys.executable, "-m", "canal_service.bridge", "--supervised",
                 "--shard", f"{shard}/{shards}", "--data-dir", str(s.data_dir),
                 "--database-url", s.resolved_database_url, "--zenoh-prefix", s.zenoh_prefix,
-                "--log-level", s.log_level]
+                "--log-level", s.log_level,
+                "--recordings-live-hz", repr(float(s.recordings_live_hz))]
+        if not s.recordings_enabled:
+            argv.append("--no-recordings")
         if s.zenoh_config is not None:
             return [*argv, "--zenoh-config", str(s.zenoh_config)]
         return argv
@@ -177,6 +180,8 @@ class BridgeProcesses:
         m.live_targets.inc(max(now.get("targets", 0) - before["targets"], 0))
         m.live_coalesced.inc(max(now.get("coalesced", 0) - before["coalesced"], 0))
         m.live_model_switches.inc(max(now.get("switches", 0) - before["switches"], 0))
+        m.live_recorded.inc(max(now.get("recorded", 0) - before.get("recorded", 0), 0))
+        m.live_decimated.inc(max(now.get("decimated", 0) - before.get("decimated", 0), 0))
         for key, n in now.get("errors", {}).items():
             delta = n - before["errors"].get(key, 0)
             if delta > 0:

@@ -1,17 +1,20 @@
-"""Live recording: the recorder's own Zenoh session, subscribed to the robots' poses and targets.
+"""Live recording: batches from the bridges, heard on the recorder's own Zenoh session.
 
-The bridge answers poses and never calls the recorder. This subscriber listens to the same
-keys (``{prefix}/*/*/pose`` and ``{prefix}/*/*/target``, from :mod:`canal_protocol.keys`) with
-a session of its own, so the recorder's work never runs on the bridge's Zenoh callback:
+The bridges answer poses; the recorder does not listen to poses or targets. Each bridge keeps
+per stream the poses the recording wants (``recordings_live_hz`` per stream, plus every
+status/inside/done flip) with the targets it answered, and every ~0.1 s puts one batch with
+them and the stream's count deltas on ``{prefix}/@recorder/live/{bridge}``
+(:func:`canal_protocol.keys.recorder_key`, format in :mod:`canal_protocol.wire`). This
+subscriber hears ~10 small messages a second per bridge instead of every pose and target:
 
-- Samples wait in Zenoh ring channels (Rust, no Python callback, no GIL on Zenoh's thread);
-  when a ring is full its oldest sample is dropped. A drain thread empties the rings every
-  ``interval_s`` and counts what it missed (gaps in the poses' ``seq``, full rings).
-- Each sample carries the time it reached the session (Zenoh timestamping on ingress), so
-  the recorder's rate limit and the logs see arrival times, not drain times.
-- Payloads are decoded with :mod:`canal_protocol.wire` (JSON and binary v1). A payload that
-  starts with a CDR encapsulation header is a ROS 2 ``geometry_msgs/msg/PoseStamped``,
-  decoded by the bridge's own CDR reader (no ROS install or rosbags needed).
+- The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s``.
+- Rows become :class:`~.events.LiveSample` (a pose and its target) and go to the recorder
+  without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
+- The counts make the recording checkable: per stream, every pose a bridge handled is in
+  the recording (``recorded``), on its way (``pending``), ``decimated`` by the bridge, or
+  ``dropped`` by the recorder (counted); a batch that never arrived is a gap in the bridge's
+  batch numbers (``lost_batches``). ROS 2 (CDR) streams are recorded like the others: the
+  bridge has decoded them already.
 
 Configured from the service settings the bridge uses (see :meth:`LiveOptions.from_settings`).
 """
@@ -19,9 +22,8 @@ Configured from the service settings the bridge uses (see :meth:`LiveOptions.fro
 from __future__ import annotations
 
 import logging
-import struct
 import threading
-import time
+from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,9 +38,9 @@ from .events import POSE, TARGET, LiveSample
 
 log = logging.getLogger("canal_service.recording")
 
-_SEQ = struct.Struct("<Q")
-#: CDR encapsulation headers (big and little endian, plain CDR), options 0.
-_CDR_HEADERS = (b"\x00\x00\x00\x00", b"\x00\x01\x00\x00")
+#: Streams listed one by one in /healthz (all of them are counted in the totals).
+HEALTH_STREAMS = 64
+_COUNTS = ("poses", "answered", "coalesced", "errors", "decimated", "kept")
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,7 @@ class LiveOptions:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     config_file: Path | None = None
-    capacity: int = 65_536  # samples per ring (pose, target)
+    capacity: int = 4096  # batches waiting in the channel
     interval_s: float = 0.05
 
     @classmethod
@@ -69,8 +71,7 @@ def zenoh_config(options: LiveOptions) -> zenoh.Config:
 
     With a config file (TLS, credentials, routers) the file is used as is, except that the
     session listens nowhere and also connects to whatever the file listens on. Without one,
-    a peer that connects to the bridge's listen endpoints (and its routers). Samples are
-    timestamped on arrival.
+    a peer that connects to the bridge's listen endpoints (and its routers).
     """
     if options.config_file is not None:
         config = zenoh.Config.from_file(str(options.config_file))
@@ -96,61 +97,39 @@ def zenoh_config(options: LiveOptions) -> zenoh.Config:
     # The bridge may start after us: retry soon and often rather than Zenoh's 1 s -> 4 s.
     config.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, '
                                          '"period_increase_factor": 2}')
-    config.insert_json5("timestamping/enabled",
-                        '{"router": true, "peer": true, "client": true}')
     return config
 
 
 @dataclass
 class LiveStats:
-    """Counters of the subscriber (read by ``Recorder.health``)."""
+    """Counters of the subscriber (read by ``Recorder.health``).
 
-    received: int = 0
+    ``streams`` holds, per (skill, robot), the sums of the bridges' count deltas: ``poses``
+    handled, ``answered``, ``coalesced``, ``errors``, ``decimated`` (not kept for the
+    recording) and ``kept`` (rows received; ``poses == kept + decimated``).
+    """
+
+    batches: int = 0
+    lost_batches: int = 0  # gaps in a bridge's batch numbers
     bad_payload: int = 0
-    missed_poses: int = 0  # gaps in a stream's pose seq: ring overflow or lost on the way
-    full_rings: int = 0  # drains that found a ring at capacity (it dropped its oldest)
     status: str = "starting"
     detail: str | None = None
-    last_seq: dict[tuple[str, str], int] = field(default_factory=dict)
-
-    def as_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "detail": self.detail, "received": self.received,
-                "bad_payload": self.bad_payload,
-                "missed_poses": self.missed_poses, "full_rings": self.full_rings}
-
-
-def _json_seq(data: bytes) -> int | None:
-    """The ``seq`` of a JSON pose without parsing all of it (None when not found)."""
-    at = data.find(b'"seq":')
-    if at < 0:
-        return None
-    end = at + 6
-    while end < len(data) and data[end:end + 1] in b" 0123456789":
-        end += 1
-    digits = data[at + 6:end].strip()
-    return int(digits) if digits else None
-
-
-def decode_cdr_pose(data: bytes) -> tuple[list[float], list[float]]:
-    """(position, [qx, qy, qz, qw]) of a CDR ``geometry_msgs/msg/PoseStamped``, read by the
-    bridge's own decoder (:func:`canal_protocol.wire.decode_pose_cdr`, checked against
-    ``rosbags`` in the tests), so a deployment records ROS 2 streams without extra packages.
-    Raises ``WireError`` when the payload is not one."""
-    pose, _ = wire.decode_pose_cdr(data)
-    assert pose.orientation is not None  # a PoseStamped always has one
-    return [float(v) for v in pose.position], [float(v) for v in pose.orientation]
+    streams: dict[tuple[str, str], dict[str, int]] = field(
+        default_factory=lambda: defaultdict(lambda: dict.fromkeys(_COUNTS, 0)))
+    last_n: dict[str, int] = field(default_factory=dict)
 
 
 class LiveSubscriber:
-    """Feeds a :class:`~.recorder.Recorder` from Zenoh (see the module docstring)."""
+    """Feeds a :class:`~.recorder.Recorder` from the bridges' batches (module docstring)."""
 
     def __init__(self, recorder: Any, options: LiveOptions) -> None:
         self.recorder = recorder
         self.options = options
         self.stats = LiveStats()
         self._session: Any = None
-        self._subs: list[tuple[int, Any]] = []
+        self._sub: Any = None
         self._stop = threading.Event()
+        self._lock = threading.Lock()  # drain vs health
         self._thread: threading.Thread | None = None
         self._prefix = options.prefix.rstrip("/")
 
@@ -158,12 +137,9 @@ class LiveSubscriber:
         """Open the session, subscribe and start draining (errors go to ``stats``)."""
         try:
             self._session = zenoh.open(zenoh_config(self.options))
-            prefix = self._prefix
-            for kind, key in ((POSE, keyspace.pose_wildcard(prefix)),
-                              (TARGET, keyspace.target_wildcard(prefix))):
-                ring: zenoh.handlers.RingChannel[zenoh.Sample] = zenoh.handlers.RingChannel(
-                    self.options.capacity)
-                self._subs.append((kind, self._session.declare_subscriber(key, ring)))
+            self._sub = self._session.declare_subscriber(
+                keyspace.recorder_wildcard(self._prefix),
+                zenoh.handlers.FifoChannel(self.options.capacity))
         except Exception as exc:
             self.stats.status, self.stats.detail = "down", f"{type(exc).__name__}: {exc}"
             log.warning("live recording is off: %s", self.stats.detail)
@@ -179,22 +155,19 @@ class LiveSubscriber:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
-        for _, sub in self._subs:
+            self._thread = None
+        if self._sub is not None:
             try:
-                sub.undeclare()
+                self._sub.undeclare()
             except Exception:
                 pass
-        self._subs = []
+            self._sub = None
         if self._session is not None:
             try:
                 self._session.close()
             except Exception:
                 pass
             self._session = None
-
-    def health(self) -> dict[str, Any]:
-        """The counters and status."""
-        return self.stats.as_dict()
 
     # ---- drain thread -------------------------------------------------------------------------
 
@@ -204,100 +177,97 @@ class LiveSubscriber:
         self.drain()
 
     def drain(self) -> int:
-        """Empty the rings into the recorder; the number of samples read."""
+        """Hand every batch waiting in the channel to the recorder; the number of batches."""
+        sub = self._sub
+        if sub is None:
+            return 0
         n = 0
-        for kind, sub in self._subs:
-            got = 0
-            try:
-                while got < self.options.capacity:
+        with self._lock:
+            while True:
+                try:
                     sample = sub.try_recv()
-                    if sample is None:
-                        break
-                    got += 1
-                    self._sample(kind, sample)
-            except Exception:
-                log.exception("live recording drain")
-            if got >= self.options.capacity:
-                self.stats.full_rings += 1
-            n += got
-        self.stats.received += n
+                except Exception:
+                    break  # undeclared
+                if sample is None:
+                    break
+                n += 1
+                try:
+                    self.take(str(sample.key_expr), sample.payload.to_bytes())
+                except Exception:
+                    log.exception("live recording batch")
+                    self.stats.bad_payload += 1
         return n
 
-    def _sample(self, kind: int, sample: Any) -> None:
-        # Most samples at high rates are over the recording rate: decide that from the key,
-        # the arrival time and a peek at the payload, and decode only the samples kept.
-        found = keyspace.stream_of(str(sample.key_expr), self._prefix,
-                                   keyspace.POSE if kind == POSE else keyspace.TARGET)
-        if found is None:  # a wildcard put is nobody's stream: not recorded as one
-            return
-        skill, robot = found
-        ts = sample.timestamp
-        t_ns = ts.get_time_as_ntp64().as_nanos() if ts is not None else time.time_ns()
-        data = sample.payload.to_bytes()
+    def take(self, key: str, data: bytes) -> bool:
+        """One batch from ``key``: rows to the recorder, counts to the tallies; False (and
+        counted as ``bad_payload``) when it is not a batch of the bridge its key names."""
+        stats = self.stats
+        bridge = keyspace.bridge_of_batch(key, self._prefix)
         try:
-            if data[:4] in _CDR_HEADERS:
-                self._cdr(kind, skill, robot, t_ns, data)
-            elif kind == POSE:
-                self._pose(skill, robot, t_ns, sample, data)
-            else:
-                self._target(skill, robot, t_ns, sample, data)
-        except Exception:  # WireError, a CDR SerdeError, a short struct: not ours to fix
-            self.stats.bad_payload += 1
+            batch = wire.decode_record_batch(data)
+        except wire.WireError:
+            stats.bad_payload += 1
+            return False
+        if bridge is None or batch.bridge != bridge or any(
+                len(st.rows) + st.decimated != st.poses for st in batch.streams):
+            stats.bad_payload += 1
+            return False
+        last = stats.last_n.get(bridge)
+        if last is not None and batch.n > last + 1:
+            stats.lost_batches += batch.n - last - 1
+        if last is None or batch.n > last:
+            stats.last_n[bridge] = batch.n
+        if last is None and batch.n > 0:
+            stats.lost_batches += batch.n  # heard from the middle: the bridge's first ones
+        stats.batches += 1
+        samples: list[LiveSample] = []
+        for st in batch.streams:
+            tally = stats.streams[(st.skill, st.robot)]
+            tally["poses"] += st.poses
+            tally["answered"] += st.answered
+            tally["coalesced"] += st.coalesced
+            tally["errors"] += st.errors
+            tally["decimated"] += st.decimated
+            tally["kept"] += len(st.rows)
+            skill, robot = st.skill, st.robot
+            for r in st.rows:
+                samples.append(LiveSample(skill, robot, POSE, r.t_ns, list(r.position),
+                                          None if r.orientation is None
+                                          else list(r.orientation)))
+                samples.append(LiveSample(
+                    skill, robot, TARGET, r.t_ns, list(r.target),
+                    None if r.target_orientation is None else list(r.target_orientation),
+                    r.progress, r.eta, r.section, r.inside, r.done))
+        if samples:
+            self.recorder.live_rows(samples)
+        return True
 
-    def _seq(self, skill: str, robot: str, seq: int | None) -> None:
-        if seq is None:
-            return
-        key = (skill, robot)
-        last = self.stats.last_seq.get(key)
-        if last is not None and seq > last + 1:
-            self.stats.missed_poses += seq - last - 1
-        if last is None or seq > last:
-            self.stats.last_seq[key] = seq
+    # ---- state --------------------------------------------------------------------------------
 
-    def _pose(self, skill: str, robot: str, t_ns: int, sample: Any, data: bytes) -> None:
-        json = data[:1] == b"{" or wire.is_json(str(sample.encoding), data)
-        if not json and len(data) >= 12 and data[0] == wire.VERSION:
-            self._seq(skill, robot, _SEQ.unpack_from(data, 4)[0])
-        elif json:
-            self._seq(skill, robot, _json_seq(data))
-        if not self.recorder.wants_live(skill, robot, POSE, t_ns):
-            self.recorder.decimated_live += 1
-            return  # decimated before decoding
-        pose = wire.decode_pose_json(data) if json else wire.decode_pose(data)
-        self.recorder.live_sample(LiveSample(
-            skill, robot, POSE, t_ns, list(pose.position),
-            None if pose.orientation is None else list(pose.orientation)))
+    def stream_counts(self) -> dict[tuple[str, str], dict[str, int]]:
+        """Per stream: the bridges' counts and the recorder's ``recorded`` (written and
+        flushed), ``dropped`` and ``pending`` (kept, not yet flushed or dropped)."""
+        with self._lock:
+            tallies = {k: dict(v) for k, v in self.stats.streams.items()}
+        recorded, dropped = self.recorder.live_stream_counts()
+        for key, t in tallies.items():
+            t["recorded"] = recorded.get(key, 0)
+            t["dropped"] = dropped.get(key, 0)
+            t["pending"] = t["kept"] - t["recorded"] - t["dropped"]
+        return tallies
 
-    def _target(self, skill: str, robot: str, t_ns: int, sample: Any, data: bytes) -> None:
-        json = data[:1] == b"{" or wire.is_json(str(sample.encoding), data)
-        if not self.recorder.wants_live(skill, robot, TARGET, t_ns) and not self._flips(
-                skill, robot, json, data):
-            self.recorder.decimated_live += 1
-            return
-        target = wire.decode_target_json(data) if json else wire.decode_target(data)
-        if target.target is None:
-            return  # an error answer: no position to draw
-        orientation = getattr(target, "orientation", None)
-        self.recorder.live_sample(LiveSample(
-            skill, robot, TARGET, t_ns, list(target.target),
-            None if orientation is None else list(orientation), float(target.progress),
-            float("nan") if target.eta is None else float(target.eta),
-            -1 if target.section is None else int(target.section),
-            bool(target.inside), bool(target.done)))
-
-    def _flips(self, skill: str, robot: str, json: bool, data: bytes) -> bool:
-        """Whether a target's inside/done flags differ from the last recorded (a peek)."""
-        if json:
-            inside, done = b'"inside":true' in data, b'"done":true' in data
-        elif len(data) > 2:
-            inside, done = bool(data[2] & wire.TARGET_INSIDE), bool(data[2] & wire.TARGET_DONE)
-        else:
-            return True
-        return self.recorder.live_flags(skill, robot) != (inside, done)
-
-    def _cdr(self, kind: int, skill: str, robot: str, t_ns: int, data: bytes) -> None:
-        if not self.recorder.wants_live(skill, robot, kind, t_ns):
-            self.recorder.decimated_live += 1
-            return
-        position, orientation = decode_cdr_pose(data)
-        self.recorder.live_sample(LiveSample(skill, robot, kind, t_ns, position, orientation))
+    def health(self) -> dict[str, Any]:
+        """Status, totals and (up to :data:`HEALTH_STREAMS`) streams. ``complete``: nothing
+        lost on the way (no lost batch, nothing dropped); when ``pending`` is 0 as well,
+        ``recorded + decimated == poses`` for every stream."""
+        per = self.stream_counts()
+        totals = dict.fromkeys((*_COUNTS, "recorded", "dropped", "pending"), 0)
+        for t in per.values():
+            for k in totals:
+                totals[k] += t[k]
+        stats = self.stats
+        return {"status": stats.status, "detail": stats.detail, "batches": stats.batches,
+                "lost_batches": stats.lost_batches, "bad_payload": stats.bad_payload,
+                "bridges": len(stats.last_n), **totals,
+                "complete": stats.lost_batches == 0 and totals["dropped"] == 0,
+                "streams": {f"{s}/{r}": t for (s, r), t in sorted(per.items())[:HEALTH_STREAMS]}}

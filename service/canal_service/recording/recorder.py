@@ -167,6 +167,11 @@ class Recorder:
         self.writer_cpu_s = 0.0
         self.decimated_live = 0
         self.written_live = 0
+        # Live poses per (skill, robot): written but not yet flushed (by skill), flushed to
+        # the files (recorded), lost (dropped); the live source's completeness reads them.
+        self._live_unflushed: dict[str, dict[str, int]] = {}
+        self._live_recorded: dict[tuple[str, str], int] = {}
+        self._live_dropped: dict[tuple[str, str], int] = {}
         self._closed = not enabled
         self.live_source: Any = None  # a LiveSubscriber feeding live_sample()
         self._thread: threading.Thread | None = None
@@ -271,6 +276,42 @@ class Recorder:
                 self.dropped_live += 1  # the deque drops its oldest sample on append
             self._live.append(sample)
         return True
+
+    def live_rows(self, samples: list[LiveSample]) -> None:
+        """Queue live samples a bridge already chose (no rate limit here). Beyond the
+        queue's size the oldest samples are dropped (counted per stream)."""
+        if self._closed:
+            return
+        with self._live_lock:
+            live = self._live
+            cap = live.maxlen or 0
+            for sample in samples:
+                if len(live) == cap:
+                    old = live[0]  # the deque drops it on append
+                    self.dropped_live += 1
+                    if old.kind == POSE:
+                        key = (old.skill, old.robot)
+                        self._live_dropped[key] = self._live_dropped.get(key, 0) + 1
+                live.append(sample)
+
+    def live_stream_counts(self) -> tuple[dict[tuple[str, str], int],
+                                          dict[tuple[str, str], int]]:
+        """Live poses per (skill, robot): (recorded, i.e. flushed to the files; dropped)."""
+        with self._live_lock:
+            return dict(self._live_recorded), dict(self._live_dropped)
+
+    def _live_count(self, skill: str, robot: str, n: int) -> None:
+        unflushed = self._live_unflushed.setdefault(skill, {})
+        unflushed[robot] = unflushed.get(robot, 0) + n
+
+    def _live_settle(self, skill: str, into: dict[tuple[str, str], int]) -> None:
+        """The skill's unflushed live poses are now recorded (or dropped)."""
+        unflushed = self._live_unflushed.pop(skill, None)
+        if not unflushed:
+            return
+        with self._live_lock:
+            for robot, n in unflushed.items():
+                into[(skill, robot)] = into.get((skill, robot), 0) + n
 
     def live_flags(self, skill: str, robot: str) -> tuple[bool, bool] | None:
         """(inside, done) of the last target kept for this robot, or None."""
@@ -757,9 +798,14 @@ class Recorder:
                 try:
                     self._write(skill, int(batch.t_ns[0]), batch_writer_rerun(batch),
                                 batch_writer_mcap(batch), n_live=len(batch))
+                    if batch.kind == POSE:
+                        self._live_count(skill, batch.robot, len(batch))
                 except Exception as exc:
                     log.exception("recorder could not record live samples of %s", skill)
                     self.dropped_live += len(batch)
+                    if batch.kind == POSE:
+                        self._live_count(skill, batch.robot, len(batch))
+                        self._live_settle(skill, self._live_dropped)
                     self._note(skill, f"{type(exc).__name__}: {exc}")
 
     def _source_dim(self, skill: str) -> int:
@@ -773,6 +819,7 @@ class Recorder:
     def _flushed(self, state: _SkillState) -> None:
         """The open segment's data reached the OS: the ledger may now say so."""
         state.pending_events = state.pending_live = 0
+        self._live_settle(state.skill, self._live_recorded)
         lines, state.pending_ledger = state.pending_ledger, []
         try:
             state.dir.append_ledger(lines)
@@ -830,6 +877,7 @@ class Recorder:
         self.dropped_live += state.pending_live
         self.written_live -= state.pending_live
         state.pending_events = state.pending_live = 0
+        self._live_settle(state.skill, self._live_dropped)
         lost = bool(state.pending_ledger)
         for line in state.pending_ledger:  # not in the files for sure: not logged
             kind, _, value = line.partition(" ")
