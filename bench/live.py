@@ -458,7 +458,7 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     """Per-pose cost (us) of each stage of the pose path, measured in this process."""
     import zenoh
 
-    from canal_core.tracker import Tracker, step_trackers, tracker_geometry
+    from canal_core.tracker import Tracker, TrackerBank, step_trackers, tracker_geometry
     from canal_protocol import wire
 
     geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
@@ -524,6 +524,17 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
 
     rows.append((f"tracker step, batch of {n_batch} (per pose)",
                  per(batched, len(groups) * n_batch)))
+    bank = TrackerBank(geometry, 2)
+    slots = [bank.add() for _ in range(n_batch)]
+
+    def banked() -> None:
+        for slot in slots:
+            bank.reset(slot, 0)
+        for g in groups:
+            bank.step(slots, g)
+
+    rows.append((f"tracker bank step, batch of {n_batch} (per pose)",
+                 per(banked, len(groups) * n_batch)))
     tt = tracker.step(pts[10])
     rows.append(("encode JSON target", per(lambda: [wire.pack_target_json(
         1, "ok", tt.target, 0.5, 0.2, 10, True, False, 1, None, None, 0)
@@ -602,18 +613,22 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                     stepped = [pp.step(jobs) for jobs in rounds_]
                     t3 = clock()
                     for groups in stepped:
-                        for entry, jobs, targets in groups:
-                            for (st, pose, _f, _r), tt in zip(jobs, targets, strict=True):
+                        for entry, jobs, res in groups:
+                            tg, pr, et = res.target.tolist(), res.progress.tolist(), \
+                                res.eta.tolist()
+                            se, ins, dn = res.section_index.tolist(), res.inside.tolist(), \
+                                res.done.tolist()
+                            for k, (st, pose, _f, _r) in enumerate(jobs):
                                 if fmt == "json":
                                     wire.pack_target_json(
-                                        pose.seq, "ok", tt.target, tt.progress, tt.eta,
-                                        tt.section_index, tt.inside, tt.done, entry.version,
-                                        pose.orientation, tt.velocity, st.coalesced)
+                                        pose.seq, "ok", tg[k], pr[k], et[k], se[k], ins[k],
+                                        dn[k], entry.version, pose.orientation, None,
+                                        st.coalesced)
                                 else:
                                     wire.pack_target(
-                                        pose.seq, 0, tt.target.tolist(), tt.progress, tt.eta,
-                                        tt.section_index, tt.inside, tt.done, entry.version,
-                                        pose.orientation, tt.velocity, st.coalesced)
+                                        pose.seq, 0, tg[k], pr[k], et[k], se[k], ins[k],
+                                        dn[k], entry.version, pose.orientation, None,
+                                        st.coalesced)
                     t4 = clock()
                     for groups in stepped:
                         for entry, jobs, targets in groups:

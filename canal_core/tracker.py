@@ -27,13 +27,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .cross_sections import CrossSections, boundary_distance
 from .validation import FloatArray
 
 WINDOW = 16
+#: Batches of at least this many rows take :class:`TrackerBank`'s vectorised pass; smaller
+#: ones the scalar step per row (one vectorised pass costs about what 10-16 scalar steps do).
+VECTORISE_FROM = 6
 #: The plan is kept while the live position is within this fraction of the local section's
 #: boundary distance from it (see the module docstring).
 REPLAN_TOLERANCE = 0.25
@@ -504,6 +509,261 @@ class Tracker:
     def reset(self, index: int = 0) -> None:
         """Start over from section ``index`` with no plan (a new run, or a new model version)."""
         self.state = TrackerState(index)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackerBatch:
+    """Answers of one :meth:`TrackerBank.step` call, row b for the b-th slot stepped.
+
+    Attributes
+    ----------
+    target : array, shape (B, D)
+    progress, eta : array, shape (B,)
+    section_index : array of int, shape (B,)
+    inside, done : array of bool, shape (B,)
+    velocity : array, shape (B, D), or None
+        When the model knows section times.
+    orientation : array, shape (B, 4), or None
+        When the model learned orientations.
+    """
+
+    target: FloatArray
+    progress: FloatArray
+    eta: FloatArray
+    section_index: NDArray[np.intp]
+    inside: NDArray[np.bool_]
+    done: NDArray[np.bool_]
+    velocity: FloatArray | None = None
+    orientation: FloatArray | None = None
+
+
+class TrackerBank:
+    """The tracker states of many streams of one model, held as arrays.
+
+    A stream owns a *slot* (:meth:`add`); :meth:`step` steps any set of slots in one
+    vectorised pass that reads and writes the state arrays directly, with no per-stream
+    Python object on the way in or out. The answers equal :func:`tracker_step` on each
+    slot's state (same sections, flags and plan; floats up to the last bits of a reordered
+    sum). Rows the window search cannot place, non-circular sections and canals of fewer than
+    three sections take the scalar step.
+
+    Parameters
+    ----------
+    geometry : TrackerGeometry
+    lookahead : int
+        Sections ahead of the located one to aim at (>= 1).
+    replan_tolerance : float
+        As :func:`tracker_step`.
+    capacity : int
+        Slots allocated up front (the arrays double when full).
+    """
+
+    def __init__(self, geometry: TrackerGeometry, lookahead: int = 1,
+                 replan_tolerance: float = REPLAN_TOLERANCE, capacity: int = 16) -> None:
+        self.geometry = geometry
+        self.lookahead = max(int(lookahead), 1)
+        self.replan_tolerance = float(replan_tolerance)
+        k = geometry.basis.shape[1]
+        cap = max(int(capacity), 1)
+        #: section reached per slot (never decreases while stepped)
+        self.index = np.zeros(cap, dtype=np.intp)
+        #: planned ratio per slot; NaN: no plan yet
+        self.eta = np.full(cap, np.nan)
+        #: planned unit in-plane direction per slot, shape (capacity, D - 1)
+        self.direction = np.zeros((cap, k))
+        self._free = list(range(cap - 1, -1, -1))
+        self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
+        if self._isotropic:
+            radius = np.asarray(geometry.sections.params["radius"], dtype=np.float64)
+            # each pair's radii side by side, (N - 1, 2): one gather per batch
+            self._pair_radius = np.ascontiguousarray(np.stack([radius[:-1], radius[1:]], axis=1))
+            self._radius = radius
+
+    def __len__(self) -> int:
+        """Slots in use."""
+        return int(self.index.shape[0]) - len(self._free)
+
+    def add(self, index: int = 0) -> int:
+        """A free slot, started at section ``index`` with no plan."""
+        if not self._free:
+            cap = self.index.shape[0]
+            self.index = np.concatenate([self.index, np.zeros(cap, dtype=np.intp)])
+            self.eta = np.concatenate([self.eta, np.full(cap, np.nan)])
+            self.direction = np.concatenate([self.direction, np.zeros_like(self.direction)])
+            self._free = list(range(2 * cap - 1, cap - 1, -1))
+        slot = self._free.pop()
+        self.reset(slot, index)
+        return slot
+
+    def release(self, slot: int) -> None:
+        """Give ``slot`` back (its stream is gone)."""
+        self.reset(slot, 0)
+        self._free.append(int(slot))
+
+    def reset(self, slot: int, index: int = 0) -> None:
+        """Start ``slot`` over from section ``index`` with no plan."""
+        self.index[slot] = index
+        self.eta[slot] = np.nan
+
+    def state(self, slot: int) -> TrackerState:
+        """``slot``'s state as a :class:`TrackerState`."""
+        eta = float(self.eta[slot])
+        if math.isnan(eta):
+            return TrackerState(int(self.index[slot]))
+        return TrackerState(int(self.index[slot]), eta, self.direction[slot].copy())
+
+    def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
+        """Step the given slots (distinct) with their live positions, shape (B, D)."""
+        slots = np.asarray(slots, dtype=np.intp)
+        p = np.asarray(positions, dtype=np.float64)
+        b = p.shape[0]
+        with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
+            if self._isotropic and b >= VECTORISE_FROM:
+                done = self._vectorised(slots, p, None)
+                if done is not None:
+                    return done
+            out = self._empty(b)
+            if self._isotropic and b >= VECTORISE_FROM:
+                self._vectorised(slots, p, out)
+            elif b:
+                self._scalar(np.arange(b), slots, p, out)
+        return out
+
+    def _empty(self, b: int) -> TrackerBatch:
+        g = self.geometry
+        d = g.centres.shape[1]
+        return TrackerBatch(
+            np.empty((b, d)), np.empty(b), np.empty(b), np.empty(b, dtype=np.intp),
+            np.empty(b, dtype=bool), np.empty(b, dtype=bool),
+            None if g.section_times is None else np.empty((b, d)),
+            None if g.orientations is None else np.empty((b, 4)))
+
+    def _scalar(self, rows: NDArray[np.intp], slots: NDArray[np.intp], p: FloatArray,
+                out: TrackerBatch) -> None:
+        for r in rows.tolist():
+            slot = int(slots[r])
+            t, st = tracker_step(self.geometry, self.state(slot), p[r], self.lookahead,
+                                 self.replan_tolerance)
+            self.index[slot] = st.index
+            if st.eta is None or st.direction is None:
+                self.eta[slot] = np.nan
+            else:
+                self.eta[slot] = st.eta
+                self.direction[slot] = st.direction
+            out.target[r] = t.target
+            out.progress[r], out.eta[r], out.section_index[r] = t.progress, t.eta, t.section_index
+            out.inside[r], out.done[r] = t.inside, t.done
+            if out.velocity is not None and t.velocity is not None:
+                out.velocity[r] = t.velocity
+            if out.orientation is not None and t.orientation is not None:
+                out.orientation[r] = t.orientation
+
+    def _vectorised(self, slots: NDArray[np.intp], p: FloatArray,
+                    out: TrackerBatch | None) -> TrackerBatch | None:
+        """The window search for every row in one pass, the rest vectorised for the rows it
+        places and scalar for the others. Without ``out`` it only answers when every row is
+        placed (the common case: no copy into an output) and returns None otherwise, having
+        changed nothing."""
+        g = self.geometry
+        n = g.centres.shape[0]
+        b = p.shape[0]
+        last_index = self.index[slots]
+        dist_all = p @ g.tangents.T
+        dist_all -= g.offsets
+        lo = np.maximum(last_index - 1, 0)
+        cols = lo[:, None] + _WINDOW_COLUMNS
+        valid = cols[:, 1:] <= np.minimum(last_index + WINDOW, n - 1)[:, None]
+        np.minimum(cols, n - 1, out=cols)
+        ar = np.arange(b)
+        dist = dist_all[ar[:, None], cols]
+        above = dist > 0.0
+        change = above[:, :-1] != above[:, 1:]
+        change |= dist[:, :-1] == 0.0
+        change &= valid
+        first = change.argmax(axis=1)
+        found = change[ar, first]
+        index = lo + first  # a placed row's pair lies inside its window: index <= n - 2
+        rows: NDArray[np.intp] | None = None
+        if not found.all():
+            if out is None:
+                return None
+            self._scalar(np.flatnonzero(~found), slots, p, out)
+            rows = np.flatnonzero(found)
+            if rows.size == 0:
+                return out
+            slots, p, dist_all = slots[rows], p[rows], dist_all[rows]
+            index, last_index, first = index[rows], last_index[rows], first[rows]
+            dist = dist[rows]
+            ar = np.arange(rows.size)
+        target_index = np.minimum(index + self.lookahead, n - 1)
+        d0 = dist[ar, first]
+        d1 = dist[ar, first + 1]
+        assert g.pair_basis is not None and g.pair_centres is not None
+        q01 = g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None]
+        q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
+        r01 = self._pair_radius[index]
+        r0 = r01[:, 0]
+        r2 = self._radius[target_index]
+        span = d0 - d1
+        alpha = np.where(span != 0.0, np.clip(d0 / span, 0.0, 1.0), 0.0)
+        q = q0 + alpha[:, None] * (q1 - q0)
+        norm = np.sqrt(np.einsum("bk,bk->b", q, q))
+        direction = np.where((norm > 0.0)[:, None], q / norm[:, None],
+                             _DEFAULT_DIRECTIONS[q.shape[1]])
+        reach = r0 + alpha * (r01[:, 1] - r0)
+        eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
+        old_eta = self.eta[slots]
+        old_dir = self.direction[slots]
+        planned = ~np.isnan(old_eta)
+        # circle sections: the reference reach equals the live one
+        gap = q - (np.where(planned, old_eta, 0.0) * reach)[:, None] * old_dir
+        keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap))
+                          <= self.replan_tolerance * reach)
+        plan_eta = np.where(keep, old_eta, np.minimum(eta, MAX_PLAN_ETA))
+        plan_dir = np.where(keep[:, None], old_dir, direction)
+        inside = ((eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0))
+                  & ~((index == n - 2) & (d1 > 0.0)))
+        target = g.centres[target_index] + (plan_eta * r2)[:, None] * np.einsum(
+            "bk,bkd->bd", plan_dir, g.basis[target_index])
+        done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
+        progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
+        orientation = None if g.orientations is None else g.orientations[target_index]
+        velocity = None if g.section_times is None else _feed_forwards(
+            g, target_index, target, plan_eta, plan_dir)
+        self.index[slots] = np.maximum(last_index, index)
+        self.eta[slots] = plan_eta
+        self.direction[slots] = plan_dir
+        if out is None:
+            return TrackerBatch(target, progress, eta, index, inside, done, velocity,
+                                orientation)
+        out.target[rows] = target
+        out.progress[rows] = progress
+        out.eta[rows] = eta
+        out.section_index[rows] = index
+        out.inside[rows] = inside
+        out.done[rows] = done
+        if out.orientation is not None and orientation is not None:
+            out.orientation[rows] = orientation
+        if out.velocity is not None and velocity is not None:
+            out.velocity[rows] = velocity
+        return out
+
+
+def _feed_forwards(g: TrackerGeometry, index: NDArray[np.intp], target: FloatArray,
+                   eta: FloatArray, direction: FloatArray) -> FloatArray:
+    """:func:`_feed_forward` for many rows of circle sections, shapes (B,), (B, D), (B,),
+    (B, D - 1)."""
+    assert g.section_times is not None
+    n = g.centres.shape[0]
+    nxt = np.minimum(index + 1, n - 1)
+    dt = g.section_times[nxt] - g.section_times[index]
+    reach = g.sections.params["radius"][nxt]
+    ahead = g.centres[nxt] + (eta * reach)[:, None] * np.einsum(
+        "bk,bkd->bd", direction, g.basis[nxt])
+    moving = (index + 1 < n) & (dt > 0.0)
+    return np.where(moving[:, None], (ahead - target) / np.where(moving, dt, 1.0)[:, None], 0.0)
+
+
 
 
 def step_trackers(trackers: list[Tracker], positions: FloatArray) -> list[TrackerTarget]:

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from canal_core.tracker import TrackerGeometry, tracker_geometry
+from canal_core.tracker import TrackerBank, TrackerGeometry, tracker_geometry
 
 from ..errors import NoModelYet, SkillNotFound
 from ..service import CanalService
@@ -34,12 +34,16 @@ class ModelEntry:
     message: str | None = None
     geometry: TrackerGeometry | None = None
     expires: float = math.inf
+    #: the tracker states of every stream of this model (stepped by the worker only)
+    bank: TrackerBank | None = None
 
 
-def ok_entry(version: int, canal: Any) -> ModelEntry:
-    """A served model: its canal and the tracker geometry every stream of it shares."""
+def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
+    """A served model: its canal, the tracker geometry every stream of it shares, and the
+    bank that holds those streams' tracker states as arrays."""
     geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
-    return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry)
+    return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry,
+                      bank=TrackerBank(geometry, lookahead))
 
 
 class ModelTable:
@@ -63,7 +67,7 @@ class ModelTable:
             return ModelEntry("unknown_skill", message=exc.message)
         except NoModelYet as exc:
             return ModelEntry("no_model", dim=exc.dim, message=exc.message)
-        return ok_entry(version, canal)
+        return ok_entry(version, canal, self.options.lookahead)
 
     def install(self, skill: str, entry: ModelEntry) -> None:
         """Replace the skill's entry unless it would go back to an older version. Unknown
@@ -101,7 +105,8 @@ class ModelTable:
         """A fit landed: a skill in use is reloaded (from ``canal`` when given)."""
         self.unknown.pop(skill, None)
         if skill in self.models:
-            entry = ok_entry(version, canal) if canal is not None else self.load(skill)
+            entry = (ok_entry(version, canal, self.options.lookahead) if canal is not None
+                     else self.load(skill))
             self.install(skill, entry)
 
     def refresh(self, live_skills: set[str]) -> None:

@@ -2,8 +2,10 @@
 
 The worker blocks on its pose channel (GIL released), drains everything else queued without
 blocking and handles the drain as one batch: decode every pose, step the trackers of all
-streams of one model in **one** vectorised numpy call
-(:func:`canal_core.tracker.step_trackers`), then encode and put each answer. A stream with
+streams of one model in **one** vectorised numpy pass over the model's
+:class:`canal_core.tracker.TrackerBank` (every stream's tracker state is a slot of its
+arrays: no per-tracker Python object on the way in or out), turn the answer arrays into
+Python lists once per drain, then encode and put each answer. A stream with
 several poses in one drain is stepped in order (one pass per pose). Metrics are plain
 integers (:class:`Counts`); the bridge's metrics thread hands them to Prometheus.
 
@@ -38,7 +40,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from canal_core.tracker import Tracker, TrackerTarget, step_trackers
+from canal_core.tracker import TrackerBank, TrackerBatch
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
@@ -68,7 +70,8 @@ class Stream:
     skill: str
     robot: str
     publisher: Any
-    tracker: Tracker | None = None
+    bank: TrackerBank | None = None  # the bank of the model version it is tracked with
+    slot: int = -1  # its row in that bank
     version: int = -1
     last_seen: float = 0.0
     last_seq: int = -1
@@ -205,6 +208,8 @@ class PosePath:
             live_skills = {st.skill for st in self.streams.values()}
             if self.record_period_ns is not None:
                 self.retired.extend(gone)
+            for st in gone:  # under rec_lock: the worker is not stepping the bank now
+                _release(st)
         for st in gone:
             _close_stream(st)
         return live_skills
@@ -214,6 +219,8 @@ class PosePath:
             streams, self.streams = list(self.streams.values()), {}
             if self.record_period_ns is not None:
                 self.retired.extend(streams)
+            for st in streams:
+                _release(st)
         for st in streams:
             _close_stream(st)
 
@@ -364,8 +371,8 @@ class PosePath:
             return None
         return st, pose, fmt, ros
 
-    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[TrackerTarget]]]:
-        """Step every job's tracker, one numpy call per model; jobs that cannot be stepped
+    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], TrackerBatch]]:
+        """Step every job's tracker, one bank pass per model; jobs that cannot be stepped
         are answered with their error here."""
         by_model: dict[int, tuple[ModelEntry, list[Job]]] = {}
         models = self.models.models
@@ -385,7 +392,7 @@ class PosePath:
                            f"expected {entry.dim} coordinates for skill {st.skill!r}, "
                            f"got {len(position)}", fmt)
                 continue
-            if st.version != entry.version or pose.restart or st.tracker is None:
+            if st.bank is not entry.bank or st.version != entry.version or pose.restart:
                 self._seed(st, entry, position)
             group = by_model.get(id(entry))
             if group is None:
@@ -396,59 +403,71 @@ class PosePath:
         for entry, model_jobs in by_model.values():
             dim = entry.dim
             positions = np.array([j[1].position[:dim] for j in model_jobs], dtype=np.float64)
-            trackers = [j[0].tracker for j in model_jobs]
+            assert entry.bank is not None
             with np.errstate(all="ignore"):  # 1e308 poses overflow; they answer outside
-                targets = step_trackers(trackers, positions)  # type: ignore[arg-type]
-            out.append((entry, model_jobs, targets))
+                answers = entry.bank.step([j[0].slot for j in model_jobs], positions)
+            out.append((entry, model_jobs, answers))
         return out
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
-        """A new tracker from the entry's geometry, at the section the robot is located at."""
-        if st.tracker is not None and st.version != entry.version:
+        """The stream's slot in the entry's bank, started at the section the robot is
+        located at (a new stream, a restart, a model switch)."""
+        if st.bank is not None and st.version != entry.version:
             self.counts.switches += 1
-        assert entry.geometry is not None
-        st.tracker = Tracker(entry.geometry, self.options.lookahead)
+        bank = entry.bank
+        assert bank is not None
+        if st.bank is not bank:
+            _release(st)
+            st.bank, st.slot = bank, bank.add()
         point = np.array(position, dtype=np.float64)
         try:
-            st.tracker.reset(int(entry.canal.reproduce_detailed(point).section_index))
+            bank.reset(st.slot, int(entry.canal.reproduce_detailed(point).section_index))
         except Exception:  # a start no section brackets: from the first one
-            st.tracker.reset(0)
+            bank.reset(st.slot, 0)
         st.version = entry.version
 
-    def answer_all(self, entry: ModelEntry, group: list[Job],
-                   targets: list[TrackerTarget]) -> None:
+    def answer_all(self, entry: ModelEntry, group: list[Job], res: TrackerBatch) -> None:
+        """Answer each job of one bank pass: the arrays become Python lists once, then each
+        answer reads its row."""
+        targets = res.target.tolist()
+        progress = res.progress.tolist()
+        etas = res.eta.tolist()
+        sections = res.section_index.tolist()
+        insides = res.inside.tolist()
+        dones = res.done.tolist()
+        velocities = None if res.velocity is None else res.velocity.tolist()
+        orientations = None if res.orientation is None else res.orientation.tolist()
         answer = self.answer
-        for (st, pose, fmt, ros), tt in zip(group, targets, strict=True):
-            answer(st, pose, fmt, ros, entry, tt)
+        for k, (st, pose, fmt, ros) in enumerate(group):
+            answer(st, pose, fmt, ros, entry, targets[k], progress[k], etas[k], sections[k],
+                   insides[k], dones[k], None if velocities is None else velocities[k],
+                   None if orientations is None else orientations[k])
 
     def answer(self, st: Stream, pose: wire.Pose, fmt: int, ros: Any, entry: ModelEntry,
-               tt: TrackerTarget) -> None:
-        counts = self.counts
-        inside = tt.inside
-        eta = tt.eta
+               target: list[float], progress: float, eta: float, section: int, inside: bool,
+               reached: bool, velocity: list[float] | None,
+               orientation: list[float] | None) -> None:
+        """Publish one answer (and keep it for the recording when it is due)."""
         # "done" only counts at the end *and* within the last sections: a pose far beyond
         # the last plane (50, 50, 50; 1e308) is lost, not finished.
-        done = tt.done and eta <= 1.0 + 1e-9
-        target = tt.target
-        progress = tt.progress
+        done = reached and eta <= 1.0 + 1e-9
         if inside or done:
             code, status = _OK, "ok"
         else:
             code, status = _OUTSIDE, "outside_canal"
-            if tt.done:  # lost beyond the end is not the end reached
-                progress = tt.section_index / max(entry.canal.n_sections - 1, 1)
+            n = entry.canal.n_sections
+            if reached:  # lost beyond the end is not the end reached
+                progress = section / max(n - 1, 1)
             done = False
-            counts.errors["outside_canal"] += 1
-            if not (math.isfinite(target[0]) and math.isfinite(target[-1])
-                    and np.isfinite(target).all()):
+            self.counts.errors["outside_canal"] += 1
+            if not all(map(math.isfinite, target)):
                 # overflowed: the way back in is the section ahead's centre
-                n = entry.canal.n_sections
-                target = entry.canal.directrix[min(tt.section_index + self.options.lookahead,
-                                                   n - 1)]
+                target = entry.canal.directrix[min(section + self.options.lookahead,
+                                                   n - 1)].tolist()
             if not math.isfinite(eta):
                 eta = 1e308
-        orientation = tt.orientation if tt.orientation is not None else pose.orientation
-        velocity = tt.velocity
+        if orientation is None and pose.orientation is not None:
+            orientation = list(pose.orientation)
         st.rec_answered += 1
         period = self.record_period_ns
         if period is not None:
@@ -457,19 +476,18 @@ class PosePath:
             if now >= st.rec_next or state != st.rec_state:
                 st.rec_next = now + period
                 st.rec_state = state
-                st.rec_rows.append((now, pose.position, pose.orientation, target.tolist(),
-                                    orientation, progress, eta, tt.section_index, inside,
-                                    done, status))
+                st.rec_rows.append((now, pose.position, pose.orientation, target, orientation,
+                                    progress, eta, section, inside, done, status))
         if fmt == _FJSON:
             st.publisher.put(wire.pack_target_json(
-                pose.seq, status, target, progress, eta, tt.section_index, inside, done,
+                pose.seq, status, target, progress, eta, section, inside, done,
                 entry.version, orientation, velocity, st.coalesced), encoding=ENC_JSON)
         elif fmt == _FBIN:
             st.publisher.put(wire.pack_target(
-                pose.seq, code, target.tolist(), progress, eta, tt.section_index, inside,
-                done, entry.version, orientation, velocity, st.coalesced), encoding=ENC_BINARY)
+                pose.seq, code, target, progress, eta, section, inside, done, entry.version,
+                orientation, velocity, st.coalesced), encoding=ENC_BINARY)
         else:
-            position = target.tolist()
+            position = list(target)
             if len(position) == 2:
                 position.append(pose.position[2])
             st.publisher.put(wire.encode_pose_stamped_cdr(ros, position, orientation),
@@ -477,11 +495,11 @@ class PosePath:
             if status != st.cdr_status:
                 st.cdr_status = status
                 self.session.put(st.status_key, wire.target_json(wire.Target(
-                    pose.seq, status, tuple(position[:entry.dim]), progress, eta,
-                    tt.section_index, inside, done, entry.version, None,
-                    None if orientation is None else tuple(orientation),
+                    pose.seq, status, tuple(position[:entry.dim]), progress, eta, section,
+                    inside, done, entry.version, None,
+                    None if orientation is None else tuple(orientation),  # type: ignore[arg-type]
                     coalesced=st.coalesced)), encoding=ENC_JSON)
-        counts.targets += 1
+        self.counts.targets += 1
 
     def error(self, st: Stream, seq: int | None, key: str, message: str | None,
               fmt: int) -> None:
@@ -528,6 +546,13 @@ class PosePath:
         self.counts.errors[entry.status] += 1
         if self.record_period_ns is not None:
             self.counts.unknown += 1  # no stream, nothing to record: decimated
+
+
+def _release(st: Stream) -> None:
+    """Give the stream's bank slot back (callers hold ``rec_lock``: the worker is idle)."""
+    if st.bank is not None:
+        st.bank.release(st.slot)
+        st.bank, st.slot = None, -1
 
 
 def _close_stream(st: Stream) -> None:
