@@ -619,13 +619,9 @@ class TrackerBank:
         b = p.shape[0]
         with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
             if self._isotropic and b >= VECTORISE_FROM:
-                done = self._vectorised(slots, p, None)
-                if done is not None:
-                    return done
+                return self._vectorised(slots, p)
             out = self._empty(b)
-            if self._isotropic and b >= VECTORISE_FROM:
-                self._vectorised(slots, p, out)
-            elif b:
+            if b:
                 self._scalar(np.arange(b), slots, p, out)
         return out
 
@@ -658,12 +654,10 @@ class TrackerBank:
             if out.orientation is not None and t.orientation is not None:
                 out.orientation[r] = t.orientation
 
-    def _vectorised(self, slots: NDArray[np.intp], p: FloatArray,
-                    out: TrackerBatch | None) -> TrackerBatch | None:
-        """The window search for every row in one pass, the rest vectorised for the rows it
-        places and scalar for the others. Without ``out`` it only answers when every row is
-        placed (the common case: no copy into an output) and returns None otherwise, having
-        changed nothing."""
+    def _vectorised(self, slots: NDArray[np.intp], p: FloatArray) -> TrackerBatch:
+        """Every row in one pass (circle sections): the window search, and for the rows it
+        cannot place the same rules as :func:`tracker_step` (pushed ahead: the bracketing
+        pair ahead nearest the robot; past the last plane: the last pair; behind: hold)."""
         g = self.geometry
         n = g.centres.shape[0]
         b = p.shape[0]
@@ -671,8 +665,9 @@ class TrackerBank:
         dist_all = p @ g.tangents.T
         dist_all -= g.offsets
         lo = np.maximum(last_index - 1, 0)
+        hi = np.minimum(last_index + WINDOW, n - 1)
         cols = lo[:, None] + _WINDOW_COLUMNS
-        valid = cols[:, 1:] <= np.minimum(last_index + WINDOW, n - 1)[:, None]
+        valid = cols[:, 1:] <= hi[:, None]
         np.minimum(cols, n - 1, out=cols)
         ar = np.arange(b)
         dist = dist_all[ar[:, None], cols]
@@ -683,21 +678,13 @@ class TrackerBank:
         first = change.argmax(axis=1)
         found = change[ar, first]
         index = lo + first  # a placed row's pair lies inside its window: index <= n - 2
-        rows: NDArray[np.intp] | None = None
         if not found.all():
-            if out is None:
-                return None
-            self._scalar(np.flatnonzero(~found), slots, p, out)
-            rows = np.flatnonzero(found)
-            if rows.size == 0:
-                return out
-            slots, p, dist_all = slots[rows], p[rows], dist_all[rows]
-            index, last_index, first = index[rows], last_index[rows], first[rows]
-            dist = dist[rows]
-            ar = np.arange(rows.size)
+            lost = np.flatnonzero(~found)
+            index[lost] = self._unplaced(p[lost], dist_all[lost], lo[lost], hi[lost])
+            np.clip(index, 0, n - 2, out=index)
+        d0 = dist_all[ar, index]
+        d1 = dist_all[ar, index + 1]
         target_index = np.minimum(index + self.lookahead, n - 1)
-        d0 = dist[ar, first]
-        d1 = dist[ar, first + 1]
         assert g.pair_basis is not None and g.pair_centres is not None
         q01 = g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None]
         q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
@@ -733,20 +720,28 @@ class TrackerBank:
         self.index[slots] = np.maximum(last_index, index)
         self.eta[slots] = plan_eta
         self.direction[slots] = plan_dir
-        if out is None:
-            return TrackerBatch(target, progress, eta, index, inside, done, velocity,
-                                orientation)
-        out.target[rows] = target
-        out.progress[rows] = progress
-        out.eta[rows] = eta
-        out.section_index[rows] = index
-        out.inside[rows] = inside
-        out.done[rows] = done
-        if out.orientation is not None and orientation is not None:
-            out.orientation[rows] = orientation
-        if out.velocity is not None and velocity is not None:
-            out.velocity[rows] = velocity
-        return out
+        return TrackerBatch(target, progress, eta, index, inside, done, velocity, orientation)
+
+    def _unplaced(self, p: FloatArray, dist_all: FloatArray, lo: NDArray[np.intp],
+                  hi: NDArray[np.intp]) -> NDArray[np.intp]:
+        """Sections of rows the window did not place, by :func:`tracker_step`'s rules."""
+        g = self.geometry
+        n = g.centres.shape[0]
+        ar = np.arange(p.shape[0])
+        end = dist_all[ar, hi]
+        ahead = (end > 0.0) & (hi < n - 1)
+        index = np.where(end > 0.0, n - 2, lo)  # past the last plane / behind: hold
+        if ahead.any():
+            rows = np.flatnonzero(ahead)
+            d = dist_all[rows]
+            # as _nearest_crossing_ahead: among the bracketing pairs from the window's end
+            # on, the one whose first centre is nearest the robot (none: the last pair)
+            change = (d[:, :-1] == 0.0) | ((d[:, :-1] > 0.0) != (d[:, 1:] > 0.0))
+            change &= np.arange(n - 1)[None, :] >= hi[rows][:, None]
+            gaps = np.linalg.norm(g.centres[None, :-1, :] - p[rows][:, None, :], axis=2)
+            gaps[~change] = np.inf
+            index[rows] = np.where(change.any(axis=1), gaps.argmin(axis=1), n - 2)
+        return index
 
 
 def _feed_forwards(g: TrackerGeometry, index: NDArray[np.intp], target: FloatArray,

@@ -259,7 +259,10 @@ def test_a_killed_bridge_process_loses_at_most_its_last_batch(tmp_path):
         stream = live["streams"]["crash/arm"]
         assert stream["poses"] == 200 and stream["recorded"] == 200
         assert live["complete"] is True
-        body = orjson.loads(client.get("/healthz").content)
-        assert body["bridge"]["status"] == "down"
+        deadline = time.monotonic() + 10  # the kill takes effect asynchronously
+        while (orjson.loads(client.get("/healthz").content)["bridge"]["status"] != "down"
+               and time.monotonic() < deadline):
+            time.sleep(0.05)
+        assert orjson.loads(client.get("/healthz").content)["bridge"]["status"] == "down"
         poses = mcap_messages(_mcap(client, "crash", tmp_path), "/live/arm/pose")
         assert len(poses) == 200
