@@ -748,8 +748,12 @@ def soak(data: Path, path: np.ndarray, seconds: float) -> None:
     health: dict = {}
     try:
         run = drive(endpoint, "canal serve", "json", 16, seconds, path)
-        time.sleep(2.0)  # the recorder drains every 50 ms and writes in batches
+        deadline = time.monotonic() + 30  # the last batch (0.1 s), the recorder's flush (1 s)
         health = healthz(port)
+        while (health.get("recorder", {}).get("live", {}).get("pending", 0) > 0
+               and time.monotonic() < deadline):
+            time.sleep(0.5)
+            health = healthz(port)
     finally:
         stop_flag.set()
         stop(serve)
