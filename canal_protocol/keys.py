@@ -162,12 +162,12 @@ def model_updated_key(skill: str, prefix: str = "canal") -> str:
 
 
 def pose_wildcard(prefix: str = "canal") -> str:
-    """Every stream's poses: what an unsharded bridge and the live recorder subscribe to."""
+    """Every stream's poses: what an unsharded bridge subscribes to."""
     return f"{prefix.rstrip('/')}/*/*/{POSE}"
 
 
 def target_wildcard(prefix: str = "canal") -> str:
-    """Every stream's targets (the live recorder)."""
+    """Every stream's targets."""
     return f"{prefix.rstrip('/')}/*/*/{TARGET}"
 
 

@@ -8,8 +8,8 @@ from .recorder import Recorder
 
 
 def recorder_from_settings(settings: Any, db: Any = None) -> Recorder:
-    """The service's recorder: the database as its source, live poses from its own Zenoh
-    session when the live bridge is enabled (``settings`` is ``core.config.Settings``)."""
+    """The service's recorder: the database as its source, live poses from the bridges'
+    batches (heard on its own Zenoh session) when the live bridge is enabled (``settings`` is ``core.config.Settings``)."""
     from .source import DbSource
 
     root = settings.resolved_recordings_dir

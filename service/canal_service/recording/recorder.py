@@ -173,7 +173,7 @@ class Recorder:
         self._live_recorded: dict[tuple[str, str], int] = {}
         self._live_dropped: dict[tuple[str, str], int] = {}
         self._closed = not enabled
-        self.live_source: Any = None  # a LiveSubscriber feeding live_sample()
+        self.live_source: Any = None  # a LiveSubscriber feeding live_rows()
         self._thread: threading.Thread | None = None
         if enabled:
             self._thread = threading.Thread(target=self._run, name="canal-recorder", daemon=True)
@@ -235,7 +235,7 @@ class Recorder:
         """One live tracker step: robot ``position`` (D,) and the ``TrackerTarget``.
 
         Queued as a pose and a target sample (see :meth:`live_sample`). The service's live
-        recording comes from :class:`~.live.LiveSubscriber` instead (its own Zenoh session).
+        recording comes from the bridges' batches instead (:class:`~.live.LiveSubscriber`).
         """
         if self._closed:
             return
