@@ -266,3 +266,25 @@ def test_a_killed_bridge_process_loses_at_most_its_last_batch(tmp_path):
         assert orjson.loads(client.get("/healthz").content)["bridge"]["status"] == "down"
         poses = mcap_messages(_mcap(client, "crash", tmp_path), "/live/arm/pose")
         assert len(poses) == 200
+
+
+def test_two_bridge_processes_both_feed_the_recorder(tmp_path):
+    """``--zenoh-processes 2``: bridge 1 listens elsewhere and connects to bridge 0; its
+    batches still reach the recorder, named as a bridge of their own."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(data_dir=tmp_path, recordings_enabled=True, zenoh_listen=[endpoint],
+                        zenoh_processes=2)
+    with TestClient(create_app(settings)) as client:
+        directrix = _make_skill(client, "two")
+        for robot in ("r0", "r1"):  # shard 0 and shard 1 (ord('0') % 2, ord('1') % 2)
+            # generous waits: bridge 1 is reached through bridge 0's gossip
+            with PoseStreamer("two", robot, endpoint=endpoint, connect_timeout=20) as ps:
+                for k in range(20):
+                    answer = ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 5.0)
+                    assert answer is not None and answer.status == "ok"
+        live = _settled(client, 40, timeout=30)
+        assert live["bridges"] == 2 and live["complete"] is True
+        for robot in ("r0", "r1"):
+            stream = live["streams"][f"two/{robot}"]
+            assert stream["poses"] == 20
+            assert stream["recorded"] + stream["decimated"] == 20 and stream["recorded"] >= 1
