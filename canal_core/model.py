@@ -59,7 +59,7 @@ from .timing import (
     rescaled_times,
     section_times,
 )
-from .tracker import Tracker, tracker_geometry
+from .tracker import Tracker, TrackerGeometry, tracker_geometry
 from .validation import (
     BoolArray,
     FloatArray,
@@ -424,15 +424,20 @@ class Canal:
         """Trajectory (N', D) from ``start`` (D,) to the canal's end; see :meth:`reproduce_detailed`."""
         return self.reproduce_detailed(start).positions
 
-    def tracker(self, lookahead: int = 1) -> Tracker:
-        """A reactive tracker for one live stream (see :mod:`canal_core.tracker`)."""
-        check_int(lookahead, 1, "lookahead")
-        geometry = tracker_geometry(
+    def tracker_geometry(self) -> TrackerGeometry:
+        """What every live stream of this canal shares: planes, sections, and the learned
+        orientations and section times that make targets carry an orientation and a
+        feed-forward velocity (see :mod:`canal_core.tracker`)."""
+        return tracker_geometry(
             self.directrix, self.tangents, self.basis, self.sections,
             orientations=None if self.orientation is None else self.orientation.means,
             section_times=self.section_times,
         )
-        return Tracker(geometry, lookahead)
+
+    def tracker(self, lookahead: int = 1) -> Tracker:
+        """A reactive tracker for one live stream (see :mod:`canal_core.tracker`)."""
+        check_int(lookahead, 1, "lookahead")
+        return Tracker(self.tracker_geometry(), lookahead)
 
     def mesh(self, n_angles: int = 32, caps: bool = False, envelope: bool = False) -> Mesh:
         """The canal surface as a triangle mesh.

@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from canal_core.tracker import TrackerBank, TrackerGeometry, tracker_geometry
+from canal_core.tracker import TrackerBank, TrackerGeometry
 
 from ..errors import NoModelYet, SkillNotFound
 from ..service import CanalService
@@ -41,7 +41,9 @@ class ModelEntry:
 def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
     """A served model: its canal, the tracker geometry every stream of it shares, and the
     bank that holds those streams' tracker states as arrays."""
-    geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
+    # The canal's own geometry: with the orientations and section times it learned, so live
+    # targets carry the model's orientation and feed-forward velocity, as Canal.tracker's do.
+    geometry = canal.tracker_geometry()
     return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry,
                       bank=TrackerBank(geometry, lookahead))
 
