@@ -259,52 +259,63 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
     x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
     5 steps around a single sample, of the 17 steps around a longer excursion (a resampled
-    glitch brings its own ramps). Every m is tested at once; medians are taken only where
-    a window passed the cheap test.
+    glitch brings its own ramps). Two necessary conditions on the whole window come first,
+    both from |x_k - (x_a + x_b) / 2| <= (path length from a to b) / 2: that half length
+    must exceed ``CHORD_FACTOR`` x |x_b - x_a| (tested on every window) and then the
+    window's limit (tested where the first one held: jitter of a standing arm passes the
+    first, rarely the second). Only the windows left are tested sample by sample.
     """
-    n = positions.shape[0]
+    n, dim = positions.shape
     spike = np.zeros(n, dtype=bool)
     if n < 5:
         return spike
-    diffs = np.diff(positions, axis=0)
+    diffs = positions[1:] - positions[:-1]
     steps = np.sqrt(np.einsum("ij,ij->i", diffs, diffs))
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    # Cheap test first: a sample that far from the midpoint makes the path between a and
-    # b at least twice that long (dev <= arc / 2), so most windows need no more.
-    found_a: list[IntArray] = []
-    found_m: list[IntArray] = []
-    found_chord: list[FloatArray] = []
+    coords = np.ascontiguousarray(positions.T)  # (D, n): one contiguous row per axis
+    found: list[tuple[IntArray, int, FloatArray, FloatArray]] = []
     for run in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
-        chord_m = np.linalg.norm(positions[run + 1 :] - positions[: -run - 1], axis=1)
-        hit = np.flatnonzero(arc[run + 1 :] - arc[: -run - 1] > 2.0 * CHORD_FACTOR * chord_m)
-        found_a.append(hit)
-        found_m.append(np.full(hit.size, run))
-        found_chord.append(chord_m[hit])
+        chord_vectors = coords[:, run + 1 :] - coords[:, : n - run - 1]
+        square = chord_vectors[0] * chord_vectors[0]
+        for axis in range(1, dim):
+            square += chord_vectors[axis] * chord_vectors[axis]
+        chord_m = np.sqrt(square)
+        span_m = arc[run + 1 :] - arc[: n - run - 1]
+        hit = np.flatnonzero(span_m > 2.0 * CHORD_FACTOR * chord_m)
+        if hit.size:
+            found.append((hit, run, chord_m[hit], span_m[hit]))
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
-    a = np.concatenate(found_a)
-    if a.size:
-        m = np.concatenate(found_m)
-        chord = np.concatenate(found_chord)
+    if found:
+        a = np.concatenate([f[0] for f in found])
+        m = np.concatenate([np.full(f[0].size, f[1]) for f in found])
+        chord = np.concatenate([f[2] for f in found])
+        span = np.concatenate([f[3] for f in found])
         b = a + m + 1
-        # Each interior sample a + k (k = 1..m) on its own; the chord test first, so the
-        # local medians are taken only for windows where some sample passed it.
-        owner = np.repeat(np.arange(a.size), m)
-        k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
-        mid = 0.5 * (positions[a] + positions[b])
-        dev = np.linalg.norm(positions[a[owner] + k] - mid[owner], axis=1)
-        over = dev > CHORD_FACTOR * chord[owner]
-        if over.any():
-            owner, k, dev = owner[over], k[over], dev[over]
-            need = np.unique(owner)
-            step = np.zeros(a.size)
-            single = need[m[need] == 1]
-            longer = need[m[need] > 1]
-            step[single] = _local_medians(steps, width, a[single] + 1)
-            if longer.size:
-                wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
-                step[longer] = _local_medians(steps, wide, (a[longer] + b[longer]) // 2)
-            limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
-            spike[(a[owner] + k)[dev > limit[owner]]] = True
+        single = m == 1
+        centre = np.where(single, a + 1, (a + b) // 2)
+        # Windows share centres (a + 1, a + 2, ... for several m): one median per centre.
+        step = np.empty(a.size)
+        wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
+        for rows, window in ((single, width), (~single, wide)):
+            if rows.any():
+                needed = np.zeros(n, dtype=bool)
+                needed[centre[rows]] = True
+                at = np.flatnonzero(needed)
+                median_at = np.empty(n)
+                median_at[at] = _local_medians(steps, window, at)
+                step[rows] = median_at[centre[rows]]
+        limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+        # Half the path (with rounding slack) bounds every interior sample's deviation.
+        can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
+        if can.size:
+            a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
+            # Each interior sample a + k (k = 1..m) on its own.
+            owner = np.repeat(np.arange(a.size), m)
+            k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
+            mid = 0.5 * (positions[a] + positions[b])
+            dev = np.linalg.norm(positions[a[owner] + k] - mid[owner], axis=1)
+            glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
+            spike[(a[owner] + k)[glitch]] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     end_scale = _local_medians(steps, width, np.array([1, n - 2]))
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
