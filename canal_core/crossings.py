@@ -219,15 +219,20 @@ def _far_crossings(
     level = plane[sections]
     seg_lo = np.maximum(0, sections - half_width)
     seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
-    # One matrix product per demo: the plane's offset from every ball centre of that demo.
-    offset = np.empty((n_pairs, n_blocks))
-    cut = np.empty((n_pairs, n_blocks), dtype=bool)
+    # The plane's offset from every ball centre of the pair's demo, one axis at a time
+    # (elementwise: tiny matrix products would pay BLAS's threading on every call).
     bounds = np.searchsorted(demos, np.arange(n_demos + 1))
+    cut = np.empty((n_pairs, n_blocks), dtype=bool)
     for j in range(n_demos):
         rows = slice(bounds[j], bounds[j + 1])
-        np.matmul(t[rows], balls[0][j].T, out=offset[rows])
-        offset[rows] -= level[rows, None]
-        np.less_equal(np.abs(offset[rows]), balls[1][j][None, :], out=cut[rows])
+        if bounds[j] == bounds[j + 1]:
+            continue
+        centre = balls[0][j]  # (nb, D)
+        offset = t[rows, 0, None] * centre[None, :, 0]
+        for axis in range(1, dim):
+            offset += t[rows, axis, None] * centre[None, :, axis]
+        offset -= level[rows, None]
+        np.less_equal(np.abs(offset, out=offset), balls[1][j][None, :], out=cut[rows])
     pair, block = np.divmod(np.flatnonzero(cut), n_blocks)  # sorted by pair
     inside = (block >= seg_lo[pair] // BLOCK) & (block <= seg_hi[pair] // BLOCK)
     pair, block = pair[inside], block[inside]
@@ -238,7 +243,10 @@ def _far_crossings(
     for first in range(0, pair.size, step):
         p, b = pair[first : first + step], block[first : first + step]
         x = blocks[demos[p], b]  # (C, B + 1, D): contiguous copies of the cut blocks
-        dist = np.matmul(x, t[p, :, None])[..., 0]
+        tp = t[p]
+        dist = x[:, :, 0] * tp[:, 0, None]
+        for axis in range(1, dim):
+            dist += x[:, :, axis] * tp[:, axis, None]
         dist -= level[p, None]
         # Sign changes are rare: each one's key, then each pair's least (a pair's blocks
         # are consecutive rows, so its crossings are a consecutive run).

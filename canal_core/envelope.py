@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections
-from .crossings import crosses_plane, in_row_blocks
+from .crossings import in_row_blocks, sign_changes
 from .reproduce import Location, blended_location, located_points
 from .validation import BoolArray, FloatArray, IntArray
 
@@ -58,23 +58,38 @@ def bracketing_sections(
     found : array of bool, shape (M,)
     """
     n = tangents.shape[0]
-    span = np.arange(window - inner + 1)
+    m, dim = samples.shape
+    pairs = window - inner  # per shell
     # Plane columns of the left shell (offsets -window .. -inner) and of the right one
     # (inner .. window); pair o uses columns o and o + 1 of its shell.
     starts = np.array([-window, inner])
-    cols = approx_index[:, None, None] + (starts[:, None] + span[None, :])[None]  # (M, 2, S + 1)
-    valid = (cols[:, :, :-1] >= 0) & (cols[:, :, :-1] <= n - 2)  # a real pair, not a clipped copy
-    cols = np.clip(cols, 0, n - 1)
-    dist = np.einsum("md,mswd->msw", samples, tangents[cols]) - plane[cols]
-    lo, hi = dist[:, :, :-1].reshape(dist.shape[0], -1), dist[:, :, 1:].reshape(dist.shape[0], -1)
-    offsets = (starts[:, None] + span[None, :-1]).reshape(-1)
-    score = np.where(valid.reshape(lo.shape) & crosses_plane(lo, hi), np.abs(offsets + 0.5)[None, :], np.inf)
-    best = np.argmin(score, axis=1)  # left shell first: the earlier pair wins a tie
-    rows = np.arange(samples.shape[0])
-    a, b = lo[rows, best], hi[rows, best]
+    cols = approx_index[:, None, None] + (starts[:, None] + np.arange(pairs + 1)[None, :])[None]  # (M, 2, S + 1)
+    valid = None
+    if m and (int(approx_index.min()) - window < 0 or int(approx_index.max()) + window > n - 2):
+        valid = (cols[:, :, :-1] >= 0) & (cols[:, :, :-1] <= n - 2)  # a real pair, not a clipped copy
+        cols = np.clip(cols, 0, n - 1)
+    # t_k . x - t_k . c_k, one axis at a time from contiguous rows (no (M, W, D) gather).
+    axes = np.ascontiguousarray(tangents.T)
+    dist = axes[0][cols] * samples[:, 0, None, None]
+    for axis in range(1, dim):
+        dist += axes[axis][cols] * samples[:, axis, None, None]
+    dist -= plane[cols]
+    changes = sign_changes(dist).reshape(m, 2 * pairs)
+    if valid is not None:
+        changes &= valid.reshape(m, 2 * pairs)
+    # Pairs in order of preference: smallest |o + 0.5| first, the earlier pair on a tie.
+    offsets = (starts[:, None] + np.arange(pairs)[None, :]).reshape(-1)
+    preference = np.lexsort((offsets, np.abs(offsets + 0.5)))
+    ranked = changes[:, preference]
+    first = np.argmax(ranked, axis=1)
+    best = preference[first]
+    rows = np.arange(m)
+    found = ranked[rows, first]
+    shell, step = np.divmod(best, pairs)
+    a, b = dist[rows, shell, step], dist[rows, shell, step + 1]
     alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
     index = np.clip(approx_index + offsets[best], 0, n - 2).astype(np.int64)
-    return index, alpha, np.isfinite(score[rows, best])
+    return index, alpha, np.asarray(found)
 
 
 def _blocked_bracketing(
