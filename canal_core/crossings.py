@@ -90,7 +90,7 @@ def _near_crossings(
         projected onto it.
     found : array of bool, shape (n, N)
     reference : array, shape (n, N)
-        Distance from c_i of that nearest sample.
+        Distance from c_i of that nearest sample where no crossing was found (0 elsewhere).
     index : array, shape (n, N)
         Fractional sample index of the crossing in the demo (NaN where none was found).
     """
@@ -112,27 +112,36 @@ def _near_crossings(
     # Segments in order of preference: nearest the section's own index, the earlier on a tie.
     preference = np.argsort(np.abs(offsets[:-1] + 0.5), kind="stable")
     ranked = crosses[..., preference]
-    seg = preference[np.argmax(ranked, axis=-1)]  # (n, N)
-    found = ranked.any(axis=-1)
+    first = np.argmax(ranked, axis=-1)  # (n, N); 0 where none (then ranked there is False)
+    seg = preference[first]
+    found = np.take_along_axis(ranked, first[..., None], axis=-1)[..., 0]
 
-    demo = np.arange(n_demos)[:, None]
     d0 = np.take_along_axis(dist, seg[..., None], axis=-1)[..., 0]
     d1 = np.take_along_axis(dist, seg[..., None] + 1, axis=-1)[..., 0]
     denom = d0 - d1
     alpha = np.clip(np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0), 0.0, 1.0)
     start = cols[np.arange(n_samples)[None, :], seg]  # (n, N)
-    x0 = aligned[demo, start]
-    x1 = aligned[demo, np.minimum(start + 1, n_samples - 1)]
+    # Rows of the flattened demos, gathered with np.take (fancy indexing of (n, N, D) by
+    # two index arrays costs several times more).
+    flat = aligned.reshape(-1, dim)
+    row = np.arange(n_demos)[:, None] * n_samples
+    x0 = np.take(flat, (row + start).ravel(), axis=0).reshape(n_demos, n_samples, dim)
+    x1 = np.take(flat, (row + np.minimum(start + 1, n_samples - 1)).ravel(), axis=0).reshape(n_demos, n_samples, dim)
     points = x0 + alpha[..., None] * (x1 - x0)
     index = np.where(found, start + alpha, np.nan)
 
-    nearest = np.argmin(np.abs(dist), axis=-1)  # (n, N)
-    x = aligned[demo, cols[np.arange(n_samples)[None, :], nearest]]
-    reference = np.linalg.norm(x - centres[None], axis=-1)
+    # Pairs without a crossing: the window sample nearest the plane, projected onto it.
+    reference = np.zeros((n_demos, n_samples))
     mj, mi = np.nonzero(~found)
     if mj.size:
-        offset = dist[mj, mi, nearest[mj, mi]]
-        points[mj, mi] = x[mj, mi] - offset[:, None] * tangents[mi]
+        missed = dist[mj, mi]  # (P, W)
+        nearest = np.argmin(np.abs(missed), axis=1)
+        x = np.take(flat, mj * n_samples + cols[mi, nearest], axis=0)
+        offset = x - np.take(centres, mi, axis=0)
+        reference[mj, mi] = np.sqrt(np.einsum("pd,pd->p", offset, offset))
+        points.reshape(-1, dim)[mj * n_samples + mi] = (
+            x - missed[np.arange(mj.size), nearest][:, None] * np.take(tangents, mi, axis=0)
+        )
     return points, found, reference, index
 
 
@@ -156,11 +165,54 @@ def block_views(aligned: FloatArray) -> FloatArray:
     ))
 
 
+#: Most (block x sample x axis) entries of the cut blocks searched at once. Small chunks
+#: reuse the same memory from one to the next; one large gather of every cut block cost
+#: more in fresh pages (page faults) than in arithmetic.
+SEARCH_CHUNK = 1 << 15
+#: Blocks per group of the first ball test: a plane is tested against every group's ball,
+#: and against the balls of the blocks of the groups it cuts only.
+GROUP = 4
+
+
+def block_boxes(blocks: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Lower and upper corners (n, nb, D) of the bounding boxes of the blocks of
+    :func:`block_views`.
+
+    Reduced over runs of the padded samples (``reduceat``) plus each block's last sample
+    (the first of the next): a reduction over the view's short block axis costs more.
+    """
+    n_demos, n_blocks, _, dim = blocks.shape
+    padded = np.lib.stride_tricks.as_strided(
+        blocks, shape=(n_demos, n_blocks * BLOCK + 1, dim),
+        strides=(blocks.strides[0], blocks.strides[2], blocks.strides[3]), writeable=False,
+    )
+    starts = np.arange(n_blocks) * BLOCK
+    last = padded[:, starts + BLOCK]
+    lo = np.minimum(np.minimum.reduceat(padded, starts, axis=1), last)
+    hi = np.maximum(np.maximum.reduceat(padded, starts, axis=1), last)
+    return lo, hi
+
+
+def grouped_boxes(lo: FloatArray, hi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Boxes (n, ceil(nb / GROUP), D) around every ``GROUP`` consecutive block boxes."""
+    n_demos, n_blocks, dim = lo.shape
+    extra = -n_blocks % GROUP  # the last group repeats the last block
+    if extra:
+        lo = np.concatenate([lo, np.repeat(lo[:, -1:], extra, axis=1)], axis=1)
+        hi = np.concatenate([hi, np.repeat(hi[:, -1:], extra, axis=1)], axis=1)
+    shape = (n_demos, -1, GROUP, dim)
+    return lo.reshape(shape).min(axis=2), hi.reshape(shape).max(axis=2)
+
+
+def box_balls(lo: FloatArray, hi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centres (..., D) and radii (...) of the balls circumscribing boxes."""
+    return 0.5 * (lo + hi), 0.5 * np.sqrt(np.einsum("...d,...d->...", hi - lo, hi - lo))
+
+
 def block_balls(blocks: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Centres (n, nb, D) and radii (n, nb) of the balls around the bounding boxes of the
     blocks of :func:`block_views`."""
-    lo, hi = blocks.min(axis=2), blocks.max(axis=2)
-    return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
+    return box_balls(*block_boxes(blocks))
 
 
 def _segment_key(seg: IntArray, section: IntArray) -> IntArray:
@@ -183,14 +235,16 @@ def _far_crossings(
     demos: IntArray,
     half_width: int,
     balls: tuple[FloatArray, FloatArray],
+    groups: tuple[FloatArray, FloatArray],
 ) -> tuple[FloatArray, BoolArray, FloatArray]:
     """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
 
     The same answer as a dense search of the window (the lexicographic minimum of
     (|s + 0.5 - i|, s) over the crossing segments s) in one pass whose cost does not grow
-    with how far the crossing lies: every block of ``BLOCK`` segments costs one dot product
-    (a plane that misses the block's ball crosses nowhere in it), and only the blocks the
-    plane cuts inside the window are searched sample by sample. Pairs must be sorted by demo.
+    with how far the crossing lies: every group of ``GROUP`` blocks of ``BLOCK`` segments
+    costs one dot product (a plane that misses the group's ball crosses nowhere in it), the
+    blocks of the groups it cuts one more each, and only the blocks the plane cuts inside the
+    window are searched sample by sample. Pairs must be sorted by demo.
 
     Parameters
     ----------
@@ -203,6 +257,8 @@ def _far_crossings(
     half_width : int
     balls : (array, shape (n, nb, D), array, shape (n, nb))
         Ball centres and radii (with rounding slack) of the blocks.
+    groups : (array, shape (n, ng, D), array, shape (n, ng))
+        The same for the groups of blocks (:func:`grouped_boxes`).
 
     Returns
     -------
@@ -219,27 +275,38 @@ def _far_crossings(
     level = plane[sections]
     seg_lo = np.maximum(0, sections - half_width)
     seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
-    # The plane's offset from every ball centre of the pair's demo, one axis at a time
-    # (elementwise: tiny matrix products would pay BLAS's threading on every call).
+    # First the balls of groups of GROUP blocks, then the balls of the blocks in the
+    # groups the plane cuts: a plane that misses a ball crosses nowhere inside it.
+    group_centre, group_reach = groups
+    n_groups = group_centre.shape[1]
     bounds = np.searchsorted(demos, np.arange(n_demos + 1))
-    cut = np.empty((n_pairs, n_blocks), dtype=bool)
+    cut = np.empty((n_pairs, n_groups), dtype=bool)
     for j in range(n_demos):
         rows = slice(bounds[j], bounds[j + 1])
         if bounds[j] == bounds[j + 1]:
             continue
-        centre = balls[0][j]  # (nb, D)
+        # Elementwise, one axis at a time: tiny matrix products would pay BLAS's
+        # threading on every call.
+        centre = group_centre[j]  # (ng, D)
         offset = t[rows, 0, None] * centre[None, :, 0]
         for axis in range(1, dim):
             offset += t[rows, axis, None] * centre[None, :, axis]
         offset -= level[rows, None]
-        np.less_equal(np.abs(offset, out=offset), balls[1][j][None, :], out=cut[rows])
-    pair, block = np.divmod(np.flatnonzero(cut), n_blocks)  # sorted by pair
-    inside = (block >= seg_lo[pair] // BLOCK) & (block <= seg_hi[pair] // BLOCK)
+        np.less_equal(np.abs(offset, out=offset), group_reach[j][None, :], out=cut[rows])
+    pair, group = np.divmod(np.flatnonzero(cut), n_groups)  # sorted by pair
+    # Every block of a cut group that lies in the pair's window.
+    pair = np.repeat(pair, GROUP)
+    block = (group[:, None] * GROUP + np.arange(GROUP)[None, :]).ravel()
+    inside = (block >= seg_lo[pair] // BLOCK) & (block <= np.minimum(seg_hi[pair] // BLOCK, n_blocks - 1))
     pair, block = pair[inside], block[inside]
+    key = demos[pair] * n_blocks + block
+    ball_offset = np.einsum("pd,pd->p", np.take(t, pair, axis=0), np.take(balls[0].reshape(-1, dim), key, axis=0))
+    hit = np.abs(ball_offset - level[pair]) <= np.take(balls[1].ravel(), key)
+    pair, block = pair[hit], block[hit]
 
     none = np.iinfo(np.int64).max
     best = np.full(n_pairs, none, dtype=np.int64)
-    step = max(1, MAX_BLOCK // ((BLOCK + 1) * dim))
+    step = max(1, SEARCH_CHUNK // ((BLOCK + 1) * dim))
     for first in range(0, pair.size, step):
         p, b = pair[first : first + step], block[first : first + step]
         x = blocks[demos[p], b]  # (C, B + 1, D): contiguous copies of the cut blocks
@@ -329,17 +396,20 @@ def located_crossings(
         # The rest (demos ahead of or behind the mean's phase, common in raw logs) by the
         # block search: its cost does not grow with how far the crossing lies.
         blocks = block_views(aligned)
-        centre, radius = block_balls(blocks)
+        lo, hi = block_boxes(blocks)
+        centre, radius = box_balls(lo, hi)
+        group_centre, group_radius = box_balls(*grouped_boxes(lo, hi))
         # Rounding slack: d is computed per sample, the test per ball; |t.c_i| and |t.m| are
         # bounded by the largest norms of the directrix and of the ball centres.
-        bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(centre, axis=2).max())
-        reach = radius * (1.0 + 1e-9) + 1e-12 * (radius + bound)
+        bound = float(np.linalg.norm(centres, axis=1).max() + np.abs(blocks).max() * np.sqrt(blocks.shape[3]))
+        balls = (centre, radius * (1.0 + 1e-9) + 1e-12 * (radius + bound))
+        groups = (group_centre, group_radius * (1.0 + 1e-9) + 1e-12 * (group_radius + bound))
         far_points, far_found, far_index = in_row_blocks(
             lambda rows: _far_crossings(
-                blocks, tangents, plane, sections[rows], demos[rows], wide, (centre, reach)
+                blocks, tangents, plane, sections[rows], demos[rows], wide, balls, groups
             ),
             demos.size,
-            2 * centre.shape[1],
+            2 * group_centre.shape[1] + 4 * GROUP,
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
@@ -399,4 +469,9 @@ def in_plane_coordinates(
     -------
     coords : array, shape (N, n, D - 1)
     """
-    return np.einsum("ijd,ikd->ijk", points - centres[:, None, :], basis)
+    # One product per coordinate axis: a batched contraction over D = 2, 3 costs more.
+    offsets = points - centres[:, None, :]
+    coords = offsets[:, :, None, 0] * basis[:, None, :, 0]
+    for axis in range(1, points.shape[2]):
+        coords += offsets[:, :, None, axis] * basis[:, None, :, axis]
+    return coords

@@ -256,6 +256,11 @@ class Canal:
         return section_basis(self.normals, self.binormals)
 
     @cached_property
+    def plane_offsets(self) -> FloatArray:
+        """t_i . c_i per section, shape (N,): plane i is {x : t_i . x = t_i . c_i}."""
+        return np.asarray(np.einsum("nd,nd->n", self.directrix, self.tangents), dtype=np.float64)
+
+    @cached_property
     def radii(self) -> FloatArray:
         """Largest boundary distance from the directrix per section, shape (N,)."""
         return section_radii(self.sections)
@@ -345,7 +350,7 @@ class Canal:
         target = None if goal is None else check_point(goal, self.dim, "goal")
         canal = self if target is None else self.with_goal(target)
         loc, held = start_and_located_points(
-            point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections
+            point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets
         )
         eta = float(loc.eta[0])
         index, alpha = int(loc.index[0]), float(loc.alpha[0])
@@ -704,7 +709,7 @@ def fit(
     centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     arclength = np.concatenate([[0.0], np.cumsum(steps)])
-    spread = float(np.ptp(aligned.reshape(-1, dim), axis=0).max())
+    spread = max(float(aligned[..., d].max() - aligned[..., d].min()) for d in range(dim))
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
         raise DegenerateCanalError(
             "the directrix has zero length: the demonstrations do not move (or cancel out on average)",
