@@ -63,17 +63,21 @@ def bracketing_sections(
     # Plane columns of the left shell (offsets -window .. -inner) and of the right one
     # (inner .. window); pair o uses columns o and o + 1 of its shell.
     starts = np.array([-window, inner])
-    cols = approx_index[:, None, None] + (starts[:, None] + np.arange(pairs + 1)[None, :])[None]  # (M, 2, S + 1)
+    # Plane arrays padded by ``window`` copies of their end values on each side (what
+    # clipping the columns would read), so every column is in range without a clip.
+    cols = (approx_index + window)[:, None, None] + (starts[:, None] + np.arange(pairs + 1)[None, :])[None]  # (M, 2, S + 1)
+    axes = np.concatenate([np.repeat(tangents[:1], window, axis=0), tangents, np.repeat(tangents[-1:], window, axis=0)]).T.copy()
+    levels = np.concatenate([np.full(window, plane[0]), plane, np.full(window, plane[-1])])
     valid = None
     if m and (int(approx_index.min()) - window < 0 or int(approx_index.max()) + window > n - 2):
-        valid = (cols[:, :, :-1] >= 0) & (cols[:, :, :-1] <= n - 2)  # a real pair, not a clipped copy
-        cols = np.clip(cols, 0, n - 1)
+        pair_ok = np.zeros(n + 2 * window, dtype=bool)  # a real pair, not a copy at the ends
+        pair_ok[window : window + n - 1] = True
+        valid = np.take(pair_ok, cols[:, :, :-1])
     # t_k . x - t_k . c_k, one axis at a time from contiguous rows (no (M, W, D) gather).
-    axes = np.ascontiguousarray(tangents.T)
-    dist = axes[0][cols] * samples[:, 0, None, None]
+    dist = np.take(axes[0], cols) * samples[:, 0, None, None]
     for axis in range(1, dim):
-        dist += axes[axis][cols] * samples[:, axis, None, None]
-    dist -= plane[cols]
+        dist += np.take(axes[axis], cols) * samples[:, axis, None, None]
+    dist -= np.take(levels, cols)
     changes = sign_changes(dist).reshape(m, 2 * pairs)
     if valid is not None:
         changes &= valid.reshape(m, 2 * pairs)
@@ -86,7 +90,8 @@ def bracketing_sections(
     rows = np.arange(m)
     found = ranked[rows, first]
     shell, step = np.divmod(best, pairs)
-    a, b = dist[rows, shell, step], dist[rows, shell, step + 1]
+    at = (rows * 2 + shell) * (pairs + 1) + step  # flat index into dist (M, 2, S + 1)
+    a, b = np.take(dist, at), np.take(dist, at + 1)
     alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
     index = np.clip(approx_index + offsets[best], 0, n - 2).astype(np.int64)
     return index, alpha, np.asarray(found)
