@@ -53,14 +53,14 @@ def sign_changes(dist: FloatArray) -> np.ndarray:
 
 
 def in_row_blocks(
-    compute: Callable[[slice], tuple[np.ndarray, ...]], n_rows: int, row_cost: int
+    compute: Callable[[slice], tuple[np.ndarray, ...]], n_rows: int, row_cost: int, budget: int = MAX_BLOCK
 ) -> tuple[np.ndarray, ...]:
-    """``compute`` over slices of rows holding at most ``MAX_BLOCK`` entries, concatenated.
+    """``compute`` over slices of rows holding at most ``budget`` entries, concatenated.
 
     ``compute(rows)`` returns arrays whose first axis follows the rows; ``row_cost`` is the
     number of entries one row makes ``compute`` allocate (its search window).
     """
-    block = max(1, MAX_BLOCK // max(row_cost, 1))
+    block = max(1, budget // max(row_cost, 1))
     if n_rows <= block:
         return compute(slice(None))
     parts = [compute(slice(k, k + block)) for k in range(0, n_rows, block)]
@@ -169,6 +169,10 @@ def block_views(aligned: FloatArray) -> FloatArray:
 #: reuse the same memory from one to the next; one large gather of every cut block cost
 #: more in fresh pages (page faults) than in arithmetic.
 SEARCH_CHUNK = 1 << 15
+#: Entries per chunk of the plane-crossing searches (demos for the dense one, pairs for
+#: the block one): a few hundred kB of temporaries, reused from chunk to chunk, where one
+#: pass over everything made the allocator fetch (and fault in) fresh pages on every fit.
+WORK_CHUNK = 1 << 15
 #: Blocks per group of the first ball test: a plane is tested against every group's ball,
 #: and against the balls of the blocks of the groups it cuts only.
 GROUP = 4
@@ -294,14 +298,22 @@ def _far_crossings(
         offset -= level[rows, None]
         np.less_equal(np.abs(offset, out=offset), group_reach[j][None, :], out=cut[rows])
     pair, group = np.divmod(np.flatnonzero(cut), n_groups)  # sorted by pair
+    first_block, last_block = seg_lo // BLOCK, np.minimum(seg_hi // BLOCK, n_blocks - 1)
+    overlaps = (group * GROUP <= last_block[pair]) & ((group + 1) * GROUP > first_block[pair])
+    pair, group = pair[overlaps], group[overlaps]
     # Every block of a cut group that lies in the pair's window.
     pair = np.repeat(pair, GROUP)
     block = (group[:, None] * GROUP + np.arange(GROUP)[None, :]).ravel()
-    inside = (block >= seg_lo[pair] // BLOCK) & (block <= np.minimum(seg_hi[pair] // BLOCK, n_blocks - 1))
+    inside = (block >= first_block[pair]) & (block <= last_block[pair])
     pair, block = pair[inside], block[inside]
     key = demos[pair] * n_blocks + block
-    ball_offset = np.einsum("pd,pd->p", np.take(t, pair, axis=0), np.take(balls[0].reshape(-1, dim), key, axis=0))
-    hit = np.abs(ball_offset - level[pair]) <= np.take(balls[1].ravel(), key)
+    # Per axis from flat columns: no (entries, D) gathers.
+    centre_columns = balls[0].reshape(-1, dim).T
+    ball_offset = np.take(t[:, 0], pair) * np.take(centre_columns[0], key)
+    for axis in range(1, dim):
+        ball_offset += np.take(t[:, axis], pair) * np.take(centre_columns[axis], key)
+    ball_offset -= np.take(level, pair)
+    hit = np.abs(ball_offset) <= np.take(balls[1].ravel(), key)
     pair, block = pair[hit], block[hit]
 
     none = np.iinfo(np.int64).max
@@ -390,6 +402,7 @@ def located_crossings(
         lambda rows: _near_crossings(aligned[rows], centres, tangents, plane, min(NEAR_WINDOW, wide)),
         n_demos,
         n_samples * (2 * NEAR_WINDOW + 1),
+        WORK_CHUNK,
     )
     demos, sections = np.nonzero(~found)  # sorted by demo
     if demos.size:
@@ -410,6 +423,7 @@ def located_crossings(
             ),
             demos.size,
             2 * group_centre.shape[1] + 4 * GROUP,
+            WORK_CHUNK,
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop

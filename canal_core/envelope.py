@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections
-from .crossings import in_row_blocks, sign_changes
+from .crossings import WORK_CHUNK, in_row_blocks, sign_changes
 from .reproduce import Location, blended_location, located_points
 from .validation import BoolArray, FloatArray, IntArray
 
@@ -105,11 +105,13 @@ def _blocked_bracketing(
     window: int,
     inner: int = 0,
 ) -> tuple[IntArray, FloatArray, BoolArray]:
-    """:func:`bracketing_sections` over blocks of at most ``MAX_BLOCK`` (sample x offset) entries."""
+    """:func:`bracketing_sections` over blocks of at most ``WORK_CHUNK`` (sample x offset) entries
+    (temporaries of a few hundred kB, reused from block to block)."""
     index, alpha, found = in_row_blocks(
         lambda rows: bracketing_sections(samples[rows], approx_index[rows], tangents, plane, window, inner),
         samples.shape[0],
         2 * (window - inner + 1),
+        WORK_CHUNK,
     )
     return index, alpha, found
 
@@ -231,7 +233,7 @@ def enclosing_scales(
     ):
         if rows.size == 0:
             continue
-        pts = samples[rows]  # measured as _candidates measures an end: on its section alone
+        pts = np.take(samples, rows, axis=0)  # measured as _candidates measures an end: on its section alone
         _, _, end_eta = blended_location(
             pts, np.full(rows.size, pair), np.full(rows.size, blend), centres, basis, sections
         )
@@ -248,7 +250,7 @@ def enclosing_scales(
         width = min(2 * width, window) if width < window else min(2 * width, n - 1)
         miss = np.flatnonzero(~found)
         index[miss], alpha[miss], found[miss] = _blocked_bracketing(
-            samples[miss], approx_index[miss], tangents, plane, width, inner
+            np.take(samples, miss, axis=0), approx_index[miss], tangents, plane, width, inner
         )
     _, _, eta = blended_location(samples, index, alpha, centres, basis, sections)
     eta[settled_at_end] = 0.0  # held above; index/alpha of these rows are not a bracket
@@ -258,7 +260,7 @@ def enclosing_scales(
 
     far = np.flatnonzero(~near)
     if far.size:
-        loc = _far_locations(samples[far], centres, tangents, basis, sections)
+        loc = _far_locations(np.take(samples, far, axis=0), centres, tangents, basis, sections)
         need = np.where(np.isfinite(loc.eta), loc.eta, 1.0)
         behind, past = loc.axial < 0.0, loc.axial > 0.0
         # An end candidate is measured on the end section alone (alpha 0 or 1).

@@ -592,8 +592,8 @@ def end_depths(
     Only samples in the first and last 5 % of their demo (by ``phase`` in [0, 1]) count,
     so a curve that loops back near its start later on does not stretch the canal.
     """
-    behind = (samples[phase < 0.05] - centres[0]) @ tangents[0]
-    past = (samples[phase > 0.95] - centres[-1]) @ tangents[-1]
+    behind = (np.take(samples, np.flatnonzero(phase < 0.05), axis=0) - centres[0]) @ tangents[0]
+    past = (np.take(samples, np.flatnonzero(phase > 0.95), axis=0) - centres[-1]) @ tangents[-1]
     return np.array(
         [max(0.0, -float(behind.min(initial=0.0))), max(0.0, float(past.max(initial=0.0)))]
     )
@@ -736,7 +736,7 @@ def fit(
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every genuine sample counts, the trimmed still ends included (glitches do not); its
     # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
-    samples = np.vstack([d[p.sample_rows] for d, p in zip(demos_, prepared, strict=True)])
+    samples = np.vstack([np.take(d, p.sample_rows, axis=0) for d, p in zip(demos_, prepared, strict=True)])
     phase = np.concatenate([p.sample_phase for p in prepared])
     # Each sample starts its search at the sections its demo crosses there (not at its own
     # phase): demos ahead of or behind the mean are then found at once.
