@@ -172,7 +172,7 @@ SEARCH_CHUNK = 1 << 15
 #: Entries per chunk of the plane-crossing searches (demos for the dense one, pairs for
 #: the block one): a few hundred kB of temporaries, reused from chunk to chunk, where one
 #: pass over everything made the allocator fetch (and fault in) fresh pages on every fit.
-WORK_CHUNK = 1 << 15
+WORK_CHUNK = 1 << 17
 #: Blocks per group of the first ball test: a plane is tested against every group's ball,
 #: and against the balls of the blocks of the groups it cuts only.
 GROUP = 4
@@ -275,7 +275,7 @@ def _far_crossings(
     n_demos, n_blocks, dim = blocks.shape[0], blocks.shape[1], blocks.shape[3]
     n_samples = tangents.shape[0]
     n_pairs = sections.size
-    t = tangents[sections]
+    t = np.take(tangents, sections, axis=0)
     level = plane[sections]
     seg_lo = np.maximum(0, sections - half_width)
     seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
@@ -307,11 +307,12 @@ def _far_crossings(
     inside = (block >= first_block[pair]) & (block <= last_block[pair])
     pair, block = pair[inside], block[inside]
     key = demos[pair] * n_blocks + block
-    # Per axis from flat columns: no (entries, D) gathers.
-    centre_columns = balls[0].reshape(-1, dim).T
-    ball_offset = np.take(t[:, 0], pair) * np.take(centre_columns[0], key)
+    # Per axis from contiguous columns: no (entries, D) gathers, no strided reads.
+    centre_columns = np.ascontiguousarray(balls[0].reshape(-1, dim).T)
+    normal_columns = np.ascontiguousarray(t.T)
+    ball_offset = np.take(normal_columns[0], pair) * np.take(centre_columns[0], key)
     for axis in range(1, dim):
-        ball_offset += np.take(t[:, axis], pair) * np.take(centre_columns[axis], key)
+        ball_offset += np.take(normal_columns[axis], pair) * np.take(centre_columns[axis], key)
     ball_offset -= np.take(level, pair)
     hit = np.abs(ball_offset) <= np.take(balls[1].ravel(), key)
     pair, block = pair[hit], block[hit]
