@@ -252,7 +252,12 @@ def enclosing_scales(
         index[miss], alpha[miss], found[miss] = _blocked_bracketing(
             np.take(samples, miss, axis=0), approx_index[miss], tangents, plane, width, inner
         )
-    _, _, eta = blended_location(samples, index, alpha, centres, basis, sections)
+    # eta only where a pair brackets the sample (the others are settled or go the far way).
+    bracketed = np.flatnonzero(found & ~settled_at_end)
+    eta = np.full(samples.shape[0], np.inf)
+    eta[bracketed] = blended_location(
+        np.take(samples, bracketed, axis=0), index[bracketed], alpha[bracketed], centres, basis, sections
+    )[2]
     eta[settled_at_end] = 0.0  # held above; index/alpha of these rows are not a bracket
     near = found & np.isfinite(eta) & (eta <= MAX_STRETCH)
     np.maximum.at(scale, index[near], eta[near])
