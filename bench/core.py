@@ -16,7 +16,11 @@ MIT, read by path and never copied: its ``get_mean`` + ``get_tnb`` + ``get_canal
 ``get_rep_traj`` reproduction) gets the demos already aligned by canal_core (alignment not timed
 for it), so the ratio flatters the reference. When its file is absent the rows say so. Both
 sides run best of the same number of interleaved runs; the last columns give CPU time (this
-process), which a loaded shared machine distorts less than wall time.
+process), which a loaded shared machine distorts less than wall time. A reproduction takes
+a fraction of a millisecond, so each of our timings covers ``REPRO_BATCH`` of them (per call:
+the batch divided by its size): one preempted call no longer decides the row. ``--stages``
+adds the fit's CPU time per stage on the raw sets (preparation, alignment, frames,
+crossings, sections, envelope), the same functions ``canal_core.fit`` calls in its order.
 """
 
 from __future__ import annotations
@@ -146,6 +150,66 @@ def interleaved_best(
             [b if math.isfinite(b) else float("nan") for b in cpu])
 
 
+#: Reproductions per timing of ours (a single one lasts about 0.3 ms).
+REPRO_BATCH = 20
+
+
+def fit_stage_times(demos: list[np.ndarray], n: int) -> dict[str, float]:
+    """CPU seconds of each stage of ``canal_core.fit(demos, n_samples=n)`` (circle, rmf, mean,
+    arc length), run stage by stage with the functions the fit calls."""
+    from canal_core.alignment import resampled_demonstrations
+    from canal_core.cross_sections import fitted_sections, floored_sections
+    from canal_core.crossings import in_plane_coordinates, located_crossings, sections_of_samples
+    from canal_core.directrix import directrix_mean
+    from canal_core.envelope import enclosing_scales
+    from canal_core.model import canal_frames, fit_options
+    from canal_core.preprocess import prepared_samples
+    from canal_core.reproduce import section_basis
+
+    clock = time.process_time
+    t0 = clock()
+    prepared = [prepared_samples(d, None, field=f"demos[{j}]") for j, d in enumerate(demos)]
+    t1 = clock()
+    aligned = resampled_demonstrations([p.positions for p in prepared], [None] * len(demos), n)
+    t2 = clock()
+    centres = directrix_mean(aligned)
+    tangents, normals, binormals = canal_frames(centres, fit_options(n_samples=n))
+    t3 = clock()
+    crossings, index = located_crossings(aligned, centres, tangents)
+    t4 = clock()
+    basis = section_basis(normals, binormals)
+    coords = in_plane_coordinates(crossings, centres, basis)
+    sections = floored_sections(fitted_sections(coords, "circle"), 1e-9 * float(np.abs(coords).max()))
+    t5 = clock()
+    samples = np.vstack([d[p.sample_rows] for d, p in zip(demos, prepared, strict=True)])
+    approx = np.rint(np.concatenate([
+        sections_of_samples(index, j, p.sample_phase * (n - 1)) for j, p in enumerate(prepared)
+    ])).astype(np.int64)
+    enclosing_scales(samples, approx, centres, tangents, basis, sections)
+    t6 = clock()
+    return {"preparation": t1 - t0, "alignment": t2 - t1, "directrix+frames": t3 - t2,
+            "crossings": t4 - t3, "sections": t5 - t4, "envelope": t6 - t5}
+
+
+def stage_rows(repeats: int) -> None:
+    """Print the fit's CPU time per stage on the raw sets (best of ``repeats`` per stage)."""
+    n = 1000
+    names = ["preparation", "alignment", "directrix+frames", "crossings", "sections", "envelope"]
+    print("\nfit stages, circle, N = 1,000: CPU ms per stage (best of", repeats, ")")
+    print(f"{'set':<26} " + " ".join(f"{name:>16}" for name in names) + f" {'whole fit':>10}")
+    for set_name, demos in raw_sets():
+        best = dict.fromkeys(names, math.inf)
+        fit_cpu = math.inf
+        for _ in range(repeats):
+            for name, seconds in fit_stage_times(demos, n).items():
+                best[name] = min(best[name], seconds)
+            c0 = time.process_time()
+            canal_core.fit(demos, n_samples=n)
+            fit_cpu = min(fit_cpu, time.process_time() - c0)
+        print(f"{set_name:<26} " + " ".join(f"{1e3 * best[name]:>16.2f}" for name in names)
+              + f" {1e3 * fit_cpu:>10.2f}")
+
+
 def raw_sets() -> list[tuple[str, list[np.ndarray]]]:
     """(name, demos) of raw 3-D logs, each demo resampled to 1,000 rows."""
     sys.path.insert(0, str(ROOT / "tests"))
@@ -174,9 +238,13 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
     for name, demos in raw_sets():
         canal = canal_core.fit(demos, n_samples=n)
         start = canal.directrix[0] + 0.5 * canal.radii[0] * canal.normals[0]
+        def reproduce_batch(canal: canal_core.Canal = canal, start: np.ndarray = start) -> None:
+            for _ in range(REPRO_BATCH):
+                canal.reproduce(start)
+
         ours: list[Callable[[], object]] = [
             lambda: canal_core.fit(demos, n_samples=n),  # noqa: B023
-            lambda: canal.reproduce(start),  # noqa: B023
+            reproduce_batch,
         ]
         theirs: list[Callable[[], object]] = []
         if reference is not None:
@@ -194,6 +262,7 @@ def raw_rows(reference: types.ModuleType | None, repeats: int) -> list[dict[str,
         # Interleaved, so both implementations see the same load on a shared machine.
         # Both sides best of the same number of runs, interleaved.
         (fit_s, rep_s, ref_fit, ref_rep), (fit_c, _, ref_fit_c, _) = interleaved_best(ours, theirs, repeats, repeats)
+        rep_s /= REPRO_BATCH
         print(f"{name:<26} {1e3 * fit_s:>8.2f} {1e3 * ref_fit:>11.1f} {ref_fit / fit_s:>8.1f}x "
               f"{1e3 * rep_s:>9.3f} {1e3 * ref_rep:>13.2f} {ref_rep / rep_s:>8.0f}x "
               f"{1e3 * fit_c:>11.2f} {1e3 * ref_fit_c:>11.1f} {ref_fit_c / fit_c:>8.1f}x")
@@ -211,10 +280,13 @@ def main() -> None:
     parser.add_argument("--reference", type=Path, default=DEFAULT_REFERENCE,
                         help="LFD_Canal_Surface_Pkg's canal_surface_algorithm.py (read by path, not copied)")
     parser.add_argument("--raw-only", action="store_true", help="only the raw-log rows")
+    parser.add_argument("--stages", action="store_true", help="also the fit's CPU time per stage on the raw sets")
     args = parser.parse_args()
     repeats = 3 if args.quick else 10
     if args.raw_only:
         write_summary("core", raw_rows(load_reference(args.reference), repeats))
+        if args.stages:
+            stage_rows(repeats)
         return
     rng = np.random.default_rng(0)
     base = datasets.helix(1000, turns=2.0)
@@ -255,6 +327,8 @@ def main() -> None:
         rows.append(summary_row(f"fit, circle, 10 x 1000 pts, N={n_samples}", 1e3 * fit_s, "ms",
                                 peer_name="naive Python loop (less work)", peer_value=1e3 * naive_s))
     rows.extend(raw_rows(load_reference(args.reference), repeats))
+    if args.stages:
+        stage_rows(repeats)
     write_summary("core", rows)
 
 

@@ -19,16 +19,18 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided, sliding_window_view
 
-from .validation import FloatArray
+from .validation import BoolArray, FloatArray, IntArray
 
-#: Half-width of the cheap first search, in samples.
+#: Half-width of the dense first search, in samples.
 NEAR_WINDOW = 4
-#: Half-width of the second search, in samples; later searches double it up to the window.
-MID_WINDOW = 32
 #: Most (pair x window sample) entries searched at once: bounds the memory of a fit with
 #: many sections (N = 5,000 peaked at 865 MB in one block, now a few tens of MB).
 MAX_BLOCK = 1 << 20
+#: Samples per block of the far search: each block is bounded by a ball, so a plane that
+#: misses the ball is crossed nowhere in the block.
+BLOCK = 16
 
 
 def crosses_plane(before: FloatArray, after: FloatArray) -> np.ndarray:
@@ -36,212 +38,323 @@ def crosses_plane(before: FloatArray, after: FloatArray) -> np.ndarray:
     return np.asarray((before == 0.0) | (np.sign(before) != np.sign(after)))
 
 
-def _crossings_in_window(
-    aligned: FloatArray,
-    centres: FloatArray,
-    tangents: FloatArray,
-    sections: np.ndarray,
-    demos: np.ndarray,
-    half_width: int,
-) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
-    """Crossing points for (section, demo) pairs searched within ``half_width`` samples.
+def sign_changes(dist: FloatArray) -> np.ndarray:
+    """:func:`crosses_plane` of consecutive entries along the last axis, shape (..., W - 1).
 
-    Returns the points, shape (P, D), a mask, shape (P,), of pairs where a sign change
-    was found (unfound pairs hold the window sample nearest the plane, projected onto it),
-    the distance from c_i of that nearest sample, shape (P,), and the fractional sample
-    index of the crossing in the demo, shape (P,) (NaN where none was found).
+    One comparison per entry instead of two signs per segment: a segment meets the plane
+    when one end is on it or the ends lie on different sides.
     """
-    n_samples = aligned.shape[1]
-    offsets = np.arange(-half_width, half_width + 1)
-    cols = np.clip(sections[:, None] + offsets[None, :], 0, n_samples - 1)  # (P, W)
-    # t_i . (x_{j,k} - c_i) = t_i . x_{j,k} - t_i . c_i: gather samples only, not frames.
-    t = tangents[sections]
-    plane = np.einsum("pd,pd->p", centres[sections], t)
-    dist = np.einsum("pwd,pd->pw", aligned[demos[:, None], cols], t) - plane[:, None]  # (P, W)
-
-    lo, hi = dist[:, :-1], dist[:, 1:]
-    moves = cols[:, 1:] != cols[:, :-1]  # clipped windows repeat the end sample
-    crosses = moves & crosses_plane(lo, hi)
-    # Prefer the crossing segment whose centre is nearest the section's own index.
-    distance_to_centre = np.abs(offsets[:-1] + 0.5)
-    score = np.where(crosses, distance_to_centre[None, :], np.inf)
-    seg = np.argmin(score, axis=1)
-    found = np.isfinite(score[np.arange(seg.size), seg])
-
-    pair = np.arange(seg.size)
-    d0, d1 = lo[pair, seg], hi[pair, seg]
-    denom = d0 - d1
-    alpha = np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0)
-    x0 = aligned[demos, cols[pair, seg]]
-    x1 = aligned[demos, cols[pair, seg + 1]]
-    points = x0 + np.clip(alpha, 0.0, 1.0)[:, None] * (x1 - x0)
-    index = cols[pair, seg] + np.clip(alpha, 0.0, 1.0)
-
-    nearest = np.argmin(np.abs(dist), axis=1)
-    x = aligned[demos, cols[pair, nearest]]
-    reference = np.linalg.norm(x - centres[sections], axis=1)
-    miss = ~found
-    points[miss] = x[miss] - dist[pair, nearest][miss, None] * tangents[sections[miss]]
-    index[miss] = np.nan
-    return points, found, reference, index
+    above = dist > 0.0
+    changes = above[..., 1:] != above[..., :-1]
+    on = dist == 0.0
+    if on.any():
+        changes |= on[..., :-1] | on[..., 1:]
+    return changes
 
 
 def in_row_blocks(
-    compute: Callable[[slice], tuple[np.ndarray, ...]], n_rows: int, row_cost: int
+    compute: Callable[[slice], tuple[np.ndarray, ...]], n_rows: int, row_cost: int, budget: int = MAX_BLOCK
 ) -> tuple[np.ndarray, ...]:
-    """``compute`` over slices of rows holding at most ``MAX_BLOCK`` entries, concatenated.
+    """``compute`` over slices of rows holding at most ``budget`` entries, concatenated.
 
     ``compute(rows)`` returns arrays whose first axis follows the rows; ``row_cost`` is the
     number of entries one row makes ``compute`` allocate (its search window).
     """
-    block = max(1, MAX_BLOCK // row_cost)
+    block = max(1, budget // max(row_cost, 1))
     if n_rows <= block:
         return compute(slice(None))
     parts = [compute(slice(k, k + block)) for k in range(0, n_rows, block)]
     return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
 
 
-def _blocked_crossings(
-    aligned: FloatArray,
-    centres: FloatArray,
-    tangents: FloatArray,
-    sections: np.ndarray,
-    demos: np.ndarray,
-    half_width: int,
-) -> tuple[FloatArray, np.ndarray, FloatArray, FloatArray]:
-    """:func:`_crossings_in_window` over blocks of pairs of at most ``MAX_BLOCK`` entries."""
-    points, found, reference, index = in_row_blocks(
-        lambda rows: _crossings_in_window(aligned, centres, tangents, sections[rows], demos[rows], half_width),
-        sections.size,
-        2 * half_width + 1,
+def _near_crossings(
+    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, plane: FloatArray, half_width: int
+) -> tuple[FloatArray, BoolArray, FloatArray, FloatArray]:
+    """Crossing nearest in index within ``half_width`` samples of i, for every (demo, section).
+
+    Every demo's samples i - h .. i + h (the ends repeated, repeats never count as a
+    segment) are read through one strided view, not gathered pair by pair.
+
+    Parameters
+    ----------
+    aligned : array, shape (n, N, D)
+    centres, tangents : arrays, shape (N, D)
+    plane : array, shape (N,)
+        t_i . c_i.
+    half_width : int
+
+    Returns
+    -------
+    points : array, shape (n, N, D)
+        The crossing, or where none was found, the window sample nearest the plane
+        projected onto it.
+    found : array of bool, shape (n, N)
+    reference : array, shape (n, N)
+        Distance from c_i of that nearest sample where no crossing was found (0 elsewhere).
+    index : array, shape (n, N)
+        Fractional sample index of the crossing in the demo (NaN where none was found).
+    """
+    n_demos, n_samples, dim = aligned.shape
+    h = half_width
+    offsets = np.arange(-h, h + 1)
+    cols = np.clip(np.arange(n_samples)[:, None] + offsets[None, :], 0, n_samples - 1)  # (N, W)
+    padded = np.concatenate(
+        [np.repeat(aligned[:, :1], h, axis=1), aligned, np.repeat(aligned[:, -1:], h, axis=1)], axis=1
     )
+    windows = sliding_window_view(padded, 2 * h + 1, axis=1)  # (n, N, D, W), a view
+    # t_i . (x_{j,k} - c_i) = t_i . x_{j,k} - t_i . c_i, one in-plane axis at a time.
+    dist = windows[:, :, 0, :] * tangents[None, :, 0, None]
+    for axis in range(1, dim):
+        dist += windows[:, :, axis, :] * tangents[None, :, axis, None]
+    dist -= plane[None, :, None]  # (n, N, W)
+    moves = cols[:, 1:] != cols[:, :-1]  # clipped windows repeat the end sample
+    crosses = sign_changes(dist) & moves[None]
+    # Segments in order of preference: nearest the section's own index, the earlier on a tie.
+    preference = np.argsort(np.abs(offsets[:-1] + 0.5), kind="stable")
+    ranked = crosses[..., preference]
+    first = np.argmax(ranked, axis=-1)  # (n, N); 0 where none (then ranked there is False)
+    seg = preference[first]
+    found = np.take_along_axis(ranked, first[..., None], axis=-1)[..., 0]
+
+    d0 = np.take_along_axis(dist, seg[..., None], axis=-1)[..., 0]
+    d1 = np.take_along_axis(dist, seg[..., None] + 1, axis=-1)[..., 0]
+    denom = d0 - d1
+    alpha = np.clip(np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0), 0.0, 1.0)
+    start = cols[np.arange(n_samples)[None, :], seg]  # (n, N)
+    # Rows of the flattened demos, gathered with np.take (fancy indexing of (n, N, D) by
+    # two index arrays costs several times more).
+    flat = aligned.reshape(-1, dim)
+    row = np.arange(n_demos)[:, None] * n_samples
+    x0 = np.take(flat, (row + start).ravel(), axis=0).reshape(n_demos, n_samples, dim)
+    x1 = np.take(flat, (row + np.minimum(start + 1, n_samples - 1)).ravel(), axis=0).reshape(n_demos, n_samples, dim)
+    points = x0 + alpha[..., None] * (x1 - x0)
+    index = np.where(found, start + alpha, np.nan)
+
+    # Pairs without a crossing: the window sample nearest the plane, projected onto it.
+    reference = np.zeros((n_demos, n_samples))
+    mj, mi = np.nonzero(~found)
+    if mj.size:
+        missed = dist[mj, mi]  # (P, W)
+        nearest = np.argmin(np.abs(missed), axis=1)
+        x = np.take(flat, mj * n_samples + cols[mi, nearest], axis=0)
+        offset = x - np.take(centres, mi, axis=0)
+        reference[mj, mi] = np.sqrt(np.einsum("pd,pd->p", offset, offset))
+        points.reshape(-1, dim)[mj * n_samples + mi] = (
+            x - missed[np.arange(mj.size), nearest][:, None] * np.take(tangents, mi, axis=0)
+        )
     return points, found, reference, index
 
 
-#: Samples per block of the far search: each block is bounded by a ball, so a plane that
-#: misses the ball is crossed nowhere in the block.
-BLOCK = 16
-#: Rings of blocks visited one at a time around a pair's own block (most crossings lie
-#: within two blocks); after that every remaining block is tested at once.
-RING_ROUNDS = 3
+def block_views(aligned: FloatArray) -> FloatArray:
+    """Each demo's samples bB .. (b + 1)B as a strided view, shape (n, nb, B + 1, D).
 
-
-def _block_balls(aligned: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Centres (n, nb, D) and radii (n, nb) of balls around samples bB..(b+1)B of each demo.
-
-    Block b holds the segments bB .. bB + B - 1 (both ends of each), ``nb = ceil((N-1)/B)``.
+    Block b holds the segments bB .. bB + B - 1 (both ends of each), ``nb = ceil((N-1)/B)``;
+    the last block repeats the last sample where the demo ends early. A block is one
+    contiguous run of memory, so gathering blocks copies runs instead of single samples.
     """
-    n_samples = aligned.shape[1]
+    n_demos, n_samples, dim = aligned.shape
     n_blocks = max(1, -(-(n_samples - 1) // BLOCK))
-    idx = np.minimum(np.arange(n_blocks)[:, None] * BLOCK + np.arange(BLOCK + 1)[None, :], n_samples - 1)
-    pts = aligned[:, idx]  # (n, nb, B + 1, D)
-    lo, hi = pts.min(axis=2), pts.max(axis=2)
-    return 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=2)
+    extra = n_blocks * BLOCK + 1 - n_samples
+    padded = np.concatenate([aligned, np.repeat(aligned[:, -1:], extra, axis=1)], axis=1)
+    demo_stride, sample_stride, axis_stride = padded.strides
+    return np.asarray(as_strided(
+        padded,
+        shape=(n_demos, n_blocks, BLOCK + 1, dim),
+        strides=(demo_stride, BLOCK * sample_stride, sample_stride, axis_stride),
+        writeable=False,
+    ))
+
+
+#: Most (block x sample x axis) entries of the cut blocks searched at once. Small chunks
+#: reuse the same memory from one to the next; one large gather of every cut block cost
+#: more in fresh pages (page faults) than in arithmetic.
+SEARCH_CHUNK = 1 << 15
+#: Entries per chunk of the plane-crossing searches (demos for the dense one, pairs for
+#: the block one): a few hundred kB of temporaries, reused from chunk to chunk, where one
+#: pass over everything made the allocator fetch (and fault in) fresh pages on every fit.
+WORK_CHUNK = 1 << 17
+#: Blocks per group of the first ball test: a plane is tested against every group's ball,
+#: and against the balls of the blocks of the groups it cuts only.
+GROUP = 4
+
+
+def block_boxes(blocks: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Lower and upper corners (n, nb, D) of the bounding boxes of the blocks of
+    :func:`block_views`.
+
+    Reduced over runs of the padded samples (``reduceat``) plus each block's last sample
+    (the first of the next): a reduction over the view's short block axis costs more.
+    """
+    n_demos, n_blocks, _, dim = blocks.shape
+    padded = np.lib.stride_tricks.as_strided(
+        blocks, shape=(n_demos, n_blocks * BLOCK + 1, dim),
+        strides=(blocks.strides[0], blocks.strides[2], blocks.strides[3]), writeable=False,
+    )
+    starts = np.arange(n_blocks) * BLOCK
+    last = padded[:, starts + BLOCK]
+    lo = np.minimum(np.minimum.reduceat(padded, starts, axis=1), last)
+    hi = np.maximum(np.maximum.reduceat(padded, starts, axis=1), last)
+    return lo, hi
+
+
+def grouped_boxes(lo: FloatArray, hi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Boxes (n, ceil(nb / GROUP), D) around every ``GROUP`` consecutive block boxes."""
+    n_demos, n_blocks, dim = lo.shape
+    extra = -n_blocks % GROUP  # the last group repeats the last block
+    if extra:
+        lo = np.concatenate([lo, np.repeat(lo[:, -1:], extra, axis=1)], axis=1)
+        hi = np.concatenate([hi, np.repeat(hi[:, -1:], extra, axis=1)], axis=1)
+    shape = (n_demos, -1, GROUP, dim)
+    return lo.reshape(shape).min(axis=2), hi.reshape(shape).max(axis=2)
+
+
+def box_balls(lo: FloatArray, hi: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centres (..., D) and radii (...) of the balls circumscribing boxes."""
+    return 0.5 * (lo + hi), 0.5 * np.sqrt(np.einsum("...d,...d->...", hi - lo, hi - lo))
+
+
+def block_balls(blocks: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centres (n, nb, D) and radii (n, nb) of the balls around the bounding boxes of the
+    blocks of :func:`block_views`."""
+    return box_balls(*block_boxes(blocks))
+
+
+def _segment_key(seg: IntArray, section: IntArray) -> IntArray:
+    """Integer preference of segment s for section i: the lexicographic order of
+    (|s + 0.5 - i|, s) as one number, 2 |2s + 1 - 2i| + [s >= i]."""
+    return 2 * np.abs(2 * seg + 1 - 2 * section) + (seg >= section)
+
+
+def _segment_of_key(key: IntArray, section: IntArray) -> IntArray:
+    """Inverse of :func:`_segment_key`."""
+    u = key // 2
+    return np.where(key % 2 == 1, section + (u - 1) // 2, section - (u + 1) // 2)
 
 
 def _far_crossings(
-    aligned: FloatArray,
-    centres: FloatArray,
+    blocks: FloatArray,
     tangents: FloatArray,
-    sections: np.ndarray,
-    demos: np.ndarray,
+    plane: FloatArray,
+    sections: IntArray,
+    demos: IntArray,
     half_width: int,
     balls: tuple[FloatArray, FloatArray],
-) -> tuple[FloatArray, np.ndarray, FloatArray]:
+    groups: tuple[FloatArray, FloatArray],
+) -> tuple[FloatArray, BoolArray, FloatArray]:
     """Nearest-in-index crossing within ``half_width`` samples for each (section, demo) pair.
 
-    Same answer as :func:`_crossings_in_window` with that width (the lexicographic minimum
-    of (|s + 0.5 - i|, s) over the crossing segments s), at a cost that does not depend on
-    the window: the blocks of ``BLOCK`` segments are visited in rings around section i's
-    block (ring r: blocks b_i - r and b_i + r). A block whose ball the plane misses holds no
-    crossing and costs one dot product; only cut blocks are searched sample by sample. A
-    pair stops once its best score is below 16 r + 0.5, the least score any unvisited
-    segment can have. Pairs still open after ``RING_ROUNDS`` rings test every remaining
-    block's ball at once and search all the cut ones, so no pair keeps the loop going
-    across the whole window.
+    The same answer as a dense search of the window (the lexicographic minimum of
+    (|s + 0.5 - i|, s) over the crossing segments s) in one pass whose cost does not grow
+    with how far the crossing lies: every group of ``GROUP`` blocks of ``BLOCK`` segments
+    costs one dot product (a plane that misses the group's ball crosses nowhere in it), the
+    blocks of the groups it cuts one more each, and only the blocks the plane cuts inside the
+    window are searched sample by sample. Pairs must be sorted by demo.
 
-    Returns the points, shape (P, D), whether a crossing was found, shape (P,), and its
-    fractional sample index in the demo, shape (P,) (NaN where none was found).
+    Parameters
+    ----------
+    blocks : array, shape (n, nb, B + 1, D)
+        From :func:`block_views`.
+    tangents : array, shape (N, D)
+    plane : array, shape (N,)
+        t_i . c_i.
+    sections, demos : arrays of int, shape (P,)
+    half_width : int
+    balls : (array, shape (n, nb, D), array, shape (n, nb))
+        Ball centres and radii (with rounding slack) of the blocks.
+    groups : (array, shape (n, ng, D), array, shape (n, ng))
+        The same for the groups of blocks (:func:`grouped_boxes`).
+
+    Returns
+    -------
+    points : array, shape (P, D)
+        The crossing (zero where none was found).
+    found : array of bool, shape (P,)
+    index : array, shape (P,)
+        Fractional sample index of the crossing (NaN where none was found).
     """
-    n_samples, dim = aligned.shape[1], aligned.shape[2]
+    n_demos, n_blocks, dim = blocks.shape[0], blocks.shape[1], blocks.shape[3]
+    n_samples = tangents.shape[0]
     n_pairs = sections.size
-    t = tangents[sections]
-    plane = np.einsum("pd,pd->p", centres[sections], t)
+    t = np.take(tangents, sections, axis=0)
+    level = plane[sections]
     seg_lo = np.maximum(0, sections - half_width)
     seg_hi = np.minimum(n_samples - 2, sections + half_width - 1)
-    # Rounding slack: d is computed per sample, the test per ball; |t.c_i| and |t.m| are
-    # bounded by the largest norms of the directrix and of the ball centres.
-    bound = float(np.linalg.norm(centres, axis=1).max() + np.linalg.norm(balls[0], axis=2).max())
-    reach = balls[1] * (1.0 + 1e-9) + 1e-12 * (balls[1] + bound)
-    home = sections // BLOCK
-    block_lo, block_hi = seg_lo // BLOCK, seg_hi // BLOCK
-    best_score = np.full(n_pairs, np.inf)
-    best_seg = np.full(n_pairs, -1, dtype=np.int64)
-    q = np.arange(BLOCK)
-    samples_of_block = np.arange(BLOCK + 1)
+    # First the balls of groups of GROUP blocks, then the balls of the blocks in the
+    # groups the plane cuts: a plane that misses a ball crosses nowhere inside it.
+    group_centre, group_reach = groups
+    n_groups = group_centre.shape[1]
+    bounds = np.searchsorted(demos, np.arange(n_demos + 1))
+    cut = np.empty((n_pairs, n_groups), dtype=bool)
+    for j in range(n_demos):
+        rows = slice(bounds[j], bounds[j + 1])
+        if bounds[j] == bounds[j + 1]:
+            continue
+        # Elementwise, one axis at a time: tiny matrix products would pay BLAS's
+        # threading on every call.
+        centre = group_centre[j]  # (ng, D)
+        offset = t[rows, 0, None] * centre[None, :, 0]
+        for axis in range(1, dim):
+            offset += t[rows, axis, None] * centre[None, :, axis]
+        offset -= level[rows, None]
+        np.less_equal(np.abs(offset, out=offset), group_reach[j][None, :], out=cut[rows])
+    pair, group = np.divmod(np.flatnonzero(cut), n_groups)  # sorted by pair
+    first_block, last_block = seg_lo // BLOCK, np.minimum(seg_hi // BLOCK, n_blocks - 1)
+    overlaps = (group * GROUP <= last_block[pair]) & ((group + 1) * GROUP > first_block[pair])
+    pair, group = pair[overlaps], group[overlaps]
+    # Every block of a cut group that lies in the pair's window.
+    pair = np.repeat(pair, GROUP)
+    block = (group[:, None] * GROUP + np.arange(GROUP)[None, :]).ravel()
+    inside = (block >= first_block[pair]) & (block <= last_block[pair])
+    pair, block = pair[inside], block[inside]
+    key = demos[pair] * n_blocks + block
+    # Per axis from contiguous columns: no (entries, D) gathers, no strided reads.
+    centre_columns = np.ascontiguousarray(balls[0].reshape(-1, dim).T)
+    normal_columns = np.ascontiguousarray(t.T)
+    ball_offset = np.take(normal_columns[0], pair) * np.take(centre_columns[0], key)
+    for axis in range(1, dim):
+        ball_offset += np.take(normal_columns[axis], pair) * np.take(centre_columns[axis], key)
+    ball_offset -= np.take(level, pair)
+    hit = np.abs(ball_offset) <= np.take(balls[1].ravel(), key)
+    pair, block = pair[hit], block[hit]
 
-    def searched(rows: np.ndarray, b: np.ndarray) -> None:
-        """Search blocks ``b`` of pairs ``rows`` sample by sample and keep each pair's best."""
-        for start in range(0, rows.size, MAX_BLOCK // (BLOCK + 1)):
-            r, bb = rows[start : start + MAX_BLOCK // (BLOCK + 1)], b[start : start + MAX_BLOCK // (BLOCK + 1)]
-            cols = np.minimum(bb[:, None] * BLOCK + samples_of_block[None, :], n_samples - 1)
-            dist = np.einsum("pwd,pd->pw", aligned[demos[r, None], cols], t[r]) - plane[r, None]
-            seg = bb[:, None] * BLOCK + q[None, :]
-            inside = (seg >= seg_lo[r, None]) & (seg <= seg_hi[r, None])
-            crosses = inside & crosses_plane(dist[:, :-1], dist[:, 1:])
-            score = np.where(crosses, np.abs(seg + 0.5 - sections[r, None]), np.inf)
-            j = np.argmin(score, axis=1)
-            pick = np.arange(r.size)
-            s_score, s_seg = score[pick, j], seg[pick, j]
-            # A pair may appear more than once: its lexicographic (score, segment) minimum.
-            order = np.lexsort((s_seg, s_score, r))
-            r, s_score, s_seg = r[order], s_score[order], s_seg[order]
-            first = np.flatnonzero(np.concatenate([[True], r[1:] != r[:-1]]))
-            r, s_score, s_seg = r[first], s_score[first], s_seg[first]
-            better = (s_score < best_score[r]) | ((s_score == best_score[r]) & (s_seg < best_seg[r]))
-            best_score[r[better]] = s_score[better]
-            best_seg[r[better]] = s_seg[better]
-
-    active = np.flatnonzero(seg_lo <= seg_hi)
-    ring = 0
-    while active.size and ring < RING_ROUNDS:
-        b = np.concatenate([home[active] - ring, home[active] + ring]) if ring else home[active]
-        rows = np.concatenate([active, active]) if ring else active
-        ok = (b >= block_lo[rows]) & (b <= block_hi[rows])
-        rows, b = rows[ok], b[ok]
-        cut = np.abs(np.einsum("pd,pd->p", t[rows], balls[0][demos[rows], b]) - plane[rows]) <= reach[demos[rows], b]
-        searched(rows[cut], b[cut])
-        ring += 1
-        # Unvisited segments after ring r - 1 score at least BLOCK (r - 1) + 0.5 (ties go
-        # to the left one, which may be unvisited: hence strictly below).
-        active = active[(best_score[active] >= BLOCK * (ring - 1) + 0.5)
-                        & ((home[active] - ring >= block_lo[active]) | (home[active] + ring <= block_hi[active]))]
-    if active.size:
-        # Every remaining block of the window at once: its ball test, then the cut ones.
-        blocks = np.arange(balls[1].shape[1])
-        for start in range(0, active.size, MAX_BLOCK // blocks.size):
-            rows = active[start : start + MAX_BLOCK // blocks.size]
-            offset = np.einsum("pd,pbd->pb", t[rows], balls[0][demos[rows]]) - plane[rows, None]
-            open_block = (
-                (np.abs(blocks[None, :] - home[rows, None]) >= ring)
-                & (blocks[None, :] >= block_lo[rows, None])
-                & (blocks[None, :] <= block_hi[rows, None])
-            )
-            pr, bk = np.nonzero(open_block & (np.abs(offset) <= reach[demos[rows]]))
-            searched(rows[pr], bk)
-    found = np.isfinite(best_score)
+    none = np.iinfo(np.int64).max
+    best = np.full(n_pairs, none, dtype=np.int64)
+    step = max(1, SEARCH_CHUNK // ((BLOCK + 1) * dim))
+    for first in range(0, pair.size, step):
+        p, b = pair[first : first + step], block[first : first + step]
+        x = blocks[demos[p], b]  # (C, B + 1, D): contiguous copies of the cut blocks
+        tp = t[p]
+        dist = x[:, :, 0] * tp[:, 0, None]
+        for axis in range(1, dim):
+            dist += x[:, :, axis] * tp[:, axis, None]
+        dist -= level[p, None]
+        # Sign changes are rare: each one's key, then each pair's least (a pair's blocks
+        # are consecutive rows, so its crossings are a consecutive run).
+        row, w = np.divmod(np.flatnonzero(sign_changes(dist)), BLOCK)
+        seg = b[row] * BLOCK + w
+        owner = p[row]
+        inside = (seg >= seg_lo[owner]) & (seg <= seg_hi[owner])  # past N - 2 is outside
+        seg, owner = seg[inside], owner[inside]
+        if owner.size:
+            starts = np.flatnonzero(np.concatenate([[True], owner[1:] != owner[:-1]]))
+            key = np.minimum.reduceat(_segment_key(seg, sections[owner]), starts)
+            owner = owner[starts]
+            best[owner] = np.minimum(best[owner], key)
+    found = best != none
     points = np.zeros((n_pairs, dim))
     index = np.full(n_pairs, np.nan)
     if found.any():
         f = np.flatnonzero(found)
-        cols = np.stack([best_seg[f], best_seg[f] + 1], axis=1)
-        x = aligned[demos[f, None], cols]  # (F, 2, D)
-        d = np.einsum("pwd,pd->pw", x, t[f]) - plane[f, None]
-        d0, d1 = d[:, 0], d[:, 1]
+        s = _segment_of_key(best[f], sections[f])
+        seg_block, within = np.divmod(s, BLOCK)
+        x0 = blocks[demos[f], seg_block, within]
+        x1 = blocks[demos[f], seg_block, within + 1]
+        d0 = np.einsum("pd,pd->p", x0, t[f]) - level[f]
+        d1 = np.einsum("pd,pd->p", x1, t[f]) - level[f]
         denom = d0 - d1
-        alpha = np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0)
-        points[f] = x[:, 0] + np.clip(alpha, 0.0, 1.0)[:, None] * (x[:, 1] - x[:, 0])
-        index[f] = best_seg[f] + np.clip(alpha, 0.0, 1.0)
+        alpha = np.clip(np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0), 0.0, 1.0)
+        points[f] = x0 + alpha[:, None] * (x1 - x0)
+        index[f] = s + alpha
     return points, found, index
 
 
@@ -282,33 +395,45 @@ def located_crossings(
         contributes its nearest sample instead (no crossing taken).
     """
     n_demos, n_samples, _ = aligned.shape
-    sections = np.repeat(np.arange(n_samples), n_demos)
-    demos = np.tile(np.arange(n_demos), n_samples)
     wide = max(NEAR_WINDOW + 1, round(window * n_samples))
-    # Most pairs cross within a few samples of their own index: a dense search there.
-    points, found, reference, index = _blocked_crossings(
-        aligned, centres, tangents, sections, demos, min(NEAR_WINDOW, wide)
+    plane = np.einsum("nd,nd->n", centres, tangents)
+    # Most pairs cross within a few samples of their own index: a dense search there,
+    # a few demos at a time so memory stays bounded for large N.
+    points, found, reference, index = in_row_blocks(
+        lambda rows: _near_crossings(aligned[rows], centres, tangents, plane, min(NEAR_WINDOW, wide)),
+        n_demos,
+        n_samples * (2 * NEAR_WINDOW + 1),
+        WORK_CHUNK,
     )
-    pending = np.flatnonzero(~found)
-    if pending.size:
+    demos, sections = np.nonzero(~found)  # sorted by demo
+    if demos.size:
         # The rest (demos ahead of or behind the mean's phase, common in raw logs) by the
         # block search: its cost does not grow with how far the crossing lies.
-        balls = _block_balls(aligned)
+        blocks = block_views(aligned)
+        lo, hi = block_boxes(blocks)
+        centre, radius = box_balls(lo, hi)
+        group_centre, group_radius = box_balls(*grouped_boxes(lo, hi))
+        # Rounding slack: d is computed per sample, the test per ball; |t.c_i| and |t.m| are
+        # bounded by the largest norms of the directrix and of the ball centres.
+        bound = float(np.linalg.norm(centres, axis=1).max() + np.abs(blocks).max() * np.sqrt(blocks.shape[3]))
+        balls = (centre, radius * (1.0 + 1e-9) + 1e-12 * (radius + bound))
+        groups = (group_centre, group_radius * (1.0 + 1e-9) + 1e-12 * (group_radius + bound))
         far_points, far_found, far_index = in_row_blocks(
             lambda rows: _far_crossings(
-                aligned, centres, tangents, sections[pending[rows]], demos[pending[rows]], wide, balls
+                blocks, tangents, plane, sections[rows], demos[rows], wide, balls, groups
             ),
-            pending.size,
-            4 * (BLOCK + 1),
+            demos.size,
+            2 * group_centre.shape[1] + 4 * GROUP,
+            WORK_CHUNK,
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
         # (or of a helix turn) met by a demo that starts ahead of the first plane does not.
-        near_enough = np.linalg.norm(far_points - centres[sections[pending]], axis=1) <= reference[pending]
+        near_enough = np.linalg.norm(far_points - centres[sections], axis=1) <= reference[demos, sections]
         take = far_found & near_enough
-        points[pending[take]] = far_points[take]
-        index[pending[take]] = far_index[take]
-    return points.reshape(n_samples, n_demos, -1), index.reshape(n_samples, n_demos)
+        points[demos[take], sections[take]] = far_points[take]
+        index[demos[take], sections[take]] = far_index[take]
+    return points.transpose(1, 0, 2).copy(), index.T.copy()
 
 
 def sections_of_samples(index: FloatArray, demo: int, sample_index: FloatArray) -> FloatArray:
@@ -359,4 +484,9 @@ def in_plane_coordinates(
     -------
     coords : array, shape (N, n, D - 1)
     """
-    return np.einsum("ijd,ikd->ijk", points - centres[:, None, :], basis)
+    # One product per coordinate axis: a batched contraction over D = 2, 3 costs more.
+    offsets = points - centres[:, None, :]
+    coords = offsets[:, :, None, 0] * basis[:, None, :, 0]
+    for axis in range(1, points.shape[2]):
+        coords += offsets[:, :, None, axis] * basis[:, None, :, axis]
+    return coords

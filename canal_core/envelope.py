@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections
-from .crossings import crosses_plane, in_row_blocks
+from .crossings import WORK_CHUNK, in_row_blocks, sign_changes
 from .reproduce import Location, blended_location, located_points
 from .validation import BoolArray, FloatArray, IntArray
 
@@ -58,23 +58,43 @@ def bracketing_sections(
     found : array of bool, shape (M,)
     """
     n = tangents.shape[0]
-    span = np.arange(window - inner + 1)
+    m, dim = samples.shape
+    pairs = window - inner  # per shell
     # Plane columns of the left shell (offsets -window .. -inner) and of the right one
     # (inner .. window); pair o uses columns o and o + 1 of its shell.
     starts = np.array([-window, inner])
-    cols = approx_index[:, None, None] + (starts[:, None] + span[None, :])[None]  # (M, 2, S + 1)
-    valid = (cols[:, :, :-1] >= 0) & (cols[:, :, :-1] <= n - 2)  # a real pair, not a clipped copy
-    cols = np.clip(cols, 0, n - 1)
-    dist = np.einsum("md,mswd->msw", samples, tangents[cols]) - plane[cols]
-    lo, hi = dist[:, :, :-1].reshape(dist.shape[0], -1), dist[:, :, 1:].reshape(dist.shape[0], -1)
-    offsets = (starts[:, None] + span[None, :-1]).reshape(-1)
-    score = np.where(valid.reshape(lo.shape) & crosses_plane(lo, hi), np.abs(offsets + 0.5)[None, :], np.inf)
-    best = np.argmin(score, axis=1)  # left shell first: the earlier pair wins a tie
-    rows = np.arange(samples.shape[0])
-    a, b = lo[rows, best], hi[rows, best]
+    # Plane arrays padded by ``window`` copies of their end values on each side (what
+    # clipping the columns would read), so every column is in range without a clip.
+    cols = (approx_index + window)[:, None, None] + (starts[:, None] + np.arange(pairs + 1)[None, :])[None]  # (M, 2, S + 1)
+    axes = np.concatenate([np.repeat(tangents[:1], window, axis=0), tangents, np.repeat(tangents[-1:], window, axis=0)]).T.copy()
+    levels = np.concatenate([np.full(window, plane[0]), plane, np.full(window, plane[-1])])
+    valid = None
+    if m and (int(approx_index.min()) - window < 0 or int(approx_index.max()) + window > n - 2):
+        pair_ok = np.zeros(n + 2 * window, dtype=bool)  # a real pair, not a copy at the ends
+        pair_ok[window : window + n - 1] = True
+        valid = np.take(pair_ok, cols[:, :, :-1])
+    # t_k . x - t_k . c_k, one axis at a time from contiguous rows (no (M, W, D) gather).
+    dist = np.take(axes[0], cols) * samples[:, 0, None, None]
+    for axis in range(1, dim):
+        dist += np.take(axes[axis], cols) * samples[:, axis, None, None]
+    dist -= np.take(levels, cols)
+    changes = sign_changes(dist).reshape(m, 2 * pairs)
+    if valid is not None:
+        changes &= valid.reshape(m, 2 * pairs)
+    # Pairs in order of preference: smallest |o + 0.5| first, the earlier pair on a tie.
+    offsets = (starts[:, None] + np.arange(pairs)[None, :]).reshape(-1)
+    preference = np.lexsort((offsets, np.abs(offsets + 0.5)))
+    ranked = changes[:, preference]
+    first = np.argmax(ranked, axis=1)
+    best = preference[first]
+    rows = np.arange(m)
+    found = ranked[rows, first]
+    shell, step = np.divmod(best, pairs)
+    at = (rows * 2 + shell) * (pairs + 1) + step  # flat index into dist (M, 2, S + 1)
+    a, b = np.take(dist, at), np.take(dist, at + 1)
     alpha = np.divide(a, a - b, out=np.zeros_like(a), where=(a - b) != 0.0)
     index = np.clip(approx_index + offsets[best], 0, n - 2).astype(np.int64)
-    return index, alpha, np.isfinite(score[rows, best])
+    return index, alpha, np.asarray(found)
 
 
 def _blocked_bracketing(
@@ -85,11 +105,13 @@ def _blocked_bracketing(
     window: int,
     inner: int = 0,
 ) -> tuple[IntArray, FloatArray, BoolArray]:
-    """:func:`bracketing_sections` over blocks of at most ``MAX_BLOCK`` (sample x offset) entries."""
+    """:func:`bracketing_sections` over blocks of at most ``WORK_CHUNK`` (sample x offset) entries
+    (temporaries of a few hundred kB, reused from block to block)."""
     index, alpha, found = in_row_blocks(
         lambda rows: bracketing_sections(samples[rows], approx_index[rows], tangents, plane, window, inner),
         samples.shape[0],
         2 * (window - inner + 1),
+        WORK_CHUNK,
     )
     return index, alpha, found
 
@@ -211,7 +233,7 @@ def enclosing_scales(
     ):
         if rows.size == 0:
             continue
-        pts = samples[rows]  # measured as _candidates measures an end: on its section alone
+        pts = np.take(samples, rows, axis=0)  # measured as _candidates measures an end: on its section alone
         _, _, end_eta = blended_location(
             pts, np.full(rows.size, pair), np.full(rows.size, blend), centres, basis, sections
         )
@@ -228,9 +250,14 @@ def enclosing_scales(
         width = min(2 * width, window) if width < window else min(2 * width, n - 1)
         miss = np.flatnonzero(~found)
         index[miss], alpha[miss], found[miss] = _blocked_bracketing(
-            samples[miss], approx_index[miss], tangents, plane, width, inner
+            np.take(samples, miss, axis=0), approx_index[miss], tangents, plane, width, inner
         )
-    _, _, eta = blended_location(samples, index, alpha, centres, basis, sections)
+    # eta only where a pair brackets the sample (the others are settled or go the far way).
+    bracketed = np.flatnonzero(found & ~settled_at_end)
+    eta = np.full(samples.shape[0], np.inf)
+    eta[bracketed] = blended_location(
+        np.take(samples, bracketed, axis=0), index[bracketed], alpha[bracketed], centres, basis, sections
+    )[2]
     eta[settled_at_end] = 0.0  # held above; index/alpha of these rows are not a bracket
     near = found & np.isfinite(eta) & (eta <= MAX_STRETCH)
     np.maximum.at(scale, index[near], eta[near])
@@ -238,7 +265,7 @@ def enclosing_scales(
 
     far = np.flatnonzero(~near)
     if far.size:
-        loc = _far_locations(samples[far], centres, tangents, basis, sections)
+        loc = _far_locations(np.take(samples, far, axis=0), centres, tangents, basis, sections)
         need = np.where(np.isfinite(loc.eta), loc.eta, 1.0)
         behind, past = loc.axial < 0.0, loc.axial > 0.0
         # An end candidate is measured on the end section alone (alpha 0 or 1).

@@ -256,6 +256,11 @@ class Canal:
         return section_basis(self.normals, self.binormals)
 
     @cached_property
+    def plane_offsets(self) -> FloatArray:
+        """t_i . c_i per section, shape (N,): plane i is {x : t_i . x = t_i . c_i}."""
+        return np.asarray(np.einsum("nd,nd->n", self.directrix, self.tangents), dtype=np.float64)
+
+    @cached_property
     def radii(self) -> FloatArray:
         """Largest boundary distance from the directrix per section, shape (N,)."""
         return section_radii(self.sections)
@@ -345,7 +350,7 @@ class Canal:
         target = None if goal is None else check_point(goal, self.dim, "goal")
         canal = self if target is None else self.with_goal(target)
         loc, held = start_and_located_points(
-            point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections
+            point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets
         )
         eta = float(loc.eta[0])
         index, alpha = int(loc.index[0]), float(loc.alpha[0])
@@ -592,8 +597,8 @@ def end_depths(
     Only samples in the first and last 5 % of their demo (by ``phase`` in [0, 1]) count,
     so a curve that loops back near its start later on does not stretch the canal.
     """
-    behind = (samples[phase < 0.05] - centres[0]) @ tangents[0]
-    past = (samples[phase > 0.95] - centres[-1]) @ tangents[-1]
+    behind = (np.take(samples, np.flatnonzero(phase < 0.05), axis=0) - centres[0]) @ tangents[0]
+    past = (np.take(samples, np.flatnonzero(phase > 0.95), axis=0) - centres[-1]) @ tangents[-1]
     return np.array(
         [max(0.0, -float(behind.min(initial=0.0))), max(0.0, float(past.max(initial=0.0)))]
     )
@@ -709,7 +714,7 @@ def fit(
     centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     arclength = np.concatenate([[0.0], np.cumsum(steps)])
-    spread = float(np.ptp(aligned.reshape(-1, dim), axis=0).max())
+    spread = max(float(aligned[..., d].max() - aligned[..., d].min()) for d in range(dim))
     if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
         raise DegenerateCanalError(
             "the directrix has zero length: the demonstrations do not move (or cancel out on average)",
@@ -736,7 +741,7 @@ def fit(
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every genuine sample counts, the trimmed still ends included (glitches do not); its
     # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
-    samples = np.vstack([d[p.sample_rows] for d, p in zip(demos_, prepared, strict=True)])
+    samples = np.vstack([np.take(d, p.sample_rows, axis=0) for d, p in zip(demos_, prepared, strict=True)])
     phase = np.concatenate([p.sample_phase for p in prepared])
     # Each sample starts its search at the sections its demo crosses there (not at its own
     # phase): demos ahead of or behind the mean are then found at once.

@@ -114,6 +114,18 @@ class PreparedDemonstration:
     sample_phase: FloatArray
 
 
+def _step_lengths(positions: FloatArray) -> FloatArray:
+    """|x_{k+1} - x_k|, shape (T - 1,) (einsum: one pass, no temporaries of squares)."""
+    diffs = positions[1:] - positions[:-1]
+    return np.asarray(np.sqrt(np.einsum("ij,ij->i", diffs, diffs)), dtype=np.float64)
+
+
+def _distances_from(positions: FloatArray, point: FloatArray) -> FloatArray:
+    """|x_k - point|, shape (T,)."""
+    offsets = positions - point
+    return np.asarray(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)), dtype=np.float64)
+
+
 def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
     """Return a mask that keeps the first of every run of exactly repeated rows.
 
@@ -126,7 +138,11 @@ def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
     keep : array of bool, shape (T,)
     """
     keep = np.ones(positions.shape[0], dtype=bool)
-    keep[1:] = np.any(positions[1:] != positions[:-1], axis=1)
+    # Column by column: a reduction over the short last axis costs several times more.
+    changed = positions[1:, 0] != positions[:-1, 0]
+    for axis in range(1, positions.shape[1]):
+        changed |= positions[1:, axis] != positions[:-1, axis]
+    keep[1:] = changed
     return keep
 
 
@@ -141,7 +157,7 @@ def robust_path_length(positions: FloatArray) -> float:
     coarse = positions[::stride]
     if (positions.shape[0] - 1) % stride:
         coarse = np.vstack([coarse, positions[-1:]])
-    return float(np.linalg.norm(np.diff(coarse, axis=0), axis=1).sum())
+    return float(_step_lengths(coarse).sum())
 
 
 def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> slice:
@@ -160,8 +176,8 @@ def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> s
     radius = tolerance * robust_path_length(positions)
     if radius == 0.0:
         return slice(0, positions.shape[0])
-    away_from_start = np.linalg.norm(positions - positions[0], axis=1) > radius
-    away_from_end = np.linalg.norm(positions - positions[-1], axis=1) > radius
+    away_from_start = _distances_from(positions, positions[0]) > radius
+    away_from_end = _distances_from(positions, positions[-1]) > radius
     if not away_from_start.any():
         return slice(0, positions.shape[0])
     first = int(np.argmax(away_from_start))
@@ -235,7 +251,7 @@ def _time_order_rows(times: FloatArray, field: str) -> IntArray:
 def _repeat_mask(positions: FloatArray, tolerance: float) -> np.ndarray:
     """Keep a sample when it moved ``tolerance`` from its predecessor or the drift since
     the last kept sample reached it (arc length crossed into a new bin of that width)."""
-    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    steps = _step_lengths(positions)
     keep = np.ones(positions.shape[0], dtype=bool)
     if tolerance <= 0.0:
         keep[1:] = steps > 0.0
@@ -259,52 +275,63 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     interior sample k is a glitch when |x_k - (x_a + x_b) / 2| exceeds both ``CHORD_FACTOR``
     x |x_b - x_a| and ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step. The local step is the median of the
     5 steps around a single sample, of the 17 steps around a longer excursion (a resampled
-    glitch brings its own ramps). Every m is tested at once; medians are taken only where
-    a window passed the cheap test.
+    glitch brings its own ramps). Two necessary conditions on the whole window come first,
+    both from |x_k - (x_a + x_b) / 2| <= (path length from a to b) / 2: that half length
+    must exceed ``CHORD_FACTOR`` x |x_b - x_a| (tested on every window) and then the
+    window's limit (tested where the first one held: jitter of a standing arm passes the
+    first, rarely the second). Only the windows left are tested sample by sample.
     """
-    n = positions.shape[0]
+    n, dim = positions.shape
     spike = np.zeros(n, dtype=bool)
     if n < 5:
         return spike
-    diffs = np.diff(positions, axis=0)
-    steps = np.sqrt(np.einsum("ij,ij->i", diffs, diffs))
+    steps = _step_lengths(positions)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    # Cheap test first: a sample that far from the midpoint makes the path between a and
-    # b at least twice that long (dev <= arc / 2), so most windows need no more.
-    found_a: list[IntArray] = []
-    found_m: list[IntArray] = []
-    found_chord: list[FloatArray] = []
+    coords = np.ascontiguousarray(positions.T)  # (D, n): one contiguous row per axis
+    found: list[tuple[IntArray, int, FloatArray, FloatArray]] = []
     for run in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
-        chord_m = np.linalg.norm(positions[run + 1 :] - positions[: -run - 1], axis=1)
-        hit = np.flatnonzero(arc[run + 1 :] - arc[: -run - 1] > 2.0 * CHORD_FACTOR * chord_m)
-        found_a.append(hit)
-        found_m.append(np.full(hit.size, run))
-        found_chord.append(chord_m[hit])
+        chord_vectors = coords[:, run + 1 :] - coords[:, : n - run - 1]
+        square = chord_vectors[0] * chord_vectors[0]
+        for axis in range(1, dim):
+            square += chord_vectors[axis] * chord_vectors[axis]
+        chord_m = np.sqrt(square)
+        span_m = arc[run + 1 :] - arc[: n - run - 1]
+        hit = np.flatnonzero(span_m > 2.0 * CHORD_FACTOR * chord_m)
+        if hit.size:
+            found.append((hit, run, chord_m[hit], span_m[hit]))
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
-    a = np.concatenate(found_a)
-    if a.size:
-        m = np.concatenate(found_m)
-        chord = np.concatenate(found_chord)
+    if found:
+        a = np.concatenate([f[0] for f in found])
+        m = np.concatenate([np.full(f[0].size, f[1]) for f in found])
+        chord = np.concatenate([f[2] for f in found])
+        span = np.concatenate([f[3] for f in found])
         b = a + m + 1
-        # Each interior sample a + k (k = 1..m) on its own; the chord test first, so the
-        # local medians are taken only for windows where some sample passed it.
-        owner = np.repeat(np.arange(a.size), m)
-        k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
-        mid = 0.5 * (positions[a] + positions[b])
-        dev = np.linalg.norm(positions[a[owner] + k] - mid[owner], axis=1)
-        over = dev > CHORD_FACTOR * chord[owner]
-        if over.any():
-            owner, k, dev = owner[over], k[over], dev[over]
-            need = np.unique(owner)
-            step = np.zeros(a.size)
-            single = need[m[need] == 1]
-            longer = need[m[need] > 1]
-            step[single] = _local_medians(steps, width, a[single] + 1)
-            if longer.size:
-                wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
-                step[longer] = _local_medians(steps, wide, (a[longer] + b[longer]) // 2)
-            limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
-            spike[(a[owner] + k)[dev > limit[owner]]] = True
+        single = m == 1
+        centre = np.where(single, a + 1, (a + b) // 2)
+        # Windows share centres (a + 1, a + 2, ... for several m): one median per centre.
+        step = np.empty(a.size)
+        wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
+        for rows, window in ((single, width), (~single, wide)):
+            if rows.any():
+                needed = np.zeros(n, dtype=bool)
+                needed[centre[rows]] = True
+                at = np.flatnonzero(needed)
+                median_at = np.empty(n)
+                median_at[at] = _local_medians(steps, window, at)
+                step[rows] = median_at[centre[rows]]
+        limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+        # Half the path (with rounding slack) bounds every interior sample's deviation.
+        can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
+        if can.size:
+            a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
+            # Each interior sample a + k (k = 1..m) on its own.
+            owner = np.repeat(np.arange(a.size), m)
+            k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
+            mid = 0.5 * (np.take(positions, a, axis=0) + np.take(positions, b, axis=0))
+            off = np.take(positions, a[owner] + k, axis=0) - np.take(mid, owner, axis=0)
+            dev = np.sqrt(np.einsum("ij,ij->i", off, off))
+            glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
+            spike[(a[owner] + k)[glitch]] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     end_scale = _local_medians(steps, width, np.array([1, n - 2]))
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
@@ -312,15 +339,47 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     return spike
 
 
+#: Samples on each side of a removed glitch whose verdict the next pass can change: a
+#: window reaches 6 samples, a local median 8 steps beyond the window's centre.
+GLITCH_REACH = 16
+
+
 def _glitch_mask(positions: FloatArray) -> np.ndarray:
     """:func:`_spike_mask` repeated on what is left (at most ``GLITCH_PASSES`` times): once a
-    glitch's core is gone, the partial ramps a resampler left around it stand out in turn."""
-    glitch = np.zeros(positions.shape[0], dtype=bool)
-    for _ in range(GLITCH_PASSES):
-        left = np.flatnonzero(~glitch)
-        found = _spike_mask(positions[left])
+    glitch's core is gone, the partial ramps a resampler left around it stand out in turn.
+
+    A sample's verdict depends only on the samples within ``GLITCH_REACH`` of it (and on
+    whether an end of the demo lies there), so a later pass re-tests only the stretches
+    around what the previous pass removed, each with that much context: the same answer
+    as a whole pass, at the cost of a few short ones.
+    """
+    n = positions.shape[0]
+    glitch = np.zeros(n, dtype=bool)
+    left = np.arange(n)
+    found = _spike_mask(positions)
+    for _ in range(GLITCH_PASSES - 1):
         if not found.any():
-            break
+            return glitch
+        glitch[left[found]] = True
+        removed = left[found]
+        left = np.flatnonzero(~glitch)
+        m = left.size
+        if m <= 4 * GLITCH_REACH:
+            found = _spike_mask(np.take(positions, left, axis=0))
+            continue
+        # Where each removed sample was, in the new numbering; the stretches it can affect.
+        at = np.searchsorted(left, removed)
+        lo = np.maximum(at - GLITCH_REACH, 0)
+        hi = np.minimum(at + GLITCH_REACH, m - 1)
+        # Merge overlapping stretches (they are sorted by their start).
+        start = np.flatnonzero(np.concatenate([[True], lo[1:] > np.maximum.accumulate(hi)[:-1]]))
+        ends = np.maximum.accumulate(hi)[np.concatenate([start[1:] - 1, [hi.size - 1]])]
+        found = np.zeros(m, dtype=bool)
+        for first, last in zip(lo[start].tolist(), ends.tolist(), strict=True):
+            s0, s1 = max(0, first - GLITCH_REACH), min(m, last + GLITCH_REACH + 1)
+            verdict = _spike_mask(np.take(positions, left[s0:s1], axis=0))
+            found[first : last + 1] = verdict[first - s0 : last + 1 - s0]
+    if found.any():
         glitch[left[found]] = True
     return glitch
 
@@ -331,7 +390,7 @@ def _spaced_rows(positions: FloatArray, tolerance: float) -> IntArray:
     n = positions.shape[0]
     rows = np.arange(n)
     for _ in range(64):
-        chord = np.linalg.norm(np.diff(positions[rows], axis=0), axis=1)
+        chord = _step_lengths(np.take(positions, rows, axis=0))
         short = chord < tolerance
         if not short.any():
             return rows
@@ -354,7 +413,7 @@ def _spaced_rows(positions: FloatArray, tolerance: float) -> IntArray:
 
 
 def _arc_parameter(positions: FloatArray) -> FloatArray:
-    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    steps = _step_lengths(positions)
     s = np.concatenate([[0.0], np.cumsum(steps)])
     return s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, positions.shape[0])
 
@@ -392,8 +451,9 @@ def prepared_samples(
     """
     points = check_positions(positions, field)
     n = points.shape[0]
-    magnitude = np.abs(points).max(axis=1)
-    if magnitude.max() > MAX_COORDINATE:
+    reach = float(np.abs(points).max())
+    if reach > MAX_COORDINATE:
+        magnitude = np.abs(points).max(axis=1)
         row = int(np.argmax(magnitude > MAX_COORDINATE))
         raise InvalidInputError(
             f"expected coordinates of {field} within +-{MAX_COORDINATE:g} (metres to nanometres "
@@ -412,12 +472,12 @@ def prepared_samples(
             raise InvalidInputError(f"expected finite {tfield}, got NaN or Inf at row {row}", field=tfield)
         rows = _time_order_rows(times, tfield)
 
-    # Step 3: repeats (exact and rounding-level), then step 4: glitches.
-    pts = points[rows]
-    exact = mask_of_new_samples(pts)
-    rows, pts = rows[exact], pts[exact]
+    # Step 3: repeats (exact and rounding-level), then step 4: glitches. Rows are gathered
+    # with np.take: several times cheaper than fancy or boolean indexing of (T, D) arrays.
+    pts = points if times is None else np.take(points, rows, axis=0)
+    exact = np.flatnonzero(mask_of_new_samples(pts))
+    rows, pts = rows[exact], np.take(pts, exact, axis=0)
     size = robust_path_length(pts)
-    reach = float(np.abs(points).max())
     if size <= MIN_RELATIVE_MOTION * reach or size == 0.0:
         what = (
             f"all {n} samples are identical" if rows.size == 1
@@ -438,15 +498,18 @@ def prepared_samples(
             long = times[rows[run_end]] - times[rows[run_start]] > PAUSE_INTERVALS * interval
             keep[run_end[long]] = True
     exact_rows = rows
-    rows, pts = rows[keep], pts[keep]
+    kept = np.flatnonzero(keep)
+    rows, pts = rows[kept], np.take(pts, kept, axis=0)
     glitch = _glitch_mask(pts)
     # Every exact-deduplicated row stands for the kept sample it merged into; rows merged
     # into a glitch are glitches too (a poller repeating one at rounding level).
     flagged = np.zeros(keep.size, dtype=bool)
-    flagged[np.flatnonzero(keep)[glitch]] = True
+    flagged[kept[glitch]] = True
     representative = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))
     samples = exact_rows[~flagged[representative]]
-    rows, pts = rows[~glitch], pts[~glitch]
+    if glitch.any():
+        genuine = np.flatnonzero(~glitch)
+        rows, pts = rows[genuine], np.take(pts, genuine, axis=0)
 
     # Step 5: still ends, then step 6: arc-length spacing.
     window = moving_range(pts, still_tolerance)

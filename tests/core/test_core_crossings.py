@@ -52,14 +52,17 @@ def test_block_search_matches_the_dense_rule(shape: str, seed: int, n_samples: i
     np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("rounds", [1, 3])
+@pytest.mark.parametrize(("block", "group"), [(2, 1), (2, 3), (5, 4), (16, 4)])
 @pytest.mark.parametrize("seed", range(3))
-def test_ring_search_matches_the_dense_rule_on_looping_demos(
-    seed: int, rounds: int, monkeypatch: pytest.MonkeyPatch
+def test_block_search_matches_the_dense_rule_on_looping_demos(
+    seed: int, block: int, group: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # Random walks that loop back: many crossings per plane, far ones and ties. One ring
-    # round sends most pairs to the all-remaining-blocks step; three keep most in the rings.
-    monkeypatch.setattr(crossings, "RING_ROUNDS", rounds)
+    # Random walks that loop back: many crossings per plane, far ones, ties, and planes that
+    # cut many blocks. Small blocks put a pair's crossings in different blocks (the per-pair
+    # minimum across blocks); 16 puts several in one block (the minimum within a block).
+    # Groups of 3 leave a partial last group.
+    monkeypatch.setattr(crossings, "BLOCK", block)
+    monkeypatch.setattr(crossings, "GROUP", group)
     rng = np.random.default_rng(seed)
     n_samples = 90
     base = np.cumsum(rng.normal(size=(n_samples, 3)), axis=0)
