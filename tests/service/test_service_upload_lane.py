@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -257,3 +258,34 @@ def test_a_lane_runs_on_its_named_threads_raises_what_they_raise_and_restarts() 
         assert lane.stats()["completed"] == 4
     finally:
         lane.close()
+
+
+def test_wal_checkpoints_run_off_the_upload_path(tmp_path: Path) -> None:
+    """Uploads' inserts leave checkpoints to a thread of their own: the rows still reach the
+    database file (not only the WAL) while nobody else writes."""
+    from canal_service.storage import Database
+    from canal_service.storage import repository as repo
+
+    def checkpointers() -> set[threading.Thread]:
+        return {t for t in threading.enumerate() if t.name == "canal-checkpoint"}
+
+    others = checkpointers()  # of databases other tests left open
+    path = tmp_path / "canal.sqlite3"
+    db = Database(f"sqlite:///{path}")
+    db.migrate()
+    try:
+        with db.write() as session:
+            repo.create_skill(session, "pour", "", 3)
+        size_before = path.stat().st_size
+        demos = [demo_positions(j, n=1000, seed=j) for j in range(60)]  # ~1.4 MB of rows
+        stored = [repo.insert_demonstration(db, "pour", d, None, None, None, "json") for d in demos]
+        assert [s.checksum for s in stored] == [checksum(d) for d in demos]
+        ours = checkpointers() - others
+        assert len(ours) == 1
+        deadline = time.monotonic() + WAIT_S
+        while path.stat().st_size < size_before + 1_000_000 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert path.stat().st_size >= size_before + 1_000_000, "the WAL was never checkpointed"
+    finally:
+        db.dispose()
+    assert not any(t.is_alive() for t in ours)
