@@ -20,11 +20,13 @@ from fastapi.middleware.cors import CORSMiddleware
 from . import __version__
 from .core.config import Settings
 from .errors import install_error_handlers
+from .lanes import Lane
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, RequestMetrics
 from .routes import api_router, health, view
 from .service import CanalService, FitListeners, RecorderLike, ServiceHealth
 from .storage import Database
+from .uploads import UploadLimits
 
 if TYPE_CHECKING:
     from .bridge import Bridge, BridgeProcesses
@@ -92,6 +94,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         db.dispose()
         raise
     health_check = ServiceHealth(db, recorder, bridge)
+    # Uploads run on a lane of their own, not on AnyIO's shared pool (see lanes.py).
+    upload_lane = Lane("upload", settings.upload_workers)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -103,6 +107,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             if bridge is not None:
                 await run_in_threadpool(bridge.close)
+            await run_in_threadpool(upload_lane.close)
             if recorder is not None:
                 await run_in_threadpool(recorder.close)
             db.dispose()
@@ -119,6 +124,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.health = health_check
     app.state.metrics = metrics
     app.state.bridge = bridge
+    app.state.upload_lane = upload_lane
+    app.state.upload_limits = UploadLimits(
+        max_points=settings.upload_max_points,
+        max_decompressed_bytes=settings.upload_max_decompressed_bytes,
+        max_seconds=settings.upload_max_seconds)
     install_error_handlers(app)
     app.include_router(health.router)
     app.include_router(api_router)

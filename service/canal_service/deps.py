@@ -1,4 +1,9 @@
-"""Typed dependencies shared by the routes."""
+"""Typed dependencies shared by the routes.
+
+The getters are ``async def`` on purpose: FastAPI runs a plain ``def`` dependency in the
+thread pool, one round trip through a worker thread (and the GIL hand-overs it costs) per
+request, to read an attribute.
+"""
 
 from __future__ import annotations
 
@@ -13,19 +18,19 @@ from .errors import InvalidInput
 from .service import CanalService, ServiceHealth
 
 
-def get_service(request: Request) -> CanalService:
+async def get_service(request: Request) -> CanalService:
     """The app's service object (built by ``create_app``)."""
     service: CanalService = request.app.state.service
     return service
 
 
-def get_health(request: Request) -> ServiceHealth:
+async def get_health(request: Request) -> ServiceHealth:
     """The app's health check (built by ``create_app``)."""
     health: ServiceHealth = request.app.state.health
     return health
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     """The settings the app was built with."""
     settings: Settings = request.app.state.settings
     return settings

@@ -255,9 +255,8 @@ class CanalService:
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,
                           source: str) -> schemas.DemonstrationCreated:
         """Store a checked demonstration; its dimension was checked against the skill's."""
-        with self.db.write_connection() as connection:
-            stored = repo.insert_demonstration(connection, name, demo.positions, demo.timestamps,
-                                               demo.orientations, label, source)
+        stored = repo.insert_demonstration(self.db, name, demo.positions, demo.timestamps,
+                                           demo.orientations, label, source)
         created = schemas.DemonstrationCreated(id=stored.id, n_points=stored.n_points,
                                                checksum=stored.checksum)
         dim = stored.dim

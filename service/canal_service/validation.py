@@ -144,13 +144,13 @@ def check_orientations(value: Any, n_points: int) -> FloatArray:
 def check_fittable(positions: FloatArray, timestamps: FloatArray | None) -> None:
     """Run canal_core's preparation stage, as ``fit`` will, so an unfittable demo is refused now.
 
-    The fit aligns by arc length by default and by time when asked (``by_time``), so both
-    preparations must succeed. canal_core names the demo ``positions`` / ``timestamps`` here.
+    Once, the way ``fit`` prepares this demo: with its timestamps when it has them (``fit``
+    prepares stamped demos with their timestamps whatever the alignment, since the stamps
+    give the speed profile), by arc length otherwise. canal_core names the demo
+    ``positions`` / ``timestamps`` here.
     """
     try:
-        prepared_demonstration(positions, None, field="positions")
-        if timestamps is not None:
-            prepared_demonstration(positions, timestamps, field="positions", time_field="timestamps")
+        prepared_demonstration(positions, timestamps, field="positions", time_field="timestamps")
     except CanalError as exc:
         raise InvalidInput(f"demonstration cannot be fitted: {exc.message}",
                            field=exc.field or "positions") from exc

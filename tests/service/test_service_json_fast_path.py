@@ -85,6 +85,14 @@ def test_common_bodies_take_the_fast_path_with_the_models_values(raw: bytes) -> 
     b'{"positions": [[0, 0, 0, 0], [1, 0, 0, 0], [2, 0, 0, 0], [3, 0, 0, 0]]}',
     b'{"position": [[0, 0, 0]]}',
     b'{"positions": [[0, 0, 0]], "label": "\\u0074rue"}',
+    # what the one-pass byte check and the flat row conversion must not let through
+    b'{"positions": [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, [0]]]}',
+    b'{"positions": [[0, 0, 0], [1, 0, 0], [2, 0, 0], 3]}',
+    b'{"positions": [0, 1, 2, 3]}',
+    b'{"positions": [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, {"a": 1}]]}',
+    b'{"positions": [[0,0,0],[1,0,0],[2,0,0],[3,0,0]], "positions": [[0,0,0],[1,0,0]]}',
+    b'{"positions": [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], "timestamps": [0, [1], 2, 3]}',
+    b'{"label": "1,2", "positions": [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, "e"]]}',
 ])
 def test_anything_else_goes_to_the_model(raw: bytes) -> None:
     assert _fast_demonstration(raw) is None

@@ -38,7 +38,7 @@ def test_documented_spellings_parse(monkeypatch: pytest.MonkeyPatch, tmp_path: P
         "--zenoh-listen", "tcp/127.0.0.1:1", "--zenoh-listen", "tcp/127.0.0.1:2",
         "--zenoh-connect", "tcp/10.0.0.1:7447", "--zenoh-config", "z.json5",
         "--zenoh-prefix", "lab", "--zenoh-processes", "0", "--upload-max-seconds", "2.5",
-        "--zenoh-idle-s", "5"])
+        "--zenoh-idle-s", "5", "--upload-workers", "3"])
     assert (s.host, s.port, s.data_dir) == ("0.0.0.0", 8123, tmp_path)
     assert s.database_url == "postgresql+psycopg://u@h/db"
     assert s.recordings_dir == tmp_path / "r" and not s.recordings_enabled
@@ -49,6 +49,7 @@ def test_documented_spellings_parse(monkeypatch: pytest.MonkeyPatch, tmp_path: P
     assert s.zenoh_connect == ["tcp/10.0.0.1:7447"] and s.zenoh_config == Path("z.json5")
     assert s.zenoh_prefix == "lab" and s.zenoh_processes == 0
     assert s.upload_max_seconds == 2.5 and s.zenoh_idle_s == 5.0
+    assert s.upload_workers == 3
 
 
 def test_flags_override_the_environment_which_overrides_defaults(
@@ -68,6 +69,7 @@ def test_flags_override_the_environment_which_overrides_defaults(
     (["--port", "eighty"], "--port"),
     (["--zenoh-processes", "-1"], "--zenoh-processes"),
     (["--upload-max-seconds", "0"], "--upload-max-seconds"),
+    (["--upload-workers", "0"], "--upload-workers"),
 ])
 def test_a_bad_value_is_a_usage_error_naming_the_flag(
         argv: list[str], named: str, capsys: pytest.CaptureFixture[str]) -> None:

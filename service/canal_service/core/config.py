@@ -80,6 +80,11 @@ class Settings(BaseSettings):
     upload_max_seconds: float = Field(
         DEFAULT_UPLOAD_MAX_SECONDS, gt=0,
         description="Server time one file upload may take to parse (413 above).")
+    upload_workers: Annotated[int, Flag(metavar="N")] = Field(
+        2, ge=1, le=64,
+        description="Threads that run uploads (parse, checks, preparation, insert), apart from "
+                    "the pool that serves fits and reads; uploads hold the GIL, so a few threads "
+                    "taking turns beat many contending (docs/deployment.md).")
     model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
     log_level: str = Field("info", description="Log level (uvicorn's: debug, info, warning, "
                                                "error, critical).")

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ..lanes import name_os_thread
 from .events import (
     POSE,
     TARGET,
@@ -495,9 +496,15 @@ class Recorder:
             self._note("queue", f"event queue full ({self._event_cap}); "
                        f"{self.dropped_events} events dropped")
             return
+        idle = not self._events
         self._events.append(event)
         self._last_put = time.monotonic()
-        self._wake.set()
+        # With events queued the writer is already on its quiet_s timer: waking it for each
+        # upload of a burst would cost a thread wake-up and two GIL hand-overs per request,
+        # only for it to see the burst and sleep again. (A put racing the writer's last pop
+        # waits at most flush_interval_s.)
+        if idle or self._urgent or self.quiet_s <= 0:
+            self._wake.set()
 
     def _mark_urgent(self) -> None:
         with self._urgent_lock:
@@ -522,6 +529,7 @@ class Recorder:
     # ---- writer thread ------------------------------------------------------------------------
 
     def _run(self) -> None:
+        name_os_thread("canal-recorder")  # what top -H, py-spy and bench/service.py show
         try:
             self._recover_all()
         except Exception as exc:

@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response, status
-from fastapi.concurrency import run_in_threadpool
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 from starlette.datastructures import UploadFile
@@ -21,9 +20,10 @@ from canal_protocol.schemas import (
     demonstration_from_json,
 )
 
-from ..core.config import Settings
 from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
 from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
+from ..lanes import Lane
+from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
@@ -78,23 +78,13 @@ async def add_demonstration(
     """Store one demonstration; nothing is stored unless every check passes."""
     content_type = request.headers.get("content-type", "")
     base = content_type.split(";", 1)[0].strip().lower()
+    lane = upload_lane(request)
+    limits = upload_limits(request)
     if base == "application/json" or base.endswith("+json"):
         raw = await request.body()
-        if not raw.strip():
-            raise InvalidInput("expected a JSON body with 'positions', got an empty body",
-                               field="body")
-        limits = upload_limits(request)
-        # Each row is one '[' (positions and orientations; a label adds at most 256): refuse
-        # an oversized demo before parsing builds its objects.
-        if raw.count(b"[") > 2 * limits.max_points + 300:
-            raise _too_many_points(limits)
-        try:
-            body = demonstration_from_json(raw)
-        except ValidationError as exc:
-            raise RequestValidationError(exc.errors(include_url=False)) from exc
-        if len(body.positions) > limits.max_points:
-            raise _too_many_points(limits)
-        return await run_in_threadpool(service.add_json_demonstration, name, body)
+        # Parsing too runs on the lane: on the event loop it would hold every other
+        # request (and the bytes of the next upload) for its millisecond.
+        return await lane.run(_add_json, service, name, raw, limits)
     if base == "multipart/form-data":
         data, filename, part_type, form_label = await _read_multipart(request)
         if label is None:
@@ -110,16 +100,38 @@ async def add_demonstration(
     if not data:
         raise BadUpload("the uploaded file is empty", field="file")
     fmt = detect_format(format, filename, part_type, data)
-    return await run_in_threadpool(service.add_file_demonstration, name, fmt, data, topic, label,
-                                   upload_limits(request))
+    return await lane.run(service.add_file_demonstration, name, fmt, data, topic, label, limits)
+
+
+def _add_json(service: CanalService, name: str, raw: bytes,
+              limits: UploadLimits) -> DemonstrationCreated:
+    """Parse, check and store a JSON upload: the whole of it, on the upload lane."""
+    if not raw.strip():
+        raise InvalidInput("expected a JSON body with 'positions', got an empty body",
+                           field="body")
+    # Each row is one '[' (positions and orientations; a label adds at most 256): refuse
+    # an oversized demo before parsing builds its objects.
+    if raw.count(b"[") > 2 * limits.max_points + 300:
+        raise _too_many_points(limits)
+    try:
+        body = demonstration_from_json(raw)
+    except ValidationError as exc:
+        raise RequestValidationError(exc.errors(include_url=False)) from exc
+    if len(body.positions) > limits.max_points:
+        raise _too_many_points(limits)
+    return service.add_json_demonstration(name, body)
+
+
+def upload_lane(request: Request) -> Lane:
+    """The app's upload lane (``CANAL_UPLOAD_WORKERS`` threads)."""
+    lane: Lane = request.app.state.upload_lane
+    return lane
 
 
 def upload_limits(request: Request) -> UploadLimits:
-    """The deployment's per-upload limits (``CANAL_UPLOAD_*``)."""
-    settings: Settings = request.app.state.settings
-    return UploadLimits(max_points=settings.upload_max_points,
-                        max_decompressed_bytes=settings.upload_max_decompressed_bytes,
-                        max_seconds=settings.upload_max_seconds)
+    """The deployment's per-upload limits (``CANAL_UPLOAD_*``), built once with the app."""
+    limits: UploadLimits = request.app.state.upload_limits
+    return limits
 
 
 def _too_many_points(limits: UploadLimits) -> TooLarge:

@@ -2,7 +2,7 @@
 
 They raise the service's domain errors (``SkillNotFound``, ``SkillExists``, ...; no HTTP in
 them) so callers never see SQLAlchemy exceptions for expected situations. Transactions
-belong to the caller.
+belong to the caller (except the upload insert, a transaction of one statement).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import Connection, bindparam, delete, func, insert, select
+from sqlalchemy import bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
@@ -24,6 +24,7 @@ from ..errors import (
     SkillNotFound,
 )
 from . import arrays
+from .db import Database
 from .models import Demonstration, ModelVersion, Skill, utcnow
 
 
@@ -128,7 +129,7 @@ _INSERT_DEMONSTRATION = insert(Demonstration).from_select(
 
 
 def insert_demonstration(
-    connection: Connection,
+    db: Database,
     skill_name: str,
     positions: arrays.FloatArray,
     timestamps: arrays.FloatArray | None,
@@ -136,16 +137,18 @@ def insert_demonstration(
     label: str | None,
     source: str,
 ) -> StoredDemo:
-    """Store a checked demonstration in the caller's transaction: one Core statement.
+    """Store a checked demonstration: one statement, committed on its own.
 
-    The upload hot path: the skill is looked up and its dimension compared by the insert
-    itself (a skill deleted or recreated meanwhile cannot slip through), and no ORM objects
-    are built for a row that is only written.
+    The upload hot path, hence the exception to "transactions belong to the caller": the
+    skill is looked up and its dimension compared by the insert itself (a skill deleted or
+    recreated meanwhile cannot slip through), no ORM objects are built for a row that is
+    only written, and :meth:`Database.write_one` runs it on SQLite without SQLAlchemy's
+    per-execution work.
     """
     packed = arrays.pack(positions)
     digest = arrays.checksum_of_packed(packed)
     n_points, dim = int(positions.shape[0]), int(positions.shape[1])
-    demo_id = connection.execute(
+    row = db.write_one(
         _INSERT_DEMONSTRATION,
         {
             "name": skill_name, "dim": dim, "label": label, "n_points": n_points,
@@ -154,15 +157,16 @@ def insert_demonstration(
             "orientations": None if orientations is None else arrays.pack(orientations),
             "checksum": digest, "source": source, "created_at": utcnow(),
         },
-    ).scalar()
-    if demo_id is None:
-        raise _refused_insert(connection, skill_name, dim)
-    return StoredDemo(int(demo_id), n_points, digest, dim)
+    )
+    if row is None:
+        with db.read() as session:
+            raise _refused_insert(session, skill_name, dim)
+    return StoredDemo(int(row[0]), n_points, digest, dim)
 
 
-def _refused_insert(connection: Connection, skill_name: str, dim: int) -> SkillNotFound | InvalidInput:
+def _refused_insert(session: Session, skill_name: str, dim: int) -> SkillNotFound | InvalidInput:
     """Why :data:`_INSERT_DEMONSTRATION` inserted nothing: no such skill, or another dimension."""
-    found = connection.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
+    found = session.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
     if found is None:
         return SkillNotFound(f"no skill named {skill_name!r}", field="name")
     skill_dim = int(found[1])
