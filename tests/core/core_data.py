@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canal_core import datasets
+from canal_core import Canal, datasets
 
 
 def tube_demos(radius: float = 0.5, n_demos: int = 6, n_points: int = 80) -> list[np.ndarray]:
@@ -30,3 +30,12 @@ def sleeve_demos(radius: float = 0.05, n_demos: int = 6) -> list[np.ndarray]:
     _, n, b = rotation_minimizing_frames(base)
     angles = np.linspace(0.0, 2.0 * np.pi, n_demos, endpoint=False) + 0.3
     return [base + radius * (np.cos(a) * n + np.sin(a) * b) for a in angles]
+
+
+def tracker_starts(canal: Canal, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Starts spread along the first third of the canal, some inside, some outside (off the
+    section planes: a point exactly on a plane is a tie that rounding may break either way)."""
+    idx = rng.integers(0, max(canal.n_sections // 3, 1), n)
+    scale = rng.choice([0.2, 0.8, 1.5, 4.0], n)[:, None] * canal.radii.max()
+    along = rng.uniform(0.1, 0.9, n)[:, None] * (canal.directrix[idx + 1] - canal.directrix[idx])
+    return canal.directrix[idx] + along + scale * canal.normals[idx]

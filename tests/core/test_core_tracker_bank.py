@@ -4,19 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from core_data import helix_demos, sleeve_demos
+from core_data import helix_demos, sleeve_demos, tracker_starts
 
 import canal_core
 from canal_core import datasets
 from canal_core.tracker import VECTORISE_FROM, TrackerBank
-
-
-def _robots(canal: canal_core.Canal, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Starts along the first third of the canal, inside and outside, off the planes."""
-    idx = rng.integers(0, max(canal.n_sections // 3, 1), n)
-    scale = rng.choice([0.2, 0.8, 1.5, 4.0], n)[:, None] * canal.radii.max()
-    along = rng.uniform(0.1, 0.9, n)[:, None] * (canal.directrix[idx + 1] - canal.directrix[idx])
-    return canal.directrix[idx] + along + scale * canal.normals[idx]
 
 
 def _check(got, k: int, e) -> None:
@@ -33,7 +25,7 @@ def test_bank_steps_equal_scalar_steps_along_whole_runs(demos, cross_section: st
     canal = canal_core.fit(demos(), n_samples=120, cross_section=cross_section)
     rng = np.random.default_rng(3)
     b = 12
-    x = _robots(canal, b, rng)
+    x = tracker_starts(canal, b, rng)
     scalar = [canal.tracker(lookahead=2) for _ in range(b)]
     bank = TrackerBank(scalar[0].geometry, lookahead=2, capacity=4)  # grows on the way
     slots = [bank.add() for _ in range(b)]
@@ -65,7 +57,7 @@ def test_bank_carries_orientation_and_velocity_like_the_scalar_step() -> None:
     times = [np.linspace(0.0, 2.0 + 0.1 * j, len(d)) for j, d in enumerate(demos)]
     canal = canal_core.fit(demos, orientations=quats, timestamps=times, n_samples=60)
     b = 2 * VECTORISE_FROM  # the vectorised pass
-    x = _robots(canal, b, np.random.default_rng(4))
+    x = tracker_starts(canal, b, np.random.default_rng(4))
     scalar = [canal.tracker(lookahead=2) for _ in range(b)]
     bank = TrackerBank(scalar[0].geometry, lookahead=2)
     slots = [bank.add() for _ in range(b)]

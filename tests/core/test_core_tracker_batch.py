@@ -4,20 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from core_data import helix_demos, sleeve_demos
+from core_data import helix_demos, sleeve_demos, tracker_starts
 
 import canal_core
 from canal_core import datasets
 from canal_core.tracker import Tracker, TrackerState, step_trackers, tracker_steps
-
-
-def _robots(canal: canal_core.Canal, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Starts spread along the first third of the canal, some inside, some outside (off the
-    section planes: a point exactly on a plane is a tie that rounding may break either way)."""
-    idx = rng.integers(0, max(canal.n_sections // 3, 1), n)
-    scale = rng.choice([0.2, 0.8, 1.5, 4.0], n)[:, None] * canal.radii.max()
-    along = rng.uniform(0.1, 0.9, n)[:, None] * (canal.directrix[idx + 1] - canal.directrix[idx])
-    return canal.directrix[idx] + along + scale * canal.normals[idx]
 
 
 @pytest.mark.parametrize("cross_section", ["circle", "ellipse"])
@@ -26,7 +17,7 @@ def test_batched_steps_equal_scalar_steps_along_whole_runs(demos, cross_section:
     canal = canal_core.fit(demos(), n_samples=120, cross_section=cross_section)
     rng = np.random.default_rng(3)
     b = 12
-    x = _robots(canal, b, rng)
+    x = tracker_starts(canal, b, rng)
     scalar = [canal.tracker(lookahead=2) for _ in range(b)]
     batched = [Tracker(scalar[0].geometry, lookahead=2) for _ in range(b)]
     for k in range(120):
@@ -66,7 +57,7 @@ def test_batched_steps_carry_the_same_orientation_and_velocity_as_scalar_steps()
     demos = sleeve_demos()
     quats = [Rotation.from_euler("z", np.linspace(0.0, 90.0, len(d))[:, None], degrees=True).as_quat() for d in demos]
     canal = canal_core.fit(demos, orientations=quats, n_samples=60)
-    x = _robots(canal, 5, np.random.default_rng(4))
+    x = tracker_starts(canal, 5, np.random.default_rng(4))
     scalar = [canal.tracker() for _ in range(5)]
     batched = [Tracker(scalar[0].geometry) for _ in range(5)]
     expected = [t.step(p) for t, p in zip(scalar, x, strict=True)]
