@@ -302,150 +302,163 @@ def tracker_steps(
     The answers equal B calls of :func:`tracker_step` (same sections, flags and plan; floats
     up to the last bits of a reordered sum). A live bridge receives the poses of many robots
     at once; one numpy pass costs about what one scalar step costs, so per-pose work drops
-    by the batch size. Rows the window search cannot place (pushed ahead, behind the
-    window), non-circular sections and canals of fewer than three sections take the scalar
-    path.
+    by the batch size. The pass is :func:`batched_tracker_step` (rows the window search
+    cannot place follow the scalar step's rules there); non-circular sections, canals of
+    fewer than three sections and a single stream take the scalar path.
     """
     b = len(states)
     g = geometry
     n = g.centres.shape[0]
-    out_t: list[TrackerTarget | None] = [None] * b
-    out_s: list[TrackerState | None] = [None] * b
     positions = np.asarray(positions, dtype=np.float64)
     if b == 0:
         return [], []
     if not g.sections.spec.isotropic or n < 3 or b == 1:
-        for i in range(b):
-            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
-        return out_t, out_s  # type: ignore[return-value]
+        pairs = [tracker_step(g, states[i], positions[i], lookahead, replan_tolerance)
+                 for i in range(b)]
+        return [t for t, _ in pairs], [st for _, st in pairs]
+    k = g.basis.shape[1]
+    index = np.fromiter([st.index for st in states], dtype=np.intp, count=b)
+    eta = np.fromiter([math.nan if st.eta is None or st.direction is None else st.eta
+                       for st in states], dtype=np.float64, count=b)
+    direction = np.array([np.zeros(k) if st.direction is None else st.direction
+                          for st in states], dtype=np.float64).reshape(b, k)
     with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
-        _steps_vectorised(g, states, positions, lookahead, replan_tolerance, out_t, out_s)
-    return out_t, out_s  # type: ignore[return-value]
+        out, new_index, plan_eta, plan_dir = batched_tracker_step(
+            g, index, eta, direction, positions, lookahead, replan_tolerance)
+    velocity = out.velocity
+    orientation = out.orientation
+    targets = [
+        TrackerTarget(out.target[r], prog, et, ix, ins, dn,
+                      None if velocity is None else velocity[r],
+                      None if orientation is None else orientation[r])
+        for r, (prog, et, ix, ins, dn) in enumerate(zip(
+            out.progress.tolist(), out.eta.tolist(), out.section_index.tolist(),
+            out.inside.tolist(), out.done.tolist(), strict=True))]
+    new_states = [TrackerState(ni, pe, plan_dir[r])
+                  for r, (ni, pe) in enumerate(zip(new_index.tolist(), plan_eta.tolist(),
+                                                   strict=True))]
+    return targets, new_states
 
 
 _WINDOW_COLUMNS = np.arange(WINDOW + 2)[None, :]
 
 
-def _steps_vectorised(
+def batched_tracker_step(
     g: TrackerGeometry,
-    states: list[TrackerState],
-    positions: FloatArray,
+    last_index: NDArray[np.intp],
+    old_eta: FloatArray,
+    old_dir: FloatArray,
+    p: FloatArray,
     lookahead: int,
-    replan_tolerance: float,
-    out_t: list[TrackerTarget | None],
-    out_s: list[TrackerState | None],
-) -> None:
-    """The window search for every row in one pass; rows it places take the vectorised rest
-    of :func:`tracker_step` (circle sections), the others the scalar step."""
-    b = len(states)
+    replan_tolerance: float = REPLAN_TOLERANCE,
+) -> tuple[TrackerBatch, NDArray[np.intp], FloatArray, FloatArray]:
+    """:func:`tracker_step` for B streams of one circle-section canal (N >= 3) in one pass.
+
+    The window search for every row, and for the rows it cannot place the same rules as
+    :func:`tracker_step` (pushed ahead: the bracketing pair ahead nearest the robot; past the
+    last plane: the last pair; behind: hold). Used by :class:`TrackerBank` (state held as
+    arrays) and :func:`tracker_steps` (state as objects).
+
+    Parameters
+    ----------
+    g : TrackerGeometry
+    last_index : array of int, shape (B,)
+        Section each stream had reached.
+    old_eta : array, shape (B,)
+        Each stream's planned ratio; NaN: no plan yet.
+    old_dir : array, shape (B, D - 1)
+        Each stream's planned unit in-plane direction (any value where there is no plan).
+    p : array, shape (B, D)
+        Live positions.
+    lookahead, replan_tolerance
+        As :func:`tracker_step` (lookahead >= 1).
+
+    Returns
+    -------
+    answers : TrackerBatch
+    index : array of int, shape (B,)
+        Section reached after the step.
+    plan_eta : array, shape (B,)
+    plan_dir : array, shape (B, D - 1)
+        The plan after the step.
+    """
     n = g.centres.shape[0]
-    last_index = np.fromiter([s.index for s in states], dtype=np.intp, count=b)
-    # every plane's signed distance for every robot in one product, (B, N): cheaper than
-    # gathering B windows of tangents, and it holds d0, d1 and the last plane too
-    dist_all = positions @ g.tangents.T
+    b = p.shape[0]
+    lookahead = max(int(lookahead), 1)
+    dist_all = p @ g.tangents.T
     dist_all -= g.offsets
     lo = np.maximum(last_index - 1, 0)
+    hi = np.minimum(last_index + WINDOW, n - 1)
     cols = lo[:, None] + _WINDOW_COLUMNS
-    valid = cols[:, 1:] <= np.minimum(last_index + WINDOW, n - 1)[:, None]
+    valid = cols[:, 1:] <= hi[:, None]
     np.minimum(cols, n - 1, out=cols)
-    dist = dist_all[np.arange(b)[:, None], cols]
+    ar = np.arange(b)
+    dist = dist_all[ar[:, None], cols]
     above = dist > 0.0
     change = above[:, :-1] != above[:, 1:]
     change |= dist[:, :-1] == 0.0
     change &= valid
     first = change.argmax(axis=1)
-    found = change[np.arange(b), first]
-    index = np.minimum(lo + first, n - 2)
-    if found.all():
-        rows = None
-    else:
-        rows = np.flatnonzero(found)
-        for i in np.flatnonzero(~found).tolist():
-            out_t[i], out_s[i] = tracker_step(g, states[i], positions[i], lookahead,
-                                              replan_tolerance)
-        if rows.size == 0:
-            return
-        states = [states[r] for r in rows.tolist()]
-        positions, dist_all = positions[rows], dist_all[rows]
-        index, last_index = index[rows], last_index[rows]
-    _steps_found(g, states, positions, dist_all, rows, index, last_index, lookahead,
-                 replan_tolerance, out_t, out_s)
-
-
-def _steps_found(
-    g: TrackerGeometry,
-    states: list[TrackerState],
-    p: FloatArray,
-    dist_all: FloatArray,
-    rows: np.ndarray | None,
-    index: np.ndarray,
-    last_index: np.ndarray,
-    lookahead: int,
-    replan_tolerance: float,
-    out_t: list[TrackerTarget | None],
-    out_s: list[TrackerState | None],
-) -> None:
-    """The vectorised rest of :func:`tracker_step` for circle sections, rows located in
-    their window (``index`` in [0, n - 2]); ``states``, ``p`` and ``dist_all`` are those
-    rows' (``rows`` None: all rows). Few numpy calls on (B, ...) arrays and one Python loop
-    that only packs the answers: this runs for every live pose."""
-    n = g.centres.shape[0]
-    b = index.shape[0]
-    ar = np.arange(b)
-    upper = index + 1
-    target_index = np.minimum(index + max(lookahead, 1), n - 1)
+    found = change[ar, first]
+    index = lo + first  # a placed row's pair lies inside its window: index <= n - 2
+    if not found.all():
+        lost = np.flatnonzero(~found)
+        index[lost] = _unplaced_sections(g, p[lost], dist_all[lost], lo[lost], hi[lost])
+        np.clip(index, 0, n - 2, out=index)
     d0 = dist_all[ar, index]
-    d1 = dist_all[ar, upper]
-    # in-plane coordinates at both planes of the pair, basis_i (x - c_i): (B, K) each
-    if g.pair_basis is not None and g.pair_centres is not None:
-        q01 = (g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None])
-        q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
-    else:
-        q0 = (g.basis[index] @ (p - g.centres[index])[:, :, None])[:, :, 0]
-        q1 = (g.basis[upper] @ (p - g.centres[upper])[:, :, None])[:, :, 0]
-    r0, r1, r2 = g.sections.params["radius"][np.stack([index, upper, target_index])]
+    d1 = dist_all[ar, index + 1]
+    target_index = np.minimum(index + lookahead, n - 1)
+    assert g.pair_basis is not None and g.pair_centres is not None
+    q01 = g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None]
+    q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
+    radius = g.sections.params["radius"]
+    r0, r1, r2 = radius[index], radius[index + 1], radius[target_index]
     span = d0 - d1
     alpha = np.where(span != 0.0, np.clip(d0 / span, 0.0, 1.0), 0.0)
-    a1 = alpha[:, None]
-    q = (1.0 - a1) * q0 + a1 * q1
+    q = q0 + alpha[:, None] * (q1 - q0)
     norm = np.sqrt(np.einsum("bk,bk->b", q, q))
-    default = _DEFAULT_DIRECTIONS[q.shape[1]]
-    direction = np.where((norm > 0.0)[:, None], q / norm[:, None], default)
-    reach = (1.0 - alpha) * r0 + alpha * r1
+    direction = np.where((norm > 0.0)[:, None], q / norm[:, None],
+                         _DEFAULT_DIRECTIONS[q.shape[1]])
+    reach = r0 + alpha * (r1 - r0)
     eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
-    plan_eta = np.minimum(eta, MAX_PLAN_ETA)
-    plan_dir = direction
-    if states[0].eta is not None or any(st.eta is not None for st in states):
-        planned = np.fromiter([st.eta is not None and st.direction is not None
-                               for st in states], dtype=bool, count=b)
-        old_eta = np.fromiter([0.0 if st.eta is None else st.eta for st in states],
-                              dtype=np.float64, count=b)
-        old_dir = np.array([default if st.direction is None else st.direction
-                            for st in states])
-        # circle sections: the reference reach equals the live one
-        gap = q - (old_eta * reach)[:, None] * old_dir
-        keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap)) <= replan_tolerance * reach)
-        plan_eta = np.where(keep, old_eta, plan_eta)
-        plan_dir = np.where(keep[:, None], old_dir, direction)
-    inside = (eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0)) & ~((index == n - 2) & (d1 > 0.0))
-    target = g.centres[target_index] + (
-        (plan_eta * r2)[:, None, None] * plan_dir[:, :, None] * g.basis[target_index]).sum(axis=1)
+    planned = ~np.isnan(old_eta)
+    # circle sections: the reference reach equals the live one
+    gap = q - (np.where(planned, old_eta, 0.0) * reach)[:, None] * old_dir
+    keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap)) <= replan_tolerance * reach)
+    plan_eta = np.where(keep, old_eta, np.minimum(eta, MAX_PLAN_ETA))
+    plan_dir = np.where(keep[:, None], old_dir, direction)
+    inside = ((eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0))
+              & ~((index == n - 2) & (d1 > 0.0)))
+    target = g.centres[target_index] + (plan_eta * r2)[:, None] * np.einsum(
+        "bk,bkd->bd", plan_dir, g.basis[target_index])
     done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
     progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
-    new_index = np.maximum(last_index, index)
-    orientations = None if g.orientations is None else g.orientations[target_index]
-    feed = g.section_times is not None
-    ti = target_index.tolist() if feed else None
-    for k, (prog, et, ix, ins, dn, ni, pe) in enumerate(zip(
-            progress.tolist(), eta.tolist(), index.tolist(), inside.tolist(), done.tolist(),
-            new_index.tolist(), plan_eta.tolist(), strict=True)):
-        r = k if rows is None else int(rows[k])
-        tgt = target[k]
-        pd = plan_dir[k]
-        velocity = None if ti is None else _feed_forward(g, ti[k], tgt, pe, pd)
-        out_t[r] = TrackerTarget(tgt, prog, et, ix, ins, dn, velocity,
-                                 None if orientations is None else orientations[k])
-        out_s[r] = TrackerState(ni, pe, pd)
+    orientation = None if g.orientations is None else g.orientations[target_index]
+    velocity = None if g.section_times is None else _feed_forwards(
+        g, target_index, target, plan_eta, plan_dir)
+    answers = TrackerBatch(target, progress, eta, index, inside, done, velocity, orientation)
+    return answers, np.maximum(last_index, index), plan_eta, plan_dir
+
+
+def _unplaced_sections(g: TrackerGeometry, p: FloatArray, dist_all: FloatArray,
+                       lo: NDArray[np.intp], hi: NDArray[np.intp]) -> NDArray[np.intp]:
+    """Sections of rows the window did not place, by :func:`tracker_step`'s rules."""
+    n = g.centres.shape[0]
+    ar = np.arange(p.shape[0])
+    end = dist_all[ar, hi]
+    ahead = (end > 0.0) & (hi < n - 1)
+    index = np.where(end > 0.0, n - 2, lo)  # past the last plane / behind: hold
+    if ahead.any():
+        rows = np.flatnonzero(ahead)
+        d = dist_all[rows]
+        # as _nearest_crossing_ahead: among the bracketing pairs from the window's end
+        # on, the one whose first centre is nearest the robot (none: the last pair)
+        change = (d[:, :-1] == 0.0) | ((d[:, :-1] > 0.0) != (d[:, 1:] > 0.0))
+        change &= np.arange(n - 1)[None, :] >= hi[rows][:, None]
+        gaps = np.linalg.norm(g.centres[None, :-1, :] - p[rows][:, None, :], axis=2)
+        gaps[~change] = np.inf
+        index[rows] = np.where(change.any(axis=1), gaps.argmin(axis=1), n - 2)
+    return index
 
 
 def _feed_forward(
@@ -544,8 +557,8 @@ class TrackerBank:
     vectorised pass that reads and writes the state arrays directly, with no per-stream
     Python object on the way in or out. The answers equal :func:`tracker_step` on each
     slot's state (same sections, flags and plan; floats up to the last bits of a reordered
-    sum). Rows the window search cannot place, non-circular sections and canals of fewer than
-    three sections take the scalar step.
+    sum). The pass is :func:`batched_tracker_step`; non-circular sections, canals of fewer
+    than three sections and batches under :data:`VECTORISE_FROM` rows take the scalar step.
 
     Parameters
     ----------
@@ -573,11 +586,6 @@ class TrackerBank:
         self.direction = np.zeros((cap, k))
         self._free = list(range(cap - 1, -1, -1))
         self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
-        if self._isotropic:
-            radius = np.asarray(geometry.sections.params["radius"], dtype=np.float64)
-            # each pair's radii side by side, (N - 1, 2): one gather per batch
-            self._pair_radius = np.ascontiguousarray(np.stack([radius[:-1], radius[1:]], axis=1))
-            self._radius = radius
 
     def __len__(self) -> int:
         """Slots in use."""
@@ -655,93 +663,12 @@ class TrackerBank:
                 out.orientation[r] = t.orientation
 
     def _vectorised(self, slots: NDArray[np.intp], p: FloatArray) -> TrackerBatch:
-        """Every row in one pass (circle sections): the window search, and for the rows it
-        cannot place the same rules as :func:`tracker_step` (pushed ahead: the bracketing
-        pair ahead nearest the robot; past the last plane: the last pair; behind: hold)."""
-        g = self.geometry
-        n = g.centres.shape[0]
-        b = p.shape[0]
-        last_index = self.index[slots]
-        dist_all = p @ g.tangents.T
-        dist_all -= g.offsets
-        lo = np.maximum(last_index - 1, 0)
-        hi = np.minimum(last_index + WINDOW, n - 1)
-        cols = lo[:, None] + _WINDOW_COLUMNS
-        valid = cols[:, 1:] <= hi[:, None]
-        np.minimum(cols, n - 1, out=cols)
-        ar = np.arange(b)
-        dist = dist_all[ar[:, None], cols]
-        above = dist > 0.0
-        change = above[:, :-1] != above[:, 1:]
-        change |= dist[:, :-1] == 0.0
-        change &= valid
-        first = change.argmax(axis=1)
-        found = change[ar, first]
-        index = lo + first  # a placed row's pair lies inside its window: index <= n - 2
-        if not found.all():
-            lost = np.flatnonzero(~found)
-            index[lost] = self._unplaced(p[lost], dist_all[lost], lo[lost], hi[lost])
-            np.clip(index, 0, n - 2, out=index)
-        d0 = dist_all[ar, index]
-        d1 = dist_all[ar, index + 1]
-        target_index = np.minimum(index + self.lookahead, n - 1)
-        assert g.pair_basis is not None and g.pair_centres is not None
-        q01 = g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None]
-        q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
-        r01 = self._pair_radius[index]
-        r0 = r01[:, 0]
-        r2 = self._radius[target_index]
-        span = d0 - d1
-        alpha = np.where(span != 0.0, np.clip(d0 / span, 0.0, 1.0), 0.0)
-        q = q0 + alpha[:, None] * (q1 - q0)
-        norm = np.sqrt(np.einsum("bk,bk->b", q, q))
-        direction = np.where((norm > 0.0)[:, None], q / norm[:, None],
-                             _DEFAULT_DIRECTIONS[q.shape[1]])
-        reach = r0 + alpha * (r01[:, 1] - r0)
-        eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
-        old_eta = self.eta[slots]
-        old_dir = self.direction[slots]
-        planned = ~np.isnan(old_eta)
-        # circle sections: the reference reach equals the live one
-        gap = q - (np.where(planned, old_eta, 0.0) * reach)[:, None] * old_dir
-        keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap))
-                          <= self.replan_tolerance * reach)
-        plan_eta = np.where(keep, old_eta, np.minimum(eta, MAX_PLAN_ETA))
-        plan_dir = np.where(keep[:, None], old_dir, direction)
-        inside = ((eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0))
-                  & ~((index == n - 2) & (d1 > 0.0)))
-        target = g.centres[target_index] + (plan_eta * r2)[:, None] * np.einsum(
-            "bk,bkd->bd", plan_dir, g.basis[target_index])
-        done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
-        progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
-        orientation = None if g.orientations is None else g.orientations[target_index]
-        velocity = None if g.section_times is None else _feed_forwards(
-            g, target_index, target, plan_eta, plan_dir)
-        self.index[slots] = np.maximum(last_index, index)
-        self.eta[slots] = plan_eta
-        self.direction[slots] = plan_dir
-        return TrackerBatch(target, progress, eta, index, inside, done, velocity, orientation)
-
-    def _unplaced(self, p: FloatArray, dist_all: FloatArray, lo: NDArray[np.intp],
-                  hi: NDArray[np.intp]) -> NDArray[np.intp]:
-        """Sections of rows the window did not place, by :func:`tracker_step`'s rules."""
-        g = self.geometry
-        n = g.centres.shape[0]
-        ar = np.arange(p.shape[0])
-        end = dist_all[ar, hi]
-        ahead = (end > 0.0) & (hi < n - 1)
-        index = np.where(end > 0.0, n - 2, lo)  # past the last plane / behind: hold
-        if ahead.any():
-            rows = np.flatnonzero(ahead)
-            d = dist_all[rows]
-            # as _nearest_crossing_ahead: among the bracketing pairs from the window's end
-            # on, the one whose first centre is nearest the robot (none: the last pair)
-            change = (d[:, :-1] == 0.0) | ((d[:, :-1] > 0.0) != (d[:, 1:] > 0.0))
-            change &= np.arange(n - 1)[None, :] >= hi[rows][:, None]
-            gaps = np.linalg.norm(g.centres[None, :-1, :] - p[rows][:, None, :], axis=2)
-            gaps[~change] = np.inf
-            index[rows] = np.where(change.any(axis=1), gaps.argmin(axis=1), n - 2)
-        return index
+        """Every row in one pass (:func:`batched_tracker_step`), state read and written in
+        the slot arrays."""
+        out, self.index[slots], self.eta[slots], self.direction[slots] = batched_tracker_step(
+            self.geometry, self.index[slots], self.eta[slots], self.direction[slots], p,
+            self.lookahead, self.replan_tolerance)
+        return out
 
 
 def _feed_forwards(g: TrackerGeometry, index: NDArray[np.intp], target: FloatArray,
