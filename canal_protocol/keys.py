@@ -193,7 +193,7 @@ def recorder_wildcard(prefix: str = "canal") -> str:
 
 def bridge_of_batch(key: str, prefix: str = "canal") -> str | None:
     """The bridge chunk of a :func:`recorder_key`, or None when ``key`` is not one."""
-    start = f"{prefix.rstrip('/')}/{RECORDER}/"
+    start = f"{head(prefix)}{RECORDER}/"
     if not key.startswith(start):
         return None
     bridge = key[len(start):]

@@ -314,16 +314,6 @@ class Recorder:
             for robot, n in unflushed.items():
                 into[(skill, robot)] = into.get((skill, robot), 0) + n
 
-    def live_flags(self, skill: str, robot: str) -> tuple[bool, bool] | None:
-        """(inside, done) of the last target kept for this robot, or None."""
-        last = self._live_last.get((skill, robot, TARGET))
-        return None if last is None else (last[1], last[2])
-
-    def wants_live(self, skill: str, robot: str, kind: int, t_ns: int) -> bool:
-        """Whether a sample at ``t_ns`` would pass the rate limit (a cheap pre-check)."""
-        last = self._live_last.get((skill, robot, kind))
-        return last is None or not 0 <= t_ns - last[0] < self._period_ns
-
     def skill_deleted(self, skill: str) -> None:
         """The skill is gone: its recording is deleted."""
         if self._closed:
