@@ -213,12 +213,6 @@ def box_balls(lo: FloatArray, hi: FloatArray) -> tuple[FloatArray, FloatArray]:
     return 0.5 * (lo + hi), 0.5 * np.sqrt(np.einsum("...d,...d->...", hi - lo, hi - lo))
 
 
-def block_balls(blocks: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Centres (n, nb, D) and radii (n, nb) of the balls around the bounding boxes of the
-    blocks of :func:`block_views`."""
-    return box_balls(*block_boxes(blocks))
-
-
 def _segment_key(seg: IntArray, section: IntArray) -> IntArray:
     """Integer preference of segment s for section i: the lexicographic order of
     (|s + 0.5 - i|, s) as one number, 2 |2s + 1 - 2i| + [s >= i]."""
