@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.linalg import solve_banded
 
 from .validation import FloatArray
 from .warping import dtw_path
@@ -54,17 +55,102 @@ def increasing_rows(parameter: FloatArray) -> np.ndarray:
     return keep
 
 
-def demonstration_spline(positions: FloatArray, timestamps: FloatArray | None) -> CubicSpline:
-    """Cubic spline through a demonstration over its parameter in [0, 1] (Section 4.1).
+def spline_knots(positions: FloatArray, timestamps: FloatArray | None) -> tuple[FloatArray, FloatArray]:
+    """Knots and values of a demonstration's spline: parameter in [0, 1] and positions.
 
     The parameter is strictly increasing by construction (:func:`increasing_rows`).
+
+    Returns
+    -------
+    knots : array, shape (K,)
+    values : array, shape (K, D)
     """
     u = spline_parameter(positions, timestamps)
     keep = increasing_rows(u)
     if not keep[-1]:  # end exactly at 1: keep the last sample, drop the one it repeats
         keep[np.flatnonzero(keep)[-1]] = False
         keep[-1] = True
-    return CubicSpline(u[keep], positions[keep], axis=0)
+    return u[keep], positions[keep]
+
+
+def demonstration_spline(positions: FloatArray, timestamps: FloatArray | None) -> CubicSpline:
+    """Cubic spline through a demonstration over its parameter in [0, 1] (Section 4.1).
+
+    The parameter is strictly increasing by construction (:func:`increasing_rows`).
+    """
+    knots, values = spline_knots(positions, timestamps)
+    return CubicSpline(knots, values, axis=0)
+
+
+def stacked_spline_values(knots: list[FloatArray], values: list[FloatArray], at: FloatArray) -> FloatArray:
+    """Not-a-knot cubic splines through several demonstrations, evaluated at ``at``.
+
+    The same numbers as ``CubicSpline(knots[j], values[j], axis=0)(at)`` (scipy) for every j,
+    with every demonstration's tridiagonal system for the slopes s_k solved in one call:
+    the systems are stacked into one block-diagonal system whose coupling entries are zero,
+    so elimination never mixes two demonstrations. scipy's per-spline set-up cost
+    (validation, one LAPACK call and one polynomial object per demonstration) dominated the
+    alignment of raw logs.
+
+    Parameters
+    ----------
+    knots : list of arrays, each shape (K_j,)
+        Strictly increasing.
+    values : list of arrays, each shape (K_j, D)
+    at : array, shape (M,)
+
+    Returns
+    -------
+    array, shape (n, M, D)
+    """
+    sizes = np.array([k.size for k in knots])
+    if sizes.min() < 4:  # scipy's special cases (a line, a parabola)
+        return np.stack([CubicSpline(k, v, axis=0)(at) for k, v in zip(knots, values, strict=True)])
+    x = np.concatenate(knots)
+    y = np.concatenate(values)
+    first = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    last = first + sizes - 1
+    # Differences across two demonstrations are computed too (finite: parameters run from
+    # 0 to 1) and never used: the rows and columns they would fill are overwritten below.
+    dx = np.diff(x)
+    dxr = dx[:, None]
+    slope = np.diff(y, axis=0) / dxr
+    # The banded matrix and right-hand side of scipy's CubicSpline, rows of all demos.
+    ab = np.zeros((3, x.size))
+    ab[1, 1:-1] = 2 * (dx[:-1] + dx[1:])  # diagonal
+    ab[0, 2:] = dx[:-1]  # upper diagonal
+    ab[-1, :-2] = dx[1:]  # lower diagonal
+    b = np.empty(y.shape)
+    b[1:-1] = 3 * (dxr[1:] * slope[:-1] + dxr[:-1] * slope[1:])
+    # Not-a-knot at both ends of every demonstration.
+    f, g = first, last
+    ab[1, f] = dx[f + 1]
+    ab[0, f + 1] = x[f + 2] - x[f]
+    d = (x[f + 2] - x[f])[:, None]
+    b[f] = ((dxr[f] + 2 * d) * dxr[f + 1] * slope[f] + dxr[f] ** 2 * slope[f + 1]) / d
+    ab[1, g] = dx[g - 2]
+    ab[-1, g - 1] = x[g] - x[g - 2]
+    d = (x[g] - x[g - 2])[:, None]
+    b[g] = (dxr[g - 1] ** 2 * slope[g - 2] + (2 * d + dxr[g - 1]) * dxr[g - 2] * slope[g - 1]) / d
+    # No coupling between one demonstration's last row and the next one's first.
+    ab[0, f] = 0.0
+    ab[-1, g] = 0.0
+    s = solve_banded((1, 1), ab, b, overwrite_ab=True, overwrite_b=True, check_finite=False)
+    # Hermite coefficients per interval, evaluated as scipy's PPoly does (powers of the
+    # offset from the interval's left knot, summed from the constant term up).
+    t = (s[:-1] + s[1:] - 2 * slope) / dxr
+    c0 = t / dxr
+    c1 = (slope - s[:-1]) / dxr - t
+    interval = np.concatenate([
+        f0 + np.clip(np.searchsorted(k, at, side="right") - 1, 0, k.size - 2)
+        for f0, k in zip(first.tolist(), knots, strict=True)
+    ])
+    z = (np.tile(at, len(knots)) - x[interval])[:, None]
+    z2 = z * z
+    out = np.take(y, interval, axis=0) + np.take(s, interval, axis=0) * z
+    out += np.take(c1, interval, axis=0) * z2
+    out += np.take(c0, interval, axis=0) * (z2 * z)
+    return out.reshape(len(knots), at.size, y.shape[1])
 
 
 def strictly_increasing_warp(index: FloatArray, last: float) -> FloatArray:
@@ -95,9 +181,8 @@ def resampled_demonstrations(
     aligned : array, shape (n, N, D)
     """
     u = np.linspace(0.0, 1.0, n_samples)
-    return np.stack(
-        [demonstration_spline(d, t)(u) for d, t in zip(demos, timestamps, strict=True)]
-    )
+    knots = [spline_knots(d, t) for d, t in zip(demos, timestamps, strict=True)]
+    return stacked_spline_values([k[0] for k in knots], [k[1] for k in knots], u)
 
 
 def dtw_parameters(
@@ -126,8 +211,7 @@ def dtw_parameters(
     parameters : array, shape (n, N)
         Values in [0, 1], non-decreasing along each row, 0 first and 1 last.
     """
-    u = np.linspace(0.0, 1.0, n_samples)
-    resampled = np.stack([demonstration_spline(d, t)(u) for d, t in zip(demos, timestamps, strict=True)])
+    resampled = resampled_demonstrations(demos, timestamps, n_samples)
     reference = resampled.mean(axis=0)
     width = max(1, round(band * n_samples))
     parameters = np.empty((len(demos), n_samples))

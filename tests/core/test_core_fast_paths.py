@@ -110,3 +110,33 @@ def test_glitch_mask_matches_the_rule_window_by_window() -> None:
     # stretches around what the first one removed) finds.
     assert flagged > 20
     assert later_passes >= 2
+
+
+# ---- alignment: every demo's spline in one stacked solve -----------------------------------
+
+
+def test_stacked_splines_equal_scipys_spline_per_demo() -> None:
+    # The stacked solve must give scipy's numbers bit for bit (a coupling entry left
+    # non-zero, or a not-a-knot row of the wrong demo, shows up in the first bits), on
+    # prepared raw logs by arc length and by time, short demos (4-6 knots, the smallest
+    # the stacked path takes) and a set with a 3-knot demo (scipy's parabola).
+    from scipy.interpolate import CubicSpline
+
+    from canal_core.alignment import spline_knots, stacked_spline_values
+    from canal_core.preprocess import prepared_samples
+
+    rng = np.random.default_rng(5)
+    sets: list[list[tuple[np.ndarray, np.ndarray]]] = []
+    for shape in ("task1", "helix"):
+        prepared = [prepared_samples(g.positions, g.timestamps, field="d") for g in raw_demo_set(shape, 2)]
+        sets.append([spline_knots(p.positions, None) for p in prepared])
+        sets.append([spline_knots(p.positions, p.timestamps) for p in prepared])
+    for dim in (2, 3):
+        walks = [rng.normal(size=(k, dim)).cumsum(axis=0) for k in (4, 5, 6, 40)]
+        sets.append([spline_knots(w, np.cumsum(rng.uniform(0.1, 1.0, w.shape[0]))) for w in walks])
+    sets.append([spline_knots(rng.normal(size=(k, 3)), None) for k in (3, 7)])
+    for knots in sets:
+        for at in (np.linspace(0.0, 1.0, 1000), np.linspace(0.0, 1.0, 7), rng.uniform(0.0, 1.0, 50)):
+            stacked = stacked_spline_values([k for k, _ in knots], [v for _, v in knots], at)
+            for j, (k, v) in enumerate(knots):
+                np.testing.assert_array_equal(stacked[j], CubicSpline(k, v, axis=0)(at))
