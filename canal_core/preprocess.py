@@ -53,6 +53,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 from .errors import InvalidInputError
 from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
@@ -288,23 +289,29 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     steps = _step_lengths(positions)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
     coords = np.ascontiguousarray(positions.T)  # (D, n): one contiguous row per axis
-    found: list[tuple[IntArray, int, FloatArray, FloatArray]] = []
-    for run in range(1, min(MAX_GLITCH_RUN, n - 2) + 1):
-        chord_vectors = coords[:, run + 1 :] - coords[:, : n - run - 1]
-        square = chord_vectors[0] * chord_vectors[0]
-        for axis in range(1, dim):
-            square += chord_vectors[axis] * chord_vectors[axis]
-        chord_m = np.sqrt(square)
-        span_m = arc[run + 1 :] - arc[: n - run - 1]
-        hit = np.flatnonzero(span_m > 2.0 * CHORD_FACTOR * chord_m)
-        if hit.size:
-            found.append((hit, run, chord_m[hit], span_m[hit]))
+    # Every excursion length m at once: row m - 1 pairs each a with b = a + m + 1, read
+    # through a strided view of copies padded with NaN past the end (a NaN chord or span
+    # never passes the test); the long axis last keeps numpy's inner loops long.
+    longest = min(MAX_GLITCH_RUN, n - 2)
+    padded = np.full((dim, n + longest), np.nan)
+    padded[:, :n] = coords
+    arc_padded = np.full(n + longest, np.nan)
+    arc_padded[:n] = arc
+    step_bytes = padded.strides[1]
+    ends = as_strided(padded[:, 2:], shape=(dim, longest, n - 2), strides=(padded.strides[0], step_bytes, step_bytes), writeable=False)
+    chord_vectors = ends - coords[:, None, : n - 2]  # (D, runs, n - 2)
+    square = chord_vectors[0] * chord_vectors[0]
+    for axis in range(1, dim):
+        square += chord_vectors[axis] * chord_vectors[axis]
+    chords = np.sqrt(square).reshape(-1)
+    arc_ends = as_strided(arc_padded[2:], shape=(longest, n - 2), strides=(step_bytes, step_bytes), writeable=False)
+    spans = (arc_ends - arc[None, : n - 2]).reshape(-1)
+    hit = np.flatnonzero(spans > 2.0 * CHORD_FACTOR * chords)
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
-    if found:
-        a = np.concatenate([f[0] for f in found])
-        m = np.concatenate([np.full(f[0].size, f[1]) for f in found])
-        chord = np.concatenate([f[2] for f in found])
-        span = np.concatenate([f[3] for f in found])
+    if hit.size:
+        run_index, a = np.divmod(hit, n - 2)
+        m = run_index + 1
+        chord, span = chords[hit], spans[hit]
         b = a + m + 1
         single = m == 1
         centre = np.where(single, a + 1, (a + b) // 2)
