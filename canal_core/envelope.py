@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from .cross_sections import CrossSections
 from .crossings import WORK_CHUNK, in_row_blocks, sign_changes
@@ -61,36 +60,35 @@ def bracketing_sections(
     n = tangents.shape[0]
     m, dim = samples.shape
     pairs = window - inner  # per shell
+    # Plane columns of the left shell (offsets -window .. -inner) and of the right one
+    # (inner .. window); pair o uses columns o and o + 1 of its shell.
+    starts = np.array([-window, inner])
     # Plane arrays padded by ``window`` copies of their end values on each side (what
     # clipping the columns would read), so every column is in range without a clip.
+    cols = (approx_index + window)[:, None, None] + (starts[:, None] + np.arange(pairs + 1)[None, :])[None]  # (M, 2, S + 1)
     axes = np.concatenate([np.repeat(tangents[:1], window, axis=0), tangents, np.repeat(tangents[-1:], window, axis=0)]).T.copy()
     levels = np.concatenate([np.full(window, plane[0]), plane, np.full(window, plane[-1])])
-    # Each shell's planes are one run of consecutive padded columns: the left shell's
-    # (offsets -window .. -inner) starts at column approx_index, the right one's
-    # (inner .. window) at approx_index + window + inner. Rows of a sliding view copy
-    # whole runs (no per-entry column indices); pair o uses columns o and o + 1 of its shell.
-    first = np.empty((m, 2), dtype=np.int64)
-    first[:, 0] = approx_index
-    first[:, 1] = approx_index + (window + inner)
-    runs = [sliding_window_view(axes[axis], pairs + 1) for axis in range(dim)]
-    # t_k . x - t_k . c_k, one axis at a time.
-    dist = np.take(runs[0], first, axis=0) * samples[:, 0, None, None]  # (M, 2, S + 1)
-    for axis in range(1, dim):
-        dist += np.take(runs[axis], first, axis=0) * samples[:, axis, None, None]
-    dist -= np.take(sliding_window_view(levels, pairs + 1), first, axis=0)
-    changes = sign_changes(dist).reshape(m, 2 * pairs)
+    valid = None
     if m and (int(approx_index.min()) - window < 0 or int(approx_index.max()) + window > n - 2):
         pair_ok = np.zeros(n + 2 * window, dtype=bool)  # a real pair, not a copy at the ends
         pair_ok[window : window + n - 1] = True
-        changes &= np.take(sliding_window_view(pair_ok, pairs), first, axis=0).reshape(m, 2 * pairs)
+        valid = np.take(pair_ok, cols[:, :, :-1])
+    # t_k . x - t_k . c_k, one axis at a time from contiguous rows (no (M, W, D) gather).
+    dist = np.take(axes[0], cols) * samples[:, 0, None, None]
+    for axis in range(1, dim):
+        dist += np.take(axes[axis], cols) * samples[:, axis, None, None]
+    dist -= np.take(levels, cols)
+    changes = sign_changes(dist).reshape(m, 2 * pairs)
+    if valid is not None:
+        changes &= valid.reshape(m, 2 * pairs)
     # Pairs in order of preference: smallest |o + 0.5| first, the earlier pair on a tie.
-    offsets = (np.array([-window, inner])[:, None] + np.arange(pairs)[None, :]).reshape(-1)
+    offsets = (starts[:, None] + np.arange(pairs)[None, :]).reshape(-1)
     preference = np.lexsort((offsets, np.abs(offsets + 0.5)))
     ranked = changes[:, preference]
-    best_rank = np.argmax(ranked, axis=1)
-    best = preference[best_rank]
+    first = np.argmax(ranked, axis=1)
+    best = preference[first]
     rows = np.arange(m)
-    found = ranked[rows, best_rank]
+    found = ranked[rows, first]
     shell, step = np.divmod(best, pairs)
     at = (rows * 2 + shell) * (pairs + 1) + step  # flat index into dist (M, 2, S + 1)
     a, b = np.take(dist, at), np.take(dist, at + 1)
