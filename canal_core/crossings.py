@@ -173,6 +173,11 @@ SEARCH_CHUNK = 1 << 15
 #: the block one): a few hundred kB of temporaries, reused from chunk to chunk, where one
 #: pass over everything made the allocator fetch (and fault in) fresh pages on every fit.
 WORK_CHUNK = 1 << 17
+#: Entries per chunk of the far search: its per-pair rows are mostly booleans (which groups
+#: and blocks a plane cuts), so a chunk this size still holds a few MB at most, and the
+#: 6 x 1,000 pairs of a raw-log fit are searched in one pass instead of paying the pass's
+#: fixed cost twice.
+FAR_CHUNK = 1 << 19
 #: Blocks per group of the first ball test: a plane is tested against every group's ball,
 #: and against the balls of the blocks of the groups it cuts only.
 GROUP = 4
@@ -418,15 +423,19 @@ def located_crossings(
             ),
             demos.size,
             2 * group_centre.shape[1] + 4 * GROUP,
-            WORK_CHUNK,
+            FAR_CHUNK,
         )
         # A crossing found far away is taken only if it is nearer c_i than the demo's own
         # nearby sample: a demo lagging behind the mean qualifies, the far side of a loop
         # (or of a helix turn) met by a demo that starts ahead of the first plane does not.
-        near_enough = np.linalg.norm(far_points - centres[sections], axis=1) <= reference[demos, sections]
-        take = far_found & near_enough
-        points[demos[take], sections[take]] = far_points[take]
-        index[demos[take], sections[take]] = far_index[take]
+        # Flat (demo, section) rows: one gather or scatter each instead of a 2-D fancy index.
+        flat = demos * n_samples + sections
+        offset = far_points - np.take(centres, sections, axis=0)
+        near_enough = np.linalg.norm(offset, axis=1) <= np.take(reference, flat)
+        take = np.flatnonzero(far_found & near_enough)
+        rows = np.take(flat, take)
+        points.reshape(-1, points.shape[2])[rows] = np.take(far_points, take, axis=0)
+        index.reshape(-1)[rows] = np.take(far_index, take)
     return points.transpose(1, 0, 2).copy(), index.T.copy()
 
 
