@@ -151,17 +151,47 @@ def block_views(aligned: FloatArray) -> FloatArray:
     Block b holds the segments bB .. bB + B - 1 (both ends of each), ``nb = ceil((N-1)/B)``;
     the last block repeats the last sample where the demo ends early. A block is one
     contiguous run of memory, so gathering blocks copies runs instead of single samples.
+    Every demo takes ``(nb + 1) B`` rows of one buffer (one spare block, plus one spare row
+    at the very end), so block b of demo j is also item ``j (nb + 1) + b`` of the flat view
+    :func:`block_items` and sample k is row ``j (nb + 1) B + k`` of :func:`block_rows`.
     """
     n_demos, n_samples, dim = aligned.shape
     n_blocks = max(1, -(-(n_samples - 1) // BLOCK))
-    extra = n_blocks * BLOCK + 1 - n_samples
-    padded = np.concatenate([aligned, np.repeat(aligned[:, -1:], extra, axis=1)], axis=1)
-    demo_stride, sample_stride, axis_stride = padded.strides
+    span = (n_blocks + 1) * BLOCK
+    buffer = np.empty((n_demos * span + 1, dim))
+    rows = buffer[:-1].reshape(n_demos, span, dim)
+    rows[:, :n_samples] = aligned
+    rows[:, n_samples:] = aligned[:, -1:]
+    buffer[-1] = aligned[-1, -1]
+    row_stride, axis_stride = buffer.strides
     return np.asarray(as_strided(
-        padded,
+        buffer,
         shape=(n_demos, n_blocks, BLOCK + 1, dim),
-        strides=(demo_stride, BLOCK * sample_stride, sample_stride, axis_stride),
+        strides=(span * row_stride, BLOCK * row_stride, row_stride, axis_stride),
         writeable=False,
+    ))
+
+
+def block_items(blocks: FloatArray) -> FloatArray:
+    """The blocks of :func:`block_views` as one flat axis, shape (n (nb + 1), B + 1, D).
+
+    Item ``j (nb + 1) + b`` is block b of demo j: one ``np.take`` gathers blocks (a
+    fancy index by two arrays costs several times more).
+    """
+    n_demos, _, width, dim = blocks.shape
+    per_demo = blocks.strides[0] // blocks.strides[1]
+    return np.asarray(as_strided(
+        blocks, shape=(n_demos * per_demo, width, dim), strides=blocks.strides[1:], writeable=False
+    ))
+
+
+def block_rows(blocks: FloatArray) -> FloatArray:
+    """The samples under :func:`block_views`, shape (n (nb + 1) B + 1, D): sample k of demo j
+    is row ``j (nb + 1) B + k``."""
+    n_demos, _, _, dim = blocks.shape
+    per_demo = blocks.strides[0] // blocks.strides[2]
+    return np.asarray(as_strided(
+        blocks, shape=(n_demos * per_demo + 1, dim), strides=blocks.strides[2:], writeable=False
     ))
 
 
@@ -316,12 +346,14 @@ def _far_crossings(
     hit = np.abs(ball_offset) <= np.take(balls[1].ravel(), key)
     pair, block = pair[hit], block[hit]
 
+    items = block_items(blocks)
+    per_demo = items.shape[0] // n_demos
     none = np.iinfo(np.int64).max
     best = np.full(n_pairs, none, dtype=np.int64)
     step = max(1, SEARCH_CHUNK // ((BLOCK + 1) * dim))
     for first in range(0, pair.size, step):
         p, b = pair[first : first + step], block[first : first + step]
-        x = blocks[demos[p], b]  # (C, B + 1, D): contiguous copies of the cut blocks
+        x = np.take(items, demos[p] * per_demo + b, axis=0)  # (C, B + 1, D): copies of the cut blocks
         tp = t[p]
         dist = x[:, :, 0] * tp[:, 0, None]
         for axis in range(1, dim):
@@ -345,9 +377,10 @@ def _far_crossings(
     if found.any():
         f = np.flatnonzero(found)
         s = _segment_of_key(best[f], sections[f])
-        seg_block, within = np.divmod(s, BLOCK)
-        x0 = blocks[demos[f], seg_block, within]
-        x1 = blocks[demos[f], seg_block, within + 1]
+        row = demos[f] * (per_demo * BLOCK) + s
+        samples = block_rows(blocks)
+        x0 = np.take(samples, row, axis=0)
+        x1 = np.take(samples, row + 1, axis=0)
         d0 = np.einsum("pd,pd->p", x0, t[f]) - level[f]
         d1 = np.einsum("pd,pd->p", x1, t[f]) - level[f]
         denom = d0 - d1
