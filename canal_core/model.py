@@ -36,7 +36,7 @@ from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError, O
 from .frames import frenet_frames, planar_frames, rotation_minimizing_frames, smoothed_curve
 from .goal import goal_displacements
 from .orientation import OrientationModel, fitted_orientations
-from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples
+from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples_many
 from .reproduce import (
     END_DECAY,
     ENTRY_FRACTION,
@@ -697,10 +697,10 @@ def fit(
 
     # Timestamps are prepared (repaired or refused) even when the alignment is by arc
     # length: they still give the speed profile.
-    prepared = [
-        prepared_samples(d, t, field=f"demos[{j}]", time_field=f"timestamps[{j}]", still_tolerance=still_tolerance)
-        for j, (d, t) in enumerate(zip(demos_, times_, strict=True))
-    ]
+    prepared = prepared_samples_many(
+        demos_, times_, [f"demos[{j}]" for j in range(len(demos_))],
+        [f"timestamps[{j}]" for j in range(len(demos_))], still_tolerance=still_tolerance,
+    )
     positions = [p.positions for p in prepared]
     stamped = [p.timestamps for p in prepared]
     align_by_time = by_time is None or bool(by_time)

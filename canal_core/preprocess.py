@@ -51,6 +51,7 @@ only moves at rounding level is refused, not fitted.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
@@ -391,6 +392,166 @@ def _glitch_mask(positions: FloatArray) -> np.ndarray:
     return glitch
 
 
+#: Shortest demonstration :func:`_spike_masks` tests together with others: from here on
+#: every window has its full length (shorter ones clip theirs and go one at a time).
+BATCHED_SPIKE_MIN = 2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 2
+#: Most rows tested in one batch: its (runs x rows) temporaries stay below glibc's mmap
+#: threshold (128 kB), so they come from reused heap memory; larger ones were mapped fresh
+#: and page-faulted on every fit, which cost more than the calls the batch saves.
+SPIKE_BATCH_ROWS = 2048
+
+
+def _segment_medians(steps: FloatArray, width: int, at: IntArray, first: IntArray, last: IntArray) -> FloatArray:
+    """:func:`_local_medians` of concatenated demonstrations: the window around step ``at``
+    clipped to its own demonstration's rows ``first`` .. ``last`` (its steps first .. last - 1)."""
+    start = np.minimum(np.maximum(at - width // 2, first), last - width)
+    windows = steps[start[:, None] + np.arange(width)[None, :]]
+    return np.asarray(np.partition(windows, width // 2, axis=1)[:, width // 2], dtype=np.float64)
+
+
+def _spike_masks(parts: list[FloatArray]) -> list[np.ndarray]:
+    """:func:`_spike_mask` of several demonstrations (or stretches) in one vectorised pass.
+
+    The parts are concatenated; a window (a, m) counts only when it ends inside a's own
+    part, arc lengths restart at each part and local medians are clipped to it, so every
+    verdict is the one :func:`_spike_mask` gives the part alone, bit for bit. Parts shorter
+    than ``BATCHED_SPIKE_MIN`` (narrower windows) go one at a time.
+    """
+    out: list[np.ndarray] = [np.zeros(0, dtype=bool)] * len(parts)
+    group: list[int] = []
+    rows = 0
+    for k, p in enumerate(parts):
+        if p.shape[0] < BATCHED_SPIKE_MIN:
+            out[k] = _spike_mask(p)
+            continue
+        if group and rows + p.shape[0] > SPIKE_BATCH_ROWS:
+            _spike_masks_into(parts, group, out)
+            group, rows = [], 0
+        group.append(k)
+        rows += p.shape[0]
+    if group:
+        _spike_masks_into(parts, group, out)
+    return out
+
+
+def _spike_masks_into(parts: list[FloatArray], batched: list[int], out: list[np.ndarray]) -> None:
+    """:func:`_spike_masks` of the parts listed in ``batched``, written to ``out``."""
+    sizes = np.array([parts[k].shape[0] for k in batched])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    ends = starts + sizes - 1  # last row of each part
+    positions = np.concatenate([parts[k] for k in batched])
+    total, dim = positions.shape
+    steps = _step_lengths(positions)  # the steps across two parts are never read
+    arc = np.empty(total)
+    for first, last in zip(starts.tolist(), ends.tolist(), strict=True):
+        arc[first] = 0.0
+        np.cumsum(steps[first:last], out=arc[first + 1 : last + 1])
+    coords = np.ascontiguousarray(positions.T)
+    longest = MAX_GLITCH_RUN
+    padded = np.full((dim, total + longest), np.nan)
+    padded[:, :total] = coords
+    arc_padded = np.full(total + longest, np.nan)
+    arc_padded[:total] = arc
+    step_bytes = padded.strides[1]
+    window_ends = as_strided(padded[:, 2:], shape=(dim, longest, total - 2), strides=(padded.strides[0], step_bytes, step_bytes), writeable=False)
+    # One axis at a time: the same sums as _spike_mask without a (D, runs, T) temporary.
+    chord_axis = window_ends[0] - coords[0, None, : total - 2]
+    square = chord_axis * chord_axis
+    for axis in range(1, dim):
+        np.subtract(window_ends[axis], coords[axis, None, : total - 2], out=chord_axis)
+        square += chord_axis * chord_axis
+    chords = np.sqrt(square, out=square).reshape(-1)
+    arc_ends = as_strided(arc_padded[2:], shape=(longest, total - 2), strides=(step_bytes, step_bytes), writeable=False)
+    spans = (arc_ends - arc[None, : total - 2]).reshape(-1)
+    part_first = np.repeat(starts, sizes)
+    part_last = np.repeat(ends, sizes)
+    # Window (a, m) ends at b = a + m + 1, which must lie in a's part.
+    inside = (np.arange(2, longest + 2)[:, None] + np.arange(total - 2)[None, :]) <= part_last[None, : total - 2]
+    hit = np.flatnonzero((spans > 2.0 * CHORD_FACTOR * chords) & inside.reshape(-1))
+    width = 2 * SPIKE_WINDOW + 1
+    spike = np.zeros(total, dtype=bool)
+    if hit.size:
+        run_index, a = np.divmod(hit, total - 2)
+        m = run_index + 1
+        chord, span = chords[hit], spans[hit]
+        b = a + m + 1
+        single = m == 1
+        centre = np.where(single, a + 1, (a + b) // 2)
+        step = np.empty(a.size)
+        wide = 2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1
+        for rows, window in ((single, width), (~single, wide)):
+            if rows.any():
+                needed = np.zeros(total, dtype=bool)
+                needed[centre[rows]] = True
+                at = np.flatnonzero(needed)
+                median_at = np.empty(total)
+                median_at[at] = _segment_medians(steps, window, at, part_first[at], part_last[at])
+                step[rows] = median_at[centre[rows]]
+        limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+        can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
+        if can.size:
+            a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
+            owner = np.repeat(np.arange(a.size), m)
+            k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
+            mid = 0.5 * (np.take(positions, a, axis=0) + np.take(positions, b, axis=0))
+            off = np.take(positions, a[owner] + k, axis=0) - np.take(mid, owner, axis=0)
+            dev = np.sqrt(np.einsum("ij,ij->i", off, off))
+            glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
+            spike[(a[owner] + k)[glitch]] = True
+    # End samples, as in _spike_mask, part by part.
+    head_scale = _segment_medians(steps, width, starts + 1, starts, ends)
+    tail_scale = _segment_medians(steps, width, ends - 1, starts, ends)
+    spike[starts] |= steps[starts] > SPIKE_FACTOR * np.maximum(steps[starts + 1], head_scale) * 2.0
+    spike[ends] |= steps[ends - 1] > SPIKE_FACTOR * np.maximum(steps[ends - 2], tail_scale) * 2.0
+    for k, first, last in zip(batched, starts.tolist(), ends.tolist(), strict=True):
+        out[k] = spike[first : last + 1]
+
+
+def _glitch_masks(parts: list[FloatArray]) -> list[np.ndarray]:
+    """:func:`_glitch_mask` of several demonstrations, each pass of all of them (and of all
+    the stretches their previous pass left to re-test) in one :func:`_spike_masks` call."""
+    glitch = [np.zeros(p.shape[0], dtype=bool) for p in parts]
+    left = [np.arange(p.shape[0]) for p in parts]
+    found = _spike_masks(parts)
+    active = list(range(len(parts)))
+    for _ in range(GLITCH_PASSES - 1):
+        still: list[int] = []
+        jobs: list[tuple[int, int, int, int]] = []  # (part, first, last, s0); first < 0: whole
+        pieces: list[FloatArray] = []
+        for j in active:
+            if not found[j].any():
+                continue  # final: nothing was removed
+            still.append(j)
+            removed = left[j][found[j]]
+            glitch[j][removed] = True
+            left[j] = np.flatnonzero(~glitch[j])
+            m = left[j].size
+            if m <= 4 * GLITCH_REACH:
+                jobs.append((j, -1, -1, 0))
+                pieces.append(np.take(parts[j], left[j], axis=0))
+                continue
+            at = np.searchsorted(left[j], removed)
+            lo = np.maximum(at - GLITCH_REACH, 0)
+            hi = np.minimum(at + GLITCH_REACH, m - 1)
+            start = np.flatnonzero(np.concatenate([[True], lo[1:] > np.maximum.accumulate(hi)[:-1]]))
+            stretch_ends = np.maximum.accumulate(hi)[np.concatenate([start[1:] - 1, [hi.size - 1]])]
+            found[j] = np.zeros(m, dtype=bool)
+            for first, last in zip(lo[start].tolist(), stretch_ends.tolist(), strict=True):
+                s0, s1 = max(0, first - GLITCH_REACH), min(m, last + GLITCH_REACH + 1)
+                jobs.append((j, first, last, s0))
+                pieces.append(np.take(parts[j], left[j][s0:s1], axis=0))
+        for (j, first, last, s0), verdict in zip(jobs, _spike_masks(pieces), strict=True):
+            if first < 0:
+                found[j] = verdict
+            else:
+                found[j][first : last + 1] = verdict[first - s0 : last + 1 - s0]
+        active = still
+    for j in active:
+        if found[j].any():
+            glitch[j][left[j][found[j]]] = True
+    return glitch
+
+
 def _spaced_rows(positions: FloatArray, tolerance: float) -> IntArray:
     """Indices of samples at least ``tolerance`` apart from the previous kept one (the first
     and the last are kept): a strictly increasing arc length by construction."""
@@ -456,6 +617,55 @@ def prepared_samples(
     InvalidInputError
         With ``field`` (or ``time_field``) set, saying what was expected and what came.
     """
+    head = _prepared_head(positions, timestamps, field, time_field)
+    return _prepared_tail(head, _glitch_mask(head.positions), field, still_tolerance)
+
+
+def prepared_samples_many(
+    demos: list[FloatArray],
+    timestamps: list[FloatArray | None],
+    fields: list[str],
+    time_fields: list[str],
+    still_tolerance: float = STILL_TOLERANCE,
+) -> list[PreparedDemonstration]:
+    """:func:`prepared_samples` of several demonstrations, their glitch passes batched.
+
+    The same results and the same error as calling :func:`prepared_samples` on each in
+    turn: the first demonstration that fails raises, whichever step it fails in (demos
+    after a failing first stage are not prepared at all).
+    """
+    heads: list[_Head] = []
+    failure: InvalidInputError | None = None
+    for d, t, f, tf in zip(demos, timestamps, fields, time_fields, strict=True):
+        try:
+            heads.append(_prepared_head(d, t, f, tf))
+        except InvalidInputError as error:
+            failure = error
+            break
+    glitches = _glitch_masks([h.positions for h in heads])
+    prepared = [
+        _prepared_tail(h, g, f, still_tolerance) for h, g, f in zip(heads, glitches, fields, strict=False)
+    ]
+    if failure is not None:
+        raise failure
+    return prepared
+
+
+class _Head(NamedTuple):
+    """Steps 1-3 of the preparation stage, what step 4 (glitches) and the rest need."""
+
+    times: FloatArray | None
+    rows: IntArray
+    positions: FloatArray
+    keep: np.ndarray
+    kept: IntArray
+    exact_rows: IntArray
+
+
+def _prepared_head(
+    positions: FloatArray, timestamps: FloatArray | None, field: str, time_field: str | None
+) -> _Head:
+    """Steps 1-3 of :func:`prepared_samples` (scale, time, repeats)."""
     points = check_positions(positions, field)
     n = points.shape[0]
     reach = float(np.abs(points).max())
@@ -507,7 +717,12 @@ def prepared_samples(
     exact_rows = rows
     kept = np.flatnonzero(keep)
     rows, pts = rows[kept], np.take(pts, kept, axis=0)
-    glitch = _glitch_mask(pts)
+    return _Head(times, rows, pts, keep, kept, exact_rows)
+
+
+def _prepared_tail(head: _Head, glitch: np.ndarray, field: str, still_tolerance: float) -> PreparedDemonstration:
+    """Steps 4 (given the glitch mask of ``head.positions``) to 6 of :func:`prepared_samples`."""
+    times, rows, pts, keep, kept, exact_rows = head
     # Every exact-deduplicated row stands for the kept sample it merged into; rows merged
     # into a glitch are glitches too (a poller repeating one at rounding level).
     flagged = np.zeros(keep.size, dtype=bool)

@@ -9,6 +9,7 @@ check that the pruning never changes an answer.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from raw_logs import raw_demo_set
 
 from canal_core import preprocess
@@ -110,6 +111,66 @@ def test_glitch_mask_matches_the_rule_window_by_window() -> None:
     # stretches around what the first one removed) finds.
     assert flagged > 20
     assert later_passes >= 2
+
+
+
+@pytest.mark.parametrize("batch_rows", [1, preprocess.SPIKE_BATCH_ROWS, 1 << 30])
+def test_batched_glitch_masks_equal_each_demo_alone(batch_rows: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # One pass over several demonstrations at once (windows must not reach into the next
+    # demo, arc lengths restart, medians are clipped to their own demo) gives each demo
+    # the slow rule's verdicts. Groups mix long demos with short ones (below
+    # BATCHED_SPIKE_MIN they go one at a time) and demos with no glitch with demos whose
+    # glitches need the later passes; batches of one part, of the default rows, of all.
+    monkeypatch.setattr(preprocess, "SPIKE_BATCH_ROWS", batch_rows)
+    cases = glitch_inputs()
+    rng = np.random.default_rng(11)
+    groups = [cases[k : k + 5] for k in range(0, len(cases), 5)]
+    groups += [[cases[int(k)] for k in rng.choice(len(cases), size=4, replace=False)] for _ in range(6)]
+    flagged = 0
+    for group in groups:
+        for dim in (2, 3):
+            parts = [x for x in group if x.shape[1] == dim]
+            if not parts:
+                continue
+            for x, fast in zip(parts, preprocess._glitch_masks(parts), strict=True):
+                np.testing.assert_array_equal(fast, slow_glitch_mask(x))
+                flagged += int(fast.sum())
+    assert flagged > 20
+
+
+def test_prepared_samples_many_fails_where_one_at_a_time_fails_first() -> None:
+    # The batched preparation raises the error of the first demo that fails, whichever
+    # stage it fails in: here demo 1 fails late (it only stands still) and demo 2 early
+    # (identical points), so demo 1 is named; without demo 1, demo 2 is.
+    from canal_core.errors import InvalidInputError
+    from canal_core.preprocess import prepared_samples, prepared_samples_many
+
+    logs = [g.positions for g in raw_demo_set("task1", 4, n_demos=3)]
+    # Two still clusters: it moves, yet only 2 samples are left once the still ends go.
+    still = np.array([[0.0, 0.0, 0.0], [1e-7, 0.0, 0.0], [2e-7, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0 + 1e-7, 0.0, 0.0], [1.0 + 2e-7, 0.0, 0.0]])
+    identical = np.ones((20, 3))
+    names = ["demos[0]", "demos[1]", "demos[2]"]
+    for demos, expected in (([logs[0], still, identical], "demos[1]"), ([logs[0], logs[1], identical], "demos[2]")):
+        one_by_one = None
+        try:
+            for d, name in zip(demos, names, strict=True):
+                prepared_samples(d, None, field=name)
+        except InvalidInputError as error:
+            one_by_one = error
+        assert one_by_one is not None and one_by_one.field == expected
+        try:
+            prepared_samples_many(demos, [None] * 3, names, names)
+        except InvalidInputError as error:
+            assert error.field == expected
+            assert str(error) == str(one_by_one)
+        else:
+            raise AssertionError("prepared_samples_many accepted a demo prepared_samples refuses")
+    good = prepared_samples_many(logs, [None] * 3, names, names)
+    for d, name, p in zip(logs, names, good, strict=True):
+        alone = prepared_samples(d, None, field=name)
+        np.testing.assert_array_equal(p.rows, alone.rows)
+        np.testing.assert_array_equal(p.sample_rows, alone.sample_rows)
+        np.testing.assert_array_equal(p.sample_phase, alone.sample_phase)
 
 
 # ---- alignment: every demo's spline in one stacked solve -----------------------------------
