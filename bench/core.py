@@ -163,12 +163,13 @@ def fit_stage_times(demos: list[np.ndarray], n: int) -> dict[str, float]:
     from canal_core.directrix import directrix_mean
     from canal_core.envelope import enclosing_scales
     from canal_core.model import canal_frames, fit_options
-    from canal_core.preprocess import prepared_samples
+    from canal_core.preprocess import prepared_samples_many
     from canal_core.reproduce import section_basis
 
     clock = time.process_time
     t0 = clock()
-    prepared = [prepared_samples(d, None, field=f"demos[{j}]") for j, d in enumerate(demos)]
+    names = [f"demos[{j}]" for j in range(len(demos))]
+    prepared = prepared_samples_many(demos, [None] * len(demos), names, names)
     t1 = clock()
     aligned = resampled_demonstrations([p.positions for p in prepared], [None] * len(demos), n)
     t2 = clock()
