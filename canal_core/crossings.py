@@ -114,13 +114,16 @@ def _near_crossings(
     ranked = crosses[..., preference]
     first = np.argmax(ranked, axis=-1)  # (n, N); 0 where none (then ranked there is False)
     seg = preference[first]
-    found = np.take_along_axis(ranked, first[..., None], axis=-1)[..., 0]
-
-    d0 = np.take_along_axis(dist, seg[..., None], axis=-1)[..., 0]
-    d1 = np.take_along_axis(dist, seg[..., None] + 1, axis=-1)[..., 0]
+    # Entries of each pair's own row by flat index (one np.take each, no index grids).
+    width = 2 * h + 1
+    pair_row = np.arange(n_demos * n_samples).reshape(n_demos, n_samples)
+    found = np.take(ranked, pair_row * (width - 1) + first)
+    at = pair_row * width + seg
+    d0 = np.take(dist, at)
+    d1 = np.take(dist, at + 1)
     denom = d0 - d1
     alpha = np.clip(np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0), 0.0, 1.0)
-    start = cols[np.arange(n_samples)[None, :], seg]  # (n, N)
+    start = np.take(cols, np.arange(n_samples)[None, :] * width + seg)  # (n, N)
     # Rows of the flattened demos, gathered with np.take (fancy indexing of (n, N, D) by
     # two index arrays costs several times more).
     flat = aligned.reshape(-1, dim)
@@ -132,15 +135,16 @@ def _near_crossings(
 
     # Pairs without a crossing: the window sample nearest the plane, projected onto it.
     reference = np.zeros((n_demos, n_samples))
-    mj, mi = np.nonzero(~found)
-    if mj.size:
-        missed = dist[mj, mi]  # (P, W)
+    missing = np.flatnonzero(~found)  # flat (demo, section) rows
+    if missing.size:
+        mi = missing % n_samples
+        missed = np.take(dist.reshape(-1, width), missing, axis=0)  # (P, W)
         nearest = np.argmin(np.abs(missed), axis=1)
-        x = np.take(flat, mj * n_samples + cols[mi, nearest], axis=0)
+        x = np.take(flat, missing - mi + np.take(cols, mi * width + nearest), axis=0)
         offset = x - np.take(centres, mi, axis=0)
-        reference[mj, mi] = np.sqrt(np.einsum("pd,pd->p", offset, offset))
-        points.reshape(-1, dim)[mj * n_samples + mi] = (
-            x - missed[np.arange(mj.size), nearest][:, None] * np.take(tangents, mi, axis=0)
+        reference.reshape(-1)[missing] = np.sqrt(np.einsum("pd,pd->p", offset, offset))
+        points.reshape(-1, dim)[missing] = (
+            x - np.take(missed, np.arange(missing.size) * width + nearest)[:, None] * np.take(tangents, mi, axis=0)
         )
     return points, found, reference, index
 
