@@ -123,14 +123,18 @@ class FitListeners:
 CacheKey = tuple[int, str]
 
 
-def model_cache_key(model_id: int, created_at: datetime) -> CacheKey:
-    """The key of a model row's decoded canal: its id with its creation time (UTC, ISO).
+def model_cache_key(model_id: int, skill_created_at: datetime) -> CacheKey:
+    """The key of a model row's decoded canal: its id with its skill's creation time (UTC).
 
     The id alone is not enough: SQLite gives a new row the id of a deleted last row, so a
     skill deleted, re-created and fitted again (here or in another process on the same
-    file) can store its new version 1 under the id the old version 1 had. The pair never
-    repeats. Naive times are UTC (SQLite returns them so); aware ones are converted.
+    file) can store its new version 1 under the id the old version 1 had. Model rows are
+    deleted only with their skill, and a re-created skill has another creation time, so
+    the pair names one row for ever. (The model row's own time would do too, but it is
+    stored after the canal: reading it costs a walk through the canal's bytes.) Naive
+    times are UTC (SQLite returns them so); aware ones are converted.
     """
+    created_at = skill_created_at
     if created_at.tzinfo is not None:
         created_at = created_at.astimezone(UTC).replace(tzinfo=None)
     return model_id, created_at.isoformat()
@@ -383,7 +387,7 @@ class CanalService:
                     version = repo.next_model_version(s, skill)
                     row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
                                          int(canal.n_sections), str(canal.section_kind))
-                    return (model_cache_key(row.id, row.created_at),
+                    return (model_cache_key(row.id, skill.created_at),
                             self._model_summary(row, skill.dim, len(demo_ids)))
             except IntegrityError as exc:
                 clash = exc
@@ -421,13 +425,13 @@ class CanalService:
         or :class:`ModelVersionNotFound`.
         """
         ref = repo.model_ref_by_name(self.db, name, version)
-        key = model_cache_key(ref.model_id, ref.created_at)
+        key = model_cache_key(ref.model_id, ref.skill_created_at)
         canal = self.cache.get(key)
         row = None
         if canal is None:
             with self.db.read() as s:
                 row = repo.get_model(s, ref.model_id)
-            if model_cache_key(row.id, row.created_at) != key:
+            if (row.skill_id, row.version) != (ref.skill_id, ref.version):
                 # Deleted and its id reused between the two queries: not the row found.
                 raise ModelVersionNotFound(
                     f"model version {ref.version} of skill {name!r} was deleted meanwhile",
@@ -441,8 +445,8 @@ class CanalService:
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             row = repo.get_model(s, repo.require_model_ref(s, skill, version)[0])
-            dim = skill.dim
-        key = model_cache_key(row.id, row.created_at)
+            dim, skill_created_at = skill.dim, skill.created_at
+        key = model_cache_key(row.id, skill_created_at)
         canal = self.cache.get(key)
         if canal is None:
             canal = canal_core.Canal.from_dict(row.canal)

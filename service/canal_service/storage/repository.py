@@ -311,15 +311,18 @@ def require_model_ref(session: Session, skill: Skill, version: int | None) -> tu
 
 @dataclass(frozen=True)
 class ModelRef:
-    """Which model row a request means: the skill's dimension and the row's identity."""
+    """Which model row a request means, and the skill's id, dimension and creation time."""
 
+    skill_id: int
     dim: int
+    skill_created_at: datetime
     model_id: int
     version: int
-    created_at: datetime
 
 
-_REF_COLUMNS = (Skill.dim, ModelVersion.id, ModelVersion.version, ModelVersion.created_at)
+# Nothing of the model row after its ``canal`` column: SQLite would walk that column's
+# overflow pages (megabytes for a canal fitted from hundreds of demos) to reach it.
+_REF_COLUMNS = (Skill.id, Skill.dim, Skill.created_at, ModelVersion.id, ModelVersion.version)
 # One round trip for the skill and its model row, built once. The outer join keeps the
 # skill's row when it has no model (or not that version): model columns NULL. Ordering by
 # version descending is safe although PostgreSQL sorts NULLs first there: the NULL row
@@ -350,13 +353,13 @@ def model_ref_by_name(db: Database, skill_name: str, version: int | None) -> Mod
         row = db.read_one(_VERSION_REF, {"name": skill_name, "version": version})
     if row is None:
         raise SkillNotFound(f"no skill named {skill_name!r}", field="name")
-    dim, model_id, found, created_at = row
+    skill_id, dim, skill_created_at, model_id, found = row
     if model_id is None:
         if version is None:
             raise NoModelYet(skill_name, int(dim))
         raise ModelVersionNotFound(f"skill {skill_name!r} has no model version {version}",
                                    field="model")
-    return ModelRef(int(dim), int(model_id), int(found), created_at)
+    return ModelRef(int(skill_id), int(dim), skill_created_at, int(model_id), int(found))
 
 
 def get_model(session: Session, model_id: int) -> ModelVersion:
