@@ -13,6 +13,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
+from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -30,6 +31,7 @@ from .errors import (
     CanalRejected,
     Disabled,
     InvalidInput,
+    ModelVersionNotFound,
     NotEnoughDemonstrations,
     RecordingFailed,
     VersionConflict,
@@ -118,15 +120,36 @@ class FitListeners:
                 log.exception("fit listener failed")
 
 
+CacheKey = tuple[int, str]
+
+
+def model_cache_key(model_id: int, skill_created_at: datetime) -> CacheKey:
+    """The key of a model row's decoded canal: its id with its skill's creation time (UTC).
+
+    The id alone is not enough: SQLite gives a new row the id of a deleted last row, so a
+    skill deleted, re-created and fitted again (here or in another process on the same
+    file) can store its new version 1 under the id the old version 1 had. Model rows are
+    deleted only with their skill, and a re-created skill has another creation time, so
+    the pair names one row for ever. (The model row's own time would do too, but it is
+    stored after the canal: reading it costs a walk through the canal's bytes.) Naive
+    times are UTC (SQLite returns them so); aware ones are converted.
+    """
+    created_at = skill_created_at
+    if created_at.tzinfo is not None:
+        created_at = created_at.astimezone(UTC).replace(tzinfo=None)
+    return model_id, created_at.isoformat()
+
+
 class CanalCache:
-    """Decoded canals by model row id. Model versions never change, so entries never go stale."""
+    """Decoded canals by :func:`model_cache_key`. A model row never changes, and a key names
+    one row for ever, so entries never go stale; they only age out (least recently used)."""
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._items: OrderedDict[int, canal_core.Canal] = OrderedDict()
+        self._items: OrderedDict[CacheKey, canal_core.Canal] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, key: int) -> canal_core.Canal | None:
+    def get(self, key: CacheKey) -> canal_core.Canal | None:
         """The cached canal, marked recently used, or None."""
         with self._lock:
             canal = self._items.get(key)
@@ -134,7 +157,7 @@ class CanalCache:
                 self._items.move_to_end(key)
             return canal
 
-    def put(self, key: int, canal: canal_core.Canal) -> None:
+    def put(self, key: CacheKey, canal: canal_core.Canal) -> None:
         """Keep ``canal``, evicting the least recently used beyond ``size``."""
         if self.size <= 0:
             return
@@ -343,7 +366,7 @@ class CanalService:
         used_options = {**canal.options.to_dict(), "by_time": bool(body.by_time) and stamped is not None,
                         "orientation": bool(canal.has_orientation)}
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
-        self.cache.put(model[0], canal)
+        self.cache.put(model[0], canal)  # the next reproduction needs no decoding
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
         version = model[1].version
@@ -353,7 +376,7 @@ class CanalService:
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
                      serialized: dict[str, Any], seconds: float, canal: canal_core.Canal
-                     ) -> tuple[int, schemas.ModelSummary]:
+                     ) -> tuple[CacheKey, schemas.ModelSummary]:
         # Versions are max + 1 under a unique constraint: two replicas fitting at once both
         # try the same number, one wins, the other retries with the next.
         clash: IntegrityError | None = None
@@ -364,7 +387,8 @@ class CanalService:
                     version = repo.next_model_version(s, skill)
                     row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
                                          int(canal.n_sections), str(canal.section_kind))
-                    return row.id, self._model_summary(row, skill.dim, len(demo_ids))
+                    return (model_cache_key(row.id, skill.created_at),
+                            self._model_summary(row, skill.dim, len(demo_ids)))
             except IntegrityError as exc:
                 clash = exc
         raise VersionConflict(
@@ -395,30 +419,38 @@ class CanalService:
                    ) -> tuple[canal_core.Canal, ModelVersion | None, int, int]:
         """(canal, row or None when served from cache, version, dim) of a version or the latest.
 
+        One query finds the row (no ORM); the canal comes from the cache, or from the row,
+        decoded once. Nothing about "latest" is cached: another replica may have fitted.
         Raises :class:`SkillNotFound`, :class:`NoModelYet` (latest of a skill never fitted)
         or :class:`ModelVersionNotFound`.
         """
-        with self.db.read() as s:
-            skill = repo.get_skill(s, name)
-            model_id, found_version = repo.require_model_ref(s, skill, version)
-            canal = self.cache.get(model_id)
-            row = None
-            if canal is None:
-                row = repo.get_model(s, model_id)
-                canal = canal_core.Canal.from_dict(row.canal)
-                self.cache.put(model_id, canal)
-            return canal, row, found_version, skill.dim
+        ref = repo.model_ref_by_name(self.db, name, version)
+        key = model_cache_key(ref.model_id, ref.skill_created_at)
+        canal = self.cache.get(key)
+        row = None
+        if canal is None:
+            with self.db.read() as s:
+                row = repo.get_model(s, ref.model_id)
+            if (row.skill_id, row.version) != (ref.skill_id, ref.version):
+                # Deleted and its id reused between the two queries: not the row found.
+                raise ModelVersionNotFound(
+                    f"model version {ref.version} of skill {name!r} was deleted meanwhile",
+                    field="model")
+            canal = canal_core.Canal.from_dict(row.canal)
+            self.cache.put(key, canal)
+        return canal, row, ref.version, ref.dim
 
     def get_model(self, name: str, version: int | None, serialized: bool) -> schemas.ModelOut:
         """A model version with its geometry."""
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             row = repo.get_model(s, repo.require_model_ref(s, skill, version)[0])
-            dim = skill.dim
-        canal = self.cache.get(row.id)
+            dim, skill_created_at = skill.dim, skill.created_at
+        key = model_cache_key(row.id, skill_created_at)
+        canal = self.cache.get(key)
         if canal is None:
             canal = canal_core.Canal.from_dict(row.canal)
-            self.cache.put(row.id, canal)
+            self.cache.put(key, canal)
         summary = self._model_summary(row, dim)
         data = row.canal
         sections = data.get("sections") if isinstance(data, dict) else None
@@ -485,7 +517,9 @@ class CanalService:
         for result in results:
             self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
             self._record("reproduction", partial(_tell_reproduction, name, found_version, result))
-            outs.append(schemas.ReproductionOut(
+            # Built from values made here (floats, ints, bools, lists of them): validating
+            # 6,000 floats again would cost more than the reproduction's math.
+            outs.append(schemas.ReproductionOut.model_construct(
                 positions=_tolist(result.positions), start=_tolist(result.start),
                 inside=bool(result.inside), eta=float(result.eta),
                 section_index=int(result.section_index), projected=bool(result.projected),
@@ -496,7 +530,7 @@ class CanalService:
             ))
         if body.start is not None:
             return outs[0]
-        return schemas.ReproductionBatchOut(reproductions=outs)
+        return schemas.ReproductionBatchOut.model_construct(reproductions=outs)
 
     # ---- recordings -------------------------------------------------------------------------
 

@@ -74,7 +74,7 @@ async def add_demonstration(
     format: Format = None,
     topic: Topic = None,
     label: Label = None,
-) -> DemonstrationCreated:
+) -> Response:
     """Store one demonstration; nothing is stored unless every check passes."""
     content_type = request.headers.get("content-type", "")
     base = content_type.split(";", 1)[0].strip().lower()
@@ -84,7 +84,7 @@ async def add_demonstration(
         raw = await request.body()
         # Parsing too runs on the lane: on the event loop it would hold every other
         # request (and the bytes of the next upload) for its millisecond.
-        return await lane.run(_add_json, service, name, raw, limits)
+        return _created(await lane.run(_add_json, service, name, raw, limits))
     if base == "multipart/form-data":
         data, filename, part_type, form_label = await _read_multipart(request)
         if label is None:
@@ -100,7 +100,15 @@ async def add_demonstration(
     if not data:
         raise BadUpload("the uploaded file is empty", field="file")
     fmt = detect_format(format, filename, part_type, data)
-    return await lane.run(service.add_file_demonstration, name, fmt, data, topic, label, limits)
+    return _created(await lane.run(service.add_file_demonstration, name, fmt, data, topic,
+                                   label, limits))
+
+
+def _created(created: DemonstrationCreated) -> Response:
+    # The answer as FastAPI would write it, without validating the model it was built as
+    # once more on the event loop.
+    return Response(created.model_dump_json(), status_code=status.HTTP_201_CREATED,
+                    media_type="application/json")
 
 
 def _add_json(service: CanalService, name: str, raw: bytes,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 
 from canal_protocol.schemas import (
     ErrorResponse,
@@ -23,11 +23,13 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 
 @router.post("/reproductions", response_model=ReproductionOut | ReproductionBatchOut,
              responses=_ERRORS)
-def reproduce(name: SkillName, body: ReproductionRequest,
-              service: ServiceDep) -> ReproductionOut | ReproductionBatchOut:
+def reproduce(name: SkillName, body: ReproductionRequest, service: ServiceDep) -> Response:
     """Reproduce from ``start`` (one result) or ``starts`` (``{"reproductions": [...]}``).
 
     A start outside the canal is projected onto it and reported with ``inside=false,
     projected=true``; send ``"outside": "raise"`` to get a 422 instead.
     """
-    return service.reproduce(name, body)
+    # Serialised here, on this worker thread: returned as a model, FastAPI would validate
+    # it again (thousands of floats) in a second trip through the thread pool.
+    result = service.reproduce(name, body)
+    return Response(result.model_dump_json(), media_type="application/json")

@@ -29,6 +29,7 @@ from sqlalchemy.engine import Dialect, make_url
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import PoolProxiedConnection
+from sqlalchemy.sql.base import Executable
 from sqlalchemy.sql.compiler import SQLCompiler
 from sqlalchemy.sql.dml import UpdateBase
 
@@ -199,6 +200,13 @@ class Database:
         that only insert and need no ORM session."""
         with self._write_lock, self.write_engine.begin() as connection:
             yield connection
+
+    def read_one(self, statement: Executable,
+                 values: Mapping[str, Any]) -> Sequence[Any] | None:
+        """The first row of a query run on a pooled connection, without an ORM session:
+        for hot paths that read one row (the reproduction's model lookup)."""
+        with self.read_engine.connect() as connection:
+            return connection.execute(statement, values).first()
 
     def write_one(self, statement: UpdateBase,
                   values: Mapping[str, Any]) -> Sequence[Any] | None:

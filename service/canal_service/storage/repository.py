@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import bindparam, delete, func, insert, select
+from sqlalchemy import and_, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
@@ -306,6 +307,59 @@ def require_model_ref(session: Session, skill: Skill, version: int | None) -> tu
         raise NoModelYet(skill.name, skill.dim)
     raise ModelVersionNotFound(f"skill {skill.name!r} has no model version {version}",
                                field="model")
+
+
+@dataclass(frozen=True)
+class ModelRef:
+    """Which model row a request means, and the skill's id, dimension and creation time."""
+
+    skill_id: int
+    dim: int
+    skill_created_at: datetime
+    model_id: int
+    version: int
+
+
+# Nothing of the model row after its ``canal`` column: SQLite would walk that column's
+# overflow pages (megabytes for a canal fitted from hundreds of demos) to reach it.
+_REF_COLUMNS = (Skill.id, Skill.dim, Skill.created_at, ModelVersion.id, ModelVersion.version)
+# One round trip for the skill and its model row, built once. The outer join keeps the
+# skill's row when it has no model (or not that version): model columns NULL. Ordering by
+# version descending is safe although PostgreSQL sorts NULLs first there: the NULL row
+# only exists when no model row joins at all.
+_LATEST_REF = (
+    select(*_REF_COLUMNS).select_from(Skill)
+    .outerjoin(ModelVersion, ModelVersion.skill_id == Skill.id)
+    .where(Skill.name == bindparam("name"))
+    .order_by(ModelVersion.version.desc()).limit(1)
+)
+_VERSION_REF = (
+    select(*_REF_COLUMNS).select_from(Skill)
+    .outerjoin(ModelVersion, and_(ModelVersion.skill_id == Skill.id,
+                                  ModelVersion.version == bindparam("version")))
+    .where(Skill.name == bindparam("name")).limit(1)
+)
+
+
+def model_ref_by_name(db: Database, skill_name: str, version: int | None) -> ModelRef:
+    """The row of a version (or of the latest when ``version`` is None) of a skill by name.
+
+    The reproduction hot path: one statement, no ORM objects. Raises :class:`SkillNotFound`,
+    :class:`NoModelYet` or :class:`ModelVersionNotFound` as :func:`require_model_ref`.
+    """
+    if version is None:
+        row = db.read_one(_LATEST_REF, {"name": skill_name})
+    else:
+        row = db.read_one(_VERSION_REF, {"name": skill_name, "version": version})
+    if row is None:
+        raise SkillNotFound(f"no skill named {skill_name!r}", field="name")
+    skill_id, dim, skill_created_at, model_id, found = row
+    if model_id is None:
+        if version is None:
+            raise NoModelYet(skill_name, int(dim))
+        raise ModelVersionNotFound(f"skill {skill_name!r} has no model version {version}",
+                                   field="model")
+    return ModelRef(int(skill_id), int(dim), skill_created_at, int(model_id), int(found))
 
 
 def get_model(session: Session, model_id: int) -> ModelVersion:
