@@ -742,9 +742,11 @@ class TrackerBank:
 
     def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
         """Step the given slots (distinct) with their live positions, shape (B, D)."""
-        slots = np.asarray(slots, dtype=np.intp)
         p = np.asarray(positions, dtype=np.float64)
         b = p.shape[0]
+        if b == 1 and (VECTORISE_FROM > 1 or not self._isotropic):
+            return self._one(int(slots[0]), p[0])
+        slots = np.asarray(slots, dtype=np.intp)
         if self._isotropic and b >= VECTORISE_FROM:
             return self._vectorised(slots, p)
         with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
@@ -752,6 +754,24 @@ class TrackerBank:
             if b:
                 self._scalar(np.arange(b), slots, p, out)
         return out
+
+    def _one(self, slot: int, position: FloatArray) -> TrackerBatch:
+        """One row (a drain of one pose, the common case of a keeping-up bridge): the
+        scalar step on the slot's state, its answer as 1-row arrays."""
+        with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
+            t, st = tracker_step(self.geometry, self.state(slot), position, self.lookahead,
+                                 self.replan_tolerance)
+        self.index[slot] = st.index
+        if st.eta is None or st.direction is None:
+            self.eta[slot] = np.nan
+        else:
+            self.eta[slot] = st.eta
+            self.direction[slot] = st.direction
+        return TrackerBatch(
+            t.target[None, :], np.array([t.progress]), np.array([t.eta]),
+            np.array([t.section_index], dtype=np.intp), np.array([t.inside]),
+            np.array([t.done]), None if t.velocity is None else t.velocity[None, :],
+            None if t.orientation is None else t.orientation[None, :].copy())
 
     def _empty(self, b: int) -> TrackerBatch:
         g = self.geometry
