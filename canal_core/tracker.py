@@ -303,8 +303,8 @@ def tracker_steps(
     -----
     The answers equal B calls of :func:`tracker_step` (same sections, flags and plan; floats
     up to the last bits of a reordered sum). A live bridge receives the poses of many robots
-    at once; one numpy pass costs about what one scalar step costs, so per-pose work drops
-    by the batch size. The pass is :func:`batched_tracker_step` (rows the window search
+    at once; one numpy pass costs about what 2-3 scalar steps cost whatever the batch size,
+    so per-pose work drops with it. The pass is :func:`batched_tracker_step` (rows the window search
     cannot place follow the scalar step's rules there); non-circular sections, canals of
     fewer than three sections and a single stream take the scalar path.
     """
