@@ -366,7 +366,8 @@ class StepTables:
         ``[d0, d1, q0, r0, q1, r1]``.
     radius : array, shape (N,)
     frame : array, shape (N, D, D)
-        Each section's basis rows, then its centre: what a target is built from.
+        Each section's basis rows scaled by its radius, then its centre: what a target
+        is built from.
     default_direction : array, shape (D - 1,)
     """
 
@@ -400,7 +401,8 @@ def step_tables(g: TrackerGeometry) -> StepTables:
     pair = np.concatenate([planes[:-1, None], planes[1:, None], rows[:-1], rows[1:]], axis=1)
     return StepTables(
         lo, hi, np.ascontiguousarray(window), open_pairs, np.ascontiguousarray(pair), radius,
-        np.ascontiguousarray(np.concatenate([g.basis, g.centres[:, None, :]], axis=1)),
+        np.ascontiguousarray(np.concatenate(
+            [radius[:, None, None] * g.basis, g.centres[:, None, :]], axis=1)),
         _DEFAULT_DIRECTIONS[d - 1])
 
 
@@ -537,10 +539,11 @@ def batched_tracker_step(
 def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
                     direction: FloatArray) -> FloatArray:
     """The points at ratio ``eta`` (B,) in ``direction`` (B, D - 1) on sections ``index``
-    (B,), shape (B, D): c + (eta r) (direction . basis), as one product with [s, 1]."""
+    (B,), shape (B, D): c + eta (direction . r basis), one product of [eta direction, 1]
+    with the section's frame."""
     b, k = direction.shape
     scaled = np.empty((b, 1, k + 1))
-    np.multiply(direction, (eta * t.radius[index])[:, None], out=scaled[:, 0, :k])
+    np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
     scaled[:, 0, k] = 1.0
     return (scaled @ t.frame[index])[:, 0]
 
