@@ -458,7 +458,7 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     """Per-pose cost (us) of each stage of the pose path, measured in this process."""
     import zenoh
 
-    from canal_core.tracker import Tracker, TrackerBank, step_trackers, tracker_geometry
+    from canal_core.tracker import Tracker, step_trackers, tracker_geometry
     from canal_protocol import wire
 
     geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
@@ -524,17 +524,60 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
 
     rows.append((f"tracker step, batch of {n_batch} (per pose)",
                  per(batched, len(groups) * n_batch)))
-    bank = TrackerBank(geometry, 2)
-    slots = [bank.add() for _ in range(n_batch)]
 
-    def banked() -> None:
-        for slot in slots:
-            bank.reset(slot, 0)
-        for g in groups:
-            bank.step(slots, g)
+    def bank_stages(geometry, path: np.ndarray, repeats: int) -> list[tuple[str, float]]:
+        """The tracker bank's step per call and per pose at the batch sizes a bridge's drains
+        have (1 robot, 4, 16), robots spread along ``path``; each against one robot's scalar
+        step timed in the same rounds (the best of 3 interleaved rounds: the machine is
+        shared)."""
+        from canal_core.tracker import TrackerBank
 
-    rows.append((f"tracker bank step, batch of {n_batch} (per pose)",
-                 per(banked, len(groups) * n_batch)))
+        n = geometry.centres.shape[0]
+        sizes = (1, 4, 16)
+        best = dict.fromkeys((0, *sizes), np.inf)
+        one = Tracker(geometry, 2)
+        for _ in range(3):
+            one.reset(0)
+            t0 = time.thread_time()
+            for p in path[: repeats // 4]:
+                one.step(p)
+            best[0] = min(best[0], (time.thread_time() - t0) / (repeats // 4) * 1e6)
+            for b in sizes:
+                bank = TrackerBank(geometry, 2)
+                slots = [bank.add() for _ in range(b)]
+                groups = [np.array([path[(k + 97 * i) % len(path)] for i in range(b)])
+                          for k in range(max(repeats // 4 // b, 100))]
+                bank.step(slots, groups[0])  # the per-model tables are built on first use
+                for slot in slots:
+                    bank.reset(slot, 0)
+                t0 = time.thread_time()
+                for g in groups:
+                    bank.step(slots, g)
+                best[b] = min(best[b], (time.thread_time() - t0) / len(groups) * 1e6)
+        out = [(f"tracker step, one robot, N = {n:,} (yardstick)", best[0])]
+        for b in sizes:
+            ratio = best[b] / best[0]
+            out.append((f"tracker bank step, N = {n:,}, batch of {b}: per call "
+                        f"({ratio:.1f}x the yardstick)", best[b]))
+            out.append((f"tracker bank step, N = {n:,}, batch of {b}: per pose", best[b] / b))
+        return out
+
+    def finer_geometry(n_samples: int):
+        """The bench skill's canal refitted with ``n_samples`` sections (same demonstrations as
+        :func:`make_database`), as a tracker geometry."""
+        import canal_core
+
+        rng = np.random.default_rng(0)
+        t = np.linspace(0.0, 1.0, 200)
+        demos = []
+        for _ in range(6):
+            off = rng.normal(0.0, 0.02)
+            demos.append(np.column_stack([t, 0.3 * np.sin(np.pi * t) + off,
+                                          0.1 * t + 0.5 * off * np.cos(np.pi * t)]))
+        return canal_core.fit(demos, n_samples=n_samples).tracker().geometry
+
+    rows += bank_stages(geometry, path, repeats)
+    rows += bank_stages(finer_geometry(1000), path, repeats)
     tt = tracker.step(pts[10])
     rows.append(("encode JSON target", per(lambda: [wire.pack_target_json(
         1, "ok", tt.target, 0.5, 0.2, 10, True, False, 1, None, None, 0)

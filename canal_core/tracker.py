@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -36,9 +37,10 @@ from .cross_sections import CrossSections, boundary_distance
 from .validation import FloatArray
 
 WINDOW = 16
-#: Batches of at least this many rows take :class:`TrackerBank`'s vectorised pass; smaller
-#: ones the scalar step per row (one vectorised pass costs about what 10-16 scalar steps do).
-VECTORISE_FROM = 6
+#: Batches of at least this many rows take :class:`TrackerBank`'s vectorised pass; a single
+#: row the scalar step (one vectorised pass costs about what 2-2.5 scalar steps do, at any
+#: batch size up to a few dozen rows: the cost is numpy calls, not rows).
+VECTORISE_FROM = 2
 #: The plan is kept while the live position is within this fraction of the local section's
 #: boundary distance from it (see the module docstring).
 REPLAN_TOLERANCE = 0.25
@@ -116,10 +118,12 @@ class TrackerGeometry:
     done_tolerance: float
     orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
     section_times: FloatArray | None = None  # (N,) mean seconds to each section
-    # each section pair's bases and centres side by side, (N - 1, 2, D - 1, D) and
-    # (N - 1, 2, D): the batched step reads both planes of a pair with one gather
-    pair_basis: FloatArray | None = None
-    pair_centres: FloatArray | None = None
+
+    @cached_property
+    def step_tables(self) -> StepTables:
+        """The arrays :func:`batched_tracker_step` gathers from (circle sections, N >= 2),
+        built on first use."""
+        return step_tables(self)
 
 
 def tracker_geometry(
@@ -141,8 +145,6 @@ def tracker_geometry(
         centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
         orientations,
         section_times,
-        np.ascontiguousarray(np.stack([basis[:-1], basis[1:]], axis=1)),
-        np.ascontiguousarray(np.stack([centres[:-1], centres[1:]], axis=1)),
     )
 
 
@@ -301,8 +303,8 @@ def tracker_steps(
     -----
     The answers equal B calls of :func:`tracker_step` (same sections, flags and plan; floats
     up to the last bits of a reordered sum). A live bridge receives the poses of many robots
-    at once; one numpy pass costs about what one scalar step costs, so per-pose work drops
-    by the batch size. The pass is :func:`batched_tracker_step` (rows the window search
+    at once; one numpy pass costs about what 2-3 scalar steps cost whatever the batch size,
+    so per-pose work drops with it. The pass is :func:`batched_tracker_step` (rows the window search
     cannot place follow the scalar step's rules there); non-circular sections, canals of
     fewer than three sections and a single stream take the scalar path.
     """
@@ -317,14 +319,13 @@ def tracker_steps(
                  for i in range(b)]
         return [t for t, _ in pairs], [st for _, st in pairs]
     k = g.basis.shape[1]
-    index = np.fromiter([st.index for st in states], dtype=np.intp, count=b)
+    index = np.fromiter([min(max(st.index, 0), n - 1) for st in states], dtype=np.intp, count=b)
     eta = np.fromiter([math.nan if st.eta is None or st.direction is None else st.eta
                        for st in states], dtype=np.float64, count=b)
     direction = np.array([np.zeros(k) if st.direction is None else st.direction
                           for st in states], dtype=np.float64).reshape(b, k)
-    with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
-        out, new_index, plan_eta, plan_dir = batched_tracker_step(
-            g, index, eta, direction, positions, lookahead, replan_tolerance)
+    out, new_index, plan_eta, plan_dir = batched_tracker_step(
+        g, index, eta, direction, positions, lookahead, replan_tolerance)
     velocity = out.velocity
     orientation = out.orientation
     targets = [
@@ -340,7 +341,69 @@ def tracker_steps(
     return targets, new_states
 
 
-_WINDOW_COLUMNS = np.arange(WINDOW + 2)[None, :]
+@dataclass(frozen=True, eq=False)
+class StepTables:
+    """Per-geometry arrays :func:`batched_tracker_step` gathers from, built once per model.
+
+    Each table is indexed by what a step already knows (the section reached, the located
+    section, the target section), so one fancy index fetches every row a step reads and one
+    small matrix product per stage turns them into distances and in-plane coordinates.
+    Points are taken in homogeneous coordinates ``[x, 1]`` so that plane offsets ride in the
+    same product.
+
+    Attributes
+    ----------
+    lo, hi : array of int, shape (N,)
+        First and last section of the window searched from each section reached.
+    window : array, shape (N, WINDOW + 2, D + 1)
+        Rows ``[t_c, -t_c . c_c]`` of the window's sections (clamped at N - 1).
+    open_pairs : array of bool, shape (N, WINDOW + 2)
+        Whether each pair of consecutive window sections may place the robot (inside
+        ``[lo, hi]``); the last column is always True, a sentinel meaning "not placed".
+    pair : array, shape (N - 1, 2 + 2 D, D + 1)
+        For the pair (i, i + 1): both planes, then for each section its basis rows with
+        offsets ``-b . c`` and a row ``[0, r]``: one product with ``[x, 1]`` gives
+        ``[d0, d1, q0, r0, q1, r1]``.
+    radius : array, shape (N,)
+    frame : array, shape (N, D, D)
+        Each section's basis rows scaled by its radius, then its centre: what a target
+        is built from.
+    default_direction : array, shape (D - 1,)
+    """
+
+    lo: NDArray[np.intp]
+    hi: NDArray[np.intp]
+    window: FloatArray
+    open_pairs: NDArray[np.bool_]
+    pair: FloatArray
+    radius: FloatArray
+    frame: FloatArray
+    default_direction: FloatArray
+
+
+def step_tables(g: TrackerGeometry) -> StepTables:
+    """Build the :class:`StepTables` of a circle-section geometry with N >= 2 sections."""
+    n, d = g.centres.shape
+    reached = np.arange(n)
+    lo = np.maximum(reached - 1, 0)
+    hi = np.minimum(reached + WINDOW, n - 1)
+    columns = np.arange(WINDOW + 2)
+    planes = np.concatenate([g.tangents, -g.offsets[:, None]], axis=1)
+    window = planes[np.minimum(lo[:, None] + columns, n - 1)]
+    open_pairs = np.ones((n, WINDOW + 2), dtype=bool)
+    open_pairs[:, :-1] = lo[:, None] + columns[1:] <= hi[:, None]
+    radius = np.ascontiguousarray(g.sections.params["radius"], dtype=np.float64)
+    # per section: its basis rows [b, -b . c], then [0, r] (the product with [x, 1] is r)
+    rows = np.concatenate([
+        np.concatenate([g.basis, -np.einsum("nkd,nd->nk", g.basis, g.centres)[:, :, None]],
+                       axis=2),
+        np.concatenate([np.zeros((n, 1, d)), radius[:, None, None]], axis=2)], axis=1)
+    pair = np.concatenate([planes[:-1, None], planes[1:, None], rows[:-1], rows[1:]], axis=1)
+    return StepTables(
+        lo, hi, np.ascontiguousarray(window), open_pairs, np.ascontiguousarray(pair), radius,
+        np.ascontiguousarray(np.concatenate(
+            [radius[:, None, None] * g.basis, g.centres[:, None, :]], axis=1)),
+        _DEFAULT_DIRECTIONS[d - 1])
 
 
 def batched_tracker_step(
@@ -363,11 +426,12 @@ def batched_tracker_step(
     ----------
     g : TrackerGeometry
     last_index : array of int, shape (B,)
-        Section each stream had reached.
+        Section each stream had reached, in [0, N - 1].
     old_eta : array, shape (B,)
         Each stream's planned ratio; NaN: no plan yet.
     old_dir : array, shape (B, D - 1)
-        Each stream's planned unit in-plane direction (any value where there is no plan).
+        Each stream's planned unit in-plane direction (any finite value where there is no
+        plan).
     p : array, shape (B, D)
         Live positions.
     lookahead, replan_tolerance
@@ -381,69 +445,123 @@ def batched_tracker_step(
     plan_eta : array, shape (B,)
     plan_dir : array, shape (B, D - 1)
         The plan after the step.
+
+    Notes
+    -----
+    A live bridge steps a handful of rows per call, so the cost is the number of numpy
+    calls, not the rows: every geometric quantity comes from one gather of
+    :class:`StepTables` and one small product (the window's plane distances; both planes
+    and both bases of the located pair), the rules for rare rows (not placed by the window,
+    at either end of the canal, no in-plane offset) run only when such a row is present,
+    and the arithmetic follows :func:`tracker_step`'s order so the answers agree to the
+    last bits. Far poses may overflow: their rows answer outside, as the scalar step's do.
     """
-    n = g.centres.shape[0]
-    b = p.shape[0]
-    lookahead = max(int(lookahead), 1)
-    dist_all = p @ g.tangents.T
-    dist_all -= g.offsets
-    lo = np.maximum(last_index - 1, 0)
-    hi = np.minimum(last_index + WINDOW, n - 1)
-    cols = lo[:, None] + _WINDOW_COLUMNS
-    valid = cols[:, 1:] <= hi[:, None]
-    np.minimum(cols, n - 1, out=cols)
-    ar = np.arange(b)
-    dist = dist_all[ar[:, None], cols]
-    above = dist > 0.0
-    change = above[:, :-1] != above[:, 1:]
-    change |= dist[:, :-1] == 0.0
-    change &= valid
-    first = change.argmax(axis=1)
-    found = change[ar, first]
-    index = lo + first  # a placed row's pair lies inside its window: index <= n - 2
-    if not found.all():
-        lost = np.flatnonzero(~found)
-        index[lost] = _unplaced_sections(g, p[lost], dist_all[lost], lo[lost], hi[lost])
-        np.clip(index, 0, n - 2, out=index)
-    d0 = dist_all[ar, index]
-    d1 = dist_all[ar, index + 1]
-    target_index = np.minimum(index + lookahead, n - 1)
-    assert g.pair_basis is not None and g.pair_centres is not None
-    q01 = g.pair_basis[index] @ (p[:, None, :] - g.pair_centres[index])[..., None]
-    q0, q1 = q01[:, 0, :, 0], q01[:, 1, :, 0]
-    radius = g.sections.params["radius"]
-    r0, r1, r2 = radius[index], radius[index + 1], radius[target_index]
-    span = d0 - d1
-    alpha = np.where(span != 0.0, np.clip(d0 / span, 0.0, 1.0), 0.0)
-    q = q0 + alpha[:, None] * (q1 - q0)
-    norm = np.sqrt(np.einsum("bk,bk->b", q, q))
-    direction = np.where((norm > 0.0)[:, None], q / norm[:, None],
-                         _DEFAULT_DIRECTIONS[q.shape[1]])
-    reach = r0 + alpha * (r1 - r0)
-    eta = np.where(reach > 0.0, norm / reach, np.where(norm > 0.0, np.inf, 0.0))
-    planned = ~np.isnan(old_eta)
-    # circle sections: the reference reach equals the live one
-    gap = q - (np.where(planned, old_eta, 0.0) * reach)[:, None] * old_dir
-    keep = planned & (np.sqrt(np.einsum("bk,bk->b", gap, gap)) <= replan_tolerance * reach)
-    plan_eta = np.where(keep, old_eta, np.minimum(eta, MAX_PLAN_ETA))
-    plan_dir = np.where(keep[:, None], old_dir, direction)
-    inside = ((eta <= 1.0 + 1e-9) & ~((index == 0) & (d0 < 0.0))
-              & ~((index == n - 2) & (d1 > 0.0)))
-    target = g.centres[target_index] + (plan_eta * r2)[:, None] * np.einsum(
-        "bk,bkd->bd", plan_dir, g.basis[target_index])
-    done = (index >= n - 2) & (dist_all[:, n - 1] >= -g.done_tolerance)
-    progress = np.where(done, 1.0, (index + alpha) / max(n - 1, 1))
+    t = g.step_tables
+    n = t.radius.shape[0]
+    b, d = p.shape
+    k = d - 1
+    ph = np.empty((b, d + 1, 1))
+    ph[:, :d, 0] = p
+    ph[:, d, 0] = 1.0
+    with np.errstate(all="ignore"):
+        # the window search: the first pair of planes the position lies between (as
+        # _first_crossing), else the sentinel column WINDOW + 1
+        dist = (t.window[last_index] @ ph)[:, :, 0]
+        above = dist > 0.0
+        crossing = above[:, :-1] != above[:, 1:]
+        crossing |= dist[:, :-1] == 0.0
+        change = t.open_pairs[last_index]
+        change[:, :-1] &= crossing
+        first = change.argmax(axis=1)
+        index = t.lo[last_index] + first
+        # membership tests on short lists cost a tenth of an ndarray.any()
+        if WINDOW + 1 in first.tolist():
+            lost = np.flatnonzero(first > WINDOW)
+            from_index = last_index[lost]
+            index[lost] = _unplaced_sections(g, p[lost], t.lo[from_index], t.hi[from_index])
+        # the located pair: [d0, d1, q0, r0, q1, r1] from one product
+        v = (t.pair[index] @ ph)[:, :, 0]
+        d0 = v[:, 0]
+        d1 = v[:, 1]
+        alpha = d0 / (d0 - d1)
+        np.maximum(alpha, 0.0, out=alpha)
+        np.minimum(alpha, 1.0, out=alpha)
+        level = d0 == d1
+        if True in level.tolist():
+            alpha[level] = 0.0
+        # q and the reach interpolated together: (1 - alpha) [q0, r0] + alpha [q1, r1]
+        qr = (1.0 - alpha)[:, None] * v[:, 2 : 3 + k]
+        qr += alpha[:, None] * v[:, 3 + k :]
+        q = qr[:, :k]
+        reach = qr[:, k]
+        norm = _row_norms(q)
+        direction = q / norm[:, None]
+        flat = norm > 0.0
+        if False in flat.tolist():
+            direction[~flat] = t.default_direction
+        eta = norm / reach
+        sound = reach > 0.0
+        if False in sound.tolist():
+            odd = ~sound
+            eta[odd] = np.where(norm[odd] > 0.0, np.inf, 0.0)
+        # keep the plan while the live position is near it (circle sections: the reference
+        # reach is the live one); NaN old_eta (no plan) compares False
+        gap = (old_eta * reach)[:, None] * old_dir
+        np.subtract(q, gap, out=gap)
+        keep = _row_norms(gap) <= replan_tolerance * reach
+        plan_eta = np.minimum(eta, MAX_PLAN_ETA)
+        np.copyto(plan_eta, old_eta, where=keep)
+        plan_dir = direction
+        np.copyto(plan_dir, old_dir, where=keep[:, None])
+        inside = eta <= 1.0 + 1e-9
+        done = np.zeros(b, dtype=bool)
+        at = index.tolist()
+        if 0 in at:  # behind the first plane
+            inside &= ~((index == 0) & (d0 < 0.0))
+        if n - 2 in at:  # past the last plane; reached it (d1 is its distance)
+            end = index == n - 2
+            inside &= ~(end & (d1 > 0.0))
+            done = end & (d1 >= -g.done_tolerance)
+        target_index = index + max(int(lookahead), 1)
+        np.minimum(target_index, n - 1, out=target_index)
+        target = _planned_points(t, target_index, plan_eta, plan_dir)
+        progress = index + alpha
+        progress /= max(n - 1, 1)
+        if True in done.tolist():
+            progress[done] = 1.0
+        velocity = None if g.section_times is None else _feed_forwards(
+            g, target_index, target, plan_eta, plan_dir)
     orientation = None if g.orientations is None else g.orientations[target_index]
-    velocity = None if g.section_times is None else _feed_forwards(
-        g, target_index, target, plan_eta, plan_dir)
     answers = TrackerBatch(target, progress, eta, index, inside, done, velocity, orientation)
     return answers, np.maximum(last_index, index), plan_eta, plan_dir
 
 
-def _unplaced_sections(g: TrackerGeometry, p: FloatArray, dist_all: FloatArray,
-                       lo: NDArray[np.intp], hi: NDArray[np.intp]) -> NDArray[np.intp]:
+def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
+                    direction: FloatArray) -> FloatArray:
+    """The points at ratio ``eta`` (B,) in ``direction`` (B, D - 1) on sections ``index``
+    (B,), shape (B, D): c + eta (direction . r basis), one product of [eta direction, 1]
+    with the section's frame."""
+    b, k = direction.shape
+    scaled = np.empty((b, 1, k + 1))
+    np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
+    scaled[:, 0, k] = 1.0
+    return (scaled @ t.frame[index])[:, 0]
+
+
+def _row_norms(x: FloatArray) -> FloatArray:
+    """Euclidean norm of each row of ``x`` (B, K), summed in column order as ``x @ x`` is."""
+    sq = x[:, 0] * x[:, 0]
+    for j in range(1, x.shape[1]):
+        sq += x[:, j] * x[:, j]
+    return np.sqrt(sq)
+
+
+def _unplaced_sections(g: TrackerGeometry, p: FloatArray, lo: NDArray[np.intp],
+                       hi: NDArray[np.intp]) -> NDArray[np.intp]:
     """Sections of rows the window did not place, by :func:`tracker_step`'s rules."""
     n = g.centres.shape[0]
+    dist_all = p @ g.tangents.T
+    dist_all -= g.offsets
     ar = np.arange(p.shape[0])
     end = dist_all[ar, hi]
     ahead = (end > 0.0) & (hi < n - 1)
@@ -457,8 +575,12 @@ def _unplaced_sections(g: TrackerGeometry, p: FloatArray, dist_all: FloatArray,
         change &= np.arange(n - 1)[None, :] >= hi[rows][:, None]
         gaps = np.linalg.norm(g.centres[None, :-1, :] - p[rows][:, None, :], axis=2)
         gaps[~change] = np.inf
-        index[rows] = np.where(change.any(axis=1), gaps.argmin(axis=1), n - 2)
-    return index
+        nearest = gaps.argmin(axis=1)
+        # every bracketing pair infinitely far (an overflowing pose): the first of them, as
+        # argmin over the scalar step's list of pairs gives
+        nearest = np.where(change[np.arange(rows.size), nearest], nearest, change.argmax(axis=1))
+        index[rows] = np.where(change.any(axis=1), nearest, n - 2)
+    return np.minimum(np.maximum(index, 0), n - 2)
 
 
 def _feed_forward(
@@ -609,8 +731,9 @@ class TrackerBank:
         self._free.append(int(slot))
 
     def reset(self, slot: int, index: int = 0) -> None:
-        """Start ``slot`` over from section ``index`` with no plan."""
-        self.index[slot] = index
+        """Start ``slot`` over from section ``index`` (clamped to the canal's sections) with
+        no plan."""
+        self.index[slot] = min(max(int(index), 0), self.geometry.centres.shape[0] - 1)
         self.eta[slot] = np.nan
 
     def state(self, slot: int) -> TrackerState:
@@ -622,16 +745,36 @@ class TrackerBank:
 
     def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
         """Step the given slots (distinct) with their live positions, shape (B, D)."""
-        slots = np.asarray(slots, dtype=np.intp)
         p = np.asarray(positions, dtype=np.float64)
         b = p.shape[0]
+        if b == 1 and (VECTORISE_FROM > 1 or not self._isotropic):
+            return self._one(int(slots[0]), p[0])
+        slots = np.asarray(slots, dtype=np.intp)
+        if self._isotropic and b >= VECTORISE_FROM:
+            return self._vectorised(slots, p)
         with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
-            if self._isotropic and b >= VECTORISE_FROM:
-                return self._vectorised(slots, p)
             out = self._empty(b)
             if b:
                 self._scalar(np.arange(b), slots, p, out)
         return out
+
+    def _one(self, slot: int, position: FloatArray) -> TrackerBatch:
+        """One row (a drain of one pose, the common case of a keeping-up bridge): the
+        scalar step on the slot's state, its answer as 1-row arrays."""
+        with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
+            t, st = tracker_step(self.geometry, self.state(slot), position, self.lookahead,
+                                 self.replan_tolerance)
+        self.index[slot] = st.index
+        if st.eta is None or st.direction is None:
+            self.eta[slot] = np.nan
+        else:
+            self.eta[slot] = st.eta
+            self.direction[slot] = st.direction
+        return TrackerBatch(
+            t.target[None, :], np.array([t.progress]), np.array([t.eta]),
+            np.array([t.section_index], dtype=np.intp), np.array([t.inside]),
+            np.array([t.done]), None if t.velocity is None else t.velocity[None, :],
+            None if t.orientation is None else t.orientation[None, :].copy())
 
     def _empty(self, b: int) -> TrackerBatch:
         g = self.geometry
@@ -679,13 +822,12 @@ def _feed_forwards(g: TrackerGeometry, index: NDArray[np.intp], target: FloatArr
     n = g.centres.shape[0]
     nxt = np.minimum(index + 1, n - 1)
     dt = g.section_times[nxt] - g.section_times[index]
-    reach = g.sections.params["radius"][nxt]
-    ahead = g.centres[nxt] + (eta * reach)[:, None] * np.einsum(
-        "bk,bkd->bd", direction, g.basis[nxt])
+    ahead = _planned_points(g.step_tables, nxt, eta, direction)
+    ahead -= target
     moving = (index + 1 < n) & (dt > 0.0)
-    return np.where(moving[:, None], (ahead - target) / np.where(moving, dt, 1.0)[:, None], 0.0)
-
-
+    ahead /= np.where(moving, dt, 1.0)[:, None]
+    ahead[~moving] = 0.0
+    return ahead
 
 
 def step_trackers(trackers: list[Tracker], positions: FloatArray) -> list[TrackerTarget]:
