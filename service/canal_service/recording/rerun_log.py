@@ -44,7 +44,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .events import POSE, LiveBatch, ReproductionView
+from .events import LiveRows, ReproductionView
 from .geometry import FloatArray, ModelGeometry
 
 APP_ID = "canal"
@@ -131,6 +131,7 @@ class RerunSegment:
                  dim: int = 3, coordinates: str = "RIGHT_HAND_Z_UP") -> None:
         self.path = path
         self.dim = 2 if dim == 2 else 3
+        self._axes: set[str] = set()  # live frames whose static axes this segment has
         self._file = open(path, "wb")
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self._stream = self.rec.binary_stream()  # type: ignore[misc]  # rerun's stub types it as a free function
@@ -263,29 +264,32 @@ class RerunSegment:
                                           translation=rep.positions,
                                           quaternion=rep.orientations))
 
-    def live(self, batch: LiveBatch) -> None:
-        """Live poses (point and frame) or targets (point, progress, eta), one send each."""
+    def live(self, rows: LiveRows) -> None:
+        """One stream's live rows: poses (point and frame), targets (point, progress, eta),
+        one column send per entity."""
         self._dirty = True
-        base = f"live/{_entity(batch.robot)}"
-        index = [rr.TimeColumn("wall_time", timestamp=batch.t_ns.astype("datetime64[ns]"))]
-        pts = batch.position[:, :2] if self.dim == 2 else batch.position
-        points = rr.Points2D if self.dim == 2 else rr.Points3D
-        if batch.kind == POSE:
-            self.rec.send_columns(f"{base}/pose", indexes=index, columns=points.columns(
-                positions=pts, colors=np.tile(_POSE_COLOR, (len(batch), 1))))
-            if self.dim == 3:
+        base = f"live/{_entity(rows.robot)}"
+        m = len(rows)
+        index = [rr.TimeColumn("wall_time", timestamp=rows.t_ns.astype("datetime64[ns]"))]
+        two = self.dim == 2
+        points = rr.Points2D if two else rr.Points3D
+        self.rec.send_columns(f"{base}/pose", indexes=index, columns=points.columns(
+            positions=rows.position[:, :2] if two else rows.position,
+            colors=np.tile(_POSE_COLOR, (m, 1))))
+        if not two:
+            if base not in self._axes:  # static: once per segment
                 self.rec.log(f"{base}/frame", rr.TransformAxes3D(0.1), static=True)
-                self.rec.send_columns(f"{base}/frame", indexes=index,
-                                      columns=rr.Transform3D.columns(
-                                          translation=batch.position,
-                                          quaternion=batch.orientation))
-            return
+                self._axes.add(base)
+            self.rec.send_columns(f"{base}/frame", indexes=index,
+                                  columns=rr.Transform3D.columns(
+                                      translation=rows.position, quaternion=rows.orientation))
         self.rec.send_columns(f"{base}/target", indexes=index, columns=points.columns(
-            positions=pts, colors=np.tile(_TARGET_COLOR, (len(batch), 1))))
+            positions=rows.target[:, :2] if two else rows.target,
+            colors=np.tile(_TARGET_COLOR, (m, 1))))
         self.rec.send_columns(f"{base}/progress", indexes=index,
-                              columns=rr.Scalars.columns(scalars=batch.progress))
+                              columns=rr.Scalars.columns(scalars=rows.progress))
         self.rec.send_columns(f"{base}/eta", indexes=index,
-                              columns=rr.Scalars.columns(scalars=batch.eta))
+                              columns=rr.Scalars.columns(scalars=rows.eta))
 
     # ---- file -------------------------------------------------------------------------------
 
