@@ -42,7 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
+import pyarrow as pa  # type: ignore[import-untyped]  # rerun-sdk requires it; untyped
 import rerun as rr
 import rerun.blueprint as rrb
 import rerun_bindings as bindings
