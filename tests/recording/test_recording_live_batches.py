@@ -197,6 +197,9 @@ def test_the_templates_write_what_the_message_builders_write() -> None:
     assert fx.frame_transform_messages(t, fx.CANAL_FRAME, f"robot/{name}", AWKWARD, q) == [
         fx.frame_transform(a, fx.CANAL_FRAME, f"robot/{name}", p, r)
         for a, p, r in zip(t.tolist(), AWKWARD.tolist(), q.tolist(), strict=True)]
+    assert fx.pose_and_frame_messages(t, AWKWARD, q, f"robot/{name}") == (
+        fx.pose_in_frame_messages(t, AWKWARD, q),
+        fx.frame_transform_messages(t, fx.CANAL_FRAME, f"robot/{name}", AWKWARD, q))
     inside, done = np.array([True, False, True, False]), np.array([False, False, True, True])
     assert fx.tracker_state_messages(t, name, AWKWARD[:, 2], eta, np.array([-1, 0, 5, 199]),
                                      inside, done) == [

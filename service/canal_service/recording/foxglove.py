@@ -266,6 +266,25 @@ def _stamps(t_ns: np.ndarray) -> tuple[list[int], list[int]]:
     return (t // 1_000_000_000).tolist(), (t % 1_000_000_000).tolist()
 
 
+def _pose_rows(t_ns: np.ndarray, positions: FloatArray,
+               orientations: FloatArray) -> zip[tuple[Any, ...]]:
+    """Per row: sec, nsec, x, y, z, qx, qy, qz, qw (JSON tokens for the floats)."""
+    sec, nsec = _stamps(t_ns)
+    p, q = _tokens(positions), _tokens(orientations)
+    return zip(sec, nsec, p[0::3], p[1::3], p[2::3], q[0::4], q[1::4], q[2::4], q[3::4],
+               strict=True)
+
+
+def _pose_template(frame_id: str) -> bytes:
+    return (_STAMP + b'"frame_id":' + _literal(frame_id) + b',"pose":{"position":' + _XYZ
+            + b',"orientation":' + _XYZW + b"}}")
+
+
+def _transform_template(parent: str, child: str) -> bytes:
+    return (_STAMP + b'"parent_frame_id":' + _literal(parent) + b',"child_frame_id":'
+            + _literal(child) + b',"translation":' + _XYZ + b',"rotation":' + _XYZW + b"}")
+
+
 def pose_in_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientations: FloatArray,
                            frame_id: str = CANAL_FRAME) -> list[bytes]:
     """``foxglove.PoseInFrame`` messages, one per row (as :func:`pose_in_frame` writes them).
@@ -277,24 +296,25 @@ def pose_in_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientations
     orientations : array, shape (M, 4)
         [qx, qy, qz, qw].
     """
-    template = (_STAMP + b'"frame_id":' + _literal(frame_id) + b',"pose":{"position":' + _XYZ
-                + b',"orientation":' + _XYZW + b"}}")
-    sec, nsec = _stamps(t_ns)
-    p, q = _tokens(positions), _tokens(orientations)
-    return [template % row for row in zip(sec, nsec, p[0::3], p[1::3], p[2::3], q[0::4],
-                                          q[1::4], q[2::4], q[3::4], strict=True)]
+    template = _pose_template(frame_id)
+    return [template % row for row in _pose_rows(t_ns, positions, orientations)]
 
 
 def frame_transform_messages(t_ns: np.ndarray, parent: str, child: str,
                              translations: FloatArray, rotations: FloatArray) -> list[bytes]:
     """``foxglove.FrameTransform`` messages ``parent -> child``, one per row (as
     :func:`frame_transform` writes them): translations (M, 3), rotations (M, 4)."""
-    template = (_STAMP + b'"parent_frame_id":' + _literal(parent) + b',"child_frame_id":'
-                + _literal(child) + b',"translation":' + _XYZ + b',"rotation":' + _XYZW + b"}")
-    sec, nsec = _stamps(t_ns)
-    p, q = _tokens(translations), _tokens(rotations)
-    return [template % row for row in zip(sec, nsec, p[0::3], p[1::3], p[2::3], q[0::4],
-                                          q[1::4], q[2::4], q[3::4], strict=True)]
+    template = _transform_template(parent, child)
+    return [template % row for row in _pose_rows(t_ns, translations, rotations)]
+
+
+def pose_and_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientations: FloatArray,
+                            child: str) -> tuple[list[bytes], list[bytes]]:
+    """:func:`pose_in_frame_messages` (canal frame) and :func:`frame_transform_messages`
+    (canal -> ``child``) of the same rows, their numbers formatted once."""
+    pose, frame = _pose_template(CANAL_FRAME), _transform_template(CANAL_FRAME, child)
+    rows = list(_pose_rows(t_ns, positions, orientations))
+    return [pose % row for row in rows], [frame % row for row in rows]
 
 
 def tracker_state_messages(t_ns: np.ndarray, robot: str, progress: FloatArray, eta: FloatArray,

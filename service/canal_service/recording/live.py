@@ -7,7 +7,7 @@ them and the stream's count deltas on ``{prefix}/@recorder/live/{bridge}``
 (:func:`canal_protocol.keys.recorder_key`, format in :mod:`canal_protocol.wire`). This
 subscriber hears ~10 small messages a second per bridge instead of every pose and target:
 
-- The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s``.
+- The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s`` (0.2 s).
 - Each stream's rows arrive as columns (:func:`canal_protocol.wire.decode_record_batch`) and
   go to the recorder as :class:`~.events.LiveRows` (numpy views of those columns, no
   per-row Python) without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
@@ -54,7 +54,7 @@ class LiveOptions:
     connect: tuple[str, ...] = ()
     config_file: Path | None = None
     capacity: int = 4096  # batches waiting in the channel
-    interval_s: float = 0.05
+    interval_s: float = 0.2  # the bridges send every 0.1 s; the writer flushes every 1 s
 
     @classmethod
     def from_settings(cls, settings: Any) -> LiveOptions:

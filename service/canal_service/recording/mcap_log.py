@@ -206,9 +206,8 @@ class McapSegment:
         robot = rows.robot
         t = rows.t_ns
         channel = self._channels.channel
-        poses = fx.pose_in_frame_messages(rows.t_ns, rows.position, rows.orientation)
-        frames = fx.frame_transform_messages(rows.t_ns, fx.CANAL_FRAME, f"robot/{robot}",
-                                             rows.position, rows.orientation)
+        poses, frames = fx.pose_and_frame_messages(rows.t_ns, rows.position, rows.orientation,
+                                                   f"robot/{robot}")
         self._add_pairs(channel(f"/live/{robot}/pose", "foxglove.PoseInFrame"), poses,
                         channel("/tf", "foxglove.FrameTransform"), frames, t)
         targets = fx.pose_in_frame_messages(rows.t_ns, rows.target, rows.target_orientation)
