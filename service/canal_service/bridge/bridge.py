@@ -309,7 +309,7 @@ class Bridge:
             # coalesced poses are not in canal_live_poses_total (they have their own counter)
             decimated = sum(st[6] - st[4] for st in streams)
             pub.put(wire.encode_record_batch(self.bridge_id, self._record_n, streams),
-                    encoding=ENC_JSON)
+                    encoding=wire.BINARY_ENCODING)
             self._record_n += 1
             self.counts.recorded += kept
             self.counts.decimated += decimated

@@ -8,9 +8,8 @@ of a demo) and queues it. Writer side: the views below turn records into the arr
 from __future__ import annotations
 
 import threading
-from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -111,29 +110,6 @@ class Stop:
 ControlEvent = (DemoAdded | DemoRef | ModelRef | DemoRemoved | ModelFitted | ReproductionMade
                 | SkillDeleted | Rotate | Rebuild | Reconcile | Stop)
 
-POSE, TARGET = 0, 1
-
-
-class LiveSample(NamedTuple):
-    """One live pose (robot -> Canal) or target (Canal -> robot), as plain Python values.
-
-    ``kind`` is :data:`POSE` or :data:`TARGET`; ``position`` is the pose's position or the
-    target's; the tracker fields are those of a target (zeros for a pose).
-    """
-
-    skill: str
-    robot: str
-    kind: int
-    t_ns: int
-    position: list[float]
-    orientation: list[float] | None
-    progress: float = 0.0
-    eta: float = float("nan")
-    section_index: int = -1
-    inside: bool = False
-    done: bool = False
-
-
 @dataclass(frozen=True)
 class ReproductionView:
     """A reproduction in 3-D for the logs."""
@@ -172,16 +148,18 @@ def reproduction_view(version: int, result: Any, number: int = 0) -> Reproductio
     )
 
 
-@dataclass(frozen=True)
-class LiveBatch:
-    """Consecutive live samples of one robot on one skill, as columns."""
+@dataclass(frozen=True, slots=True)
+class LiveRows:
+    """Consecutive live rows of one robot on one skill, as columns: each row is a pose
+    (robot -> Canal) and the target Canal answered to it."""
 
+    skill: str
     robot: str
-    kind: int  # POSE or TARGET
     t_ns: NDArray[np.int64]  # (M,)
-    position: FloatArray  # (M, 3)
-    orientation: FloatArray  # (M, 4) [qx, qy, qz, qw]; identity where the sample had none
-    has_orientation: NDArray[np.bool_]  # (M,)
+    position: FloatArray  # (M, 3), 2-D poses in the z=0 plane
+    orientation: FloatArray  # (M, 4) [qx, qy, qz, qw]; identity where the pose had none
+    target: FloatArray  # (M, 3)
+    target_orientation: FloatArray  # (M, 4); identity where the target had none
     progress: FloatArray  # (M,)
     eta: FloatArray  # (M,)
     section_index: NDArray[np.int64]  # (M,)
@@ -191,35 +169,49 @@ class LiveBatch:
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
 
+    def tail(self, k: int) -> LiveRows:
+        """The last ``k`` rows."""
+        start = len(self) - k
+        return LiveRows(self.skill, self.robot, *(getattr(self, f)[start:] for f in _COLUMNS))
 
-_IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+_COLUMNS = ("t_ns", "position", "orientation", "target", "target_orientation", "progress",
+            "eta", "section_index", "inside", "done")
 
 
-def live_batches(samples: list[LiveSample]) -> dict[str, list[LiveBatch]]:
-    """Samples grouped by skill, robot and kind, as column batches in arrival order."""
-    groups: dict[tuple[str, str, int], list[LiveSample]] = defaultdict(list)
-    for s in samples:
-        groups[(s.skill, s.robot, s.kind)].append(s)
-    out: dict[str, list[LiveBatch]] = defaultdict(list)
-    for (skill, robot, kind), rows in groups.items():
-        dim = max(len(r.position) for r in rows)
-        pos = np.zeros((len(rows), dim))
-        for i, r in enumerate(rows):  # positions of one stream share D; pad defensively
-            pos[i, :len(r.position)] = r.position
-        has_q = np.array([r.orientation is not None for r in rows], dtype=bool)
-        quats = np.array([r.orientation if r.orientation is not None else _IDENTITY
-                          for r in rows], dtype=np.float64)
-        cols = list(zip(*rows, strict=True))
-        out[skill].append(LiveBatch(
-            robot=robot, kind=kind,
-            t_ns=np.asarray(cols[3], dtype=np.int64),
-            position=points3d(pos[:, :3]),
-            orientation=quats, has_orientation=has_q,
-            progress=np.asarray(cols[6], dtype=np.float64),
-            eta=np.asarray(cols[7], dtype=np.float64),
-            section_index=np.asarray(cols[8], dtype=np.int64),
-            inside=np.asarray(cols[9], dtype=bool),
-            done=np.asarray(cols[10], dtype=bool),
-        ))
-    return out
+def live_rows(skill: str, robot: str, t_ns: Any, position: Any, orientation: Any,
+              target: Any, target_orientation: Any, progress: Any, eta: Any,
+              section_index: Any, inside: Any, done: Any) -> LiveRows:
+    """Columns as :class:`LiveRows`: positions and targets (M, D) drawn in 3-D, missing
+    orientations (None) as the identity."""
+    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
+    m = t.shape[0]
 
+    def quats(q: Any) -> FloatArray:
+        if q is None:
+            return np.tile(_IDENTITY, (m, 1))
+        return np.asarray(q, dtype=np.float64).reshape(m, 4)
+
+    def points(p: Any) -> FloatArray:
+        arr = np.asarray(p, dtype=np.float64).reshape(m, -1)
+        return points3d(arr[:, :3])
+
+    return LiveRows(skill, robot, t, points(position), quats(orientation), points(target),
+                    quats(target_orientation),
+                    np.asarray(progress, dtype=np.float64).reshape(m),
+                    np.asarray(eta, dtype=np.float64).reshape(m),
+                    np.asarray(section_index, dtype=np.int64).reshape(m),
+                    np.asarray(inside, dtype=bool).reshape(m),
+                    np.asarray(done, dtype=bool).reshape(m))
+
+
+_IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def concat_rows(chunks: list[LiveRows]) -> LiveRows:
+    """Chunks of one stream (same skill and robot) as one, in order."""
+    if len(chunks) == 1:
+        return chunks[0]
+    first = chunks[0]
+    return LiveRows(first.skill, first.robot,
+                    *(np.concatenate([getattr(c, f) for c in chunks]) for f in _COLUMNS))

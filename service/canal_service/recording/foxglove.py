@@ -233,3 +233,99 @@ def frame_transform(t_ns: int, parent: str, child: str,
 def plain(t_ns: int, **fields: Any) -> bytes:
     """A ``canal.*`` message: ``fields`` plus the timestamp."""
     return orjson.dumps({"timestamp": stamp(t_ns), **fields}, option=orjson.OPT_SERIALIZE_NUMPY)
+
+
+# ---- live messages: one template per topic, filled for many rows at once ---------------------
+#
+# A live stream writes four small messages per row. The same JSON as the builders above, but
+# formatted from a per-topic template: the numbers of all rows come out of one orjson call
+# (the same float formatting; NaN and infinities as null), and each message is one
+# bytes %-format.
+
+_STAMP = b'{"timestamp":{"sec":%d,"nsec":%d},'
+_XYZ = b'{"x":%b,"y":%b,"z":%b}'
+_XYZW = b'{"x":%b,"y":%b,"z":%b,"w":%b}'
+_BOOL = (b"false", b"true")
+
+
+def _tokens(values: np.ndarray) -> list[bytes]:
+    """The JSON numbers of ``values`` (flattened, C order), as orjson writes them."""
+    flat = np.ascontiguousarray(values, dtype=np.float64).ravel()
+    if flat.size == 0:
+        return []
+    return orjson.dumps(flat, option=orjson.OPT_SERIALIZE_NUMPY)[1:-1].split(b",")
+
+
+def _literal(text: str) -> bytes:
+    """A JSON string for a template (``%`` escaped)."""
+    return orjson.dumps(text).replace(b"%", b"%%")
+
+
+def _stamps(t_ns: np.ndarray) -> tuple[list[int], list[int]]:
+    t = np.asarray(t_ns, dtype=np.int64)
+    return (t // 1_000_000_000).tolist(), (t % 1_000_000_000).tolist()
+
+
+def _pose_rows(t_ns: np.ndarray, positions: FloatArray,
+               orientations: FloatArray) -> zip[tuple[Any, ...]]:
+    """Per row: sec, nsec, x, y, z, qx, qy, qz, qw (JSON tokens for the floats)."""
+    sec, nsec = _stamps(t_ns)
+    p, q = _tokens(positions), _tokens(orientations)
+    return zip(sec, nsec, p[0::3], p[1::3], p[2::3], q[0::4], q[1::4], q[2::4], q[3::4],
+               strict=True)
+
+
+def _pose_template(frame_id: str) -> bytes:
+    return (_STAMP + b'"frame_id":' + _literal(frame_id) + b',"pose":{"position":' + _XYZ
+            + b',"orientation":' + _XYZW + b"}}")
+
+
+def _transform_template(parent: str, child: str) -> bytes:
+    return (_STAMP + b'"parent_frame_id":' + _literal(parent) + b',"child_frame_id":'
+            + _literal(child) + b',"translation":' + _XYZ + b',"rotation":' + _XYZW + b"}")
+
+
+def pose_in_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientations: FloatArray,
+                           frame_id: str = CANAL_FRAME) -> list[bytes]:
+    """``foxglove.PoseInFrame`` messages, one per row (as :func:`pose_in_frame` writes them).
+
+    Parameters
+    ----------
+    t_ns : array, shape (M,)
+    positions : array, shape (M, 3)
+    orientations : array, shape (M, 4)
+        [qx, qy, qz, qw].
+    """
+    template = _pose_template(frame_id)
+    return [template % row for row in _pose_rows(t_ns, positions, orientations)]
+
+
+def frame_transform_messages(t_ns: np.ndarray, parent: str, child: str,
+                             translations: FloatArray, rotations: FloatArray) -> list[bytes]:
+    """``foxglove.FrameTransform`` messages ``parent -> child``, one per row (as
+    :func:`frame_transform` writes them): translations (M, 3), rotations (M, 4)."""
+    template = _transform_template(parent, child)
+    return [template % row for row in _pose_rows(t_ns, translations, rotations)]
+
+
+def pose_and_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientations: FloatArray,
+                            child: str) -> tuple[list[bytes], list[bytes]]:
+    """:func:`pose_in_frame_messages` (canal frame) and :func:`frame_transform_messages`
+    (canal -> ``child``) of the same rows, their numbers formatted once."""
+    pose, frame = _pose_template(CANAL_FRAME), _transform_template(CANAL_FRAME, child)
+    rows = list(_pose_rows(t_ns, positions, orientations))
+    return [pose % row for row in rows], [frame % row for row in rows]
+
+
+def tracker_state_messages(t_ns: np.ndarray, robot: str, progress: FloatArray, eta: FloatArray,
+                           section_index: np.ndarray, inside: np.ndarray,
+                           done: np.ndarray) -> list[bytes]:
+    """``canal.TrackerState`` messages, one per row (as :func:`plain` writes them; a NaN
+    eta is null). All arrays shape (M,)."""
+    template = (_STAMP + b'"robot":' + _literal(robot)
+                + b',"progress":%b,"eta":%b,"section_index":%d,"inside":%b,"done":%b}')
+    sec, nsec = _stamps(t_ns)
+    return [template % row for row in zip(
+        sec, nsec, _tokens(progress), _tokens(eta), np.asarray(section_index).tolist(),
+        [_BOOL[v] for v in np.asarray(inside, dtype=bool).tolist()],
+        [_BOOL[v] for v in np.asarray(done, dtype=bool).tolist()], strict=True)]

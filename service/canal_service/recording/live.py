@@ -7,9 +7,10 @@ them and the stream's count deltas on ``{prefix}/@recorder/live/{bridge}``
 (:func:`canal_protocol.keys.recorder_key`, format in :mod:`canal_protocol.wire`). This
 subscriber hears ~10 small messages a second per bridge instead of every pose and target:
 
-- The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s``.
-- Rows become :class:`~.events.LiveSample` (a pose and its target) and go to the recorder
-  without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
+- The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s`` (0.2 s).
+- Each stream's rows arrive as columns (:func:`canal_protocol.wire.decode_record_batch`) and
+  go to the recorder as :class:`~.events.LiveRows` (numpy views of those columns, no
+  per-row Python) without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
 - The counts make the recording checkable: per stream, every pose a bridge handled is in
   the recording (``recorded``), on its way (``pending``), ``decimated`` by the bridge, or
   ``dropped`` by the recorder (counted); a batch that never arrived is a gap in the bridge's
@@ -28,13 +29,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import orjson
 import zenoh
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
-from .events import POSE, TARGET, LiveSample
+from .events import LiveRows, live_rows
 
 log = logging.getLogger("canal_service.recording")
 
@@ -52,7 +54,7 @@ class LiveOptions:
     connect: tuple[str, ...] = ()
     config_file: Path | None = None
     capacity: int = 4096  # batches waiting in the channel
-    interval_s: float = 0.05
+    interval_s: float = 0.2  # the bridges send every 0.1 s; the writer flushes every 1 s
 
     @classmethod
     def from_settings(cls, settings: Any) -> LiveOptions:
@@ -98,6 +100,21 @@ def zenoh_config(options: LiveOptions) -> zenoh.Config:
     config.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, '
                                          '"period_increase_factor": 2}')
     return config
+
+
+def rows_of(stream: wire.RecordStream) -> LiveRows:
+    """A batch's stream as :class:`~.events.LiveRows` (its columns read in place)."""
+    m = len(stream)
+    flags = np.frombuffer(stream.flags, dtype=np.uint8)
+    return live_rows(stream.skill, stream.robot, np.frombuffer(stream.t_ns, dtype=np.int64),
+                     np.frombuffer(stream.position, dtype=np.float64).reshape(m, stream.dim),
+                     np.frombuffer(stream.orientation, dtype=np.float64).reshape(m, 4),
+                     np.frombuffer(stream.target, dtype=np.float64).reshape(m, stream.dim),
+                     np.frombuffer(stream.target_orientation, dtype=np.float64).reshape(m, 4),
+                     np.frombuffer(stream.progress, dtype=np.float64),
+                     np.frombuffer(stream.eta, dtype=np.float64),
+                     np.frombuffer(stream.section, dtype=np.int32),
+                     (flags & wire.RECORD_INSIDE) != 0, (flags & wire.RECORD_DONE) != 0)
 
 
 @dataclass
@@ -209,7 +226,7 @@ class LiveSubscriber:
             stats.bad_payload += 1
             return False
         if bridge is None or batch.bridge != bridge or any(
-                len(st.rows) + st.decimated != st.poses for st in batch.streams):
+                len(st) + st.decimated != st.poses for st in batch.streams):
             stats.bad_payload += 1
             return False
         last = stats.last_n.get(bridge)
@@ -220,7 +237,7 @@ class LiveSubscriber:
         if last is None and batch.n > 0:
             stats.lost_batches += batch.n  # heard from the middle: the bridge's first ones
         stats.batches += 1
-        samples: list[LiveSample] = []
+        chunks: list[LiveRows] = []
         for st in batch.streams:
             tally = stats.streams[(st.skill, st.robot)]
             tally["poses"] += st.poses
@@ -228,18 +245,11 @@ class LiveSubscriber:
             tally["coalesced"] += st.coalesced
             tally["errors"] += st.errors
             tally["decimated"] += st.decimated
-            tally["kept"] += len(st.rows)
-            skill, robot = st.skill, st.robot
-            for r in st.rows:
-                samples.append(LiveSample(skill, robot, POSE, r.t_ns, list(r.position),
-                                          None if r.orientation is None
-                                          else list(r.orientation)))
-                samples.append(LiveSample(
-                    skill, robot, TARGET, r.t_ns, list(r.target),
-                    None if r.target_orientation is None else list(r.target_orientation),
-                    r.progress, r.eta, r.section, r.inside, r.done))
-        if samples:
-            self.recorder.live_rows(samples)
+            tally["kept"] += len(st)
+            if len(st):
+                chunks.append(rows_of(st))
+        if chunks:
+            self.recorder.live_rows(chunks)
         return True
 
     # ---- state --------------------------------------------------------------------------------

@@ -24,13 +24,11 @@ import numpy as np
 
 from ..lanes import name_os_thread
 from .events import (
-    POSE,
-    TARGET,
     ControlEvent,
     DemoAdded,
     DemoRef,
     DemoRemoved,
-    LiveSample,
+    LiveRows,
     ModelFitted,
     ModelRef,
     Rebuild,
@@ -39,7 +37,8 @@ from .events import (
     Rotate,
     SkillDeleted,
     Stop,
-    live_batches,
+    concat_rows,
+    live_rows,
     reproduction_view,
 )
 from .geometry import model_geometry, points3d
@@ -63,14 +62,14 @@ def _vector(value: Any) -> list[float]:
     return arr.tolist()
 
 
-def batch_writer_rerun(batch: Any) -> Callable[[RerunSegment], None]:
-    """Log one live batch to a Rerun segment (bound now, called by ``_write``)."""
-    return lambda r: r.live(batch)
+def batch_writer_rerun(rows: LiveRows) -> Callable[[RerunSegment], None]:
+    """Log one stream's live rows to a Rerun segment (bound now, called by ``_write``)."""
+    return lambda r: r.live(rows)
 
 
-def batch_writer_mcap(batch: Any) -> Callable[[McapSegment], None]:
-    """Log one live batch to an MCAP segment (bound now, called by ``_write``)."""
-    return lambda m: m.live(batch)
+def batch_writer_mcap(rows: LiveRows) -> Callable[[McapSegment], None]:
+    """Log one stream's live rows to an MCAP segment (bound now, called by ``_write``)."""
+    return lambda m: m.live(rows)
 
 
 class _SkillState:
@@ -107,9 +106,11 @@ class Recorder:
     flush_interval_s : float
         How often open segments are pushed to the OS; a crash loses at most this much.
     live_max_hz : float or None
-        Live samples kept per (skill, robot) per second (None keeps every sample).
+        Rows :meth:`live` keeps per (skill, robot) per second (None keeps every row); the
+        bridges' rows (:meth:`live_rows`) are decimated by the bridges.
     live_queue_size : int
-        Live samples waiting for the writer; beyond it the oldest is dropped (counted).
+        Live samples (a pose and a target per row) waiting for the writer; beyond it the
+        oldest rows are dropped (counted).
     event_queue_size : int
         Other events waiting for the writer; beyond it new events are dropped (counted).
     idle_close_s : float
@@ -151,9 +152,11 @@ class Recorder:
         self.export_timeout_s = float(export_timeout_s)
         self._events: deque[ControlEvent] = deque()
         self._event_cap = int(event_queue_size)
-        self._live: deque[LiveSample] = deque(maxlen=int(live_queue_size))
+        self._live: deque[LiveRows] = deque()
+        self._live_cap = max(int(live_queue_size) // 2, 1)  # rows: a pose and a target each
+        self._live_queued = 0  # rows in _live
         self._live_lock = threading.Lock()
-        self._live_last: dict[tuple[str, str, int], tuple[int, bool, bool]] = {}
+        self._live_last: dict[tuple[str, str], tuple[int, bool, bool]] = {}
         self._period_ns = int(1e9 / live_max_hz) if live_max_hz else 0
         self._wake = threading.Event()
         self._state_lock = threading.Lock()
@@ -235,65 +238,56 @@ class Recorder:
              t_ns: int | None = None, orientation: Any = None) -> None:
         """One live tracker step: robot ``position`` (D,) and the ``TrackerTarget``.
 
-        Queued as a pose and a target sample (see :meth:`live_sample`). The service's live
-        recording comes from the bridges' batches instead (:class:`~.live.LiveSubscriber`).
+        Kept at most ``live_max_hz`` per (skill, robot), plus every step whose ``inside`` or
+        ``done`` flag differs from the last kept one (the bridges' rule); queued as one row (a
+        pose and its target). The service's live recording comes from the bridges' batches
+        instead (:class:`~.live.LiveSubscriber`, :meth:`live_rows`).
         """
         if self._closed:
             return
         try:
             t = time.time_ns() if t_ns is None else int(t_ns)
-            q = None if orientation is None else [float(v) for v in orientation]
-            tq = getattr(target, "orientation", None)
-            pose = LiveSample(skill, robot, POSE, t, _vector(position), q)
-            answer = LiveSample(
-                skill, robot, TARGET, t, _vector(target.target),
-                None if tq is None else np.asarray(tq, dtype=np.float64).tolist(),
-                float(target.progress), float(target.eta), int(target.section_index),
-                bool(target.inside), bool(target.done))
-            self.live_sample(pose)
-            self.live_sample(answer)
+            inside, done = bool(target.inside), bool(target.done)
+            row = live_rows(skill, robot, [t], _vector(position), orientation,
+                            _vector(target.target), getattr(target, "orientation", None),
+                            [float(target.progress)], [float(target.eta)],
+                            [int(target.section_index)], [inside], [done])
+            key = (skill, robot)
+            with self._live_lock:
+                last = self._live_last.get(key)
+                if (last is not None and 0 <= t - last[0] < self._period_ns
+                        and last[1] == inside and last[2] == done):
+                    self.decimated_live += 2  # a pose and a target sample
+                    return
+                self._live_last[key] = (t, inside, done)
+            self.live_rows([row])
         except Exception:
             self._caller_error("live")
 
-    def live_sample(self, sample: LiveSample) -> bool:
-        """Queue one live pose or target; False when it was decimated.
-
-        Kept at most ``live_max_hz`` per (skill, robot, kind); a target whose ``inside`` or
-        ``done`` flag differs from the last kept one is always kept. Beyond the queue's size
-        the oldest sample is dropped (counted).
-        """
-        if self._closed:
-            return False
-        t, inside, done = sample.t_ns, sample.inside, sample.done
-        key = (sample.skill, sample.robot, sample.kind)
-        with self._live_lock:
-            last = self._live_last.get(key)
-            if (last is not None and 0 <= t - last[0] < self._period_ns
-                    and last[1] == inside and last[2] == done):
-                self.decimated_live += 1
-                return False
-            self._live_last[key] = (t, inside, done)
-            if len(self._live) == self._live.maxlen:
-                self.dropped_live += 1  # the deque drops its oldest sample on append
-            self._live.append(sample)
-        return True
-
-    def live_rows(self, samples: list[LiveSample]) -> None:
-        """Queue live samples a bridge already chose (no rate limit here). Beyond the
-        queue's size the oldest samples are dropped (counted per stream)."""
+    def live_rows(self, chunks: list[LiveRows]) -> None:
+        """Queue live rows a bridge already chose (no rate limit here). Beyond the queue's
+        size (``live_queue_size`` samples, two per row) the oldest rows are dropped (counted
+        per stream)."""
         if self._closed:
             return
         with self._live_lock:
             live = self._live
-            cap = live.maxlen or 0
-            for sample in samples:
-                if len(live) == cap:
-                    old = live[0]  # the deque drops it on append
-                    self.dropped_live += 1
-                    if old.kind == POSE:
-                        key = (old.skill, old.robot)
-                        self._live_dropped[key] = self._live_dropped.get(key, 0) + 1
-                live.append(sample)
+            for chunk in chunks:
+                live.append(chunk)
+                self._live_queued += len(chunk)
+            excess = self._live_queued - self._live_cap
+            while excess > 0:
+                old = live[0]
+                k = min(len(old), excess)
+                if k == len(old):
+                    live.popleft()
+                else:
+                    live[0] = old.tail(len(old) - k)
+                excess -= k
+                self._live_queued -= k
+                self.dropped_live += 2 * k
+                key = (old.skill, old.robot)
+                self._live_dropped[key] = self._live_dropped.get(key, 0) + k
 
     def live_stream_counts(self) -> tuple[dict[tuple[str, str], int],
                                           dict[tuple[str, str], int]]:
@@ -449,7 +443,7 @@ class Recorder:
             "status": "degraded" if errors else "ok",
             "detail": "; ".join(f"{k}: {v}" for k, v in sorted(errors.items())) or (
                 None if self.enabled else "recording disabled"),
-            "queued": len(self._events) + len(self._live),
+            "queued": len(self._events) + 2 * self._live_queued,
             "dropped": self.dropped_events + self.dropped_live,
             "decimated": self.decimated_live,
             "live_written": self.written_live,
@@ -784,27 +778,29 @@ class Recorder:
         return state
 
     def _drain_live(self) -> None:
-        n = len(self._live)
-        if n == 0:
-            return
-        pop = self._live.popleft
-        samples = [pop() for _ in range(n)]
-        for skill, batches in live_batches(samples).items():
+        """Write the queued live rows: per stream one run of columns, both files."""
+        with self._live_lock:
+            if not self._live:
+                return
+            chunks, self._live = list(self._live), deque()
+            self._live_queued = 0
+        streams: dict[tuple[str, str], list[LiveRows]] = {}
+        for chunk in chunks:
+            streams.setdefault((chunk.skill, chunk.robot), []).append(chunk)
+        for (skill, robot), parts in streams.items():
+            rows = concat_rows(parts)
             if skill not in self._dims:
                 self._dims[skill] = self._source_dim(skill)
-            for batch in batches:
-                try:
-                    self._write(skill, int(batch.t_ns[0]), batch_writer_rerun(batch),
-                                batch_writer_mcap(batch), n_live=len(batch))
-                    if batch.kind == POSE:
-                        self._live_count(skill, batch.robot, len(batch))
-                except Exception as exc:
-                    log.exception("recorder could not record live samples of %s", skill)
-                    self.dropped_live += len(batch)
-                    if batch.kind == POSE:
-                        self._live_count(skill, batch.robot, len(batch))
-                        self._live_settle(skill, self._live_dropped)
-                    self._note(skill, f"{type(exc).__name__}: {exc}")
+            try:
+                self._write(skill, int(rows.t_ns[0]), batch_writer_rerun(rows),
+                            batch_writer_mcap(rows), n_live=2 * len(rows))
+                self._live_count(skill, robot, len(rows))
+            except Exception as exc:
+                log.exception("recorder could not record live samples of %s", skill)
+                self.dropped_live += 2 * len(rows)
+                self._live_count(skill, robot, len(rows))
+                self._live_settle(skill, self._live_dropped)
+                self._note(skill, f"{type(exc).__name__}: {exc}")
 
     def _source_dim(self, skill: str) -> int:
         if self.source is None:
