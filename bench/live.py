@@ -547,6 +547,41 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     return rows
 
 
+def wire_stages(path: np.ndarray, repeats: int = 20000) -> list[tuple[str, float]]:
+    """The wire codecs as the bridge calls them: floats in Python lists (``answer_all`` turns
+    the step's arrays into lists once per drain), each result dropped after use, so memory is
+    reused. (The encode rows of :func:`stages` keep all their results alive: their figures
+    include the page faults of fresh memory, 3-4 us of the 4.7 us of "encode JSON target".)
+    """
+    from canal_protocol import wire
+
+    pts = [tuple(float(v) for v in p) for p in path[:64]]
+    rows: list[tuple[str, float]] = []
+
+    def per(fn, args_list) -> float:
+        n = len(args_list)
+        best = math.inf
+        for _ in range(5):  # the least of five: the machine is shared
+            t0 = time.thread_time()
+            for args in args_list:
+                fn(*args)
+            best = min(best, (time.thread_time() - t0) / n * 1e6)
+        return best
+
+    k = max(repeats // len(pts), 1)
+    targets = [(i, "ok", list(p), 0.5, 0.2, 10, True, False, 1, None, None, 0)
+               for i, p in enumerate(pts)] * k
+    rows.append(("encode JSON target (list in, bytes dropped, as the bridge)",
+                 per(wire.pack_target_json, targets)))
+    rows.append(("encode binary target (list in, bytes dropped, as the bridge)",
+                 per(wire.pack_target, [(i, 0, *rest) for i, _s, *rest in targets])))
+    poses = [(wire.encode_pose_json(i, p),) for i, p in enumerate(pts)] * k
+    rows.append(("decode JSON pose (pose dropped)", per(wire.decode_pose_json, poses)))
+    poses = [(wire.encode_pose(i, p),) for i, p in enumerate(pts)] * k
+    rows.append(("decode binary pose (pose dropped)", per(wire.decode_pose, poses)))
+    return rows
+
+
 def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: int = 250
                      ) -> list[tuple[str, float]]:
     """The bridge's own pose path on real Zenoh samples, per pose by stage (CPU time of this
@@ -574,6 +609,8 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
     bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",), record_hz=100.0))
     rows: list[tuple[str, float]] = []
     clock = time.thread_time_ns
+    # the worker thread runs with NumPy's errors ignored (set once); so does this one here
+    numpy_errors = np.seterr(all="ignore")
     try:
         assert bridge.start()
         for sub in bridge._subscribers:  # park the worker: we feed its pose path ourselves
@@ -652,10 +689,11 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                 ]
                 t0 = clock()
                 for s in samples[:2000]:
-                    pp.batch([s])
+                    pp._handle([s])  # what the worker calls per drain
                 rows.append((f"bridge pose path, {fmt}, one pose at a time: TOTAL",
                              (clock() - t0) / min(len(samples), 2000) / 1e3))
     finally:
+        np.seterr(**numpy_errors)
         bridge.close()
         db.dispose()
     return rows
@@ -839,8 +877,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.soak:
             soak(data, path, args.soak)
             return 0
-        stage_rows = [] if args.no_stages else stages(path, canal) + pose_path_stages(
-            path, data)
+        stage_rows = [] if args.no_stages else stages(path, canal) + wire_stages(
+            path) + pose_path_stages(path, data)
         if args.stages_only:
             report([], [], stage_rows, seconds)
             return 0
