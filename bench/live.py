@@ -365,6 +365,7 @@ class Run:
     seconds: float
     cpu_us: dict[str, float] | None = None  # process -> CPU us per pose sent (warm-up in)
     recording: dict | None = None  # the recorder's live counts for this drive
+    per_drain: float | None = None  # poses per drain of the bridges' workers (canal serve)
 
     @property
     def answered(self) -> float:
@@ -718,9 +719,14 @@ def measured(pids: dict[str, int], port: int | None, fn, *args) -> Run:
     """``fn(*args)`` (a drive) with the CPU its server's processes spent, per pose sent, and
     with ``port``, the change in the recorder's live counts over the drive."""
     before_rec = _live_counts(port) if port else None
+    before_drains = _drains(port) if port else None
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     run: Run = fn(*args)
     after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    if port and before_drains is not None:
+        time.sleep(1.0)  # the bridges report every 0.5 s
+        poses, drains = (a - b for a, b in zip(_drains(port), before_drains, strict=True))
+        run.per_drain = poses / drains if drains > 0 else None
     total = run.sent + int(0.5 * RATE_HZ) * run.streams  # + the warm-up poses
     run.cpu_us = {name: 1e6 * (after[name] - before[name]) / max(total, 1) for name in pids}
     if port and before_rec is not None:
@@ -732,6 +738,13 @@ def measured(pids: dict[str, int], port: int | None, fn, *args) -> Run:
         run.recording["sent"] = total
         run.recording["complete"] = bool(after_rec.get("complete"))
     return run
+
+
+def _drains(port: int) -> tuple[int, int]:
+    """(poses, drains) the bridge workers have handled so far, from /healthz."""
+    bridges = healthz(port).get("bridge", {}).get("bridges", [])
+    return (sum(int(b.get("poses", 0)) for b in bridges),
+            sum(int(b.get("drains", 0)) for b in bridges))
 
 
 def _live_counts(port: int) -> dict:
@@ -968,15 +981,17 @@ def report_runs(runs, scale, seconds) -> None:
                                        "bare Zenoh echo", e.pct(50) / 1e3))
     print("\nCPU per pose (from /proc: utime + stime of each process over the drive, all its "
           "threads, divided by the poses sent; us)\n")
-    print("| format | robots | echo | canal serve: service | bridge(s) | bridge / echo |")
-    print("|---|---|---|---|---|---|")
+    print("| format | robots | echo | canal serve: service | bridge(s) | bridge / echo "
+          "| poses per drain |")
+    print("|---|---|---|---|---|---|---|")
     for e, b in runs:
         if e.cpu_us is None or b.cpu_us is None:
             continue
         echo_us = e.cpu_us["echo"]
         bridge_us = sum(v for k, v in b.cpu_us.items() if k.startswith("bridge"))
         print(f"| {b.fmt} | {b.streams} | {echo_us:.1f} | {b.cpu_us.get('service', 0):.1f} | "
-              f"{bridge_us:.1f} | {bridge_us / max(echo_us, 1e-9):.2f} |")
+              f"{bridge_us:.1f} | {bridge_us / max(echo_us, 1e-9):.2f} | "
+              + ("-" if b.per_drain is None else f"{b.per_drain:.2f}") + " |")
     print("\nRecording during each canal serve drive (from /healthz recorder.live, deltas)\n")
     print("| format | robots | sent | handled | recorded | decimated | pending | dropped "
           "| lost batches | complete |")

@@ -136,7 +136,7 @@ class Counts:
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
-                "errors": dict(self.errors), "switches": self.switches,
+                "errors": dict(self.errors), "switches": self.switches, "drains": self.batches,
                 "recorded": self.recorded, "decimated": self.decimated + self.unknown}
 
 
