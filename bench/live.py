@@ -365,6 +365,7 @@ class Run:
     seconds: float
     cpu_us: dict[str, float] | None = None  # process -> CPU us per pose sent (warm-up in)
     recording: dict | None = None  # the recorder's live counts for this drive
+    per_drain: float | None = None  # poses per drain of the bridges' workers (canal serve)
 
     @property
     def answered(self) -> float:
@@ -590,6 +591,41 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     return rows
 
 
+def wire_stages(path: np.ndarray, repeats: int = 20000) -> list[tuple[str, float]]:
+    """The wire codecs as the bridge calls them: floats in Python lists (``answer_all`` turns
+    the step's arrays into lists once per drain), each result dropped after use, so memory is
+    reused. (The encode rows of :func:`stages` keep all their results alive: their figures
+    include the page faults of fresh memory, 3-4 us of the 4.7 us of "encode JSON target".)
+    """
+    from canal_protocol import wire
+
+    pts = [tuple(float(v) for v in p) for p in path[:64]]
+    rows: list[tuple[str, float]] = []
+
+    def per(fn, args_list) -> float:
+        n = len(args_list)
+        best = math.inf
+        for _ in range(5):  # the least of five: the machine is shared
+            t0 = time.thread_time()
+            for args in args_list:
+                fn(*args)
+            best = min(best, (time.thread_time() - t0) / n * 1e6)
+        return best
+
+    k = max(repeats // len(pts), 1)
+    targets = [(i, "ok", list(p), 0.5, 0.2, 10, True, False, 1, None, None, 0)
+               for i, p in enumerate(pts)] * k
+    rows.append(("encode JSON target (list in, bytes dropped, as the bridge)",
+                 per(wire.pack_target_json, targets)))
+    rows.append(("encode binary target (list in, bytes dropped, as the bridge)",
+                 per(wire.pack_target, [(i, 0, *rest) for i, _s, *rest in targets])))
+    poses = [(wire.encode_pose_json(i, p),) for i, p in enumerate(pts)] * k
+    rows.append(("decode JSON pose (pose dropped)", per(wire.decode_pose_json, poses)))
+    poses = [(wire.encode_pose(i, p),) for i, p in enumerate(pts)] * k
+    rows.append(("decode binary pose (pose dropped)", per(wire.decode_pose, poses)))
+    return rows
+
+
 def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: int = 250
                      ) -> list[tuple[str, float]]:
     """The bridge's own pose path on real Zenoh samples, per pose by stage (CPU time of this
@@ -617,6 +653,8 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
     bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",), record_hz=100.0))
     rows: list[tuple[str, float]] = []
     clock = time.thread_time_ns
+    # the worker thread runs with NumPy's errors ignored (set once); so does this one here
+    numpy_errors = np.seterr(all="ignore")
     try:
         assert bridge.start()
         for sub in bridge._subscribers:  # park the worker: we feed its pose path ourselves
@@ -695,10 +733,11 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                 ]
                 t0 = clock()
                 for s in samples[:2000]:
-                    pp.batch([s])
+                    pp._handle([s])  # what the worker calls per drain
                 rows.append((f"bridge pose path, {fmt}, one pose at a time: TOTAL",
                              (clock() - t0) / min(len(samples), 2000) / 1e3))
     finally:
+        np.seterr(**numpy_errors)
         bridge.close()
         db.dispose()
     return rows
@@ -723,9 +762,14 @@ def measured(pids: dict[str, int], port: int | None, fn, *args) -> Run:
     """``fn(*args)`` (a drive) with the CPU its server's processes spent, per pose sent, and
     with ``port``, the change in the recorder's live counts over the drive."""
     before_rec = _live_counts(port) if port else None
+    before_drains = _drains(port) if port else None
     before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     run: Run = fn(*args)
     after = {name: cpu_seconds(pid) for name, pid in pids.items()}
+    if port and before_drains is not None:
+        time.sleep(1.0)  # the bridges report every 0.5 s
+        poses, drains = (a - b for a, b in zip(_drains(port), before_drains, strict=True))
+        run.per_drain = poses / drains if drains > 0 else None
     total = run.sent + int(0.5 * RATE_HZ) * run.streams  # + the warm-up poses
     run.cpu_us = {name: 1e6 * (after[name] - before[name]) / max(total, 1) for name in pids}
     if port and before_rec is not None:
@@ -737,6 +781,13 @@ def measured(pids: dict[str, int], port: int | None, fn, *args) -> Run:
         run.recording["sent"] = total
         run.recording["complete"] = bool(after_rec.get("complete"))
     return run
+
+
+def _drains(port: int) -> tuple[int, int]:
+    """(poses, drains) the bridge workers have handled so far, from /healthz."""
+    bridges = healthz(port).get("bridge", {}).get("bridges", [])
+    return (sum(int(b.get("poses", 0)) for b in bridges),
+            sum(int(b.get("drains", 0)) for b in bridges))
 
 
 def _live_counts(port: int) -> dict:
@@ -882,8 +933,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.soak:
             soak(data, path, args.soak)
             return 0
-        stage_rows = [] if args.no_stages else stages(path, canal) + pose_path_stages(
-            path, data)
+        stage_rows = [] if args.no_stages else stages(path, canal) + wire_stages(
+            path) + pose_path_stages(path, data)
         if args.stages_only:
             report([], [], stage_rows, seconds)
             return 0
@@ -973,15 +1024,17 @@ def report_runs(runs, scale, seconds) -> None:
                                        "bare Zenoh echo", e.pct(50) / 1e3))
     print("\nCPU per pose (from /proc: utime + stime of each process over the drive, all its "
           "threads, divided by the poses sent; us)\n")
-    print("| format | robots | echo | canal serve: service | bridge(s) | bridge / echo |")
-    print("|---|---|---|---|---|---|")
+    print("| format | robots | echo | canal serve: service | bridge(s) | bridge / echo "
+          "| poses per drain |")
+    print("|---|---|---|---|---|---|---|")
     for e, b in runs:
         if e.cpu_us is None or b.cpu_us is None:
             continue
         echo_us = e.cpu_us["echo"]
         bridge_us = sum(v for k, v in b.cpu_us.items() if k.startswith("bridge"))
         print(f"| {b.fmt} | {b.streams} | {echo_us:.1f} | {b.cpu_us.get('service', 0):.1f} | "
-              f"{bridge_us:.1f} | {bridge_us / max(echo_us, 1e-9):.2f} |")
+              f"{bridge_us:.1f} | {bridge_us / max(echo_us, 1e-9):.2f} | "
+              + ("-" if b.per_drain is None else f"{b.per_drain:.2f}") + " |")
     print("\nRecording during each canal serve drive (from /healthz recorder.live, deltas)\n")
     print("| format | robots | sent | handled | recorded | decimated | pending | dropped "
           "| lost batches | complete |")

@@ -126,3 +126,21 @@ def test_binary_target_layout_is_documented_size():
     assert len(data) == 62 and struct.unpack_from("<BBBBQ", data) == (1, 2, 0x05, 3, 3)
     assert wire.decode_target(data) == answer
     assert len(wire.encode_pose(0, [1.0, 2.0, 3.0])) == 36
+
+
+def test_step_histogram_counts_every_pose(live):
+    """The worker counts its step histogram in plain ints; the metrics thread adds them to
+    canal_live_step_seconds in one go: one observation per pose, whatever the drain size."""
+    count = "canal_live_step_seconds_count"
+    before = live.metric(count)
+    before_sum = live.metric("canal_live_step_seconds_sum")
+    before_inf = live.metric("canal_live_step_seconds_bucket", 'le="+Inf"')
+    x = [0.1, 0.05, 0.01]
+    with PoseStreamer("arc3", "histogram", endpoint=live.endpoint) as ps:
+        for k in range(40):
+            assert ps.wait_for(ps.send(x, restart=k == 0), 2.0) is not None
+        burst = [ps.send(x) for _ in range(100)]  # drains of several poses
+        assert ps.wait_for(burst[-1], 5.0) is not None
+    assert live.metric(count) - before == 140
+    assert live.metric("canal_live_step_seconds_bucket", 'le="+Inf"') - before_inf == 140
+    assert live.metric("canal_live_step_seconds_sum") > before_sum

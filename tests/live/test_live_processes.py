@@ -52,6 +52,13 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
         # the bridge process's counts reach the service's /metrics
         assert _wait(lambda: metric(client, "canal_live_poses_total") >= result.n_steps)
         assert metric(client, "canal_live_targets_total") >= result.n_steps
+        # and its drain count to /healthz (one pose at a time: about a drain per pose)
+        def reported():
+            b = client.get("/healthz").json()["bridge"]["bridges"][0]
+            return b if b["poses"] >= result.n_steps else None
+
+        reported_bridge = _wait(reported)
+        assert 0 < reported_bridge["drains"] <= reported_bridge["poses"]
         # a fit through REST reaches the bridge process at once (pushed, not polled)
         directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
         with PoseStreamer("s", "after-fit", endpoint=endpoint) as ps:

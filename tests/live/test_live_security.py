@@ -162,13 +162,13 @@ def test_coalesced_poses_are_counted_per_robot(tmp_path):
             assert ps.wait_for(ps.send(x, restart=True), 1.0) is not None
             # hold the worker so the burst queues up (the worker takes this lock per batch)
             gate = threading.Event()
-            original = bridge.path.batch
+            original = bridge.path._handle
 
             def held(batch):
                 gate.wait(5.0)
                 return original(batch)
 
-            bridge.path.batch = held
+            bridge.path._handle = held
             ps.send(x)  # this one is taken by the held worker
             time.sleep(0.1)
             seqs = [ps.send(x) for _ in range(30)]
@@ -179,7 +179,7 @@ def test_coalesced_poses_are_counted_per_robot(tmp_path):
             assert r.json()["bridge"]["status"] == "behind"
             gate.set()
             answer = ps.wait_for(seqs[-1], 2.0)
-            bridge.path.batch = original
+            bridge.path._handle = original
         assert answer is not None and answer.seq == seqs[-1]
         assert answer.coalesced >= 20
         time.sleep(1.5)  # idle again, and idle is not behind

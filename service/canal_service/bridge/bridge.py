@@ -90,7 +90,9 @@ class Bridge:
         self.mode: str | None = None
         self.access: dict[str, Any] = {"access": "open", "tls": False, "acl": False,
                                        "acl_default": None}
-        self.counts = Counts()
+        m = service.metrics
+        # the worker counts its step histogram in plain ints on these bounds (+inf last)
+        self.counts = Counts(tuple(m.live_step_seconds._upper_bounds))
         self.models = ModelTable(service, self.options)
         self.path = PosePath(self.options, self.models, self.counts)
         self._stop = threading.Event()
@@ -100,12 +102,12 @@ class Bridge:
         self._queryable: Any = None
         self._updates: Any = None
         self._published: dict[str, int] = {}
-        m = service.metrics
         self._metrics = m
         self._m_streams = m.live_streams
         self._m_step = m.live_step_seconds
         self._m_error_children = {key: m.live_errors.labels(key) for key in ERROR_KEYS}
         self._flushed = Counts().snapshot()
+        self._flushed_step: tuple[list[int], float] = ([0] * len(self.counts.step_bounds), 0.0)
         #: this bridge's name on the recorder key (a restarted bridge gets a new one)
         self.bridge_id = f"b{self.options.shard}-{os.getpid()}-{secrets.token_hex(3)}"
         self._record_n = 0
@@ -250,7 +252,8 @@ class Bridge:
                 else str(self.options.config_file),
                 "streams": len(self.path.streams), **self.access,
                 "shard": self.options.shard, "shards": self.options.shards,
-                "coalesced": self.counts.coalesced, "processes": 0}
+                "coalesced": self.counts.coalesced, "drains": self.counts.batches,
+                "processes": 0}
 
     # ---- metrics (off the pose path) ----------------------------------------------------------
 
@@ -274,12 +277,18 @@ class Bridge:
             if n != before["errors"][key]:
                 self._m_error_children[key].inc(n - before["errors"][key])
         self._flushed = now
-        batches = self.counts.batches
-        while batches:
-            seconds, n = batches.popleft()
-            per = seconds / n
-            for _ in range(min(n, 64)):
-                self._m_step.observe(per)
+        # The worker's bucket counts, added in one go: Histogram has no bulk observe, so
+        # its bucket and sum values are increased directly (what observe() does per pose).
+        counts = self.counts
+        buckets, total = list(counts.step_buckets), counts.step_sum
+        before_buckets, before_total = self._flushed_step
+        step = self._m_step
+        for i, (n, b) in enumerate(zip(buckets, before_buckets, strict=True)):
+            if n != b:
+                step._buckets[i].inc(n - b)
+        if total != before_total:
+            step._sum.inc(total - before_total)
+        self._flushed_step = (buckets, total)
         self._m_streams.set(len(self.path.streams))
 
     # ---- recording (off the pose path) ---------------------------------------------------------

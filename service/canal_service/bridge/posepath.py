@@ -28,7 +28,7 @@ and answers only on its own target key.
 
 from __future__ import annotations
 
-import collections
+import bisect
 import logging
 import math
 import threading
@@ -56,6 +56,8 @@ _OK = wire.STATUS_CODES["ok"]
 _OUTSIDE = wire.STATUS_CODES["outside_canal"]
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 MAX_DRAIN = 4096
+_DONE_ETA = 1.0 + 1e-9
+_pack_json = wire.pack_target_json
 ERROR_KEYS = ("outside_canal", "bad_payload", "wrong_dimension", "non_finite",
               "unknown_skill", "no_model", "internal_error", "bad_key")
 
@@ -99,27 +101,33 @@ class Counts:
 
     __slots__ = (
         "batches",
-        "busy_s",
         "coalesced",
         "decimated",
         "errors",
         "last_idle",
         "poses",
         "recorded",
+        "step_bounds",
+        "step_buckets",
+        "step_sum",
         "switches",
         "targets",
         "unknown",
         "waiting",
     )
 
-    def __init__(self) -> None:
+    def __init__(self, step_bounds: tuple[float, ...] = (math.inf,)) -> None:
         self.poses = 0
         self.targets = 0
         self.coalesced = 0
         self.errors: dict[str, int] = dict.fromkeys(ERROR_KEYS, 0)
         self.switches = 0
-        self.batches: collections.deque[tuple[float, int]] = collections.deque(maxlen=100_000)
-        self.busy_s = 0.0
+        self.batches = 0  # drains handled
+        #: the step histogram's upper bounds (the last one +inf) and per-bucket pose counts:
+        #: the worker adds to them, the metrics thread hands the deltas to Prometheus
+        self.step_bounds = step_bounds
+        self.step_buckets = [0] * len(step_bounds)
+        self.step_sum = 0.0
         self.last_idle = time.monotonic()
         self.waiting = True  # blocked on an empty queue
         self.recorded = 0  # poses handed to the recorder (with their targets)
@@ -128,7 +136,7 @@ class Counts:
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
-                "errors": dict(self.errors), "switches": self.switches,
+                "errors": dict(self.errors), "switches": self.switches, "drains": self.batches,
                 "recorded": self.recorded, "decimated": self.decimated + self.unknown}
 
 
@@ -172,8 +180,10 @@ class PosePath:
             k = keyspace.stream_keys(skill, robot, self.prefix)
             # Not express: an express put writes to the socket on the calling thread (10-35 us
             # measured here), a batched one hands over to Zenoh's TX task (< 1 us).
+            # JSON by default: a JSON answer's put passes no encoding (0.2 us less a pose)
             publisher = self.session.declare_publisher(
-                k.target, express=False, congestion_control=zenoh.CongestionControl.BLOCK)
+                k.target, express=False, congestion_control=zenoh.CongestionControl.BLOCK,
+                encoding=ENC_JSON)
             st = Stream(key, skill, robot, publisher, last_seen=time.monotonic(),
                         status_key=k.status)
             self.streams[key] = st
@@ -231,6 +241,11 @@ class PosePath:
         channel closes); ``try_recv`` returns one or None."""
         counts = self.counts
         clock = time.perf_counter
+        # NumPy keeps its error state per thread: set once here instead of an errstate
+        # context per drain. Poses at 1e308 overflow in the step; they answer outside_canal.
+        np.seterr(all="ignore")
+        bounds = counts.step_bounds
+        buckets = counts.step_buckets
         while True:
             counts.waiting = True
             try:
@@ -250,19 +265,31 @@ class PosePath:
                     break
                 batch.append(nxt)
             try:
-                self.batch(batch)
+                self._handle(batch)
             except Exception:
                 log.exception("live step failed")
                 counts.errors["internal_error"] += 1
             if drained:
                 counts.last_idle = time.monotonic()
-            counts.batches.append((clock() - started, len(batch)))
+            # the step histogram as plain ints: each pose of the drain observes its share
+            seconds = clock() - started
+            n = len(batch)
+            buckets[bisect.bisect_left(bounds, seconds / n)] += n
+            counts.step_sum += seconds
+            counts.batches += 1
 
     def batch(self, batch: list[Any]) -> None:
-        """Decode, group, step and answer one drain of the pose channel."""
+        """Decode, group, step and answer one drain of the pose channel (any thread)."""
+        with np.errstate(all="ignore"):  # 1e308 poses overflow; they answer outside
+            self._handle(batch)
+
+    def _handle(self, batch: list[Any]) -> None:
+        """:meth:`batch` on the worker, whose NumPy error state is already "ignore"."""
         with self.rec_lock:
             self.now_ns = time.time_ns()
-            self.step_rounds(self.decode_batch(batch))
+            for jobs in self.decode_batch(batch):
+                for entry, group, targets in self.step(jobs):
+                    self.answer_all(entry, group, targets)
 
     def take_record(self) -> list[tuple[Any, ...]]:
         """Each stream's rows and count deltas since the last call, as
@@ -282,19 +309,25 @@ class PosePath:
 
     def decode_batch(self, batch: list[Any]) -> list[list[Job]]:
         """The drain as rounds of jobs: round k holds each stream's k-th pose to answer."""
+        if len(batch) == 1:  # the worker keeps up: most drains are one tick's poses
+            s = batch[0]
+            groups: dict[str, list[Any]] = {str(s.key_expr): batch}
+        else:
+            groups = {}
+            for s in batch:
+                key = str(s.key_expr)
+                group = groups.get(key)
+                if group is None:
+                    groups[key] = [s]
+                else:
+                    group.append(s)
         counts = self.counts
-        groups: dict[str, list[Any]] = {}
-        for s in batch:
-            key = str(s.key_expr)
-            group = groups.get(key)
-            if group is None:
-                groups[key] = [s]
-            else:
-                group.append(s)
         backlog = self.options.coalesce_backlog
         now = time.monotonic()
-        rounds: list[list[Job]] = []
+        first: list[Job] = []
+        rounds: list[list[Job]] = [first]
         streams = self.streams
+        decode = self.decode
         for key, samples in groups.items():
             st = streams.get(key)
             if st is None or st.closed:
@@ -307,19 +340,25 @@ class PosePath:
                     continue
                 st = found
             st.last_seen = now
-            st.rec_poses += len(samples)
-            if len(samples) > backlog:
-                skipped = len(samples) - 1
+            n = len(samples)
+            st.rec_poses += n
+            if n == 1:
+                job = decode(st, samples[0], True)
+                if job is not None:
+                    first.append(job)
+                continue
+            if n > backlog:
+                skipped = n - 1
                 if st.capture is not None:
                     for s in samples[:-1]:
-                        self.decode(st, s, False)
+                        decode(st, s, False)
                 st.coalesced += skipped
                 st.rec_coalesced += skipped
                 counts.coalesced += skipped
                 samples = samples[-1:]
             k = 0
             for s in samples:
-                job = self.decode(st, s, True)
+                job = decode(st, s, True)
                 if job is None:
                     continue
                 if k == len(rounds):
@@ -328,36 +367,36 @@ class PosePath:
                 k += 1
         return rounds
 
-    def step_rounds(self, rounds: list[list[Job]]) -> None:
-        for jobs in rounds:
-            for entry, group, targets in self.step(jobs):
-                self.answer_all(entry, group, targets)
-
     def decode(self, st: Stream, sample: Any, answer: bool) -> Job | None:
         """One sample as a pose job, or None (answered with an error, or not to answer)."""
         data = sample.payload.to_bytes()
-        encoding = str(sample.encoding)
+        encoding = sample.encoding
         ros = None
         if answer:
             self.counts.poses += 1
-        fmt = _FBIN
         try:
-            if encoding.startswith(("application/json", "text/json")):
+            if encoding == ENC_JSON:  # an object comparison, cheaper than str() (0.15 us)
                 fmt = _FJSON
                 pose = wire.decode_pose_json(data)
-            elif encoding.startswith(wire.CDR_ENCODING):
-                fmt = _FCDR
-                pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
-                st.cdr_seq += 1
-            elif data[:1] == b"{" and encoding.startswith("zenoh/bytes"):
-                fmt = _FJSON
-                pose = wire.decode_pose_json(data)
-            elif data[:1] == b"\x00":
-                fmt = _FCDR
-                pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
-                st.cdr_seq += 1
             else:
-                pose = wire.decode_pose(data)
+                fmt = _FBIN
+                encoding = str(encoding)
+                if encoding.startswith(("application/json", "text/json")):
+                    fmt = _FJSON
+                    pose = wire.decode_pose_json(data)
+                elif encoding.startswith(wire.CDR_ENCODING):
+                    fmt = _FCDR
+                    pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
+                    st.cdr_seq += 1
+                elif data[:1] == b"{" and encoding.startswith("zenoh/bytes"):
+                    fmt = _FJSON
+                    pose = wire.decode_pose_json(data)
+                elif data[:1] == b"\x00":
+                    fmt = _FCDR
+                    pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
+                    st.cdr_seq += 1
+                else:
+                    pose = wire.decode_pose(data)
         except wire.WireError as exc:
             if answer:
                 self.error(st, None, exc.key, exc.message, fmt)
@@ -373,40 +412,55 @@ class PosePath:
 
     def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], TrackerBatch]]:
         """Step every job's tracker, one bank pass per model; jobs that cannot be stepped
-        are answered with their error here."""
-        by_model: dict[int, tuple[ModelEntry, list[Job]]] = {}
+        are answered with their error here. The caller silences NumPy's overflow warnings
+        (:meth:`batch`, or the worker thread's error state)."""
+        by_model: dict[int, tuple[ModelEntry, list[Job], list[int],
+                                  list[tuple[float, ...]]]] = {}
         models = self.models.models
+        # most drains are one skill's poses: the last job's model and lists are reused
+        last_skill = None
+        entry: ModelEntry | None = None
+        group_jobs: list[Job] = []
+        slots: list[int] = []
+        positions: list[tuple[float, ...]] = []
         for job in jobs:
             st, pose, fmt, _ros = job
-            entry = models.get(st.skill)
-            if entry is None:
-                entry = self.models.entry(st.skill)
-            if entry.status != "ok":
-                self.error(st, pose.seq, entry.status, entry.message, fmt)
-                continue
+            if st.skill != last_skill:
+                entry = models.get(st.skill)
+                if entry is None:
+                    entry = self.models.entry(st.skill)
+                if entry.status != "ok":
+                    last_skill = None
+                    self.error(st, pose.seq, entry.status, entry.message, fmt)
+                    continue
+                last_skill = st.skill
+                group = by_model.get(id(entry))
+                if group is None:
+                    group = by_model[id(entry)] = (entry, [], [], [])
+                _, group_jobs, slots, positions = group
+            assert entry is not None
             position = pose.position
-            if fmt == _FCDR and entry.dim == 2:
-                position = position[:2]
-            elif len(position) != entry.dim:
-                self.error(st, pose.seq, "wrong_dimension",
-                           f"expected {entry.dim} coordinates for skill {st.skill!r}, "
-                           f"got {len(position)}", fmt)
-                continue
+            if len(position) != entry.dim:
+                if fmt == _FCDR and entry.dim == 2:  # a PoseStamped always has z
+                    position = position[:2]
+                else:
+                    self.error(st, pose.seq, "wrong_dimension",
+                               f"expected {entry.dim} coordinates for skill {st.skill!r}, "
+                               f"got {len(position)}", fmt)
+                    continue
             if st.bank is not entry.bank or st.version != entry.version or pose.restart:
                 self._seed(st, entry, position)
-            group = by_model.get(id(entry))
-            if group is None:
-                by_model[id(entry)] = (entry, [job])
-            else:
-                group[1].append(job)
+            group_jobs.append(job)
+            slots.append(st.slot)
+            positions.append(position)
         out = []
-        for entry, model_jobs in by_model.values():
-            dim = entry.dim
-            positions = np.array([j[1].position[:dim] for j in model_jobs], dtype=np.float64)
-            assert entry.bank is not None
-            with np.errstate(all="ignore"):  # 1e308 poses overflow; they answer outside
-                answers = entry.bank.step([j[0].slot for j in model_jobs], positions)
-            out.append((entry, model_jobs, answers))
+        for model, model_jobs, model_slots, model_positions in by_model.values():
+            if not model_jobs:
+                continue
+            assert model.bank is not None
+            out.append((model, model_jobs,
+                        model.bank.step(model_slots, np.array(model_positions,
+                                                              dtype=np.float64))))
         return out
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
@@ -429,18 +483,21 @@ class PosePath:
     def answer_all(self, entry: ModelEntry, group: list[Job], res: TrackerBatch) -> None:
         """Answer each job of one bank pass: the arrays become Python lists once, then each
         answer reads its row."""
-        targets = res.target.tolist()
-        progress = res.progress.tolist()
-        etas = res.eta.tolist()
-        sections = res.section_index.tolist()
-        insides = res.inside.tolist()
-        dones = res.done.tolist()
+        answer = self.answer
+        rows = zip(group, res.target.tolist(), res.progress.tolist(), res.eta.tolist(),
+                   res.section_index.tolist(), res.inside.tolist(), res.done.tolist(),
+                   strict=True)
+        if res.velocity is None and res.orientation is None:
+            for (st, pose, fmt, ros), target, progress, eta, section, inside, done in rows:
+                answer(st, pose, fmt, ros, entry, target, progress, eta, section, inside, done,
+                       None, None)
+            return
         velocities = None if res.velocity is None else res.velocity.tolist()
         orientations = None if res.orientation is None else res.orientation.tolist()
-        answer = self.answer
-        for k, (st, pose, fmt, ros) in enumerate(group):
-            answer(st, pose, fmt, ros, entry, targets[k], progress[k], etas[k], sections[k],
-                   insides[k], dones[k], None if velocities is None else velocities[k],
+        for k, ((st, pose, fmt, ros), target, progress, eta, section, inside, done) in \
+                enumerate(rows):
+            answer(st, pose, fmt, ros, entry, target, progress, eta, section, inside, done,
+                   None if velocities is None else velocities[k],
                    None if orientations is None else orientations[k])
 
     def answer(self, st: Stream, pose: wire.Pose, fmt: int, ros: Any, entry: ModelEntry,
@@ -450,11 +507,13 @@ class PosePath:
         """Publish one answer (and keep it for the recording when it is due)."""
         # "done" only counts at the end *and* within the last sections: a pose far beyond
         # the last plane (50, 50, 50; 1e308) is lost, not finished.
-        done = reached and eta <= 1.0 + 1e-9
+        done = reached and eta <= _DONE_ETA
         if inside or done:
-            code, status = _OK, "ok"
+            code = _OK
+            status = "ok"
         else:
-            code, status = _OUTSIDE, "outside_canal"
+            code = _OUTSIDE
+            status = "outside_canal"
             n = entry.canal.n_sections
             if reached:  # lost beyond the end is not the end reached
                 progress = section / max(n - 1, 1)
@@ -469,19 +528,19 @@ class PosePath:
         if orientation is None and pose.orientation is not None:
             orientation = list(pose.orientation)
         st.rec_answered += 1
-        period = self.record_period_ns
-        if period is not None:
+        if self.record_period_ns is not None:
             now = self.now_ns
-            state = (code, inside, done)
-            if now >= st.rec_next or state != st.rec_state:
-                st.rec_next = now + period
-                st.rec_state = state
+            # a row when due, or when the status, inside or done flips
+            if now >= st.rec_next or code != st.rec_state[0] or inside != st.rec_state[1] \
+                    or done != st.rec_state[2]:
+                st.rec_next = now + self.record_period_ns
+                st.rec_state = (code, inside, done)
                 st.rec_rows.append((now, pose.position, pose.orientation, target, orientation,
                                     progress, eta, section, inside, done, status))
-        if fmt == _FJSON:
-            st.publisher.put(wire.pack_target_json(
+        if fmt == _FJSON:  # the publisher's default encoding
+            st.publisher.put(_pack_json(
                 pose.seq, status, target, progress, eta, section, inside, done,
-                entry.version, orientation, velocity, st.coalesced), encoding=ENC_JSON)
+                entry.version, orientation, velocity, st.coalesced))
         elif fmt == _FBIN:
             st.publisher.put(wire.pack_target(
                 pose.seq, code, target, progress, eta, section, inside, done, entry.version,

@@ -225,7 +225,9 @@ class BridgeProcesses:
                     status, detail = state, f"bridge process {c.shard} is {state}"
             per.append({"shard": c.shard, "pid": c.proc.pid, "status": state,
                         "streams": h.get("streams", 0), "coalesced": h.get("coalesced", 0),
-                        "poses": int(c.counts.get("poses", 0))})
+                        "poses": int(c.counts.get("poses", 0)),
+                        # drains handled: poses / drains is the worker's mean drain size
+                        "drains": int(c.counts.get("drains", 0))})
         first = self.children[0].health
         return {"status": status, "detail": detail, "prefix": first.get("prefix"),
                 "mode": first.get("mode"), "listen": first.get("listen", []),

@@ -1,0 +1,129 @@
+"""The bridge's fast wire paths give what the fully checked paths give: JSON and binary
+poses (the common pose skips most checks), JSON targets (NaN and infinity as null)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import orjson
+import pytest
+
+from canal_protocol import wire
+
+NAN, INF = math.nan, math.inf
+
+JSON_POSES = [
+    b'{"seq": 0, "position": [0.1, 0.2, 0.3]}',
+    b'{"seq": 7, "position": [0.1, -0.0]}',
+    b'{"seq": 18446744073709551615, "position": [1e308, 1e308, 1e308]}',
+    b'{"seq": 18446744073709551616, "position": [0.1, 0.2, 0.3]}',
+    b'{"seq": -1, "position": [0.1, 0.2, 0.3]}',
+    b'{"seq": 1.0, "position": [0.1, 0.2, 0.3]}',
+    b'{"seq": true, "position": [0.1, 0.2, 0.3]}',
+    b'{"seq": 3, "position": [1, 2, 3]}',
+    b'{"seq": 3, "position": [1, 2.5, -3]}',
+    b'{"seq": 3, "position": [true, 2.5, 3.0]}',
+    b'{"seq": 3, "position": ["1", 2.5, 3.0]}',
+    b'{"seq": 3, "position": [[1.0], 2.5, 3.0]}',
+    b'{"seq": 3, "position": null}',
+    b'{"seq": 3, "position": []}',
+    b'{"seq": 3, "position": [' + b", ".join([b"0.5"] * 16) + b"]}",
+    b'{"seq": 3, "position": [' + b", ".join([b"0.5"] * 17) + b"]}",
+    b'{"seq": 3, "position": [0.1, 0.2, 0.3], "orientation": [0.0, 0.0, 0.0, 1.0]}',
+    b'{"seq": 3, "position": [0.1, 0.2, 0.3], "orientation": [0.0, 0.0, 1.0]}',
+    b'{"seq": 3, "position": [0.1, 0.2], "t": 1.25, "restart": true}',
+    b'{"seq": 3, "position": [0.1, 0.2], "t": "now"}',
+    b'{"seq": 3, "position": [0.1, 0.2], "extra": 1}',
+    b'{"seq": 3, "pos": [0.1, 0.2]}',
+    b'{"seq": 3, "position": [1e999, 0.2]}',
+    b'{"seq": 3, "position": [NaN, 0.2]}',
+    b'[3, [0.1, 0.2]]',
+    b'"pose"',
+]
+
+
+def _outcome(fn, *args):
+    try:
+        return fn(*args)
+    except wire.WireError as exc:
+        return exc.key, exc.message
+
+
+@pytest.mark.parametrize("data", JSON_POSES)
+def test_json_pose_fast_path_equals_full_checks(data):
+    got = _outcome(wire.decode_pose_json, data)
+    try:
+        body = orjson.loads(data)
+    except orjson.JSONDecodeError:
+        assert got[0] == "bad_payload"
+        return
+    assert got == _outcome(wire._checked_pose_json, body)
+    if isinstance(got, wire.Pose):
+        assert all(type(v) is float for v in got.position)
+        assert got == wire.Pose(got.seq, got.position, got.orientation, got.t, got.restart)
+        assert hash(got) == hash(wire.Pose(got.seq, got.position, got.orientation, got.t,
+                                           got.restart))
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            got.seq = 1  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("position", [(0.1, 0.2), (0.1, 0.2, 0.3), (-0.0, 0.0, -0.0),
+                                      (1e308, 1e308, 1e308), (5e-324, -1e308, 2.5)])
+@pytest.mark.parametrize("orientation", [None, (0.0, 0.0, 0.0, 1.0)])
+def test_json_and_binary_poses_round_trip_exactly(position, orientation):
+    for pose in (wire.decode_pose_json(wire.encode_pose_json(5, position, orientation)),
+                 wire.decode_pose(wire.encode_pose(5, position, orientation))):
+        assert pose.seq == 5 and pose.orientation == orientation and not pose.restart
+        assert [v.hex() for v in pose.position] == [float(v).hex() for v in position]
+        assert [math.copysign(1, v) for v in pose.position] == \
+            [math.copysign(1, v) for v in position]
+
+
+@pytest.mark.parametrize("bad", [NAN, INF, -INF])
+@pytest.mark.parametrize("where", range(3))
+def test_binary_pose_with_non_finite_number_is_refused(bad, where):
+    position = [0.1, 0.2, 0.3]
+    position[where] = bad
+    with pytest.raises(wire.WireError) as exc:
+        wire.decode_pose(wire.encode_pose(1, position))
+    assert exc.value.key == "non_finite"
+    with pytest.raises(wire.WireError) as exc:
+        wire.decode_pose(wire.encode_pose(1, [0.1, 0.2, 0.3], (0.0, 0.0, bad, 1.0)))
+    assert exc.value.key == "non_finite"
+
+
+def test_binary_pose_flags_are_kept():
+    pose = wire.decode_pose(wire.encode_pose(9, [1.0, 2.0], (0.0, 0.0, 0.0, 1.0), 2.5, True))
+    assert pose == wire.Pose(9, (1.0, 2.0), (0.0, 0.0, 0.0, 1.0), 2.5, True)
+
+
+@pytest.mark.parametrize("target", [[0.1, 0.2], [0.1, -0.0, 1e308], [NAN, 1.0, INF]])
+@pytest.mark.parametrize("eta", [0.25, NAN, INF, 1e308])
+@pytest.mark.parametrize("extras", [(None, None), ((0.0, 0.0, 0.0, 1.0), None),
+                                    ((0.0, 0.0, 0.0, 1.0), (1.0, -0.0, 2.0)),
+                                    (None, (NAN, 0.5))])
+def test_json_target_round_trips_with_nan_and_inf_as_null(target, eta, extras):
+    orientation, velocity = extras
+    data = wire.pack_target_json(2**64 - 1, "outside_canal", target, 0.5, eta, 7, False, True,
+                                 3, orientation, velocity, 4)
+    got = wire.decode_target_json(data)
+    raw = orjson.loads(data)
+
+    def json_of(v):
+        return v if math.isfinite(v) else None
+
+    assert raw["target"] == [json_of(v) for v in target]
+    assert raw["eta"] == json_of(eta)
+    assert got.seq == 2**64 - 1 and got.status == "outside_canal" and got.section == 7
+    assert got.done and not got.inside and got.model_version == 3 and got.coalesced == 4
+    assert got.orientation == orientation
+    if velocity is None:
+        assert "velocity" not in raw
+    else:
+        assert raw["velocity"] == [json_of(v) for v in velocity]
+    finite = [v for v in target if math.isfinite(v)]
+    assert [v.hex() for v in raw["target"] if v is not None] == [v.hex() for v in finite]
+    assert data == wire.target_json(wire.Target(
+        2**64 - 1, "outside_canal", tuple(target), 0.5, eta, 7, False, True, 3, None,
+        orientation, velocity, 4))
