@@ -708,6 +708,10 @@ class TrackerBank:
         self.direction = np.zeros((cap, k))
         self._free = list(range(cap - 1, -1, -1))
         self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
+        if self._isotropic:
+            # built with the bank (where a model is loaded), not by its first step, which
+            # runs on a live worker while every other stream waits
+            geometry.step_tables  # noqa: B018  # a cached property
 
     def __len__(self) -> int:
         """Slots in use."""

@@ -292,12 +292,20 @@ def test_two_bridge_processes_both_feed_the_recorder(tmp_path):
         for robot in ("r0", "r1"):  # shard 0 and shard 1 (ord('0') % 2, ord('1') % 2)
             # generous waits: bridge 1 is reached through bridge 0's gossip
             with PoseStreamer("two", robot, endpoint=endpoint, connect_timeout=20) as ps:
-                for k in range(20):
-                    answer = ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 5.0)
+                # The publisher matches bridge 0's subscriber first; until gossip connects
+                # this session to bridge 1, r1's poses reach only bridge 0, which drops
+                # another shard's pose uncounted. So the first pose is sent until answered.
+                deadline, answer = time.monotonic() + 20.0, None
+                while answer is None and time.monotonic() < deadline:
+                    answer = ps.wait_for(ps.send(directrix[10], restart=True), 5.0)
+                assert answer is not None and answer.status == "ok"
+                for k in range(1, 20):
+                    answer = ps.wait_for(ps.send(directrix[10 + k]), 5.0)
                     assert answer is not None and answer.status == "ok"
         live = _settled(client, 40, timeout=30)
         assert live["bridges"] == 2 and live["complete"] is True
         for robot in ("r0", "r1"):
             stream = live["streams"][f"two/{robot}"]
-            assert stream["poses"] == 20
-            assert stream["recorded"] + stream["decimated"] == 20 and stream["recorded"] >= 1
+            assert stream["poses"] >= 20  # more when a first pose was resent
+            assert (stream["recorded"] + stream["decimated"] == stream["poses"]
+                    and stream["recorded"] >= 1)

@@ -61,14 +61,17 @@ class ModelTable:
         # served pose never takes it).
         self._unknown_lock = threading.Lock()
 
-    def load(self, skill: str) -> ModelEntry:
-        """The skill's latest model from the service."""
+    def load(self, skill: str, current: ModelEntry | None = None) -> ModelEntry:
+        """The skill's latest model from the service; ``current`` itself when it already
+        serves that version (a refresh then costs one query, no geometry rebuilt)."""
         try:
             canal, _row, version, _dim = self.service.load_canal(skill, None)
         except SkillNotFound as exc:
             return ModelEntry("unknown_skill", message=exc.message)
         except NoModelYet as exc:
             return ModelEntry("no_model", dim=exc.dim, message=exc.message)
+        if current is not None and current.status == "ok" and current.version == version:
+            return current
         return ok_entry(version, canal, self.options.lookahead)
 
     def install(self, skill: str, entry: ModelEntry) -> None:
@@ -118,13 +121,13 @@ class ModelTable:
             if skill not in live_skills:
                 self.models.pop(skill, None)
                 continue
+            old = self.models.get(skill)
             try:
-                entry = self.load(skill)
+                entry = self.load(skill, old)
             except Exception:
                 log.exception("model refresh for %r failed", skill)
                 continue
-            old = self.models.get(skill)
-            if old is None or old.status != entry.status or old.version != entry.version:
+            if entry is not old:
                 self.install(skill, entry)
         now = time.monotonic()
         # Under the lock: the worker installs entries meanwhile (iterating the live

@@ -94,7 +94,8 @@ def _packed(rgba: tuple[int, int, int, int]) -> int:
 
 def _values(values: np.ndarray, value_type: pa.DataType) -> pa.Array:
     if pa.types.is_fixed_size_list(value_type):
-        flat = np.ascontiguousarray(values, dtype=np.float32).ravel()
+        with np.errstate(over="ignore"):  # a 1e308 pose is inf in float32, as rerun casts it
+            flat = np.ascontiguousarray(values, dtype=np.float32).ravel()
         return pa.FixedSizeListArray.from_arrays(
             pa.array(flat, type=value_type.value_type), type=value_type)
     return pa.array(np.ascontiguousarray(values), type=value_type)
