@@ -270,6 +270,42 @@ def _local_medians(steps: FloatArray, width: int, at: IntArray) -> FloatArray:
     return np.asarray(np.partition(windows, width // 2, axis=1)[:, width // 2], dtype=np.float64)
 
 
+def _excursion_glitches(positions: FloatArray, a: IntArray, m: IntArray, b: IntArray,
+                        span: FloatArray, chord: FloatArray, step: FloatArray) -> IntArray:
+    """Rows of the glitch samples inside excursions (step 4 of the module docstring).
+
+    Parameters
+    ----------
+    positions : array, shape (n, D)
+    a, m, b : array of int, shape (E,)
+        Each excursion's first sample, its number of interior samples, its last sample.
+    span, chord : array, shape (E,)
+        Path length and straight distance from a to b.
+    step : array, shape (E,)
+        The local step around the excursion.
+
+    Returns
+    -------
+    rows : array of int
+        Interior samples a + k (k = 1..m) farther than both ``CHORD_FACTOR`` x chord and
+        ``SPIKE_FACTOR`` x (m + 1) / 2 x step from the chord's midpoint.
+    """
+    limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+    # Half the path (with rounding slack) bounds every interior sample's deviation.
+    can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
+    if not can.size:
+        return np.zeros(0, dtype=np.intp)
+    a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
+    # Each interior sample a + k (k = 1..m) on its own.
+    owner = np.repeat(np.arange(a.size), m)
+    k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
+    mid = 0.5 * (np.take(positions, a, axis=0) + np.take(positions, b, axis=0))
+    off = np.take(positions, a[owner] + k, axis=0) - np.take(mid, owner, axis=0)
+    dev = np.sqrt(np.einsum("ij,ij->i", off, off))
+    glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
+    return np.asarray((a[owner] + k)[glitch], dtype=np.intp)
+
+
 def _spike_mask(positions: FloatArray) -> np.ndarray:
     """True for glitch samples (step 4 of the module docstring).
 
@@ -327,19 +363,7 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
                 median_at = np.empty(n)
                 median_at[at] = _local_medians(steps, window, at)
                 step[rows] = median_at[centre[rows]]
-        limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
-        # Half the path (with rounding slack) bounds every interior sample's deviation.
-        can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
-        if can.size:
-            a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
-            # Each interior sample a + k (k = 1..m) on its own.
-            owner = np.repeat(np.arange(a.size), m)
-            k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
-            mid = 0.5 * (np.take(positions, a, axis=0) + np.take(positions, b, axis=0))
-            off = np.take(positions, a[owner] + k, axis=0) - np.take(mid, owner, axis=0)
-            dev = np.sqrt(np.einsum("ij,ij->i", off, off))
-            glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
-            spike[(a[owner] + k)[glitch]] = True
+        spike[_excursion_glitches(positions, a, m, b, span, chord, step)] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     end_scale = _local_medians(steps, width, np.array([1, n - 2]))
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
@@ -487,17 +511,7 @@ def _spike_masks_into(parts: list[FloatArray], batched: list[int], out: list[np.
                 median_at = np.empty(total)
                 median_at[at] = _segment_medians(steps, window, at, part_first[at], part_last[at])
                 step[rows] = median_at[centre[rows]]
-        limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
-        can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
-        if can.size:
-            a, m, b, chord, limit = a[can], m[can], b[can], chord[can], limit[can]
-            owner = np.repeat(np.arange(a.size), m)
-            k = np.arange(owner.size) - np.repeat(np.cumsum(m) - m, m) + 1
-            mid = 0.5 * (np.take(positions, a, axis=0) + np.take(positions, b, axis=0))
-            off = np.take(positions, a[owner] + k, axis=0) - np.take(mid, owner, axis=0)
-            dev = np.sqrt(np.einsum("ij,ij->i", off, off))
-            glitch = (dev > CHORD_FACTOR * chord[owner]) & (dev > limit[owner])
-            spike[(a[owner] + k)[glitch]] = True
+        spike[_excursion_glitches(positions, a, m, b, span, chord, step)] = True
     # End samples, as in _spike_mask, part by part.
     head_scale = _segment_medians(steps, width, starts + 1, starts, ends)
     tail_scale = _segment_medians(steps, width, ends - 1, starts, ends)

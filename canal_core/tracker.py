@@ -768,17 +768,21 @@ class TrackerBank:
         with np.errstate(all="ignore"):  # far poses overflow; their rows answer outside
             t, st = tracker_step(self.geometry, self.state(slot), position, self.lookahead,
                                  self.replan_tolerance)
+        self._keep(slot, st)
+        return TrackerBatch(
+            t.target[None, :], np.array([t.progress]), np.array([t.eta]),
+            np.array([t.section_index], dtype=np.intp), np.array([t.inside]),
+            np.array([t.done]), None if t.velocity is None else t.velocity[None, :],
+            None if t.orientation is None else t.orientation[None, :].copy())
+
+    def _keep(self, slot: int, st: TrackerState) -> None:
+        """A scalar step's new state, written into ``slot``'s arrays."""
         self.index[slot] = st.index
         if st.eta is None or st.direction is None:
             self.eta[slot] = np.nan
         else:
             self.eta[slot] = st.eta
             self.direction[slot] = st.direction
-        return TrackerBatch(
-            t.target[None, :], np.array([t.progress]), np.array([t.eta]),
-            np.array([t.section_index], dtype=np.intp), np.array([t.inside]),
-            np.array([t.done]), None if t.velocity is None else t.velocity[None, :],
-            None if t.orientation is None else t.orientation[None, :].copy())
 
     def _empty(self, b: int) -> TrackerBatch:
         g = self.geometry
@@ -795,12 +799,7 @@ class TrackerBank:
             slot = int(slots[r])
             t, st = tracker_step(self.geometry, self.state(slot), p[r], self.lookahead,
                                  self.replan_tolerance)
-            self.index[slot] = st.index
-            if st.eta is None or st.direction is None:
-                self.eta[slot] = np.nan
-            else:
-                self.eta[slot] = st.eta
-                self.direction[slot] = st.direction
+            self._keep(slot, st)
             out.target[r] = t.target
             out.progress[r], out.eta[r], out.section_index[r] = t.progress, t.eta, t.section_index
             out.inside[r], out.done[r] = t.inside, t.done
