@@ -260,7 +260,11 @@ def test_a_killed_bridge_process_loses_at_most_its_last_batch(tmp_path):
                 ps.send(directrix[k % 90], restart=k == 0)
                 time.sleep(0.001)
             assert ps.wait_for(199, 5.0) is not None
-            time.sleep(0.5)  # several batch intervals: everything handled has been sent
+            # Everything handled reaches the recorder in the bridge's next batches (a bridge
+            # holds them for up to RECORDER_WAIT_S while the recorder's session connects,
+            # which a cold start can make later than the last answer): then the kill.
+            heard = _settled(client, 200, stream="crash/arm")["streams"]["crash/arm"]
+            assert heard["poses"] == 200
             pid = client.app.state.bridge.children[0].proc.pid  # type: ignore[attr-defined]
             os.kill(pid, signal.SIGKILL)
             for k in range(50):  # into the void: the bridge is gone
