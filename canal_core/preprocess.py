@@ -50,6 +50,7 @@ only moves at rounding level is refused, not fitted.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -270,26 +271,90 @@ def _local_medians(steps: FloatArray, width: int, at: IntArray) -> FloatArray:
     return np.asarray(np.partition(windows, width // 2, axis=1)[:, width // 2], dtype=np.float64)
 
 
-def _excursion_glitches(positions: FloatArray, a: IntArray, m: IntArray, b: IntArray,
-                        span: FloatArray, chord: FloatArray, step: FloatArray) -> IntArray:
-    """Rows of the glitch samples inside excursions (step 4 of the module docstring).
+def _chords_and_spans(positions: FloatArray, arc: FloatArray,
+                      longest: int) -> tuple[FloatArray, FloatArray]:
+    """Straight distance and path length from a to b = a + m + 1 of every excursion.
 
     Parameters
     ----------
     positions : array, shape (n, D)
-    a, m, b : array of int, shape (E,)
-        Each excursion's first sample, its number of interior samples, its last sample.
-    span, chord : array, shape (E,)
-        Path length and straight distance from a to b.
-    step : array, shape (E,)
-        The local step around the excursion.
+    arc : array, shape (n,)
+        Arc length at each sample.
+    longest : int
+        Most interior samples m of an excursion.
+
+    Returns
+    -------
+    chords, spans : array, shape (longest x (n - 2),)
+        At flat index (m - 1) x (n - 2) + a; NaN where b lies past the end (a NaN never
+        passes a test).
+    """
+    n, dim = positions.shape
+    coords = np.ascontiguousarray(positions.T)  # (D, n): one contiguous row per axis
+    # Every excursion length m at once: row m - 1 pairs each a with b = a + m + 1, read
+    # through a strided view of copies padded with NaN past the end; the long axis last
+    # keeps numpy's inner loops long, and one axis at a time needs no (D, runs, n) temporary.
+    padded = np.full((dim, n + longest), np.nan)
+    padded[:, :n] = coords
+    arc_padded = np.full(n + longest, np.nan)
+    arc_padded[:n] = arc
+    step_bytes = padded.strides[1]
+    window_ends = as_strided(padded[:, 2:], shape=(dim, longest, n - 2),
+                             strides=(padded.strides[0], step_bytes, step_bytes), writeable=False)
+    chord_axis = window_ends[0] - coords[0, None, : n - 2]
+    square = chord_axis * chord_axis
+    for axis in range(1, dim):
+        np.subtract(window_ends[axis], coords[axis, None, : n - 2], out=chord_axis)
+        square += chord_axis * chord_axis
+    chords = np.sqrt(square, out=square).reshape(-1)
+    arc_ends = as_strided(arc_padded[2:], shape=(longest, n - 2), strides=(step_bytes, step_bytes),
+                          writeable=False)
+    spans = (arc_ends - arc[None, : n - 2]).reshape(-1)
+    return chords, spans
+
+
+def _excursion_glitches(positions: FloatArray, hit: IntArray, chords: FloatArray,
+                        spans: FloatArray, width: int, wide: int,
+                        medians: Callable[[int, IntArray], FloatArray]) -> IntArray:
+    """Rows of the glitch samples inside the excursions that passed the window bounds
+    (step 4 of the module docstring).
+
+    Parameters
+    ----------
+    positions : array, shape (n, D)
+    hit : array of int, shape (E,)
+        Flat indices (m - 1) x (n - 2) + a of the excursions of m interior samples from
+        sample a to sample b = a + m + 1 left to test.
+    chords, spans : array, shape (MAX_GLITCH_RUN x (n - 2),)
+        Straight distance and path length from a to b of every (m, a).
+    width, wide : int
+        Median windows of the local step around a single sample, around a longer excursion.
+    medians : callable (window, rows) -> array
+        Median of the ``window`` steps around each of ``rows`` (clipped to its demonstration).
 
     Returns
     -------
     rows : array of int
         Interior samples a + k (k = 1..m) farther than both ``CHORD_FACTOR`` x chord and
-        ``SPIKE_FACTOR`` x (m + 1) / 2 x step from the chord's midpoint.
+        ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step from the chord's midpoint.
     """
+    n = positions.shape[0]
+    run_index, a = np.divmod(hit, n - 2)
+    m = run_index + 1
+    chord, span = chords[hit], spans[hit]
+    b = a + m + 1
+    single = m == 1
+    centre = np.where(single, a + 1, (a + b) // 2)
+    # Windows share centres (a + 1, a + 2, ... for several m): one median per centre.
+    step = np.empty(a.size)
+    for rows, window in ((single, width), (~single, wide)):
+        if rows.any():
+            needed = np.zeros(n, dtype=bool)
+            needed[centre[rows]] = True
+            at = np.flatnonzero(needed)
+            median_at = np.empty(n)
+            median_at[at] = medians(window, at)
+            step[rows] = median_at[centre[rows]]
     limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
     # Half the path (with rounding slack) bounds every interior sample's deviation.
     can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
@@ -319,51 +384,19 @@ def _spike_mask(positions: FloatArray) -> np.ndarray:
     window's limit (tested where the first one held: jitter of a standing arm passes the
     first, rarely the second). Only the windows left are tested sample by sample.
     """
-    n, dim = positions.shape
+    n = positions.shape[0]
     spike = np.zeros(n, dtype=bool)
     if n < 5:
         return spike
     steps = _step_lengths(positions)
     arc = np.concatenate([[0.0], np.cumsum(steps)])
-    coords = np.ascontiguousarray(positions.T)  # (D, n): one contiguous row per axis
-    # Every excursion length m at once: row m - 1 pairs each a with b = a + m + 1, read
-    # through a strided view of copies padded with NaN past the end (a NaN chord or span
-    # never passes the test); the long axis last keeps numpy's inner loops long.
-    longest = min(MAX_GLITCH_RUN, n - 2)
-    padded = np.full((dim, n + longest), np.nan)
-    padded[:, :n] = coords
-    arc_padded = np.full(n + longest, np.nan)
-    arc_padded[:n] = arc
-    step_bytes = padded.strides[1]
-    ends = as_strided(padded[:, 2:], shape=(dim, longest, n - 2), strides=(padded.strides[0], step_bytes, step_bytes), writeable=False)
-    chord_vectors = ends - coords[:, None, : n - 2]  # (D, runs, n - 2)
-    square = chord_vectors[0] * chord_vectors[0]
-    for axis in range(1, dim):
-        square += chord_vectors[axis] * chord_vectors[axis]
-    chords = np.sqrt(square).reshape(-1)
-    arc_ends = as_strided(arc_padded[2:], shape=(longest, n - 2), strides=(step_bytes, step_bytes), writeable=False)
-    spans = (arc_ends - arc[None, : n - 2]).reshape(-1)
+    chords, spans = _chords_and_spans(positions, arc, min(MAX_GLITCH_RUN, n - 2))
     hit = np.flatnonzero(spans > 2.0 * CHORD_FACTOR * chords)
     width = min(2 * SPIKE_WINDOW + 1, steps.size)
     if hit.size:
-        run_index, a = np.divmod(hit, n - 2)
-        m = run_index + 1
-        chord, span = chords[hit], spans[hit]
-        b = a + m + 1
-        single = m == 1
-        centre = np.where(single, a + 1, (a + b) // 2)
-        # Windows share centres (a + 1, a + 2, ... for several m): one median per centre.
-        step = np.empty(a.size)
         wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, steps.size)
-        for rows, window in ((single, width), (~single, wide)):
-            if rows.any():
-                needed = np.zeros(n, dtype=bool)
-                needed[centre[rows]] = True
-                at = np.flatnonzero(needed)
-                median_at = np.empty(n)
-                median_at[at] = _local_medians(steps, window, at)
-                step[rows] = median_at[centre[rows]]
-        spike[_excursion_glitches(positions, a, m, b, span, chord, step)] = True
+        spike[_excursion_glitches(positions, hit, chords, spans, width, wide,
+                                  lambda window, at: _local_medians(steps, window, at))] = True
     # An end sample is a glitch when its step dwarfs the next one and the local steps.
     end_scale = _local_medians(steps, width, np.array([1, n - 2]))
     spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], end_scale[0]) * 2.0
@@ -464,29 +497,14 @@ def _spike_masks_into(parts: list[FloatArray], batched: list[int], out: list[np.
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
     ends = starts + sizes - 1  # last row of each part
     positions = np.concatenate([parts[k] for k in batched])
-    total, dim = positions.shape
+    total = positions.shape[0]
     steps = _step_lengths(positions)  # the steps across two parts are never read
     arc = np.empty(total)
     for first, last in zip(starts.tolist(), ends.tolist(), strict=True):
         arc[first] = 0.0
         np.cumsum(steps[first:last], out=arc[first + 1 : last + 1])
-    coords = np.ascontiguousarray(positions.T)
     longest = MAX_GLITCH_RUN
-    padded = np.full((dim, total + longest), np.nan)
-    padded[:, :total] = coords
-    arc_padded = np.full(total + longest, np.nan)
-    arc_padded[:total] = arc
-    step_bytes = padded.strides[1]
-    window_ends = as_strided(padded[:, 2:], shape=(dim, longest, total - 2), strides=(padded.strides[0], step_bytes, step_bytes), writeable=False)
-    # One axis at a time: the same sums as _spike_mask without a (D, runs, T) temporary.
-    chord_axis = window_ends[0] - coords[0, None, : total - 2]
-    square = chord_axis * chord_axis
-    for axis in range(1, dim):
-        np.subtract(window_ends[axis], coords[axis, None, : total - 2], out=chord_axis)
-        square += chord_axis * chord_axis
-    chords = np.sqrt(square, out=square).reshape(-1)
-    arc_ends = as_strided(arc_padded[2:], shape=(longest, total - 2), strides=(step_bytes, step_bytes), writeable=False)
-    spans = (arc_ends - arc[None, : total - 2]).reshape(-1)
+    chords, spans = _chords_and_spans(positions, arc, longest)
     part_first = np.repeat(starts, sizes)
     part_last = np.repeat(ends, sizes)
     # Window (a, m) ends at b = a + m + 1, which must lie in a's part.
@@ -495,23 +513,11 @@ def _spike_masks_into(parts: list[FloatArray], batched: list[int], out: list[np.
     width = 2 * SPIKE_WINDOW + 1
     spike = np.zeros(total, dtype=bool)
     if hit.size:
-        run_index, a = np.divmod(hit, total - 2)
-        m = run_index + 1
-        chord, span = chords[hit], spans[hit]
-        b = a + m + 1
-        single = m == 1
-        centre = np.where(single, a + 1, (a + b) // 2)
-        step = np.empty(a.size)
         wide = 2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1
-        for rows, window in ((single, width), (~single, wide)):
-            if rows.any():
-                needed = np.zeros(total, dtype=bool)
-                needed[centre[rows]] = True
-                at = np.flatnonzero(needed)
-                median_at = np.empty(total)
-                median_at[at] = _segment_medians(steps, window, at, part_first[at], part_last[at])
-                step[rows] = median_at[centre[rows]]
-        spike[_excursion_glitches(positions, a, m, b, span, chord, step)] = True
+        spike[_excursion_glitches(
+            positions, hit, chords, spans, width, wide,
+            lambda window, at: _segment_medians(steps, window, at, part_first[at],
+                                                part_last[at]))] = True
     # End samples, as in _spike_mask, part by part.
     head_scale = _segment_medians(steps, width, starts + 1, starts, ends)
     tail_scale = _segment_medians(steps, width, ends - 1, starts, ends)
