@@ -15,7 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from canal_core.tracker import TrackerBank, TrackerGeometry
+from canal_core.tracker import TrackerBank
 
 from ..errors import NoModelYet, SkillNotFound
 from ..service import CanalService
@@ -32,7 +32,6 @@ class ModelEntry:
     dim: int = 0
     canal: Any = None
     message: str | None = None
-    geometry: TrackerGeometry | None = None
     expires: float = math.inf
     #: the tracker states of every stream of this model (stepped by the worker only)
     bank: TrackerBank | None = None
@@ -44,7 +43,7 @@ def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
     # The canal's own geometry: with the orientations and section times it learned, so live
     # targets carry the model's orientation and feed-forward velocity, as Canal.tracker's do.
     geometry = canal.tracker_geometry()
-    return ModelEntry("ok", int(version), int(canal.dim), canal, geometry=geometry,
+    return ModelEntry("ok", int(version), int(canal.dim), canal,
                       bank=TrackerBank(geometry, lookahead))
 
 
@@ -109,9 +108,12 @@ class ModelTable:
     def updated(self, skill: str, canal: Any, version: int) -> None:
         """A fit landed: a skill in use is reloaded (from ``canal`` when given)."""
         self.unknown.pop(skill, None)
-        if skill in self.models:
-            entry = (ok_entry(version, canal, self.options.lookahead) if canal is not None
-                     else self.load(skill))
+        old = self.models.get(skill)
+        if old is None or (old.status == "ok" and old.version >= version):
+            return  # not in use, or already served: install() would keep it anyway
+        entry = (ok_entry(version, canal, self.options.lookahead) if canal is not None
+                 else self.load(skill, old))
+        if entry is not old:
             self.install(skill, entry)
 
     def refresh(self, live_skills: set[str]) -> None:
