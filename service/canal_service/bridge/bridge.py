@@ -252,7 +252,7 @@ class Bridge:
                 else str(self.options.config_file),
                 "streams": len(self.path.streams), **self.access,
                 "shard": self.options.shard, "shards": self.options.shards,
-                "coalesced": self.counts.coalesced, "drains": self.counts.batches,
+                "coalesced": self.counts.coalesced, "drains": self.counts.drains,
                 "processes": 0}
 
     # ---- metrics (off the pose path) ----------------------------------------------------------

@@ -100,9 +100,9 @@ class Counts:
     """The worker's metrics as plain integers (read and reset by the metrics thread)."""
 
     __slots__ = (
-        "batches",
         "coalesced",
         "decimated",
+        "drains",
         "errors",
         "last_idle",
         "poses",
@@ -122,7 +122,7 @@ class Counts:
         self.coalesced = 0
         self.errors: dict[str, int] = dict.fromkeys(ERROR_KEYS, 0)
         self.switches = 0
-        self.batches = 0  # drains handled
+        self.drains = 0  # drains handled (poses / drains: the mean drain size)
         #: the step histogram's upper bounds (the last one +inf) and per-bucket pose counts:
         #: the worker adds to them, the metrics thread hands the deltas to Prometheus
         self.step_bounds = step_bounds
@@ -136,7 +136,7 @@ class Counts:
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
-                "errors": dict(self.errors), "switches": self.switches, "drains": self.batches,
+                "errors": dict(self.errors), "switches": self.switches, "drains": self.drains,
                 "recorded": self.recorded, "decimated": self.decimated + self.unknown}
 
 
@@ -276,7 +276,7 @@ class PosePath:
             n = len(batch)
             buckets[bisect.bisect_left(bounds, seconds / n)] += n
             counts.step_sum += seconds
-            counts.batches += 1
+            counts.drains += 1
 
     def batch(self, batch: list[Any]) -> None:
         """Decode, group, step and answer one drain of the pose channel (any thread)."""
