@@ -532,10 +532,13 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
         step timed in the same rounds (the best of 3 interleaved rounds: the machine is
         shared)."""
         from canal_core.tracker import TrackerBank
+        from canal_core.tracker_kernel import compile_step_rows
 
+        compile_step_rows()  # as the bridge does at start
         n = geometry.centres.shape[0]
         sizes = (1, 4, 16)
-        best = dict.fromkeys((0, *sizes), np.inf)
+        kinds = (("numpy", False), ("compiled", True))
+        best = {key: np.inf for key in [0, *((k, b) for k, _ in kinds for b in sizes)]}
         one = Tracker(geometry, 2)
         for _ in range(3):
             one.reset(0)
@@ -543,24 +546,28 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
             for p in path[: repeats // 4]:
                 one.step(p)
             best[0] = min(best[0], (time.thread_time() - t0) / (repeats // 4) * 1e6)
-            for b in sizes:
-                bank = TrackerBank(geometry, 2)
-                slots = [bank.add() for _ in range(b)]
-                groups = [np.array([path[(k + 97 * i) % len(path)] for i in range(b)])
-                          for k in range(max(repeats // 4 // b, 100))]
-                bank.step(slots, groups[0])  # the per-model tables are built on first use
-                for slot in slots:
-                    bank.reset(slot, 0)
-                t0 = time.thread_time()
-                for g in groups:
-                    bank.step(slots, g)
-                best[b] = min(best[b], (time.thread_time() - t0) / len(groups) * 1e6)
+            for kind, compiled in kinds:
+                for b in sizes:
+                    bank = TrackerBank(geometry, 2, compiled=compiled)
+                    slots = [bank.add() for _ in range(b)]
+                    groups = [np.array([path[(k + 97 * i) % len(path)] for i in range(b)])
+                              for k in range(max(repeats // 4 // b, 100))]
+                    bank.step(slots, groups[0])
+                    for slot in slots:
+                        bank.reset(slot, 0)
+                    t0 = time.thread_time()
+                    for g in groups:
+                        bank.step(slots, g)
+                    best[kind, b] = min(best[kind, b],
+                                        (time.thread_time() - t0) / len(groups) * 1e6)
         out = [(f"tracker step, one robot, N = {n:,} (yardstick)", best[0])]
-        for b in sizes:
-            ratio = best[b] / best[0]
-            out.append((f"tracker bank step, N = {n:,}, batch of {b}: per call "
-                        f"({ratio:.1f}x the yardstick)", best[b]))
-            out.append((f"tracker bank step, N = {n:,}, batch of {b}: per pose", best[b] / b))
+        for kind, _ in kinds:
+            for b in sizes:
+                us = best[kind, b]
+                out.append((f"tracker bank step ({kind}), N = {n:,}, batch of {b}: per call "
+                            f"({us / best[0]:.2f}x the yardstick)", us))
+                out.append((f"tracker bank step ({kind}), N = {n:,}, batch of {b}: per pose",
+                            us / b))
         return out
 
     def finer_geometry(n_samples: int):
@@ -649,6 +656,9 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
     db = Database(f"sqlite:///{(data / 'canal.sqlite3').resolve()}")
     service = CanalService(db, Metrics())
     port = free_port()
+    from canal_core.tracker_kernel import compile_step_rows
+
+    compile_step_rows()  # the compiled tracker, as a running bridge steps with
     # recording on, as canal serve runs it (its batches go nowhere here)
     bridge = Bridge(service, BridgeOptions(listen=(f"tcp/127.0.0.1:{port}",), record_hz=100.0))
     rows: list[tuple[str, float]] = []
@@ -726,7 +736,7 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                     (f"{label}: decode (wire)", us["decode"]),
                     (f"{label}: bookkeeping (group, stream lookup, counts)",
                      us["decode_batch"] - us["decode"]),
-                    (f"{label}: locate/step (vectorised tracker)", us["step"]),
+                    (f"{label}: locate/step (compiled tracker)", us["step"]),
                     (f"{label}: encode (wire)", us["encode"]),
                     (f"{label}: put and answer logic", us["answer"] - us["encode"]),
                     (f"{label}: TOTAL", us["decode_batch"] + us["step"] + us["answer"]),

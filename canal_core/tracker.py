@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .cross_sections import CrossSections, boundary_distance
+from .tracker_kernel import compiled_step_rows
 from .validation import FloatArray
 
 WINDOW = 16
@@ -679,8 +680,12 @@ class TrackerBank:
     vectorised pass that reads and writes the state arrays directly, with no per-stream
     Python object on the way in or out. The answers equal :func:`tracker_step` on each
     slot's state (same sections, flags and plan; floats up to the last bits of a reordered
-    sum). The pass is :func:`batched_tracker_step`; non-circular sections, canals of fewer
-    than three sections and batches under :data:`VECTORISE_FROM` rows take the scalar step.
+    sum). For circle sections (N >= 3) the pass is the compiled
+    :func:`canal_core.tracker_kernel.step_rows` once it is compiled
+    (:func:`canal_core.tracker_kernel.compile_step_rows`; about 1 us a call plus a fraction
+    of a microsecond a row), else :func:`batched_tracker_step` (numpy, 30-60 us a call);
+    non-circular sections, canals of fewer than three sections and numpy batches under
+    :data:`VECTORISE_FROM` rows take the scalar step.
 
     Parameters
     ----------
@@ -691,10 +696,13 @@ class TrackerBank:
         As :func:`tracker_step`.
     capacity : int
         Slots allocated up front (the arrays double when full).
+    compiled : bool
+        Step with the compiled kernel when it is compiled (False: always numpy).
     """
 
     def __init__(self, geometry: TrackerGeometry, lookahead: int = 1,
-                 replan_tolerance: float = REPLAN_TOLERANCE, capacity: int = 16) -> None:
+                 replan_tolerance: float = REPLAN_TOLERANCE, capacity: int = 16,
+                 compiled: bool = True) -> None:
         self.geometry = geometry
         self.lookahead = max(int(lookahead), 1)
         self.replan_tolerance = float(replan_tolerance)
@@ -708,10 +716,21 @@ class TrackerBank:
         self.direction = np.zeros((cap, k))
         self._free = list(range(cap - 1, -1, -1))
         self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
+        self.compiled = bool(compiled)
+        self._kernel_arrays: tuple[Any, ...] = ()
         if self._isotropic:
             # built with the bank (where a model is loaded), not by its first step, which
             # runs on a live worker while every other stream waits
             geometry.step_tables  # noqa: B018  # a cached property
+            d = geometry.centres.shape[1]
+            g = geometry
+            self._kernel_arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (
+                g.centres, g.tangents, g.offsets, g.basis, g.step_tables.radius,
+                np.zeros(0) if g.section_times is None else g.section_times,
+                np.zeros((0, 4)) if g.orientations is None else g.orientations,
+                g.step_tables.default_direction))
+            self._no_velocity = np.empty((0, d))
+            self._no_orientation = np.empty((0, 4))
 
     def __len__(self) -> int:
         """Slots in use."""
@@ -750,6 +769,10 @@ class TrackerBank:
     def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
         """Step the given slots (distinct) with their live positions, shape (B, D)."""
         p = np.asarray(positions, dtype=np.float64)
+        if self._isotropic and self.compiled:
+            kernel = compiled_step_rows()
+            if kernel is not None:
+                return self._compiled_rows(kernel, slots, p)
         b = p.shape[0]
         if b == 1 and (VECTORISE_FROM > 1 or not self._isotropic):
             return self._one(int(slots[0]), p[0])
@@ -761,6 +784,26 @@ class TrackerBank:
             if b:
                 self._scalar(np.arange(b), slots, p, out)
         return out
+
+    def _compiled_rows(self, kernel: Any, slots: Any, p: FloatArray) -> TrackerBatch:
+        """Every row through the compiled kernel, state read and written in the slot arrays."""
+        g = self.geometry
+        b, d = p.shape
+        target = np.empty((b, d))
+        progress = np.empty(b)
+        eta = np.empty(b)
+        section = np.empty(b, dtype=np.intp)
+        inside = np.empty(b, dtype=bool)
+        done = np.empty(b, dtype=bool)
+        velocity = self._no_velocity if g.section_times is None else np.empty((b, d))
+        orientation = self._no_orientation if g.orientations is None else np.empty((b, 4))
+        kernel(*self._kernel_arrays, np.ascontiguousarray(slots, dtype=np.intp),
+               np.ascontiguousarray(p), self.index, self.eta, self.direction, self.lookahead,
+               WINDOW, self.replan_tolerance, MAX_PLAN_ETA, g.done_tolerance, target,
+               progress, eta, section, inside, done, velocity, orientation)
+        return TrackerBatch(target, progress, eta, section, inside, done,
+                            None if g.section_times is None else velocity,
+                            None if g.orientations is None else orientation)
 
     def _one(self, slot: int, position: FloatArray) -> TrackerBatch:
         """One row (a drain of one pose, the common case of a keeping-up bridge): the

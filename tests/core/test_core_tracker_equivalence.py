@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 import canal_core
 from canal_core.tracker import TrackerBank, TrackerBatch, TrackerTarget, tracker_steps
+from canal_core.tracker_kernel import compile_step_rows, step_rows
 
 KINDS = ["follow", "follow", "follow", "inside", "outside", "far", "far", "back", "ahead",
          "ahead", "end", "start", "restart"]
@@ -113,15 +114,49 @@ def _row(batch: TrackerBatch, j: int) -> TrackerTarget:
        n_streams=st.sampled_from([1, 2, 3, 6, 17]), lookahead=st.integers(1, 4))
 def test_bank_step_equals_the_scalar_step_on_random_canals_and_walks(
         canal: canal_core.Canal, seed: int, n_streams: int, lookahead: int) -> None:
-    walk_and_compare(canal, seed, n_streams, lookahead)
+    """The numpy pass (what a bank steps with while the kernel compiles)."""
+    walk_and_compare(canal, seed, n_streams, lookahead, compiled=False)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(canal=canals(), seed=st.integers(0, 2**31 - 1),
+       n_streams=st.sampled_from([1, 2, 3, 6, 17]), lookahead=st.integers(1, 4))
+def test_compiled_bank_step_equals_the_scalar_step_on_random_canals_and_walks(
+        canal: canal_core.Canal, seed: int, n_streams: int, lookahead: int) -> None:
+    """The compiled kernel (what a live bridge steps with)."""
+    assert compile_step_rows() is not None, "numba is a dependency of the dev install"
+    walk_and_compare(canal, seed, n_streams, lookahead, compiled=True)
+
+
+def test_the_kernel_source_runs_as_plain_python_and_agrees() -> None:
+    """numba compiles the Python function as written: run uncompiled (the same source) on a
+    bank's arrays it gives what the compiled kernel gives, so a reader can step through it."""
+    canal = random_canal(7, 3, 40, True, True)
+    rng = np.random.default_rng(3)
+    banks = [TrackerBank(canal.tracker(lookahead=2).geometry, lookahead=2) for _ in range(2)]
+    slots = [[bank.add() for _ in range(4)] for bank in banks]
+    kernel = compile_step_rows()
+    assert kernel is not None
+    for k in range(30):
+        p = canal.directrix[(k + np.arange(4)) % canal.n_sections] + 0.02 * rng.standard_normal(
+            (4, 3))
+        got = []
+        for bank, sl, fn in zip(banks, slots, (kernel, step_rows), strict=True):
+            got.append(bank._compiled_rows(fn, np.array(sl), p))
+        for a, b in zip((got[0].target, got[0].eta, got[0].velocity, got[0].orientation),
+                        (got[1].target, got[1].eta, got[1].velocity, got[1].orientation),
+                        strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(got[0].section_index, got[1].section_index)
+    np.testing.assert_array_equal(banks[0].index, banks[1].index)
 
 
 def walk_and_compare(canal: canal_core.Canal, seed: int, n_streams: int,
-                     lookahead: int) -> None:
+                     lookahead: int, compiled: bool) -> None:
     """Walk ``n_streams`` streams through the bank, tracker_steps and scalar trackers."""
     rng = np.random.default_rng(seed)
     scalar = [canal.tracker(lookahead=lookahead) for _ in range(n_streams)]
-    bank = TrackerBank(scalar[0].geometry, lookahead=lookahead, capacity=2)
+    bank = TrackerBank(scalar[0].geometry, lookahead=lookahead, capacity=2, compiled=compiled)
     slots = [bank.add() for _ in range(n_streams)]
     n = canal.n_sections
     x = canal.directrix[rng.integers(0, n, n_streams)] + 0.3 * float(canal.radii.min()) * (

@@ -59,6 +59,11 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
 
         reported_bridge = _wait(reported)
         assert 0 < reported_bridge["drains"] <= reported_bridge["poses"]
+        # the bridge compiles its tracker kernel off the pose path and says when it steps
+        # with it (numpy meanwhile; a cold numba cache takes seconds)
+        assert reported_bridge["tracker"] in ("compiling", "compiled")
+        assert _wait(lambda: client.get("/healthz").json()["bridge"]["bridges"][0]["tracker"]
+                     == "compiled", 60.0)
         # a fit through REST reaches the bridge process at once (pushed, not polled)
         directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
         with PoseStreamer("s", "after-fit", endpoint=endpoint) as ps:

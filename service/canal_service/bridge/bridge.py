@@ -16,6 +16,10 @@ through a Zenoh FIFO channel):
   serves (a fit elsewhere is picked up even without a push), forgets streams idle for
   ``idle_s`` and expired negative cache entries.
 - **metrics** and **updates** (fit notices from other bridges).
+- **compile**: at start, compiles the tracker kernel (:mod:`canal_core.tracker_kernel`,
+  numba; a few seconds the first time, ~0.5 s from numba's cache afterwards). Until it is
+  ready the banks step with numpy, so no pose waits for the compiler; ``/healthz`` says
+  which (``tracker``: ``compiling``, ``compiled`` or ``numpy``).
 - **recording** (when ``record_hz`` is set): every ``record_interval_s`` one message with
   what the worker kept for the recording and the per-stream counts, on
   ``{prefix}/@recorder/live/{bridge}`` (:func:`canal_protocol.keys.recorder_key`) for the
@@ -55,6 +59,7 @@ from typing import Any
 import orjson
 import zenoh
 
+from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
@@ -85,6 +90,8 @@ class Bridge:
         self.session: Any = None
         self.state = "stopped"
         self.detail: str | None = None
+        #: how the trackers step: "compiling" (numpy meanwhile), "compiled" or "numpy"
+        self.tracker = "compiling"
         self.listen: list[str] = []
         self.multicast_scouting: bool | None = None
         self.mode: str | None = None
@@ -155,7 +162,8 @@ class Bridge:
         threads: list[tuple[str, Any, tuple[Any, ...]]] = [
             ("worker", self.path.work, (recv, try_recv)),
             ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
-            ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ())]
+            ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ()),
+            ("compile", self._compile_tracker, ())]
         if self.options.record_hz is not None:
             # Blocking, not dropping: a batch is the only copy of what it carries.
             self._record_pub = s.declare_publisher(
@@ -174,6 +182,23 @@ class Bridge:
                  ", ".join(self.listen) or "(config file)", self.prefix, self.options.shard,
                  self.options.shards, self.access["access"])
         return True
+
+    def _compile_tracker(self) -> None:
+        """Compile the tracker kernel off the pose path (the banks use it once it is ready)."""
+        if not numba_available():
+            self.tracker = "numpy"
+            log.warning("numba is not installed: live trackers step with numpy (30-60 us a "
+                        "call instead of ~2)")
+            return
+        started = time.monotonic()
+        try:
+            compile_step_rows()
+        except Exception:
+            self.tracker = "numpy"
+            log.exception("the tracker kernel did not compile: live trackers step with numpy")
+            return
+        self.tracker = "compiled"
+        log.info("tracker kernel ready in %.1f s", time.monotonic() - started)
 
     def _subscribe_poses(self, s: Any) -> tuple[Any, Any]:
         """The pose subscribers and the worker's (blocking, non-blocking) receive calls."""
@@ -253,7 +278,7 @@ class Bridge:
                 "streams": len(self.path.streams), **self.access,
                 "shard": self.options.shard, "shards": self.options.shards,
                 "coalesced": self.counts.coalesced, "drains": self.counts.drains,
-                "processes": 0}
+                "tracker": self.tracker, "processes": 0}
 
     # ---- metrics (off the pose path) ----------------------------------------------------------
 

@@ -227,7 +227,8 @@ class BridgeProcesses:
                         "streams": h.get("streams", 0), "coalesced": h.get("coalesced", 0),
                         "poses": int(c.counts.get("poses", 0)),
                         # drains handled: poses / drains is the worker's mean drain size
-                        "drains": int(c.counts.get("drains", 0))})
+                        "drains": int(c.counts.get("drains", 0)),
+                        "tracker": h.get("tracker", "compiling")})
         first = self.children[0].health
         return {"status": status, "detail": detail, "prefix": first.get("prefix"),
                 "mode": first.get("mode"), "listen": first.get("listen", []),
