@@ -274,7 +274,7 @@ def canal_command() -> list[str]:
 def start_serve(data: Path, endpoint: str, processes: int | None = None
                 ) -> tuple[subprocess.Popen[bytes], int]:
     """``canal serve`` with its defaults (recordings on), ready when /healthz says the bridge
-    is up."""
+    is up and has compiled its tracker."""
     port = free_port()
     cmd = [*canal_command(), "serve", "--data-dir", str(data), "--port", str(port),
            "--zenoh-listen", endpoint, "--log-level", "warning"]
@@ -290,8 +290,12 @@ def start_serve(data: Path, endpoint: str, processes: int | None = None
             raise RuntimeError("canal serve exited: " + "\n".join(tail[-20:]))
         try:
             with urllib.request.urlopen(f"http://127.0.0.1:{port}/healthz", timeout=5) as r:
-                if orjson.loads(r.read())["bridge"]["status"] == "ok":
-                    return proc, port
+                bridge = orjson.loads(r.read())["bridge"]
+            # steady state: every bridge steps with its compiled tracker (a few seconds
+            # after start; numpy meanwhile)
+            if bridge["status"] == "ok" and all(
+                    b.get("tracker") in ("compiled", "numpy") for b in bridge["bridges"]):
+                return proc, port
         except Exception:
             pass
         time.sleep(0.2)
