@@ -198,6 +198,10 @@ class Bridge:
             log.exception("the tracker kernel did not compile: live trackers step with numpy")
             return
         self.tracker = "compiled"
+        # numba's import and compiler leave ~10^5 long-lived objects; frozen like the rest
+        # at start, so that no full collection ever walks them with the GIL held
+        gc.collect()
+        gc.freeze()
         log.info("tracker kernel ready in %.1f s", time.monotonic() - started)
 
     def _subscribe_poses(self, s: Any) -> tuple[Any, Any]:
