@@ -30,3 +30,32 @@ def test_skills_by_latest_fit_orders_by_the_newest_model(any_db_client: TestClie
     assert any_db_client.delete("/skills/a").status_code == 204
     assert service.skills_by_latest_fit(10) == [("c", 1), ("b", 1)]
     assert service.latest_version("b") == 1
+
+
+def test_json_columns_read_back_what_the_stdlib_wrote(any_db_settings) -> None:
+    """The engines parse JSON columns with orjson (a canal's ~100 kB column held the GIL for
+    milliseconds under ``json.loads``) and fall back to the stdlib for what orjson refuses:
+    ``NaN`` and integers beyond 64 bits, which ``json.dumps`` writes."""
+    import math
+
+    from canal_service.storage import Database
+    from sqlalchemy import JSON, Column, Integer, MetaData, Table, insert, select
+
+    db = Database(any_db_settings.resolved_database_url)
+    table = Table("json_probe", MetaData(), Column("id", Integer, primary_key=True),
+                  Column("v", JSON))
+    try:
+        table.create(db.write_engine)
+        # PostgreSQL's json type refuses NaN: only SQLite stores it
+        nan = float("nan") if db.is_sqlite else 0.0
+        values = [{"x": [1.5, -2.0e-300], "s": "é"}, {"x": nan, "big": 2**70}]
+        with db.write_engine.begin() as connection:
+            connection.execute(insert(table), [{"id": i, "v": v} for i, v in enumerate(values)])
+        with db.read_engine.connect() as connection:
+            rows = connection.execute(select(table.c.v).order_by(table.c.id)).scalars().all()
+        assert rows[0] == values[0]
+        assert rows[1]["big"] == 2**70
+        assert math.isnan(rows[1]["x"]) if db.is_sqlite else rows[1]["x"] == 0.0
+    finally:
+        table.drop(db.write_engine)
+        db.dispose()
