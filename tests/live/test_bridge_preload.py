@@ -27,6 +27,7 @@ import zenoh
 from canal_client.live import client_config
 from canal_service.bridge import Bridge, BridgeOptions
 from canal_service.bridge.models import ModelTable
+from canal_service.core.config import Settings
 from canal_service.metrics import Metrics
 from canal_service.service import CanalService
 from canal_service.storage import Database
@@ -178,6 +179,14 @@ def test_a_bridge_starts_with_the_most_recently_fitted_skills_loaded(service, st
     assert bridge.models.models["p4"] is entry  # answered from the preloaded model
     stream = next(iter(bridge.streams.values()))
     assert stream.bank is entry.bank
+
+
+def test_the_service_settings_set_the_preload(tmp_path: Path):
+    options = BridgeOptions.from_settings(Settings(data_dir=tmp_path, zenoh_preload_max=5,
+                                                   zenoh_preload_keep_s=7.5))
+    assert (options.preload_max, options.preload_keep_s) == (5, 7.5)
+    default = BridgeOptions.from_settings(Settings(data_dir=tmp_path))
+    assert (default.preload_max, default.preload_keep_s) == (64, 600.0)
 
 
 def test_preload_skips_skills_without_a_model_and_can_be_off(service, start_bridge):

@@ -79,6 +79,8 @@ class BridgeOptions:
             queue_capacity=settings.zenoh_queue_capacity,
             coalesce_backlog=settings.zenoh_coalesce_backlog, idle_s=settings.zenoh_idle_s,
             refresh_s=settings.zenoh_refresh_s, lookahead=settings.zenoh_lookahead,
+            preload_max=settings.zenoh_preload_max,
+            preload_keep_s=settings.zenoh_preload_keep_s,
             record_hz=float(settings.recordings_live_hz) if settings.recordings_enabled
             else None,
         )
