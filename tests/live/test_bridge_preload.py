@@ -199,6 +199,17 @@ def test_preload_skips_skills_without_a_model_and_can_be_off(service, start_brid
     assert off.models.models == {}
 
 
+def test_every_shard_preloads_every_skill(service, start_bridge):
+    # shard_of splits streams by robot, not by skill: each shard serves robots of each skill
+    assert {keyspace.shard_of("p4", robot, 2) for robot in ("arm0", "arm1")} == {0, 1}
+    shards = [start_bridge(shard=i, shards=2) for i in range(2)]
+    for bridge in shards:
+        assert bridge.preloaded.wait(20)
+        assert sorted(bridge.models.models) == sorted(FITTED)
+    add_skill(service, "sharded")  # the fit notice reaches both (in-process listeners)
+    assert all(b.models.models["sharded"].version == 1 for b in shards)
+
+
 # ---- fit notices ------------------------------------------------------------------------------
 
 
