@@ -440,6 +440,19 @@ class CanalService:
             self.cache.put(key, canal)
         return canal, row, ref.version, ref.dim
 
+    def latest_version(self, name: str) -> int:
+        """The skill's latest model version, from one query (no canal read or decoded).
+        Raises :class:`SkillNotFound` or :class:`NoModelYet`."""
+        return repo.model_ref_by_name(self.db, name, None).version
+
+    def skills_by_latest_fit(self, limit: int) -> list[tuple[str, int]]:
+        """(skill, latest version) of at most ``limit`` skills with a model, most recently
+        fitted first (the live bridge preloads these at start)."""
+        if limit <= 0:
+            return []
+        with self.db.read() as s:
+            return repo.skills_by_latest_fit(s, limit)
+
     def get_model(self, name: str, version: int | None, serialized: bool) -> schemas.ModelOut:
         """A model version with its geometry."""
         with self.db.read() as s:

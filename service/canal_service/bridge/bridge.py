@@ -15,7 +15,10 @@ through a Zenoh FIFO channel):
 - **housekeeper**: every ``refresh_s`` re-reads the latest model version of the skills it
   serves (a fit elsewhere is picked up even without a push), forgets streams idle for
   ``idle_s`` and expired negative cache entries.
-- **metrics** and **updates** (fit notices from other bridges).
+- **metrics** and **updates** (fit notices from other bridges: the new model is built on
+  this thread, as on whichever thread brings a fit notice, never on the worker).
+- **preload** (at start, when ``preload_max`` > 0): loads the models of the most recently
+  fitted skills so their first poses find them ready, then ends (:attr:`Bridge.preloaded`).
 - **compile**: at start, compiles the tracker kernel (:mod:`canal_core.tracker_kernel`,
   numba; a few seconds the first time, ~0.5 s from numba's cache afterwards). Until it is
   ready the banks step with numpy, so no pose waits for the compiler; ``/healthz`` says
@@ -121,6 +124,8 @@ class Bridge:
         self._record_pub: Any = None
         self._record_lock = threading.Lock()
         self._started = time.monotonic()
+        #: set when the start-up preload has finished (or was not run)
+        self.preloaded = threading.Event()
 
     @property
     def streams(self) -> dict[str, Stream]:
@@ -163,7 +168,7 @@ class Bridge:
             ("worker", self.path.work, (recv, try_recv)),
             ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
             ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ()),
-            ("compile", self._compile_tracker, ())]
+            ("preload", self._preload, ()), ("compile", self._compile_tracker, ())]
         if self.options.record_hz is not None:
             # Blocking, not dropping: a batch is the only copy of what it carries.
             self._record_pub = s.declare_publisher(
@@ -356,14 +361,27 @@ class Bridge:
 
     # ---- models -------------------------------------------------------------------------------
 
+    def _preload(self) -> None:
+        try:
+            started = time.monotonic()
+            loaded = self.models.preload(self._stop)
+            if loaded:
+                log.info("preloaded the models of %d skills in %.3f s", len(loaded),
+                         time.monotonic() - started)
+        except Exception:  # the database may be unreachable now: first poses load instead
+            log.exception("preloading models failed")
+        finally:
+            self.preloaded.set()
+
     def _on_fit(self, skill: str, version: int, canal: Any) -> None:
         """``CanalService.fit`` listener: serve the new version from the next pose on."""
         self.model_updated(skill, int(version), canal)
 
     def model_updated(self, skill: str, version: int, canal: Any = None,
                       announce: bool = True) -> None:
-        """A fit landed (this process, ``canal serve`` or another bridge): load it and, when
-        told, tell the other bridges on ``{prefix}/{skill}/model/updated``."""
+        """A fit landed (this process, ``canal serve`` or another bridge): build and install
+        the new model on the calling thread (every shard serves every skill: shards split
+        robots) and, when told, tell the other bridges on ``{prefix}/{skill}/model/updated``."""
         if not keyspace.is_plain_chunk(skill):
             return
         self.models.updated(skill, canal, version)

@@ -32,6 +32,13 @@ class BridgeOptions:
     it puts the poses the recording wants (at most ``record_hz`` per stream and second, 0:
     all; plus every status/inside/done flip) and per-stream counts on
     :func:`canal_protocol.keys.recorder_key` (see :mod:`.posepath`).
+
+    ``preload_max``: how many skills without live streams the model table holds ready, so
+    that a skill's first pose finds its model built instead of loading it on the worker: at
+    start the most recently fitted skills (in a background thread), and each skill whose fit
+    notice arrives; 0: a model is loaded at its skill's first pose. ``preload_keep_s``: how
+    long such a model stays after it was loaded or its skill's last stream went away (the
+    housekeeper re-checks its version every ``refresh_s`` meanwhile).
     """
 
     prefix: str = "canal"
@@ -50,6 +57,8 @@ class BridgeOptions:
     shard_subscribe: str = "auto"  # "auto" | "keys" | "all"
     record_hz: float | None = None  # None: no recording batches; 0: every pose
     record_interval_s: float = 0.1
+    preload_max: int = 64
+    preload_keep_s: float = 600.0
 
     def subscribes_by_key(self) -> bool:
         """Whether this bridge subscribes only to its own robots' pose keys."""
@@ -70,6 +79,8 @@ class BridgeOptions:
             queue_capacity=settings.zenoh_queue_capacity,
             coalesce_backlog=settings.zenoh_coalesce_backlog, idle_s=settings.zenoh_idle_s,
             refresh_s=settings.zenoh_refresh_s, lookahead=settings.zenoh_lookahead,
+            preload_max=settings.zenoh_preload_max,
+            preload_keep_s=settings.zenoh_preload_keep_s,
             record_hz=float(settings.recordings_live_hz) if settings.recordings_enabled
             else None,
         )

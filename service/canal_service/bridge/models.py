@@ -3,6 +3,15 @@
 A skill's entry says what a pose of it gets: a tracker geometry (``ok``), or why not
 (``unknown_skill``, ``no_model``). Unknown skills go to a bounded, expiring negative cache
 so that a flood of junk names costs one database read per name and nothing afterwards.
+
+Loading a model (a database read, decoding the canal, building the tracker geometry and the
+bank's step tables) takes milliseconds. On the worker that is a stall of every stream, so
+the table loads ahead of the first pose wherever it can: at bridge start the most recently
+fitted skills (:meth:`ModelTable.preload`, a background thread) and on each fit notice
+(:meth:`ModelTable.updated`, on the thread that heard it). Every shard preloads every skill:
+:func:`canal_protocol.keys.shard_of` splits streams by robot, so each shard serves each
+skill. The worker reads ``models`` without a lock; every writer builds an entry completely,
+then installs it with one dict assignment (:meth:`ModelTable.install`).
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from canal_core.tracker import TrackerBank
+from canal_protocol import keys as keyspace
 
 from ..errors import NoModelYet, SkillNotFound
 from ..service import CanalService
@@ -35,6 +45,9 @@ class ModelEntry:
     expires: float = math.inf
     #: the tracker states of every stream of this model (stepped by the worker only)
     bank: TrackerBank | None = None
+    #: when it was installed or last seen with live streams (``time.monotonic``): an entry
+    #: without streams is kept ``preload_keep_s`` after that
+    used: float = 0.0
 
 
 def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
@@ -59,10 +72,22 @@ class ModelTable:
         # compound change of the negative cache happens under this lock (misses only; a
         # served pose never takes it).
         self._unknown_lock = threading.Lock()
+        # Installs come from the worker (a first pose), the housekeeper, the preload thread
+        # and whichever thread hears a fit notice: the version check and the assignment
+        # happen under this lock, so an older version never replaces a newer one. The
+        # worker's reads never take it.
+        self._install_lock = threading.Lock()
 
     def load(self, skill: str, current: ModelEntry | None = None) -> ModelEntry:
         """The skill's latest model from the service; ``current`` itself when it already
-        serves that version (a refresh then costs one query, no geometry rebuilt)."""
+        serves that version (a refresh then costs one query: no canal read or decoded, no
+        geometry rebuilt)."""
+        if current is not None and current.status == "ok":
+            try:
+                if self.service.latest_version(skill) == current.version:
+                    return current
+            except (SkillNotFound, NoModelYet):
+                pass  # deleted meanwhile: the full read below says which entry it gets
         try:
             canal, _row, version, _dim = self.service.load_canal(skill, None)
         except SkillNotFound as exc:
@@ -73,9 +98,10 @@ class ModelTable:
             return current
         return ok_entry(version, canal, self.options.lookahead)
 
-    def install(self, skill: str, entry: ModelEntry) -> None:
-        """Replace the skill's entry unless it would go back to an older version. Unknown
-        skills go to the bounded, expiring negative cache instead."""
+    def install(self, skill: str, entry: ModelEntry, used: float | None = None) -> bool:
+        """Replace the skill's entry unless it would go back to an older version (False
+        then); ``used`` (default: now) starts its keep period. Unknown skills go to the
+        bounded, expiring negative cache instead."""
         if entry.status == "unknown_skill":
             self.models.pop(skill, None)
             entry.expires = time.monotonic() + self.options.negative_ttl_s
@@ -85,13 +111,22 @@ class ModelTable:
                 unknown.move_to_end(skill)
                 while len(unknown) > self.options.negative_max:
                     unknown.popitem(last=False)
-            return
+            return True
         self.unknown.pop(skill, None)
-        old = self.models.get(skill)
-        if (old is not None and old.status == "ok" and entry.status == "ok"
-                and entry.version <= old.version):
-            return
-        self.models[skill] = entry
+        with self._install_lock:
+            old = self.models.get(skill)
+            if (old is not None and old.status == "ok" and entry.status == "ok"
+                    and entry.version <= old.version):
+                return False
+            entry.used = time.monotonic() if used is None else used
+            self.models[skill] = entry  # built completely before: one atomic assignment
+        return True
+
+    def _drop(self, skill: str, entry: ModelEntry) -> None:
+        """Forget the skill's entry if it is still ``entry`` (not one installed meanwhile)."""
+        with self._install_lock:
+            if self.models.get(skill) is entry:
+                del self.models[skill]
 
     def entry(self, skill: str) -> ModelEntry:
         """The skill's entry, loaded on first use (and after a negative entry expired)."""
@@ -106,32 +141,77 @@ class ModelTable:
         return entry
 
     def updated(self, skill: str, canal: Any, version: int) -> None:
-        """A fit landed: a skill in use is reloaded (from ``canal`` when given)."""
+        """A fit landed: the skill's new model is built and installed now, on the calling
+        thread (from ``canal`` when given, else read), so its next pose, or its first, finds
+        it ready. With ``preload_max`` 0 only a skill in use is reloaded."""
         self.unknown.pop(skill, None)
         old = self.models.get(skill)
-        if old is None or (old.status == "ok" and old.version >= version):
-            return  # not in use, or already served: install() would keep it anyway
+        if old is not None and old.status == "ok" and old.version >= version:
+            return  # already served: install() would keep it anyway
+        if old is None and self.options.preload_max <= 0:
+            return  # not in use and not preloading: its first pose loads it
         entry = (ok_entry(version, canal, self.options.lookahead) if canal is not None
                  else self.load(skill, old))
         if entry is not old:
             self.install(skill, entry)
 
-    def refresh(self, live_skills: set[str]) -> None:
-        """Re-read the skills that have streams; forget the others and expired negatives,
-        so the table stays as small as the live fleet."""
-        for skill in list(self.models):
-            if skill not in live_skills:
-                self.models.pop(skill, None)
-                continue
+    def preload(self, stop: threading.Event | None = None) -> list[str]:
+        """Load the models of the ``preload_max`` most recently fitted skills, newest first
+        (one query lists them); the skills installed. Stops early when ``stop`` is set."""
+        limit = self.options.preload_max
+        if limit <= 0:
+            return []
+        started = time.monotonic()
+        installed = []
+        for rank, (skill, version) in enumerate(self.service.skills_by_latest_fit(limit)):
+            if stop is not None and stop.is_set():
+                break
+            if not keyspace.is_plain_chunk(skill):
+                continue  # no pose key can name it
             old = self.models.get(skill)
+            if old is not None and old.status == "ok" and old.version >= version:
+                continue
+            try:
+                entry = self.load(skill, old)
+            except Exception:
+                log.exception("preloading the model of %r failed", skill)
+                continue
+            # The older the fit, the earlier it counts as used: when more skills are kept
+            # than preload_max, the refresh drops the least recently fitted first.
+            if (entry.status == "ok" and entry is not old
+                    and self.install(skill, entry, used=started - 1e-6 * rank)):
+                installed.append(skill)
+        return installed
+
+    def refresh(self, live_skills: set[str]) -> None:
+        """Re-read the skills that have streams and the models kept ready for others (within
+        ``preload_keep_s`` of their last use, at most ``preload_max`` of them, the most
+        recently used); forget the rest and the expired negatives, so the table stays as
+        small as the live fleet plus ``preload_max``."""
+        now = time.monotonic()
+        keep_s = self.options.preload_keep_s
+        idle: list[tuple[float, str, ModelEntry]] = []
+        for skill, entry in list(self.models.items()):
+            if skill in live_skills:
+                entry.used = now
+            elif entry.status == "ok" and now - entry.used <= keep_s:
+                idle.append((entry.used, skill, entry))
+            else:
+                self._drop(skill, entry)
+        idle.sort(key=lambda item: item[0], reverse=True)
+        for _used, skill, entry in idle[max(self.options.preload_max, 0):]:
+            self._drop(skill, entry)
+        for skill in list(self.models):
+            old = self.models.get(skill)
+            if old is None:
+                continue
             try:
                 entry = self.load(skill, old)
             except Exception:
                 log.exception("model refresh for %r failed", skill)
                 continue
             if entry is not old:
-                self.install(skill, entry)
-        now = time.monotonic()
+                self.install(skill, entry, used=old.used)
         # Under the lock: the worker installs entries meanwhile (iterating the live
         # OrderedDict raised "mutated during iteration" and killed the housekeeper; popping
         # between the worker's insert and move_to_end raised KeyError in the worker).

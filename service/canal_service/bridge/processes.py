@@ -81,7 +81,9 @@ class BridgeProcesses:
                 "--shard", f"{shard}/{shards}", "--data-dir", str(s.data_dir),
                 "--database-url", s.resolved_database_url, "--zenoh-prefix", s.zenoh_prefix,
                 "--log-level", s.log_level,
-                "--recordings-live-hz", repr(float(s.recordings_live_hz))]
+                "--recordings-live-hz", repr(float(s.recordings_live_hz)),
+                "--zenoh-preload-max", str(s.zenoh_preload_max),
+                "--zenoh-preload-keep-s", repr(float(s.zenoh_preload_keep_s))]
         if not s.recordings_enabled:
             argv.append("--no-recordings")
         if s.zenoh_config is not None:

@@ -117,6 +117,15 @@ class Settings(BaseSettings):
         1, ge=0, le=64, description="Bridge processes `canal serve` starts (robots shared by "
         "hash of skill/robot); 0 runs the bridge inside the service process."
     )
+    zenoh_preload_max: int = Field(
+        64, ge=0, description="Models the bridge holds ready for skills without live streams "
+        "(at start the most recently fitted, and each skill whose fit notice arrives), so a "
+        "skill's first pose does not load its model on the pose worker; 0: load at first pose."
+    )
+    zenoh_preload_keep_s: float = Field(
+        600.0, gt=0, description="How long the bridge keeps such a model after it was loaded "
+        "or its skill's last live stream went away."
+    )
     zenoh_lookahead: int = Field(
         2, ge=1, description="Tracker lookahead in sections (2: the target lies beyond the next "
         "section plane, so a robot that lags behind its target still crosses it)."

@@ -362,6 +362,25 @@ def model_ref_by_name(db: Database, skill_name: str, version: int | None) -> Mod
     return ModelRef(int(skill_id), int(dim), skill_created_at, int(model_id), int(found))
 
 
+def skills_by_latest_fit(session: Session, limit: int) -> list[tuple[str, int]]:
+    """(name, latest version) of at most ``limit`` skills that have a model, most recently
+    fitted first: one grouped query, without reading any model's ``canal`` column.
+
+    "Most recently fitted" is the highest model row id: both backends give a new row an id
+    above every existing one (SQLite's max + 1, PostgreSQL's sequence), and the id, unlike
+    ``created_at``, sits before the canal in the row (see ``_REF_COLUMNS``).
+    """
+    newest = func.max(ModelVersion.id)
+    rows = session.execute(
+        select(Skill.name, func.max(ModelVersion.version))
+        .join(ModelVersion, ModelVersion.skill_id == Skill.id)
+        .group_by(Skill.id, Skill.name)
+        .order_by(newest.desc(), Skill.name)
+        .limit(limit)
+    ).all()
+    return [(str(name), int(version)) for name, version in rows]
+
+
 def get_model(session: Session, model_id: int) -> ModelVersion:
     """A model row by its primary key (the caller got the id from :func:`model_ref`)."""
     model = session.get(ModelVersion, model_id)
