@@ -150,6 +150,15 @@ def start_of(service: CanalService, skill: str) -> Any:
     return service.load_canal(skill, None)[0].directrix[5]
 
 
+def first_answer(bridge: Bridge, service: CanalService, skill: str, robot: str) -> Any:
+    """The answer to a new robot's first pose of ``skill`` (at its canal's 6th section)."""
+    session = Robot(bridge, skill, robot)
+    try:
+        return session.ask(0, start_of(service, skill))
+    finally:
+        session.close()
+
+
 # ---- the query --------------------------------------------------------------------------------
 
 
@@ -171,11 +180,7 @@ def test_a_bridge_starts_with_the_most_recently_fitted_skills_loaded(service, st
     assert all(models[s].status == "ok" and models[s].version == 1 for s in ("p3", "p4"))
     assert all(models[s].bank is not None for s in ("p3", "p4"))
     entry = models["p4"]
-    robot = Robot(bridge, "p4", "arm1")
-    try:
-        answer = robot.ask(0, start_of(service, "p4"))
-    finally:
-        robot.close()
+    answer = first_answer(bridge, service, "p4", "arm1")
     assert answer.status == "ok" and answer.model_version == 1
     assert bridge.models.models["p4"] is entry  # answered from the preloaded model
     stream = next(iter(bridge.streams.values()))
@@ -220,11 +225,7 @@ def test_a_skill_fitted_while_the_bridge_runs_is_ready_before_its_first_pose(
     add_skill(service, "fresh")  # through the service: the in-process fit notice
     entry = bridge.models.models.get("fresh")
     assert entry is not None and entry.status == "ok" and entry.version == 1
-    robot = Robot(bridge, "fresh", "arm1")
-    try:
-        answer = robot.ask(0, start_of(service, "fresh"))
-    finally:
-        robot.close()
+    answer = first_answer(bridge, service, "fresh", "arm1")
     assert answer.status == "ok" and answer.model_version == 1
     assert bridge.models.models["fresh"] is entry
 
@@ -252,11 +253,7 @@ def test_fit_notices_from_canal_serve_and_other_bridges_load_the_model(
         assert wait_until(lambda: "byzenoh" in bridge.models.models)
     entry = bridge.models.models["byzenoh"]
     assert entry.status == "ok" and entry.version == 1
-    robot = Robot(bridge, "byzenoh", "r2")
-    try:
-        answer = robot.ask(0, start_of(service, "byzenoh"))
-    finally:
-        robot.close()
+    answer = first_answer(bridge, service, "byzenoh", "r2")
     assert answer.status == "ok" and answer.model_version == 1
     assert bridge.models.models["byzenoh"] is entry
 
