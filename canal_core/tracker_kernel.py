@@ -146,7 +146,7 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
                 alpha = 0.0
             if 1.0 < alpha:
                 alpha = 1.0
-        # the in-plane offset interpolated between the pair (paper's ratio rule, Eq. 9-10)
+        # the in-plane offset interpolated between the pair (the ratio rule, paper Section 4.2)
         norm2 = 0.0
         for m in range(k):
             q0 = 0.0
