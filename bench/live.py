@@ -273,6 +273,11 @@ def canal_command() -> list[str]:
     return [sys.executable, "-c", "from canal_client.cli import app; app()"]
 
 
+#: how canal serve's bridges stepped their trackers in this run ("compiled", or "numpy" when
+#: numba is missing): printed with the tables
+TRACKERS: set[str] = set()
+
+
 def start_serve(data: Path, endpoint: str, processes: int | None = None
                 ) -> tuple[subprocess.Popen[bytes], int]:
     """``canal serve`` with its defaults (recordings on), ready when /healthz says the bridge
@@ -297,6 +302,7 @@ def start_serve(data: Path, endpoint: str, processes: int | None = None
             # after start; numpy meanwhile)
             if bridge["status"] == "ok" and all(
                     b.get("tracker") in ("compiled", "numpy") for b in bridge["bridges"]):
+                TRACKERS.update(b["tracker"] for b in bridge["bridges"])
                 return proc, port
         except Exception:
             pass
@@ -1045,7 +1051,8 @@ def report(runs, scale, stage_rows, seconds) -> None:
 def report_runs(runs, scale, seconds) -> None:
     print(f"\nLive round trip, pose -> target, loopback, {RATE_HZ:.0f} Hz per robot, open loop, "
           f"canal serve with its defaults (recordings on) against a bare Zenoh echo process, "
-          f"same drive, same run ({os.cpu_count()} CPUs)\n")
+          f"same drive, same run ({os.cpu_count()} CPUs; bridge trackers: "
+          f"{', '.join(sorted(TRACKERS)) or 'not reported'})\n")
     print("| format | robots | server | answered % | out of order | p50 us | p99 us "
           "| p50 / echo | p99 / echo |")
     print("|---|---|---|---|---|---|---|---|---|")
