@@ -192,8 +192,8 @@ class Bridge:
         """Compile the tracker kernel off the pose path (the banks use it once it is ready)."""
         if not numba_available():
             self.tracker = "numpy"
-            log.warning("numba is not installed: live trackers step with numpy (30-60 us a "
-                        "call instead of ~2)")
+            log.warning("numba is not installed: live trackers step with numpy (30-80 us a "
+                        "call instead of 5-10)")
             return
         started = time.monotonic()
         try:
