@@ -3,7 +3,10 @@ conftest.py, so ``from conftest import`` would be ambiguous)."""
 
 from __future__ import annotations
 
+import time
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -13,6 +16,18 @@ with warnings.catch_warnings():
 
 from canal_service.core.config import Settings
 from canal_testing import arc_demo
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float = 10.0) -> Any:
+    """Poll ``predicate`` every 10 ms until it returns something truthy (returned) or
+    ``timeout`` seconds pass (its last value is returned)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.01)
+    return predicate()
 
 
 def arc(j: int, n: int = 60, dim: int = 3, seed: int = 0) -> np.ndarray:

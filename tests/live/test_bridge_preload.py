@@ -33,7 +33,7 @@ from canal_service.metrics import Metrics
 from canal_service.service import CanalService
 from canal_service.storage import Database
 from canal_testing import free_port
-from live_helpers import arc
+from live_helpers import arc, wait_until
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
@@ -135,15 +135,6 @@ class Robot:
         self.sub.undeclare()
         self.pub.undeclare()
         self.session.close()
-
-
-def wait_until(condition: Any, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def start_of(service: CanalService, skill: str) -> Any:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import signal
-import time
 import warnings
 
 import numpy as np
@@ -19,19 +18,9 @@ from canal_service.app import create_app
 from canal_service.bridge.bridge import shard_of
 from canal_service.core.config import Settings
 from canal_testing import free_port
-from live_helpers import make_skill, metric
+from live_helpers import make_skill, metric, wait_until
 
 pytestmark = pytest.mark.timeout(90)
-
-
-def _wait(predicate, timeout=5.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    return predicate()
 
 
 def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_path):
@@ -50,20 +39,23 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
         result = run_sim("s", rate_hz=1000.0, seed=2, endpoint=endpoint, timeout_s=10)
         assert result.reached_end and result.all_inside and result.model_version == 1
         # the bridge process's counts reach the service's /metrics
-        assert _wait(lambda: metric(client, "canal_live_poses_total") >= result.n_steps)
+        assert wait_until(lambda: metric(client, "canal_live_poses_total") >= result.n_steps,
+                          5.0)
         assert metric(client, "canal_live_targets_total") >= result.n_steps
         # and its drain count to /healthz (one pose at a time: about a drain per pose)
         def reported():
             b = client.get("/healthz").json()["bridge"]["bridges"][0]
             return b if b["poses"] >= result.n_steps else None
 
-        reported_bridge = _wait(reported)
+        reported_bridge = wait_until(reported, 5.0)
         assert 0 < reported_bridge["drains"] <= reported_bridge["poses"]
         # the bridge compiles its tracker kernel off the pose path and says when it steps
         # with it (numpy meanwhile; a cold numba cache takes seconds)
         assert reported_bridge["tracker"] in ("compiling", "compiled")
-        assert _wait(lambda: client.get("/healthz").json()["bridge"]["bridges"][0]["tracker"]
-                     == "compiled", 60.0)
+        def tracker():
+            return client.get("/healthz").json()["bridge"]["bridges"][0]["tracker"]
+
+        assert wait_until(lambda: tracker() == "compiled", 60.0)
         # a fit through REST reaches the bridge process at once (pushed, not polled)
         directrix = np.array(client.get("/skills/s/models/latest").json()["directrix"])
         with PoseStreamer("s", "after-fit", endpoint=endpoint) as ps:
@@ -75,7 +67,7 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
                 answer = ps.wait_for(ps.send(directrix[5]), 1.0)
                 return answer is not None and answer.model_version == 2
 
-            assert _wait(version, 3.0)
+            assert wait_until(version, 3.0)
         # the bridge process dies: /healthz says the service is degraded
         bridges = client.app.state.bridge  # type: ignore[attr-defined]
         bridges.children[0].proc.send_signal(signal.SIGKILL)
@@ -112,6 +104,6 @@ def test_two_bridge_processes_share_the_robots(tmp_path):
             # status lines come every 0.5 s: wait for both to report every stream
             return streams if all(streams) and sum(streams) == len(robots) else None
 
-        streams = _wait(per_shard)
+        streams = wait_until(per_shard, 5.0)
         assert streams is not None and sum(streams) == len(robots)  # one answer per pose
         assert client.get("/healthz").json()["bridge"]["processes"] == 2
