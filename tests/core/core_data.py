@@ -39,3 +39,40 @@ def tracker_starts(canal: Canal, n: int, rng: np.random.Generator) -> np.ndarray
     scale = rng.choice([0.2, 0.8, 1.5, 4.0], n)[:, None] * canal.radii.max()
     along = rng.uniform(0.1, 0.9, n)[:, None] * (canal.directrix[idx + 1] - canal.directrix[idx])
     return canal.directrix[idx] + along + scale * canal.normals[idx]
+
+
+def sine_curve(rng: np.random.Generator, dim: int, n: int, freq_high: float, amp_high: float,
+               drift: float) -> tuple[np.ndarray, np.ndarray]:
+    """A random smooth curve: the sum of three sines per axis (frequencies in [0.3,
+    ``freq_high``) half-turns, amplitudes in [0.1, ``amp_high``)), drifting ``drift`` along x.
+
+    Returns
+    -------
+    s : array, shape (n,)
+        Its parameter, 0 to 1.
+    base : array, shape (n, dim)
+    """
+    s = np.linspace(0.0, 1.0, n)
+    freq = rng.uniform(0.3, freq_high, size=(3, dim))
+    amp = rng.uniform(0.1, amp_high, size=(3, dim))
+    base = np.sum(amp[:, None, :] * np.sin(np.pi * freq[:, None, :] * s[None, :, None]), axis=0)
+    base[:, 0] += drift * s
+    return s, base
+
+
+def bent_copy(rng: np.random.Generator, s: np.ndarray, base: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """One demonstration of ``base`` (:func:`sine_curve`): 40-79 samples, shifted and bent
+    by smooth random deviations (scale 0.05).
+
+    Returns
+    -------
+    u : array, shape (M,)
+        Its samples' parameter, 0 to 1.
+    demo : array, shape (M, dim)
+    """
+    dim = base.shape[1]
+    dev = rng.normal(scale=0.05, size=(2, dim))
+    u = np.linspace(0.0, 1.0, int(rng.integers(40, 80)))
+    curve = np.array([np.interp(u, s, base[:, d]) for d in range(dim)]).T
+    return u, curve + dev[0] + np.outer(np.sin(np.pi * u), dev[1])

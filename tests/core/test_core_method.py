@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from core_data import sine_curve
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -36,11 +37,7 @@ def raw_log(rng: np.random.Generator, base: np.ndarray, offset: np.ndarray, goal
 
 def generated_logs(seed: int, dim: int, n_demos: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
     rng = np.random.default_rng(seed)
-    s = np.linspace(0.0, 1.0, 400)
-    freq = rng.uniform(0.3, 1.5, size=(3, dim))
-    amp = rng.uniform(0.1, 0.6, size=(3, dim))
-    base = np.sum(amp[:, None, :] * np.sin(np.pi * freq[:, None, :] * s[None, :, None]), axis=0)
-    base[:, 0] += 1.5 * s
+    _s, base = sine_curve(rng, dim, 400, 1.5, 0.6, 1.5)
     demos, times = [], []
     for _ in range(n_demos):
         pos, t = raw_log(rng, base, rng.normal(scale=0.08, size=dim), rng.normal(scale=0.03, size=dim),

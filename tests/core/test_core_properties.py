@@ -8,6 +8,7 @@ and may exceed it by the chord error; that is measured in test_core_lasa.py, not
 from __future__ import annotations
 
 import numpy as np
+from core_data import bent_copy, sine_curve
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_core_sections import assert_points_inside
@@ -23,20 +24,9 @@ def demo_sets(draw: st.DrawFn) -> list[np.ndarray]:
     n_demos = draw(st.integers(3, 7))
     dim = draw(st.sampled_from([2, 3]))
     rng = np.random.default_rng(seed)
-    s = np.linspace(0, 1, 60)
     # A random smooth base curve (sum of a few sines) plus smooth random deviations.
-    freq = rng.uniform(0.3, 1.5, size=(3, dim))
-    amp = rng.uniform(0.1, 1.0, size=(3, dim))
-    base = np.sum(amp[:, None, :] * np.sin(np.pi * freq[:, None, :] * s[None, :, None]), axis=0)
-    base[:, 0] += 2.0 * s
-    demos = []
-    for _ in range(n_demos):
-        dev = rng.normal(scale=0.05, size=(2, dim))
-        t = rng.integers(40, 80)
-        u = np.linspace(0, 1, t)
-        curve = np.array([np.interp(u, s, base[:, d]) for d in range(dim)]).T
-        demos.append(curve + dev[0] + np.outer(np.sin(np.pi * u), dev[1]))
-    return demos
+    s, base = sine_curve(rng, dim, 60, 1.5, 1.0, 2.0)
+    return [bent_copy(rng, s, base)[1] for _ in range(n_demos)]
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -11,6 +11,7 @@ pass) of varying sizes in any slot order.
 from __future__ import annotations
 
 import numpy as np
+from core_data import bent_copy, sine_curve
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -38,17 +39,11 @@ def random_canal(seed: int, dim: int, n_samples: int, timed: bool,
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(seed)
-    s = np.linspace(0.0, 1.0, 60)
-    freq = rng.uniform(0.3, 2.5, size=(3, dim))
-    amp = rng.uniform(0.1, 1.0, size=(3, dim))
-    base = np.sum(amp[:, None, :] * np.sin(np.pi * freq[:, None, :] * s[None, :, None]), axis=0)
-    base[:, 0] += 2.0 * s
+    s, base = sine_curve(rng, dim, 60, 2.5, 1.0, 2.0)
     demos, times, quats = [], [], []
     for _ in range(int(rng.integers(3, 6))):
-        dev = rng.normal(scale=0.05, size=(2, dim))
-        u = np.linspace(0.0, 1.0, int(rng.integers(40, 80)))
-        curve = np.array([np.interp(u, s, base[:, d]) for d in range(dim)]).T
-        demos.append(curve + dev[0] + np.outer(np.sin(np.pi * u), dev[1]))
+        u, demo = bent_copy(rng, s, base)
+        demos.append(demo)
         times.append(np.cumsum(rng.uniform(0.005, 0.02, len(u))))
         angles = np.outer(u, rng.uniform(-90.0, 90.0, 3)) + rng.normal(0.0, 2.0, 3)
         quats.append(Rotation.from_euler("xyz", angles, degrees=True).as_quat())
