@@ -970,9 +970,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {mode} | {us:.1f} | {n} |")
         return 0
     os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    # one robot drives as long as sixteen: its p99 is the 1 % worst of 1,000 poses a second
     seconds = args.seconds or (2.0 if args.quick else 20.0)
-    # one robot as long as sixteen: its p99 is the 1 % worst of 1,000 poses a second
-    one_seconds = seconds
     rounds = 1 if args.quick else max(int(args.rounds), 1)
     formats = [f for f in (args.formats or ("json" if args.quick else ",".join(FORMATS)))
                .split(",") if f]
@@ -996,15 +995,15 @@ def main(argv: list[str] | None = None) -> int:
         runs: list[tuple[Run, Run]] = []
         try:
             for fmt in formats:
-                for n, secs in ((1, one_seconds), (16, seconds)):
+                for n in (1, 16):
                     # echo and canal serve alternate in rounds, so a slow spell of the shared
                     # machine falls on both rather than on one of them
                     es, bs = [], []
                     for _ in range(rounds):
                         es.append(measured(echo_pids, None, drive, echo_ep, "echo", fmt, n,
-                                           secs / rounds, path))
+                                           seconds / rounds, path))
                         bs.append(measured(serve_pids, serve_port, drive, serve_ep,
-                                           "canal serve", fmt, n, secs / rounds, path))
+                                           "canal serve", fmt, n, seconds / rounds, path))
                     e, b = merged(es), merged(bs)
                     runs.append((e, b))
                     print(f"  {fmt} x {n:>2}: echo {e.answered:.1f} % p99 {e.pct(99):.0f} us | "
