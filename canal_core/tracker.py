@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .cross_sections import CrossSections, boundary_distance
-from .tracker_kernel import compiled_step_rows
+from .tracker_kernel import compiled_step_rows, packed_width
 from .validation import FloatArray
 
 WINDOW = 16
@@ -722,15 +722,12 @@ class TrackerBank:
             # built with the bank (where a model is loaded), not by its first step, which
             # runs on a live worker while every other stream waits
             geometry.step_tables  # noqa: B018  # a cached property
-            d = geometry.centres.shape[1]
             g = geometry
             self._kernel_arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (
                 g.centres, g.tangents, g.offsets, g.basis, g.step_tables.radius,
                 np.zeros(0) if g.section_times is None else g.section_times,
                 np.zeros((0, 4)) if g.orientations is None else g.orientations,
                 g.step_tables.default_direction))
-            self._no_velocity = np.empty((0, d))
-            self._no_orientation = np.empty((0, 4))
 
     def __len__(self) -> int:
         """Slots in use."""
@@ -772,7 +769,44 @@ class TrackerBank:
         if self._isotropic and self.compiled:
             kernel = compiled_step_rows()
             if kernel is not None:
+                return self._batch_of_rows(self._compiled_rows(kernel, slots, p))
+        return self._numpy_step(slots, p)
+
+    def step_packed(self, slots: Any, positions: FloatArray) -> FloatArray:
+        """:meth:`step`'s answers packed one row per slot, as the compiled kernel writes
+        them (:func:`canal_core.tracker_kernel.step_rows`): target (D), progress, eta,
+        section, inside (1.0/0.0), done (1.0/0.0), velocity (D), orientation (4); velocity
+        and orientation NaN when the model has none.
+
+        Parameters
+        ----------
+        slots : sequence of int, length B
+            Distinct slots.
+        positions : array, shape (B, D)
+
+        Returns
+        -------
+        rows : array, shape (B, 2 D + 9)
+            A caller reads every answer with one ``tolist()`` (the live bridge's path).
+        """
+        p = np.asarray(positions, dtype=np.float64)
+        if self._isotropic and self.compiled:
+            kernel = compiled_step_rows()
+            if kernel is not None:
                 return self._compiled_rows(kernel, slots, p)
+        return self._rows_of_batch(self._numpy_step(slots, p))
+
+    @property
+    def has_velocity(self) -> bool:
+        """Whether answers carry a feed-forward velocity (the model knows section times)."""
+        return self.geometry.section_times is not None
+
+    @property
+    def has_orientation(self) -> bool:
+        """Whether answers carry an orientation (the model learned orientations)."""
+        return self.geometry.orientations is not None
+
+    def _numpy_step(self, slots: Any, p: FloatArray) -> TrackerBatch:
         b = p.shape[0]
         if b == 1 and (VECTORISE_FROM > 1 or not self._isotropic):
             return self._one(int(slots[0]), p[0])
@@ -785,25 +819,40 @@ class TrackerBank:
                 self._scalar(np.arange(b), slots, p, out)
         return out
 
-    def _compiled_rows(self, kernel: Any, slots: Any, p: FloatArray) -> TrackerBatch:
-        """Every row through the compiled kernel, state read and written in the slot arrays."""
+    def _compiled_rows(self, kernel: Any, slots: Any, p: FloatArray) -> FloatArray:
+        """Every row through the compiled kernel, state read and written in the slot arrays;
+        the answers packed (:meth:`step_packed`). The argument types are exactly the
+        kernel's one compiled signature (it is called without numba's type dispatch)."""
         g = self.geometry
         b, d = p.shape
-        target = np.empty((b, d))
-        progress = np.empty(b)
-        eta = np.empty(b)
-        section = np.empty(b, dtype=np.intp)
-        inside = np.empty(b, dtype=bool)
-        done = np.empty(b, dtype=bool)
-        velocity = self._no_velocity if g.section_times is None else np.empty((b, d))
-        orientation = self._no_orientation if g.orientations is None else np.empty((b, 4))
-        kernel(*self._kernel_arrays, np.ascontiguousarray(slots, dtype=np.intp),
+        out = np.empty((b, packed_width(d)))
+        kernel(*self._kernel_arrays, np.array(slots, dtype=np.intp),
                np.ascontiguousarray(p), self.index, self.eta, self.direction, self.lookahead,
-               WINDOW, self.replan_tolerance, MAX_PLAN_ETA, g.done_tolerance, target,
-               progress, eta, section, inside, done, velocity, orientation)
-        return TrackerBatch(target, progress, eta, section, inside, done,
-                            None if g.section_times is None else velocity,
-                            None if g.orientations is None else orientation)
+               WINDOW, self.replan_tolerance, MAX_PLAN_ETA, float(g.done_tolerance), out)
+        return out
+
+    def _batch_of_rows(self, rows: FloatArray) -> TrackerBatch:
+        d = self.geometry.centres.shape[1]
+        return TrackerBatch(
+            rows[:, :d].copy(), rows[:, d].copy(), rows[:, d + 1].copy(),
+            rows[:, d + 2].astype(np.intp), rows[:, d + 3] != 0.0, rows[:, d + 4] != 0.0,
+            rows[:, d + 5:2 * d + 5].copy() if self.has_velocity else None,
+            rows[:, 2 * d + 5:].copy() if self.has_orientation else None)
+
+    def _rows_of_batch(self, res: TrackerBatch) -> FloatArray:
+        b, d = res.target.shape
+        rows = np.full((b, packed_width(d)), np.nan)
+        rows[:, :d] = res.target
+        rows[:, d] = res.progress
+        rows[:, d + 1] = res.eta
+        rows[:, d + 2] = res.section_index
+        rows[:, d + 3] = res.inside
+        rows[:, d + 4] = res.done
+        if res.velocity is not None:
+            rows[:, d + 5:2 * d + 5] = res.velocity
+        if res.orientation is not None:
+            rows[:, 2 * d + 5:] = res.orientation
+        return rows
 
     def _one(self, slot: int, position: FloatArray) -> TrackerBatch:
         """One row (a drain of one pose, the common case of a keeping-up bridge): the

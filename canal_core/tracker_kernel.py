@@ -36,10 +36,9 @@ _compiled: Any = None  # the numba dispatcher of step_rows once compiled (set on
 def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any,
               times: Any, orientations: Any, default_direction: Any, slots: Any, p: Any,
               index: Any, eta: Any, direction: Any, lookahead: int, window: int,
-              tolerance: float, max_plan_eta: float, done_tolerance: float, out_target: Any, out_progress: Any, out_eta: Any,
-              out_section: Any, out_inside: Any, out_done: Any, out_velocity: Any,
-              out_orientation: Any) -> None:
-    """Step the trackers of ``slots`` (B,) at live positions ``p`` (B, D) in place.
+              tolerance: float, max_plan_eta: float, done_tolerance: float, out: Any) -> None:
+    """Step the trackers of ``slots`` (B,) at live positions ``p`` (B, D) in place, the
+    answers packed in the rows of ``out`` (see :func:`packed_width`).
 
     Parameters
     ----------
@@ -69,14 +68,11 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
     tolerance, max_plan_eta, done_tolerance : float
         The replan tolerance (a fraction of the reach), the largest planned ratio and the
         distance to the last plane that counts as reached.
-    out_target : array, shape (B, D)
-    out_progress, out_eta : array, shape (B,)
-    out_section : array of int, shape (B,)
-    out_inside, out_done : array of bool, shape (B,)
-    out_velocity : array, shape (B, D) or (0, D)
-        Filled when ``times`` is not empty.
-    out_orientation : array, shape (B, 4) or (0, 4)
-        Filled when ``orientations`` is not empty.
+    out : array, shape (B, 2 D + 9)
+        Row b: target (D), progress, live eta, section index, inside (1.0 or 0.0), done
+        (1.0 or 0.0), feed-forward velocity (D; NaN when ``times`` is empty), orientation (4;
+        NaN when ``orientations`` is empty). One float row per answer, so that a caller
+        reads a call's answers with one ``tolist()``.
     """
     n = centres.shape[0]
     d = centres.shape[1]
@@ -188,34 +184,47 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             s_j = 0.0
             for m in range(k):
                 s_j += plan[m] * basis[aim, m, j]
-            out_target[r, j] = centres[aim, j] + scale * s_j
-        out_progress[r] = 1.0 if done else (at + alpha) / max(n - 1, 1)
-        out_eta[r] = live_eta
-        out_section[r] = at
-        out_inside[r] = inside
-        out_done[r] = done
-        if times.shape[0] > 0:
+            out[r, j] = centres[aim, j] + scale * s_j
+        out[r, d] = 1.0 if done else (at + alpha) / max(n - 1, 1)
+        out[r, d + 1] = live_eta
+        out[r, d + 2] = at
+        out[r, d + 3] = 1.0 if inside else 0.0
+        out[r, d + 4] = 1.0 if done else 0.0
+        v0 = d + 5
+        o0 = 2 * d + 5
+        if times.shape[0] == 0:
+            for j in range(d):
+                out[r, v0 + j] = math.nan
+        else:
             # feed-forward: from the target to the planned point on the next section
             nxt = aim + 1
             dt = times[nxt] - times[aim] if nxt < n else 0.0
             if nxt >= n or dt <= 0.0:
                 for j in range(d):
-                    out_velocity[r, j] = 0.0
+                    out[r, v0 + j] = 0.0
             else:
                 ahead_scale = plan_eta * radius[nxt]
                 for j in range(d):
                     s_j = 0.0
                     for m in range(k):
                         s_j += plan[m] * basis[nxt, m, j]
-                    out_velocity[r, j] = (centres[nxt, j] + ahead_scale * s_j
-                                          - out_target[r, j]) / dt
-        if orientations.shape[0] > 0:
+                    out[r, v0 + j] = (centres[nxt, j] + ahead_scale * s_j - out[r, j]) / dt
+        if orientations.shape[0] == 0:
             for j in range(4):
-                out_orientation[r, j] = orientations[aim, j]
+                out[r, o0 + j] = math.nan
+        else:
+            for j in range(4):
+                out[r, o0 + j] = orientations[aim, j]
         index[slot] = max(last, at)
         eta[slot] = plan_eta
         for m in range(k):
             direction[slot, m] = plan[m]
+
+
+def packed_width(d: int) -> int:
+    """Columns of a :func:`step_rows` answer row for a D-dimensional canal: target (D),
+    progress, eta, section, inside, done, velocity (D), orientation (4)."""
+    return 2 * d + 9
 
 
 def numba_available() -> bool:
@@ -225,7 +234,13 @@ def numba_available() -> bool:
 
 def compiled_step_rows() -> Callable[..., None] | None:
     """The compiled :func:`step_rows`, or None while it is not compiled (or numba is
-    missing): a caller then takes the numpy pass instead of waiting for the compiler."""
+    missing): a caller then takes the numpy pass instead of waiting for the compiler.
+
+    It is the compiled signature's entry point, not numba's dispatcher: the dispatcher
+    types every argument on every call (about 1 us hot, 5 us cold of a one-pose drain's
+    budget), so the caller must pass exactly the types :func:`_run_once` passes:
+    C-contiguous float64 arrays (``slots`` and ``index`` intp), Python int and float
+    scalars."""
     return _compiled  # type: ignore[no-any-return]
 
 
@@ -243,7 +258,11 @@ def compile_step_rows() -> Callable[..., None] | None:
 
             kernel = numba.njit(cache=True, nogil=True)(step_rows)
             _run_once(kernel)  # the one signature every bank passes
-            _compiled = kernel
+            overloads = getattr(kernel, "overloads", {})
+            signatures = list(overloads)
+            entry = getattr(overloads[signatures[0]], "entry_point", None) \
+                if len(signatures) == 1 else None
+            _compiled = kernel if entry is None else entry
     return _compiled  # type: ignore[no-any-return]
 
 
@@ -260,9 +279,8 @@ def _run_once(kernel: Callable[..., None]) -> None:
     kernel(centres, tangents, centres[:, 0].copy(), basis, np.ones(n), np.zeros(0),
            np.zeros((0, 4)), np.array([1.0, 0.0]), np.zeros(1, dtype=np.intp),
            np.array([[0.5, 0.1, 0.0]]), np.zeros(1, dtype=np.intp), np.full(1, np.nan),
-           np.zeros((1, d - 1)), 1, 16, 0.25, 0.9, 1e-9, np.empty((1, d)), np.empty(1), np.empty(1),
-           np.empty(1, dtype=np.intp), np.empty(1, dtype=bool), np.empty(1, dtype=bool),
-           np.empty((0, d)), np.empty((0, 4)))
+           np.zeros((1, d - 1)), 1, 16, 0.25, 0.9, 1e-9, np.empty((1, packed_width(d))))
 
 
-__all__ = ["compile_step_rows", "compiled_step_rows", "numba_available", "step_rows"]
+__all__ = ["compile_step_rows", "compiled_step_rows", "numba_available", "packed_width",
+           "step_rows"]

@@ -104,6 +104,22 @@ def _row(batch: TrackerBatch, j: int) -> TrackerTarget:
         None if batch.orientation is None else batch.orientation[j])
 
 
+def _packed_row(bank: TrackerBank, rows: np.ndarray, j: int) -> TrackerTarget:
+    """Row ``j`` of :meth:`TrackerBank.step_packed` read by its documented layout."""
+    d = bank.geometry.centres.shape[1]
+    row = rows[j]
+    assert row.shape == (2 * d + 9,)
+    velocity, orientation = row[d + 5:2 * d + 5], row[2 * d + 5:]
+    assert bank.has_velocity or np.isnan(velocity).all()
+    assert bank.has_orientation or np.isnan(orientation).all()
+    assert row[d + 3] in (0.0, 1.0) and row[d + 4] in (0.0, 1.0)
+    assert row[d + 2] == int(row[d + 2])
+    return TrackerTarget(
+        row[:d], float(row[d]), float(row[d + 1]), int(row[d + 2]), bool(row[d + 3]),
+        bool(row[d + 4]), velocity if bank.has_velocity else None,
+        orientation if bank.has_orientation else None)
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(canal=canals(), seed=st.integers(0, 2**31 - 1),
        n_streams=st.sampled_from([1, 2, 3, 6, 17]), lookahead=st.integers(1, 4))
@@ -138,11 +154,8 @@ def test_the_kernel_source_runs_as_plain_python_and_agrees() -> None:
         got = []
         for bank, sl, fn in zip(banks, slots, (kernel, step_rows), strict=True):
             got.append(bank._compiled_rows(fn, np.array(sl), p))
-        for a, b in zip((got[0].target, got[0].eta, got[0].velocity, got[0].orientation),
-                        (got[1].target, got[1].eta, got[1].velocity, got[1].orientation),
-                        strict=True):
-            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
-        np.testing.assert_array_equal(got[0].section_index, got[1].section_index)
+        np.testing.assert_allclose(got[0], got[1], rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(got[0][:, 5], got[1][:, 5])  # the section index
     np.testing.assert_array_equal(banks[0].index, banks[1].index)
 
 
@@ -157,7 +170,7 @@ def walk_and_compare(canal: canal_core.Canal, seed: int, n_streams: int,
     x = canal.directrix[rng.integers(0, n, n_streams)] + 0.3 * float(canal.radii.min()) * (
         rng.standard_normal((n_streams, canal.directrix.shape[1])))
     last: list[TrackerTarget | None] = [None] * n_streams
-    for _ in range(40):
+    for step in range(40):
         rows = rng.permutation(n_streams)[: int(rng.integers(1, n_streams + 1))]
         for r in rows.tolist():
             kind = KINDS[int(rng.integers(len(KINDS)))]
@@ -172,12 +185,18 @@ def walk_and_compare(canal: canal_core.Canal, seed: int, n_streams: int,
         before = [scalar[r].state for r in rows.tolist()]
         with np.errstate(over="ignore", invalid="ignore"):  # the far poses overflow
             expected = [scalar[r].step(x[r]) for r in rows.tolist()]
-        batch = bank.step([slots[r] for r in rows.tolist()], x[rows])
+        # alternately the answers as arrays and packed in rows (the live bridge's)
+        if step % 2:
+            packed = bank.step_packed([slots[r] for r in rows.tolist()], x[rows])
+            answers = [_packed_row(bank, packed, j) for j in range(len(rows))]
+        else:
+            batch = bank.step([slots[r] for r in rows.tolist()], x[rows])
+            answers = [_row(batch, j) for j in range(len(rows))]
         # the same rows through tracker_steps (states as objects)
         with np.errstate(over="ignore", invalid="ignore"):  # one row: the scalar step
             again, states = tracker_steps(scalar[0].geometry, before, x[rows], lookahead)
         for j, (r, e) in enumerate(zip(rows.tolist(), expected, strict=True)):
-            _same(_row(batch, j), e)
+            _same(answers[j], e)
             _same(again[j], e)
             for state in (bank.state(slots[r]), states[j]):
                 assert state.index == scalar[r].state.index

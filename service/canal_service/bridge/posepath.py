@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from canal_core.tracker import TrackerBank, TrackerBatch
+from canal_core.tracker import TrackerBank
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
@@ -410,10 +410,11 @@ class PosePath:
             return None
         return st, pose, fmt, ros
 
-    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], TrackerBatch]]:
-        """Step every job's tracker, one bank pass per model; jobs that cannot be stepped
-        are answered with their error here. The caller silences NumPy's overflow warnings
-        (:meth:`batch`, or the worker thread's error state)."""
+    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[list[float]]]]:
+        """Step every job's tracker, one bank pass per model, the answers as packed rows
+        (:meth:`canal_core.tracker.TrackerBank.step_packed`, one ``tolist()`` a pass); jobs
+        that cannot be stepped are answered with their error here. The caller silences
+        NumPy's overflow warnings (:meth:`batch`, or the worker thread's error state)."""
         by_model: dict[int, tuple[ModelEntry, list[Job], list[int],
                                   list[tuple[float, ...]]]] = {}
         models = self.models.models
@@ -458,9 +459,8 @@ class PosePath:
             if not model_jobs:
                 continue
             assert model.bank is not None
-            out.append((model, model_jobs,
-                        model.bank.step(model_slots, np.array(model_positions,
-                                                              dtype=np.float64))))
+            out.append((model, model_jobs, model.bank.step_packed(
+                model_slots, np.array(model_positions, dtype=np.float64)).tolist()))
         return out
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
@@ -480,85 +480,101 @@ class PosePath:
             bank.reset(st.slot, 0)
         st.version = entry.version
 
-    def answer_all(self, entry: ModelEntry, group: list[Job], res: TrackerBatch) -> None:
-        """Answer each job of one bank pass: the arrays become Python lists once, then each
-        answer reads its row."""
-        answer = self.answer
-        rows = zip(group, res.target.tolist(), res.progress.tolist(), res.eta.tolist(),
-                   res.section_index.tolist(), res.inside.tolist(), res.done.tolist(),
-                   strict=True)
-        if res.velocity is None and res.orientation is None:
-            for (st, pose, fmt, ros), target, progress, eta, section, inside, done in rows:
-                answer(st, pose, fmt, ros, entry, target, progress, eta, section, inside, done,
-                       None, None)
-            return
-        velocities = None if res.velocity is None else res.velocity.tolist()
-        orientations = None if res.orientation is None else res.orientation.tolist()
-        for k, ((st, pose, fmt, ros), target, progress, eta, section, inside, done) in \
-                enumerate(rows):
-            answer(st, pose, fmt, ros, entry, target, progress, eta, section, inside, done,
-                   None if velocities is None else velocities[k],
-                   None if orientations is None else orientations[k])
+    def answer_all(self, entry: ModelEntry, group: list[Job], rows: list[list[float]]) -> None:
+        """Publish the answer of each job of one bank pass (and keep it for the recording
+        when it is due). ``rows`` are the pass's packed answers: target (D), progress, eta,
+        section, inside, done, velocity (D), orientation (4).
 
-    def answer(self, st: Stream, pose: wire.Pose, fmt: int, ros: Any, entry: ModelEntry,
-               target: list[float], progress: float, eta: float, section: int, inside: bool,
-               reached: bool, velocity: list[float] | None,
-               orientation: list[float] | None) -> None:
-        """Publish one answer (and keep it for the recording when it is due)."""
-        # "done" only counts at the end *and* within the last sections: a pose far beyond
-        # the last plane (50, 50, 50; 1e308) is lost, not finished.
-        done = reached and eta <= _DONE_ETA
-        if inside or done:
-            code = _OK
-            status = "ok"
-        else:
-            code = _OUTSIDE
-            status = "outside_canal"
-            n = entry.canal.n_sections
-            if reached:  # lost beyond the end is not the end reached
-                progress = section / max(n - 1, 1)
-            done = False
-            self.counts.errors["outside_canal"] += 1
-            if not all(map(math.isfinite, target)):
-                # overflowed: the way back in is the section ahead's centre
-                target = entry.canal.directrix[min(section + self.options.lookahead,
-                                                   n - 1)].tolist()
-            if not math.isfinite(eta):
-                eta = 1e308
-        if orientation is None and pose.orientation is not None:
-            orientation = list(pose.orientation)
-        st.rec_answered += 1
-        if self.record_period_ns is not None:
-            now = self.now_ns
-            # a row when due, or when the status, inside or done flips
-            if now >= st.rec_next or code != st.rec_state[0] or inside != st.rec_state[1] \
-                    or done != st.rec_state[2]:
-                st.rec_next = now + self.record_period_ns
+        One loop with no call per answer but the encoder's and the put: on a one-robot
+        bridge this runs once a millisecond on cold caches, where every Python call and
+        temporary counts (the lean path halved a cold pose's cost)."""
+        d = entry.dim
+        v0, o0 = d + 5, 2 * d + 5
+        bank = entry.bank
+        assert bank is not None
+        with_velocity, with_orientation = bank.has_velocity, bank.has_orientation
+        version = entry.version
+        counts = self.counts
+        period = self.record_period_ns
+        now = self.now_ns
+        for (st, pose, fmt, ros), row in zip(group, rows, strict=True):
+            target = row[:d]
+            progress = row[d]
+            eta = row[d + 1]
+            section = int(row[d + 2])
+            inside = row[d + 3] != 0.0
+            # "done" only counts at the end *and* within the last sections: a pose far
+            # beyond the last plane (50, 50, 50; 1e308) is lost, not finished
+            done = row[d + 4] != 0.0 and eta <= _DONE_ETA
+            velocity = row[v0:o0] if with_velocity else None
+            if with_orientation:
+                orientation: list[float] | None = row[o0:]
+            elif pose.orientation is not None:
+                orientation = list(pose.orientation)
+            else:
+                orientation = None
+            if inside or done:
+                code = _OK
+                status = "ok"
+            else:
+                code = _OUTSIDE
+                status = "outside_canal"
+                progress, target, eta = self._outside(entry, row, section, target, eta)
+            st.rec_answered += 1
+            if period is not None and (now >= st.rec_next or code != st.rec_state[0]
+                                       or inside != st.rec_state[1] or done != st.rec_state[2]):
+                # a row when due, or when the status, inside or done flips
+                st.rec_next = now + period
                 st.rec_state = (code, inside, done)
                 st.rec_rows.append((now, pose.position, pose.orientation, target, orientation,
                                     progress, eta, section, inside, done, status))
-        if fmt == _FJSON:  # the publisher's default encoding
-            st.publisher.put(_pack_json(
-                pose.seq, status, target, progress, eta, section, inside, done,
-                entry.version, orientation, velocity, st.coalesced))
-        elif fmt == _FBIN:
-            st.publisher.put(wire.pack_target(
-                pose.seq, code, target, progress, eta, section, inside, done, entry.version,
-                orientation, velocity, st.coalesced), encoding=ENC_BINARY)
-        else:
-            position = list(target)
-            if len(position) == 2:
-                position.append(pose.position[2])
-            st.publisher.put(wire.encode_pose_stamped_cdr(ros, position, orientation),
-                             encoding=ENC_CDR)
-            if status != st.cdr_status:
-                st.cdr_status = status
-                self.session.put(st.status_key, wire.target_json(wire.Target(
-                    pose.seq, status, tuple(position[:entry.dim]), progress, eta, section,
-                    inside, done, entry.version, None,
-                    None if orientation is None else tuple(orientation),  # type: ignore[arg-type]
-                    coalesced=st.coalesced)), encoding=ENC_JSON)
-        self.counts.targets += 1
+            if fmt == _FJSON:  # the publisher's default encoding
+                st.publisher.put(_pack_json(
+                    pose.seq, status, target, progress, eta, section, inside, done,
+                    version, orientation, velocity, st.coalesced))
+            elif fmt == _FBIN:
+                st.publisher.put(wire.pack_target(
+                    pose.seq, code, target, progress, eta, section, inside, done, version,
+                    orientation, velocity, st.coalesced), encoding=ENC_BINARY)
+            else:
+                self._answer_cdr(st, pose, ros, entry, target, progress, eta, section, inside,
+                                 done, orientation, status)
+        counts.targets += len(rows)
+
+    def _outside(self, entry: ModelEntry, row: list[float], section: int,
+                 target: list[float], eta: float) -> tuple[float, list[float], float]:
+        """An answer that is neither inside nor done: its progress, target and eta."""
+        self.counts.errors["outside_canal"] += 1
+        n = entry.canal.n_sections
+        d = entry.dim
+        # lost beyond the end is not the end reached: progress is the located section's
+        progress = section / max(n - 1, 1) if row[d + 4] != 0.0 else row[d]
+        if not all(map(math.isfinite, target)):
+            # overflowed: the way back in is the section ahead's centre
+            target = entry.canal.directrix[min(section + self.options.lookahead,
+                                               n - 1)].tolist()
+        if not math.isfinite(eta):
+            eta = 1e308
+        return progress, target, eta
+
+    def _answer_cdr(self, st: Stream, pose: wire.Pose, ros: Any, entry: ModelEntry,
+                    target: list[float], progress: float, eta: float, section: int,
+                    inside: bool, done: bool, orientation: list[float] | None,
+                    status: str) -> None:
+        """A ROS 2 robot's answer: a PoseStamped on the target key, the status (JSON) on
+        the status key when it changes."""
+        position = list(target)
+        if len(position) == 2:
+            position.append(pose.position[2])
+        st.publisher.put(wire.encode_pose_stamped_cdr(ros, position, orientation),
+                         encoding=ENC_CDR)
+        if status != st.cdr_status:
+            st.cdr_status = status
+            self.session.put(st.status_key, wire.target_json(wire.Target(
+                pose.seq, status, tuple(position[:entry.dim]), progress, eta, section,
+                inside, done, entry.version, None,
+                None if orientation is None else tuple(orientation),  # type: ignore[arg-type]
+                coalesced=st.coalesced)), encoding=ENC_JSON)
 
     def error(self, st: Stream, seq: int | None, key: str, message: str | None,
               fmt: int) -> None:
