@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import warnings
 
@@ -107,3 +108,38 @@ def test_two_bridge_processes_share_the_robots(tmp_path):
         streams = wait_until(per_shard, 5.0)
         assert streams is not None and sum(streams) == len(robots)  # one answer per pose
         assert client.get("/healthz").json()["bridge"]["processes"] == 2
+
+
+def test_canal_serve_passes_every_bridge_setting_to_its_bridge_processes(tmp_path, monkeypatch):
+    """``canal serve --zenoh-coalesce-backlog 32`` must reach the bridge processes: their
+    argv, parsed as the bridge parses it, gives the same bridge options as the service's
+    settings. Before, only the preload flags were passed; backlog, idle, refresh, lookahead,
+    queue capacity and the model cache silently took their defaults in the bridges."""
+    from canal_service.__main__ import settings_from_args
+    from canal_service.bridge.config import BridgeOptions
+    from canal_service.bridge.processes import PASSED_SETTINGS, BridgeProcesses
+
+    for name in [k for k in os.environ if k.startswith("CANAL_")]:
+        monkeypatch.delenv(name)
+    # every numeric zenoh setting but the process count itself is a bridge's concern
+    numeric = {name for name, f in Settings.model_fields.items()
+               if name.startswith("zenoh_") and f.annotation in (int, float)}
+    assert numeric - {"zenoh_processes"} <= set(PASSED_SETTINGS)
+    changed = {"zenoh_prefix": "fleet", "log_level": "warning", "recordings_live_hz": 25.0,
+               "zenoh_queue_capacity": 999, "zenoh_coalesce_backlog": 32, "zenoh_idle_s": 7.5,
+               "zenoh_refresh_s": 0.25, "zenoh_lookahead": 3, "zenoh_preload_max": 5,
+               "zenoh_preload_keep_s": 12.5, "model_cache_size": 9}
+    assert set(changed) == set(PASSED_SETTINGS)
+    for name, value in changed.items():
+        assert getattr(Settings(data_dir=tmp_path), name) != value, name  # not a default
+    parent = Settings(data_dir=tmp_path, recordings_enabled=False, **changed)
+    argv = BridgeProcesses(parent, None)._argv(1, 2)  # type: ignore[arg-type]
+    assert argv[1:6] == ["-m", "canal_service.bridge", "--supervised", "--shard", "1/2"]
+    child = settings_from_args(argv[6:])
+    for name in (*PASSED_SETTINGS, "data_dir", "recordings_enabled"):
+        assert getattr(child, name) == getattr(parent, name), name
+    assert child.resolved_database_url == parent.resolved_database_url
+    ours, theirs = (BridgeOptions.from_settings(s) for s in (parent, child))
+    for name in BridgeOptions.__dataclass_fields__:
+        if name not in ("listen", "connect"):  # passed as CANAL_ZENOH_LISTEN/CONNECT
+            assert getattr(theirs, name) == getattr(ours, name), name

@@ -40,6 +40,13 @@ from ..service import CanalService
 log = logging.getLogger("canal_service.bridge")
 
 STATUS_PERIOD_S = 0.5
+#: The settings a bridge process takes from its ``canal serve`` as flags (endpoints go as
+#: environment variables, see ``BridgeProcesses._env``): every one ``BridgeOptions`` or the
+#: bridge's service reads, so that no ``canal serve --zenoh-*`` flag is silently ignored.
+PASSED_SETTINGS = ("zenoh_prefix", "log_level", "recordings_live_hz", "zenoh_queue_capacity",
+                   "zenoh_coalesce_backlog", "zenoh_idle_s", "zenoh_refresh_s",
+                   "zenoh_lookahead", "zenoh_preload_max", "zenoh_preload_keep_s",
+                   "model_cache_size")
 _STALE_S = 3.0
 _READY_TIMEOUT_S = 60.0
 
@@ -76,14 +83,16 @@ class BridgeProcesses:
         self._stopping = False
 
     def _argv(self, shard: int, shards: int) -> list[str]:
+        from ..__main__ import settings_options  # the CLI module imports this one
+
         s = self.settings
         argv = [sys.executable, "-m", "canal_service.bridge", "--supervised",
                 "--shard", f"{shard}/{shards}", "--data-dir", str(s.data_dir),
-                "--database-url", s.resolved_database_url, "--zenoh-prefix", s.zenoh_prefix,
-                "--log-level", s.log_level,
-                "--recordings-live-hz", repr(float(s.recordings_live_hz)),
-                "--zenoh-preload-max", str(s.zenoh_preload_max),
-                "--zenoh-preload-keep-s", repr(float(s.zenoh_preload_keep_s))]
+                "--database-url", s.resolved_database_url]
+        flags = {o.field: o.flag for o in settings_options(type(s))}
+        for name in PASSED_SETTINGS:
+            value = getattr(s, name)
+            argv += [flags[name], repr(value) if isinstance(value, float) else str(value)]
         if not s.recordings_enabled:
             argv.append("--no-recordings")
         if s.zenoh_config is not None:
