@@ -111,6 +111,7 @@ class Robot:
         self.keys = keyspace.keys(skill, name, self.prefix)
         self.session = zenoh.open(client_config(bridge.listen))
         self.answers: dict[int | None, wire.Target] = {}
+        self.order: list[int | None] = []  # seqs in the order their answers arrived
         self.got = threading.Condition()
         self.sub = self.session.declare_subscriber(self.keys.target, self._on_target)
         self.pub = self.session.declare_publisher(self.keys.pose,
@@ -123,6 +124,7 @@ class Robot:
         answer = wire.decode_target_json(sample.payload.to_bytes())
         with self.got:
             self.answers[answer.seq] = answer
+            self.order.append(answer.seq)
             self.got.notify_all()
 
     def ask(self, seq: int, position: Any) -> wire.Target:
@@ -357,3 +359,58 @@ def test_canal_serve_hands_its_preload_settings_to_its_bridge_processes(tmp_path
     assert _take(flags, "--supervised", has_value=False) == ""
     options = BridgeOptions.from_settings(settings_from_args(flags))
     assert (options.preload_max, options.preload_keep_s) == (0, 12.5)
+
+
+# ---- beyond the preload: loaded on the loader thread --------------------------------------------
+
+
+def test_a_first_pose_beyond_the_preload_waits_for_the_loader_not_the_worker(
+        service, start_bridge, monkeypatch):
+    """Nothing preloaded (preload_max 0): a skill's first poses are parked, the bridge's
+    loader thread loads the model (a spy on the real load records the thread: never the
+    worker, which keeps answering other robots meanwhile) and answers them, in order."""
+    starts = {skill: start_of(service, skill) for skill in ("p2", "p3")}
+    bridge = start_bridge(preload_max=0)
+    assert bridge.preloaded.wait(20)
+    loaded_on: list[str] = []
+    real = service.load_canal
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        loaded_on.append(threading.current_thread().name)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(service, "load_canal", spy)
+    first, second = Robot(bridge, "p2", "arm1"), Robot(bridge, "p3", "arm2")
+    try:
+        assert first.ask(0, starts["p2"]).status == "ok"
+        # five poses put back to back, before the model of p3 can be there
+        for seq in range(5):
+            second.pub.put(wire.encode_pose_json(seq, starts["p3"], restart=seq == 0))
+        with second.got:
+            assert second.got.wait_for(lambda: len(second.answers) == 5, timeout=10)
+        assert second.order == [0, 1, 2, 3, 4]
+        assert all(a.status == "ok" and a.model_version == 1 for a in second.answers.values())
+        assert first.ask(1, starts["p2"]).status == "ok"
+    finally:
+        first.close()
+        second.close()
+    assert loaded_on and set(loaded_on) == {"canal-bridge-loader"}, loaded_on
+    assert bridge.counts.parked >= 2  # each skill's first pose at least
+    assert bridge.health()["parked"] == bridge.counts.parked
+    assert bridge.path.parked == {}
+
+
+def test_skills_without_a_model_or_unknown_are_answered_through_the_loader_too(
+        service, start_bridge):
+    bridge = start_bridge(preload_max=0)
+    assert bridge.preloaded.wait(20)
+    assert first_answer(bridge, service, "p1", "arm1").status == "ok"
+    for skill, status in (("bare", "no_model"), ("nosuchskill", "unknown_skill")):
+        robot = Robot(bridge, skill, "arm1")
+        try:
+            answers = [robot.ask(seq, [0.1, 0.2, 0.3]) for seq in range(3)]
+        finally:
+            robot.close()
+        assert [a.status for a in answers] == [status] * 3, skill
+        assert answers[0].message  # says why
+    assert "nosuchskill" in bridge.models.unknown and bridge.path.parked == {}

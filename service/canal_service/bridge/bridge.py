@@ -10,6 +10,10 @@ through a Zenoh FIFO channel):
 
 - **worker**: the only thread that steps trackers and publishes targets (see
   :mod:`.posepath`).
+- **loader**: loads the model of a skill whose first pose finds none loaded (beyond the
+  preload bound, or evicted), then answers the poses the worker parked for it, in order
+  (:meth:`.posepath.PosePath.load_parked`): a model load never stalls the other robots'
+  answers on the worker.
 - **control**: answers the queryables (model, demo start/stop): database work, never on
   the pose path.
 - **housekeeper**: every ``refresh_s`` re-reads the latest model version of the skills it
@@ -164,8 +168,9 @@ class Bridge:
         self._updates = s.declare_subscriber(keyspace.model_updated_wildcard(self.prefix),
                                              zenoh.handlers.FifoChannel(256))
         self.service.fit_listeners.append(self._on_fit)
+        self.path.loads = queue.SimpleQueue()
         threads: list[tuple[str, Any, tuple[Any, ...]]] = [
-            ("worker", self.path.work, (recv, try_recv)),
+            ("worker", self.path.work, (recv, try_recv)), ("loader", self.path.load_parked, ()),
             ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
             ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ()),
             ("preload", self._preload, ()), ("compile", self._compile_tracker, ())]
@@ -251,6 +256,8 @@ class Bridge:
                 pass
         if self._queue is not None:
             self._queue.put(None)  # the sharded worker's "closed"
+        if self.path.loads is not None:
+            self.path.loads.put(None)
         for t in self._threads:
             t.join(timeout=5.0)
         self.path.close_streams()
@@ -288,6 +295,7 @@ class Bridge:
                 "streams": len(self.path.streams), **self.access,
                 "shard": self.options.shard, "shards": self.options.shards,
                 "coalesced": self.counts.coalesced, "drains": self.counts.drains,
+                "parked": self.counts.parked,
                 "tracker": self.tracker, "processes": 0}
 
     # ---- metrics (off the pose path) ----------------------------------------------------------

@@ -128,13 +128,21 @@ class ModelTable:
             if self.models.get(skill) is entry:
                 del self.models[skill]
 
-    def entry(self, skill: str) -> ModelEntry:
-        """The skill's entry, loaded on first use (and after a negative entry expired)."""
+    def cached(self, skill: str) -> ModelEntry | None:
+        """The skill's entry if one is at hand (a model, or an unexpired negative entry);
+        None when it must be loaded."""
         entry = self.models.get(skill)
         if entry is not None:
             return entry
         entry = self.unknown.get(skill)
         if entry is not None and entry.expires > time.monotonic():
+            return entry
+        return None
+
+    def entry(self, skill: str) -> ModelEntry:
+        """The skill's entry, loaded on first use (and after a negative entry expired)."""
+        entry = self.cached(skill)
+        if entry is not None:
             return entry
         entry = self.load(skill)
         self.install(skill, entry)

@@ -21,6 +21,16 @@ with an error; :meth:`PosePath.take_record` hands rows and count deltas to the b
 recording thread (under ``rec_lock``, which the worker holds for one drain at a time), so
 every pose handled is either a row or counted as decimated.
 
+*A skill's first pose* when its model is not loaded yet (beyond the preload bound, or
+evicted after ``preload_keep_s``): loading takes milliseconds (a database read, decoding
+the canal, building the tracker tables), and on the worker that would stall every other
+robot. The worker parks the skill's samples instead and hands the skill to the bridge's
+loader thread (:attr:`PosePath.loads`), which loads the model, installs it and answers the
+parked samples in order, all under ``rec_lock`` (no drain runs meanwhile, and later samples
+of the skill queue behind the parked ones). At most :data:`PARK_MAX` skills are parked at
+once; beyond that (a flood of new names) the worker loads itself, as it does when no loader
+runs (a :class:`PosePath` used without a bridge).
+
 Security: a key chunk that is not a plain name is refused, logged (rate-limited) and
 counted as ``bad_key``; nothing is answered. Each stream's state is keyed by its exact key
 and answers only on its own target key.
@@ -31,6 +41,7 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+import queue
 import threading
 import time
 from collections.abc import Callable
@@ -56,6 +67,8 @@ _OK = wire.STATUS_CODES["ok"]
 _OUTSIDE = wire.STATUS_CODES["outside_canal"]
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 MAX_DRAIN = 4096
+#: Skills whose first samples wait for the loader thread at once (then the worker loads)
+PARK_MAX = 256
 _DONE_ETA = 1.0 + 1e-9
 _pack_json = wire.pack_target_json
 ERROR_KEYS = ("outside_canal", "bad_payload", "wrong_dimension", "non_finite",
@@ -105,6 +118,7 @@ class Counts:
         "drains",
         "errors",
         "last_idle",
+        "parked",
         "poses",
         "recorded",
         "step_bounds",
@@ -133,11 +147,13 @@ class Counts:
         self.recorded = 0  # poses handed to the recorder (with their targets)
         self.decimated = 0  # poses handled but not handed to the recorder (recording thread)
         self.unknown = 0  # poses of unknown skills while recording (worker thread)
+        self.parked = 0  # poses that waited for their skill's model on the loader thread
 
     def snapshot(self) -> dict[str, Any]:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
                 "errors": dict(self.errors), "switches": self.switches, "drains": self.drains,
-                "recorded": self.recorded, "decimated": self.decimated + self.unknown}
+                "recorded": self.recorded, "decimated": self.decimated + self.unknown,
+                "parked": self.parked}
 
 
 class PosePath:
@@ -160,6 +176,12 @@ class PosePath:
         self.rec_lock = threading.Lock()
         self.retired: list[Stream] = []  # forgotten streams whose last counts are not sent
         self.now_ns = 0  # wall clock of the drain being answered (the rows' time)
+        #: skill -> samples waiting for its model (under ``rec_lock``), in arrival order
+        self.parked: dict[str, list[Any]] = {}
+        #: the loader thread's queue of skills to load (:meth:`load_parked`); None: the
+        #: worker loads a model itself at its skill's first pose
+        self.loads: queue.SimpleQueue[str | None] | None = None
+        self._flushing = False  # the loader is answering parked samples: park nothing
 
     # ---- streams ------------------------------------------------------------------------------
 
@@ -189,9 +211,10 @@ class PosePath:
             self.streams[key] = st
             return st
 
-    def resolve(self, key: str) -> Stream | ModelEntry | None:
-        """The stream of a pose key; the negative entry for an unknown skill; None for a key
-        that is refused or another shard's."""
+    def resolve(self, key: str) -> Stream | ModelEntry | str | None:
+        """The stream of a pose key; the negative entry for an unknown skill; the skill's
+        name when its samples are to be parked until the loader has its model; None for a
+        key that is refused or another shard's."""
         if key in self.others:
             return None
         found = keyspace.stream_of(key, self.prefix)
@@ -204,6 +227,12 @@ class PosePath:
             if len(self.others) < 100_000:
                 self.others.add(key)
             return None
+        if skill in self.parked:
+            return skill  # behind the samples already waiting: answered in order
+        if self.loads is not None and not self._flushing and len(self.parked) < PARK_MAX \
+                and self.models.cached(skill) is None:
+            self.loads.put(skill)
+            return skill
         entry = self.models.entry(skill)
         if entry.status == "unknown_skill":
             return entry
@@ -286,10 +315,42 @@ class PosePath:
     def _handle(self, batch: list[Any]) -> None:
         """:meth:`batch` on the worker, whose NumPy error state is already "ignore"."""
         with self.rec_lock:
-            self.now_ns = time.time_ns()
-            for jobs in self.decode_batch(batch):
-                for entry, group, targets in self.step(jobs):
-                    self.answer_all(entry, group, targets)
+            self._handle_locked(batch)
+
+    def _handle_locked(self, batch: list[Any]) -> None:
+        self.now_ns = time.time_ns()
+        for jobs in self.decode_batch(batch):
+            for entry, group, targets in self.step(jobs):
+                self.answer_all(entry, group, targets)
+
+    def load_parked(self) -> None:
+        """The loader thread: load each parked skill's model off the worker, then install
+        it and answer the skill's parked samples in one ``rec_lock`` hold (so no drain
+        answers a later sample of the skill first). Returns when ``loads`` gets None."""
+        loads = self.loads
+        assert loads is not None
+        while True:
+            skill = loads.get()
+            if skill is None:
+                return
+            try:
+                entry: ModelEntry | None = self.models.load(skill)
+            except Exception:  # the database is away: the answers say so (internal_error)
+                log.exception("loading the model of %r failed", skill)
+                entry = None
+            with self.rec_lock, np.errstate(all="ignore"):
+                if entry is not None:
+                    self.models.install(skill, entry)
+                samples = self.parked.pop(skill, [])
+                self._flushing = True  # a failed load is retried once, here, not parked again
+                try:
+                    if samples:
+                        self._handle_locked(samples)
+                except Exception:
+                    log.exception("answering the first poses of %r failed", skill)
+                    self.counts.errors["internal_error"] += 1
+                finally:
+                    self._flushing = False
 
     def take_record(self) -> list[tuple[Any, ...]]:
         """Each stream's rows and count deltas since the last call, as
@@ -333,6 +394,10 @@ class PosePath:
             if st is None or st.closed:
                 found = self.resolve(key)
                 if found is None:
+                    continue
+                if isinstance(found, str):
+                    self.parked.setdefault(found, []).extend(samples)
+                    counts.parked += len(samples)
                     continue
                 if isinstance(found, ModelEntry):
                     for s in samples:
