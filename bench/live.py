@@ -739,22 +739,19 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                     stepped = [pp.step(jobs) for jobs in rounds_]
                     t3 = clock()
                     for groups in stepped:
-                        for entry, jobs, res in groups:
-                            tg, pr, et = res.target.tolist(), res.progress.tolist(), \
-                                res.eta.tolist()
-                            se, ins, dn = res.section_index.tolist(), res.inside.tolist(), \
-                                res.done.tolist()
-                            for k, (st, pose, _f, _r) in enumerate(jobs):
+                        for entry, jobs, rows_ in groups:
+                            d = entry.dim
+                            for (st, pose, _f, _r), row in zip(jobs, rows_, strict=True):
                                 if fmt == "json":
                                     wire.pack_target_json(
-                                        pose.seq, "ok", tg[k], pr[k], et[k], se[k], ins[k],
-                                        dn[k], entry.version, pose.orientation, None,
-                                        st.coalesced)
+                                        pose.seq, "ok", row[:d], row[d], row[d + 1],
+                                        int(row[d + 2]), row[d + 3] != 0.0, row[d + 4] != 0.0,
+                                        entry.version, pose.orientation, None, st.coalesced)
                                 else:
                                     wire.pack_target(
-                                        pose.seq, 0, tg[k], pr[k], et[k], se[k], ins[k],
-                                        dn[k], entry.version, pose.orientation, None,
-                                        st.coalesced)
+                                        pose.seq, 0, row[:d], row[d], row[d + 1],
+                                        int(row[d + 2]), row[d + 3] != 0.0, row[d + 4] != 0.0,
+                                        entry.version, pose.orientation, None, st.coalesced)
                     t4 = clock()
                     for groups in stepped:
                         for entry, jobs, targets in groups:
