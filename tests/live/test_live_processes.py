@@ -50,6 +50,8 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
 
         reported_bridge = wait_until(reported, 5.0)
         assert 0 < reported_bridge["drains"] <= reported_bridge["poses"]
+        # poses that waited for a model load (the fit notice usually loads it first)
+        assert 0 <= reported_bridge["parked"] <= reported_bridge["poses"]
         # the bridge compiles its tracker kernel off the pose path and says when it steps
         # with it (numpy meanwhile; a cold numba cache takes seconds)
         assert reported_bridge["tracker"] in ("compiling", "compiled")

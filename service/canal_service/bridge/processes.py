@@ -239,6 +239,8 @@ class BridgeProcesses:
                         "poses": int(c.counts.get("poses", 0)),
                         # drains handled: poses / drains is the worker's mean drain size
                         "drains": int(c.counts.get("drains", 0)),
+                        # poses that waited for their skill's model on the loader thread
+                        "parked": int(c.counts.get("parked", 0)),
                         "tracker": h.get("tracker", "compiling")})
         first = self.children[0].health
         return {"status": status, "detail": detail, "prefix": first.get("prefix"),
