@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 _lock = threading.Lock()
-_compiled: Any = None  # the numba dispatcher of step_rows once compiled (set once)
+_compiled: Any = None  # step_rows compiled: its entry point (or dispatcher), set once
 
 
 def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any,
