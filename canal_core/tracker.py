@@ -766,10 +766,9 @@ class TrackerBank:
     def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
         """Step the given slots (distinct) with their live positions, shape (B, D)."""
         p = np.asarray(positions, dtype=np.float64)
-        if self._isotropic and self.compiled:
-            kernel = compiled_step_rows()
-            if kernel is not None:
-                return self._batch_of_rows(self._compiled_rows(kernel, slots, p))
+        kernel = self._kernel()
+        if kernel is not None:
+            return self._batch_of_rows(self._compiled_rows(kernel, slots, p))
         return self._numpy_step(slots, p)
 
     def step_packed(self, slots: Any, positions: FloatArray) -> FloatArray:
@@ -790,10 +789,9 @@ class TrackerBank:
             A caller reads every answer with one ``tolist()`` (the live bridge's path).
         """
         p = np.asarray(positions, dtype=np.float64)
-        if self._isotropic and self.compiled:
-            kernel = compiled_step_rows()
-            if kernel is not None:
-                return self._compiled_rows(kernel, slots, p)
+        kernel = self._kernel()
+        if kernel is not None:
+            return self._compiled_rows(kernel, slots, p)
         return self._rows_of_batch(self._numpy_step(slots, p))
 
     @property
@@ -805,6 +803,11 @@ class TrackerBank:
     def has_orientation(self) -> bool:
         """Whether answers carry an orientation (the model learned orientations)."""
         return self.geometry.orientations is not None
+
+    def _kernel(self) -> Any:
+        """The compiled kernel this bank steps with, or None (numpy): circle sections only,
+        once compiled, unless the bank was made with ``compiled=False``."""
+        return compiled_step_rows() if self._isotropic and self.compiled else None
 
     def _numpy_step(self, slots: Any, p: FloatArray) -> TrackerBatch:
         b = p.shape[0]

@@ -267,8 +267,9 @@ def compile_step_rows() -> Callable[..., None] | None:
 
 
 def _run_once(kernel: Callable[..., None]) -> None:
-    """One call on a tiny canal: the argument types every bank passes (C-contiguous float64,
-    intp and bool arrays), so the live path never compiles another signature."""
+    """One call on a tiny canal: the argument types every bank passes (C-contiguous float64
+    and intp arrays, Python int and float scalars), so the live path never compiles another
+    signature."""
     n, d = 3, 3
     centres = np.zeros((n, d))
     centres[:, 0] = np.arange(n)
