@@ -120,7 +120,8 @@ class Settings(BaseSettings):
     zenoh_preload_max: int = Field(
         64, ge=0, description="Models the bridge holds ready for skills without live streams "
         "(at start the most recently fitted, and each skill whose fit notice arrives), so a "
-        "skill's first pose does not load its model on the pose worker; 0: load at first pose."
+        "skill's first pose finds its model ready; 0: each model is loaded at its skill's "
+        "first pose (on the bridge's loader thread, the pose waits for it)."
     )
     zenoh_preload_keep_s: float = Field(
         600.0, gt=0, description="How long the bridge keeps such a model after it was loaded "
