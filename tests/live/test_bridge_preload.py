@@ -15,7 +15,6 @@ very object installed before the pose was put (a load on the worker would instal
 from __future__ import annotations
 
 import shutil
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -343,22 +342,6 @@ def test_the_preload_query_runs_on_a_database_path(tmp_path: Path):
         assert ModelTable(service, BridgeOptions()).preload() == ["kept"]
     finally:
         db.dispose()
-
-
-def test_canal_serve_hands_its_preload_settings_to_its_bridge_processes(tmp_path: Path):
-    from canal_service.__main__ import settings_from_args
-    from canal_service.bridge.__main__ import _take
-    from canal_service.bridge.processes import BridgeProcesses
-
-    settings = Settings(data_dir=tmp_path, zenoh_preload_max=0, zenoh_preload_keep_s=12.5)
-    argv = BridgeProcesses(settings, None)._argv(0, 1)  # type: ignore[arg-type]
-    assert argv[:3] == [sys.executable, "-m", "canal_service.bridge"]
-    # what the bridge's main() does with its argv
-    flags = argv[3:]
-    assert _take(flags, "--shard") == "0/1"
-    assert _take(flags, "--supervised", has_value=False) == ""
-    options = BridgeOptions.from_settings(settings_from_args(flags))
-    assert (options.preload_max, options.preload_keep_s) == (0, 12.5)
 
 
 # ---- beyond the preload: loaded on the loader thread --------------------------------------------

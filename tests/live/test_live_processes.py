@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import warnings
 
 import numpy as np
@@ -118,6 +119,7 @@ def test_canal_serve_passes_every_bridge_setting_to_its_bridge_processes(tmp_pat
     settings. Before, only the preload flags were passed; backlog, idle, refresh, lookahead,
     queue capacity and the model cache silently took their defaults in the bridges."""
     from canal_service.__main__ import settings_from_args
+    from canal_service.bridge.__main__ import _take
     from canal_service.bridge.config import BridgeOptions
     from canal_service.bridge.processes import PASSED_SETTINGS, BridgeProcesses
 
@@ -129,15 +131,19 @@ def test_canal_serve_passes_every_bridge_setting_to_its_bridge_processes(tmp_pat
     assert numeric - {"zenoh_processes"} <= set(PASSED_SETTINGS)
     changed = {"zenoh_prefix": "fleet", "log_level": "warning", "recordings_live_hz": 25.0,
                "zenoh_queue_capacity": 999, "zenoh_coalesce_backlog": 32, "zenoh_idle_s": 7.5,
-               "zenoh_refresh_s": 0.25, "zenoh_lookahead": 3, "zenoh_preload_max": 5,
+               "zenoh_refresh_s": 0.25, "zenoh_lookahead": 3, "zenoh_preload_max": 0,
                "zenoh_preload_keep_s": 12.5, "model_cache_size": 9}
     assert set(changed) == set(PASSED_SETTINGS)
     for name, value in changed.items():
         assert getattr(Settings(data_dir=tmp_path), name) != value, name  # not a default
     parent = Settings(data_dir=tmp_path, recordings_enabled=False, **changed)
     argv = BridgeProcesses(parent, None)._argv(1, 2)  # type: ignore[arg-type]
-    assert argv[1:6] == ["-m", "canal_service.bridge", "--supervised", "--shard", "1/2"]
-    child = settings_from_args(argv[6:])
+    assert argv[:3] == [sys.executable, "-m", "canal_service.bridge"]
+    # what the bridge's main() does with its argv
+    flags = argv[3:]
+    assert _take(flags, "--shard") == "1/2"
+    assert _take(flags, "--supervised", has_value=False) == ""
+    child = settings_from_args(flags)
     for name in (*PASSED_SETTINGS, "data_dir", "recordings_enabled"):
         assert getattr(child, name) == getattr(parent, name), name
     assert child.resolved_database_url == parent.resolved_database_url
