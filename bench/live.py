@@ -587,12 +587,13 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
                     slots = [bank.add() for _ in range(b)]
                     groups = [np.array([path[(k + 97 * i) % len(path)] for i in range(b)])
                               for k in range(max(repeats // 4 // b, 100))]
-                    bank.step(slots, groups[0])
+                    # step_packed: the call the bridge's pose path makes
+                    bank.step_packed(slots, groups[0])
                     for slot in slots:
                         bank.reset(slot, 0)
                     t0 = time.thread_time()
                     for g in groups:
-                        bank.step(slots, g)
+                        bank.step_packed(slots, g)
                     best[kind, b] = min(best[kind, b],
                                         (time.thread_time() - t0) / len(groups) * 1e6)
         out = [(f"tracker step, one robot, N = {n:,} (yardstick)", best[0])]
