@@ -104,7 +104,7 @@ class DemonstrationIn(_In):
         examples=[[[0, 0, 0], [1, 0, 0], [2, 0.1, 0], [3, 0, 0]]],
     )
     timestamps: list[Coordinate] | None = Field(
-        None, description="(T,) strictly increasing seconds, optional."
+        None, description="(T,) seconds, optional, stored as sent. Equal stamps (a polling logger) and isolated late samples are repaired when the canal is fitted; time going back for more than one sample is refused."
     )
     orientations: list[list[Coordinate]] | None = Field(
         None, description="(T, 4) unit quaternions qx, qy, qz, qw, optional."

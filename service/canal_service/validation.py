@@ -98,7 +98,14 @@ def check_positions(value: Any, dim: int) -> FloatArray:
 
 
 def check_timestamps(value: Any, n_points: int) -> FloatArray:
-    """Timestamps as a finite, strictly increasing (T,) array."""
+    """Timestamps as a finite (T,) array, stored as sent.
+
+    Their order is not checked here but by :func:`check_fittable`, with the fit's own
+    rule: a raw log's equal stamps (a polling logger, a coarse clock) and isolated late or
+    early samples are accepted and repaired when the canal is fitted; time going back for
+    more than one sample (a clock reset, logs joined together) is refused. A stricter
+    check here used to refuse raw logs that ``canal_core.fit`` takes as they are.
+    """
     try:
         times = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -113,15 +120,6 @@ def check_timestamps(value: Any, n_points: int) -> FloatArray:
             field="timestamps",
         )
     _check_finite(times[:, None], "timestamps")
-    steps = np.diff(times)
-    if steps.size and (steps <= 0).any():
-        i = int(np.argmax(steps <= 0)) + 1
-        problem = "duplicate" if steps[i - 1] == 0 else "decreasing"
-        raise InvalidInput(
-            f"expected strictly increasing timestamps, got {problem} value {float(times[i])!r} "
-            f"after {float(times[i - 1])!r} at index {i}",
-            field=f"timestamps[{i}]",
-        )
     return times
 
 

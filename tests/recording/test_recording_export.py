@@ -82,3 +82,19 @@ def test_a_restart_appends_to_the_same_recording(tmp_path: Path, demos3: list[np
     rows = rrd_rows(rrd, rerun_env)
     assert [rows[(f"/demos/{j}/path", "LineStrips3D:strips")] for j in (1, 2, 3)] == [1, 1, 1]
     assert len(_recording_ids(rrd, rerun_env)) == 1
+
+
+def test_a_raw_logs_equal_and_late_stamps_are_recorded_as_logged(
+        recorder: Recorder, demos3: list[np.ndarray], rerun_env: dict[str, str]) -> None:
+    # Uploads store a raw log's stamps as sent (the fit repairs them): every row twice with
+    # its stamp (a polling logger), and the first sample stamped after the second, so its
+    # demo_time starts below zero.
+    demo = np.repeat(demos3[0], 2, axis=0)
+    times = np.repeat(np.linspace(0.0, 2.0, len(demos3[0])), 2)
+    times[[0, 2]] = times[[2, 0]]
+    recorder.demo_added("pour", 3, 1, demo, times, "raw")
+    rrd = recorder.export_rrd("pour")
+    assert rrd_verify(rrd, rerun_env).returncode == 0
+    rows = rrd_rows(rrd, rerun_env)
+    assert rows[("/demos/1/position", "Scalars:scalars")] == len(demo)
+    assert mcap_counts(recorder.export_mcap("pour"))["/canal/demos"] == 1

@@ -52,10 +52,10 @@ JSON_CASES: list[tuple[str, dict[str, Any], int, str]] = [
      "positions[0]"),
     ("3 points (fewer than 4)", {"json": {"positions": GOOD[:3]}}, 422, "positions"),
     ("no points", {"json": {"positions": []}}, 422, "positions"),
-    ("duplicate timestamps", {"json": {"positions": GOOD, "timestamps": [0, 1, 1, 2, 3, 4]}},
-     422, "timestamps[2]"),
-    ("decreasing timestamps", {"json": {"positions": GOOD, "timestamps": [0, 1, 2, 1.5, 3, 4]}},
-     422, "timestamps[3]"),
+    # equal stamps and one late sample are a raw log's, accepted (test_service_upload_prepared);
+    # time going back for good is not
+    ("timestamps going back for good (a clock reset)",
+     {"json": {"positions": GOOD, "timestamps": [0, 1, 2, 0.1, 0.2, 0.3]}}, 422, "timestamps"),
     ("timestamps length mismatch", {"json": {"positions": GOOD, "timestamps": [0, 1, 2]}}, 422,
      "timestamps"),
     ("NaN timestamp", raw_json(json.dumps({"positions": GOOD}).replace(
@@ -132,8 +132,9 @@ FILE_CASES: list[tuple[str, str, bytes, int, str]] = [
      "line 3"),
     ("CSV without x/y/z header columns", "csv", b"a,b,c\n1,2,3\n1,2,3\n1,2,3\n1,2,3\n", 422,
      "header"),
-    ("CSV with decreasing t", "csv", b"t,x,y,z\n0,1,2,3\n2,1,2,4\n1,1,2,5\n3,1,2,6\n", 422,
-     "timestamps[2]"),
+    ("CSV whose t goes back for good", "csv",
+     b"t,x,y,z\n0,1,2,3\n1,1,2,4\n2,1,2,5\n3,1,2,6\n0.1,1,2,7\n0.2,1,2,8\n", 422,
+     "timestamps"),
 ]
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 from fastapi.testclient import TestClient
-from raw_logs import raw_demo_set
+from raw_logs import raw_demo_set, ur5e_demos
 from service_helpers import demo_positions
 
 
@@ -42,3 +42,64 @@ def test_raw_logs_fit_by_arc_length_and_by_time(client: TestClient, skill: str) 
     start = np.mean([g.positions[0] for g in logs], axis=0).tolist()
     r = client.post(f"/skills/{skill}/reproductions", json={"start": start})
     assert r.status_code == 200, r.text
+
+
+def _csv(times: np.ndarray, positions: np.ndarray, quats: np.ndarray) -> bytes:
+    rows = np.column_stack([times, positions, quats])
+    return ("t,x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(repr(float(v)) for v in r)
+                                               for r in rows)).encode()
+
+
+def test_real_logs_with_equal_and_late_stamps_upload_and_fit_as_the_clean_ones(
+        client: TestClient, skill: str) -> None:
+    # The real UR5e demos as a polling logger twice their rate writes them: every row twice,
+    # stamp and all. The upload refused them before ("expected strictly increasing
+    # timestamps, got duplicate value"), though the fit repairs equal stamps.
+    positions, times, quats = ur5e_demos()
+    assert client.post("/skills", json={"name": "clean", "dim": 3}).status_code == 201
+    for j, (p, t, q) in enumerate(zip(positions, times, quats, strict=True)):
+        twice = np.repeat(np.arange(t.size), 2)
+        if j == 0:  # by file, as `canal demo add` sends an exported log
+            r = client.post(f"/skills/{skill}/demonstrations",
+                            files={"file": ("demo.csv", _csv(t[twice], p[twice], q[twice]))})
+        else:
+            r = client.post(f"/skills/{skill}/demonstrations", json={
+                "positions": p[twice].tolist(), "timestamps": t[twice].tolist(),
+                "orientations": q[twice].tolist()})
+        assert r.status_code == 201, r.text
+        stored = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+        assert stored["n_points"] == 2 * t.size
+        assert np.array_equal(stored["timestamps"], t[twice])  # kept as sent
+        r = client.post("/skills/clean/demonstrations", json={
+            "positions": p.tolist(), "timestamps": t.tolist(), "orientations": q.tolist()})
+        assert r.status_code == 201, r.text
+    start = (positions[0][0] + 0.005).tolist()
+    for by_time in (False, True):
+        answers = []
+        for name in (skill, "clean"):
+            r = client.post(f"/skills/{name}/fit", json={"by_time": by_time, "n_samples": 200})
+            assert r.status_code == 201, r.text
+            r = client.post(f"/skills/{name}/reproductions", json={"start": start})
+            assert r.status_code == 200, r.text
+            answers.append(np.array(r.json()["positions"]))
+        # the repeats carry nothing: the same canal, the same reproduction
+        np.testing.assert_allclose(answers[0], answers[1], rtol=0, atol=1e-12)
+
+
+def test_an_isolated_late_stamp_is_accepted_and_a_clock_reset_is_refused_naming_it(
+        client: TestClient, skill: str) -> None:
+    positions, times, _ = ur5e_demos()
+    p, t = positions[1], times[1].copy()
+    t[500], t[501] = t[501], t[500]  # one sample stamped late: the fit drops it
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    json={"positions": p.tolist(), "timestamps": t.tolist()})
+    assert r.status_code == 201, r.text
+    reset = times[1].copy()
+    reset[1000:] -= reset[1000]  # the clock restarts at 0 halfway: refused, nothing stored
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    json={"positions": p.tolist(), "timestamps": reset.tolist()})
+    error = _error(r)
+    assert error["field"] == "timestamps"
+    assert "time goes back for more than one sample" in error["message"]
+    assert "at sample 1000" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 1
