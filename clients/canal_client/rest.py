@@ -154,10 +154,10 @@ LIST_SKILLS = Endpoint("GET", "/skills", response=Page[Skill], query=_PAGED)
 GET_SKILL = Endpoint("GET", "/skills/{name}", response=Skill)
 DELETE_SKILL = Endpoint("DELETE", "/skills/{name}", status=204)
 ADD_DEMO = Endpoint("POST", "/skills/{name}/demonstrations", DemonstrationIn, DemoCreated,
-                    status=201)
+                    query=("time_unit",), status=201)
 # The same route, as a multipart file upload (its parameters travel in the query string).
 UPLOAD_DEMO = Endpoint("POST", "/skills/{name}/demonstrations", None, DemoCreated,
-                       query=("format", "topic", "label"), status=201,
+                       query=("format", "topic", "label", "time_unit"), status=201,
                        media_type="multipart/form-data")
 LIST_DEMOS = Endpoint("GET", "/skills/{name}/demonstrations", response=Page[DemoSummary],
                       query=_PAGED)
@@ -367,32 +367,37 @@ def _delete_skill(name: str) -> _Steps[None]:
 
 
 def _add_demo(skill: str, positions: ArrayLike, timestamps: ArrayLike | None = None,
-              orientations: ArrayLike | None = None, label: str | None = None
-              ) -> _Steps[DemoCreated]:
+              orientations: ArrayLike | None = None, label: str | None = None, *,
+              time_unit: str | None = None) -> _Steps[DemoCreated]:
     """Add one demonstration: positions (T, D), optional timestamps (T,) and unit
-    quaternions (T, 4) as qx, qy, qz, qw. Numpy arrays or nested lists."""
-    return (yield _request(ADD_DEMO, name=skill, body={
+    quaternions (T, 4) as qx, qy, qz, qw. Numpy arrays or nested lists. ``time_unit``
+    (``"ms"``, ``"us"``, ``"ns"``; seconds by default) is the timestamps' unit."""
+    params = None if time_unit is None else {"time_unit": time_unit}
+    return (yield _request(ADD_DEMO, name=skill, params=params, body={
         "positions": _rows(positions, "positions"), "timestamps": _vector(timestamps),
         "orientations": None if orientations is None else _rows(orientations, "orientations"),
         "label": label}))
 
 
 def _upload_demo_file(skill: str, path: str | os.PathLike[str], *, format: str | None = None,
-                      topic: str | None = None, label: str | None = None
-                      ) -> _Steps[DemoCreated]:
+                      topic: str | None = None, label: str | None = None,
+                      time_unit: str | None = None) -> _Steps[DemoCreated]:
     """Add one demonstration from a file: CSV, NPY or MCAP (``topic`` picks the pose
     topic) are uploaded as they are; a JSON file (``{"positions": ..., "timestamps"?, ...}``
     or a list of rows) is sent like :meth:`add_demo`. ``format`` overrides the suffix
-    (the async client reads the file in a worker thread)."""
+    (the async client reads the file in a worker thread); ``time_unit`` (``"ms"``,
+    ``"us"``, ``"ns"``; seconds by default) is the unit of its time column or timestamps
+    (not for MCAP, whose message stamps are read as such)."""
     p = Path(path)
     fmt = guess_format(p, format)
     data: bytes = yield _ReadFile(p)
     if fmt == "json":
         doc = _json_file_body(p, data, label)
         return (yield _Request(ADD_DEMO.method, ADD_DEMO.url(name=skill), _read(DemoCreated),
+                               params=None if time_unit is None else {"time_unit": time_unit},
                                body=_json_body(doc), content_type="application/json"))
-    params = {k: v for k, v in (("format", fmt), ("topic", topic), ("label", label))
-              if v is not None}
+    params = {k: v for k, v in (("format", fmt), ("topic", topic), ("label", label),
+                                ("time_unit", time_unit)) if v is not None}
     return (yield _Request(UPLOAD_DEMO.method, UPLOAD_DEMO.url(name=skill), _read(DemoCreated),
                            params=params, files={"file": (p.name, data, _FILE_TYPES[fmt])}))
 

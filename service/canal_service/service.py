@@ -253,26 +253,33 @@ class CanalService:
 
     # ---- demonstrations ---------------------------------------------------------------------
 
-    def add_json_demonstration(self, name: str, body: schemas.DemonstrationIn
-                               ) -> schemas.DemonstrationCreated:
-        """Check and store a demonstration sent as JSON.
+    def add_json_demonstration(self, name: str, body: schemas.DemonstrationIn,
+                               time_unit: str | None = None) -> schemas.DemonstrationCreated:
+        """Check and store a demonstration sent as JSON (``time_unit``: of its timestamps).
 
         Rows 2 or 3 wide are checked at their own width and compared with the skill's
         inside the storing transaction (no separate lookup on the hot path).
         """
         first = body.positions[0] if len(body.positions) else None  # lists or arrays
         dim = len(first) if first is not None and len(first) in (2, 3) else self.skill_dim(name)
-        demo = check_demonstration(body.positions, dim, body.timestamps, body.orientations)
+        demo = check_demonstration(body.positions, dim, body.timestamps, body.orientations,
+                                   time_unit)
         return self.add_demonstration(name, demo, body.label, "json")
 
     def add_file_demonstration(self, name: str, fmt: uploads.UploadFormat, data: bytes,
                                topic: str | None, label: str | None,
-                               limits: uploads.UploadLimits | None = None
+                               limits: uploads.UploadLimits | None = None,
+                               time_unit: str | None = None,
                                ) -> schemas.DemonstrationCreated:
-        """Parse (within ``limits``), check and store a demonstration uploaded as a file."""
+        """Parse (within ``limits``), check and store a demonstration uploaded as a file;
+        ``time_unit`` is the unit of a CSV or NPY time column."""
+        if fmt == "mcap" and time_unit is not None:
+            raise InvalidInput("time_unit applies to a CSV or NPY time column; an MCAP "
+                               "file's times are read from its message stamps", field="time_unit")
         dim = self.skill_dim(name)
         parsed = uploads.parse_upload(fmt, data, dim, topic, limits)
-        demo = check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations)
+        demo = check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
+                                   time_unit)
         return self.add_demonstration(name, demo, label, fmt)
 
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,

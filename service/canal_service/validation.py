@@ -23,6 +23,11 @@ from .errors import InvalidInput
 FloatArray = npt.NDArray[np.float64]
 
 MIN_POINTS = 4
+#: Seconds per unit of an upload's ``time_unit`` (a CSV/NPY time column, JSON timestamps)
+TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+#: Longest demonstration, in seconds: a longer span is almost always stamps in ms, us or ns
+#: read as seconds (a ROS log's nanoseconds made a 10 s demo last 317 years)
+MAX_DEMO_SECONDS = 3600.0
 
 
 @dataclass(frozen=True)
@@ -97,14 +102,16 @@ def check_positions(value: Any, dim: int) -> FloatArray:
     return positions
 
 
-def check_timestamps(value: Any, n_points: int) -> FloatArray:
-    """Timestamps as a finite (T,) array, stored as sent.
+def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> FloatArray:
+    """Timestamps as a finite (T,) array of seconds, spanning at most ``MAX_DEMO_SECONDS``.
 
-    Their order is not checked here but by :func:`check_fittable`, with the fit's own
-    rule: a raw log's equal stamps (a polling logger, a coarse clock) and isolated late or
-    early samples are accepted and repaired when the canal is fitted; time going back for
-    more than one sample (a clock reset, logs joined together) is refused. A stricter
-    check here used to refuse raw logs that ``canal_core.fit`` takes as they are.
+    With ``unit`` (a key of :data:`TIME_UNITS`) other than seconds they are converted to
+    seconds from the first sample (subtracting first keeps epoch nanoseconds exact to the
+    float's resolution); otherwise they are kept as sent. Their order is not checked here
+    but by :func:`check_fittable`, with the fit's own rule: a raw log's equal stamps (a
+    polling logger, a coarse clock) and isolated late or early samples are accepted and
+    repaired when the canal is fitted; time going back for more than one sample (a clock
+    reset, logs joined together) is refused.
     """
     try:
         times = np.asarray(value, dtype=np.float64)
@@ -120,6 +127,16 @@ def check_timestamps(value: Any, n_points: int) -> FloatArray:
             field="timestamps",
         )
     _check_finite(times[:, None], "timestamps")
+    if unit is not None and unit != "s":
+        times = (times - times[0]) * TIME_UNITS[unit]
+    span = float(times.max() - times.min()) if times.size else 0.0
+    if span > MAX_DEMO_SECONDS:
+        raise InvalidInput(
+            f"expected timestamps in seconds spanning at most {MAX_DEMO_SECONDS:g} s (one "
+            f"hour), got a span of {span:.3g} s: are they milliseconds, microseconds or "
+            f"nanoseconds? Say so with ?time_unit=ms, us or ns",
+            field="timestamps",
+        )
     return times
 
 
@@ -155,17 +172,22 @@ def check_fittable(positions: FloatArray, timestamps: FloatArray | None) -> None
 
 
 def check_demonstration(
-    positions: Any, dim: int, timestamps: Any = None, orientations: Any = None
+    positions: Any, dim: int, timestamps: Any = None, orientations: Any = None,
+    time_unit: str | None = None,
 ) -> DemoArrays:
     """Run every check; the first failure raises :class:`InvalidInput`.
 
     After the per-field checks, the demo goes through canal_core's preparation stage
     (:func:`check_fittable`): identical points, coordinates beyond +-1e15 or a demo that
     only stands still are refused here with a 422, never found out at fit time.
+    ``time_unit`` is the unit of ``timestamps`` (:func:`check_timestamps`; None: seconds).
     """
     checked = check_positions(positions, dim)
     n = checked.shape[0]
-    times = None if timestamps is None else check_timestamps(timestamps, n)
+    if timestamps is None and time_unit is not None:
+        raise InvalidInput(f"time_unit={time_unit} was given, but the demonstration has no "
+                           "timestamps (no time column)", field="time_unit")
+    times = None if timestamps is None else check_timestamps(timestamps, n, time_unit)
     quats = None if orientations is None else check_orientations(orientations, n)
     check_fittable(checked, times)
     return DemoArrays(checked, times, quats)

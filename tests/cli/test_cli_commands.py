@@ -147,6 +147,28 @@ def test_demo_add_errors(run: Run, unique_name: Callable[[str], str], tmp_path: 
     assert r.exit_code == 1 and "(field: " in r.stderr
 
 
+def test_demo_add_says_which_flag_takes_nanosecond_stamps(
+        run: Run, service: LiveService, unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    # a ROS log exported to CSV: integer nanoseconds since the epoch, 100 Hz for 2 s
+    name = unique_name("ns")
+    run("skill", "create", name)
+    positions = demo_positions(0, n=200)
+    stamps = 1_733_000_000_000_000_000 + np.arange(200) * 10_000_000
+    log = tmp_path / "ros.csv"
+    log.write_text("timestamp,x,y,z\n" + "".join(
+        f"{t},{p[0]!r},{p[1]!r},{p[2]!r}\n" for t, p in zip(stamps.tolist(), positions.tolist(),
+                                                              strict=True)))
+    r = run("demo", "add", name, str(log))
+    assert r.exit_code == 1 and "--time-unit ms, us or ns" in r.stderr, r.stderr
+    assert "?time_unit" not in r.stderr
+    r = run("--json", "demo", "add", name, str(log), "--time-unit", "ns")
+    assert r.exit_code == 0, r.output
+    demo_id = json.loads(r.stdout)[0]["id"]
+    with CanalClient(service.url) as c:  # stored as seconds from the first sample
+        times = c.get_demo(name, demo_id).timestamps
+    assert times is not None and times[0] == 0.0 and abs(times[-1] - 1.99) < 1e-6
+
+
 def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
                                     unique_name: Callable[[str], str], tmp_path: Path) -> None:
     name = unique_name("fit")

@@ -4,9 +4,11 @@ upload naming it, and raw robot logs (repeats, rounding-level steps, still ends)
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from raw_logs import raw_demo_set, ur5e_demos
 from service_helpers import demo_positions
+from test_service_uploads import ros2_mcap
 
 
 def _error(r) -> dict:  # type: ignore[no-untyped-def]
@@ -102,4 +104,67 @@ def test_an_isolated_late_stamp_is_accepted_and_a_clock_reset_is_refused_naming_
     assert error["field"] == "timestamps"
     assert "time goes back for more than one sample" in error["message"]
     assert "at sample 1000" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 1
+
+
+def _ns_csv(times_s: np.ndarray, positions: np.ndarray) -> bytes:
+    # a ROS log's stamps: integer nanoseconds since the epoch
+    ns = (1_733_000_000 + times_s) * 1e9
+    return ("timestamp,x,y,z\n" + "\n".join(
+        f"{int(a)},{p[0]!r},{p[1]!r},{p[2]!r}" for a, p in zip(ns, positions.tolist(), strict=True)
+    )).encode()
+
+
+def test_nanosecond_stamps_are_refused_as_seconds_and_taken_with_their_unit(
+        client: TestClient, skill: str) -> None:
+    # A CSV with a ROS log's nanosecond stamps was stored as seconds: a 12 s demo lasted
+    # 1.2e10 s (380 years), and so did every reproduction of a by-time fit.
+    positions, times, _ = ur5e_demos()
+    data = _ns_csv(times[0], positions[0])
+    r = client.post(f"/skills/{skill}/demonstrations", files={"file": ("run.csv", data)})
+    error = _error(r)
+    assert error["field"] == "timestamps"
+    span_ns = (times[0][-1] - times[0][0]) * 1e9
+    assert f"span of {span_ns:.3g} s" in error["message"]
+    assert "?time_unit=ms, us or ns" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
+    assert client.post("/skills", json={"name": "secs", "dim": 3}).status_code == 201
+    for j in range(3):
+        r = client.post(f"/skills/{skill}/demonstrations?time_unit=ns",
+                        files={"file": ("run.csv", _ns_csv(times[j], positions[j]))})
+        assert r.status_code == 201, r.text
+        stored = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+        # seconds from the first sample, to the resolution of a float64 epoch in ns (256 ns)
+        np.testing.assert_allclose(stored["timestamps"], times[j] - times[j][0], rtol=0, atol=1e-6)
+        r = client.post("/skills/secs/demonstrations",
+                        json={"positions": positions[j].tolist(), "timestamps": times[j].tolist()})
+        assert r.status_code == 201, r.text
+    durations = []
+    for name in (skill, "secs"):
+        assert client.post(f"/skills/{name}/fit", json={"by_time": True}).status_code == 201
+        r = client.post(f"/skills/{name}/reproductions", json={"start": positions[0][0].tolist()})
+        assert r.status_code == 200, r.text
+        durations.append(r.json()["times"][-1])
+    assert 2.0 < durations[0] < 20.0  # seconds, as the demos lasted
+    assert durations[0] == pytest.approx(durations[1], rel=1e-6)
+
+
+def test_time_unit_for_json_and_where_it_does_not_apply(client: TestClient, skill: str) -> None:
+    positions, times, _ = ur5e_demos()
+    ms = ((times[1] - times[1][0]) * 1e3).tolist()
+    r = client.post(f"/skills/{skill}/demonstrations?time_unit=ms",
+                    json={"positions": positions[1].tolist(), "timestamps": ms})
+    assert r.status_code == 201, r.text
+    stored = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+    np.testing.assert_allclose(stored["timestamps"], times[1] - times[1][0], atol=1e-9)
+    # tried: a unit for a file without a time column, an MCAP file, an unknown unit
+    r = client.post(f"/skills/{skill}/demonstrations?time_unit=ns",
+                    files={"file": ("run.csv", b"x,y,z\n0,0,0\n1,0,0\n2,1,0\n3,1,1\n")})
+    assert _error(r)["field"] == "time_unit"
+    r = client.post(f"/skills/{skill}/demonstrations?time_unit=ns",
+                    files={"file": ("run.mcap", ros2_mcap(positions[1][:50]))})
+    assert _error(r)["field"] == "time_unit"
+    r = client.post(f"/skills/{skill}/demonstrations?time_unit=minutes",
+                    json={"positions": positions[1].tolist(), "timestamps": ms})
+    assert r.status_code == 422 and "time_unit" in r.text
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 1

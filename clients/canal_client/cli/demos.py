@@ -54,9 +54,9 @@ def demo_table(demos: Sequence[DemoRow]) -> Table:
 
 
 def cli_wording(message: str) -> str:
-    """The service's message in this command's words: the REST query parameter ``?topic=``
-    is the ``--topic`` flag here."""
-    return message.replace("?topic=", "--topic")
+    """The service's message in this command's words: the REST query parameters
+    ``?topic=`` and ``?time_unit=`` are the ``--topic`` and ``--time-unit`` flags here."""
+    return message.replace("?topic=", "--topic").replace("?time_unit=", "--time-unit ")
 
 
 def expand_paths(paths: list[Path]) -> tuple[list[Path], bool]:
@@ -87,6 +87,9 @@ def demo_add(
     label: Annotated[str | None, typer.Option("--label", help="Label for every file.")] = None,
     format: Annotated[str | None, typer.Option(
         "--format", help="csv, npy, json or mcap, for files without a telling suffix.")] = None,
+    time_unit: Annotated[str | None, typer.Option(
+        "--time-unit", help="Unit of the files' time column or timestamps: s (default), ms, "
+                            "us or ns (a ROS log's nanoseconds). Not for MCAP.")] = None,
 ) -> None:
     """Add one demonstration per file. A folder means every supported file in it
     (.csv, .npy, .json, .mcap; not recursive), in name order. A file that is refused is
@@ -112,7 +115,7 @@ def demo_add(
                             "unsupported file type (expected .csv, .npy, .json or .mcap; "
                             "or pass --format)") from None
                     created = c.upload_demo_file(skill, f, format=format, topic=topic,
-                                                 label=label)
+                                                 label=label, time_unit=time_unit)
                 except CanalClientError as exc:
                     if isinstance(exc, ConnectionFailedError | RequestTimeoutError):
                         raise

@@ -63,6 +63,10 @@ Format = Annotated[Literal["csv", "npy", "mcap"] | None,
 Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
 Label = Annotated[str | None, Query(max_length=256, pattern=r"^[^\x00]*$",
                                     description="Label for a file upload.")]
+TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(
+    description="Unit of the timestamps (JSON) or of the CSV/NPY time column, seconds when "
+                "omitted; with ms, us or ns they are stored as seconds from the first sample. "
+                "Not for MCAP (its message stamps are read as such).")]
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=DemonstrationCreated,
@@ -74,6 +78,7 @@ async def add_demonstration(
     format: Format = None,
     topic: Topic = None,
     label: Label = None,
+    time_unit: TimeUnit = None,
 ) -> Response:
     """Store one demonstration; nothing is stored unless every check passes."""
     content_type = request.headers.get("content-type", "")
@@ -84,7 +89,7 @@ async def add_demonstration(
         raw = await request.body()
         # Parsing too runs on the lane: on the event loop it would hold every other
         # request (and the bytes of the next upload) for its millisecond.
-        return _created(await lane.run(_add_json, service, name, raw, limits))
+        return _created(await lane.run(_add_json, service, name, raw, limits, time_unit))
     if base == "multipart/form-data":
         data, filename, part_type, form_label = await _read_multipart(request)
         if label is None:
@@ -101,7 +106,7 @@ async def add_demonstration(
         raise BadUpload("the uploaded file is empty", field="file")
     fmt = detect_format(format, filename, part_type, data)
     return _created(await lane.run(service.add_file_demonstration, name, fmt, data, topic,
-                                   label, limits))
+                                   label, limits, time_unit))
 
 
 def _created(created: DemonstrationCreated) -> Response:
@@ -111,8 +116,8 @@ def _created(created: DemonstrationCreated) -> Response:
                     media_type="application/json")
 
 
-def _add_json(service: CanalService, name: str, raw: bytes,
-              limits: UploadLimits) -> DemonstrationCreated:
+def _add_json(service: CanalService, name: str, raw: bytes, limits: UploadLimits,
+              time_unit: str | None = None) -> DemonstrationCreated:
     """Parse, check and store a JSON upload: the whole of it, on the upload lane."""
     if not raw.strip():
         raise InvalidInput("expected a JSON body with 'positions', got an empty body",
@@ -127,7 +132,7 @@ def _add_json(service: CanalService, name: str, raw: bytes,
         raise RequestValidationError(exc.errors(include_url=False)) from exc
     if len(body.positions) > limits.max_points:
         raise _too_many_points(limits)
-    return service.add_json_demonstration(name, body)
+    return service.add_json_demonstration(name, body, time_unit)
 
 
 def upload_lane(request: Request) -> Lane:
