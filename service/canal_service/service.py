@@ -279,7 +279,7 @@ class CanalService:
         dim = self.skill_dim(name)
         parsed = uploads.parse_upload(fmt, data, dim, topic, limits)
         demo = check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
-                                   time_unit)
+                                   time_unit if time_unit is not None else parsed.time_unit)
         return self.add_demonstration(name, demo, label, fmt)
 
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,

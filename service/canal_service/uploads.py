@@ -3,10 +3,14 @@
 Formats (chosen by ``?format=``, else by the part's file name, else by content type):
 
 ``csv``
-    UTF-8 text. With a header, columns are found by name: ``t`` (or ``time``/``timestamp``)
-    optional, then ``x, y`` (2-D skills) or ``x, y, z`` (3-D), and optionally
-    ``qx, qy, qz, qw``. Without a header, D columns are positions and D + 1 columns are
-    ``t`` followed by positions.
+    UTF-8 text. With a header, columns are found by name: ``t`` (or ``time``/``timestamp``/
+    ``stamp``/``__time``, seconds) optional, then ``x, y`` (2-D skills) or ``x, y, z`` (3-D),
+    and optionally ``qx, qy, qz, qw``. ROS exports are read as they are: a column whose name
+    ends in ``position.x`` (``.`` or ``/`` separated, as ``rostopic echo -p`` and PlotJuggler
+    write them) is x, ``orientation.x`` .. ``.w`` the quaternion, and without a seconds column
+    ``field.header.stamp`` (else ``%time``) is the time, in nanoseconds. Other columns
+    (frame ids, sequence numbers) are not read. Without a header, D columns are positions and
+    D + 1 columns are ``t`` followed by positions.
 ``npy``
     A NumPy ``.npy`` array of real numbers, shape (T, D) or (T, D + 1) with time in column 0.
     Read with ``allow_pickle=False``; the header is checked against the data length before
@@ -131,6 +135,8 @@ class ParsedUpload:
     positions: FloatArray
     timestamps: FloatArray | None = None
     orientations: FloatArray | None = None
+    #: the timestamps' unit when the file says it (a ROS CSV's nanosecond stamp columns)
+    time_unit: str | None = None
 
 
 def detect_format(
@@ -222,26 +228,32 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
         if next(lines, None) is None:
             raise BadUpload("the CSV file has a header but no data rows", field="file")
     width = len(cells)
+    columns = None if header is None else _csv_columns(header, dim)
+    # Only the columns named are read when the file has others (a ROS export's frame_id
+    # text, sequence numbers): they are neither parsed nor required to be numbers.
+    usecols = None
+    if columns is not None and len(columns.used) < width:
+        usecols = columns.used
     stream = io.BytesIO(data)  # shares the bytes, no copy
     stream.seek(start)
     try:
         table = np.loadtxt(stream, delimiter=",", dtype=np.float64, ndmin=2, comments=None,
                            quotechar='"', skiprows=skip, max_rows=budget.limits.max_points + 1,
-                           encoding="utf-8")
+                           encoding="utf-8", usecols=usecols)
     except UnicodeDecodeError as exc:
         raise BadUpload(f"CSV must be UTF-8 text ({exc.reason})", field="file") from exc
     except ValueError:
-        raise _csv_error(data, start, skip, width) from None
+        raise _csv_error(data, start, skip, width, usecols) from None
     budget.tick()
     budget.points(table.shape[0], "the CSV file")
     if table.shape[0] == 0:
         raise BadUpload("the CSV file has no data rows", field="file")
-    if table.shape[1] != width:
+    if usecols is None and table.shape[1] != width:
         raise InvalidInput(f"expected {width} columns on every CSV line (as on line "
                            f"{first_number + 1}), got {table.shape[1]}", field="file:line 2")
-    if header is None:
+    if columns is None:
         return _split_time(table, dim, "file")
-    return _columns_by_name(header, table, dim)
+    return columns.read(table, usecols)
 
 
 def _lines(data: bytes, start: int) -> Iterator[tuple[int, str]]:
@@ -262,7 +274,8 @@ def _lines(data: bytes, start: int) -> Iterator[tuple[int, str]]:
         number += 1
 
 
-def _csv_error(data: bytes, start: int, skip: int, width: int) -> InvalidInput:
+def _csv_error(data: bytes, start: int, skip: int, width: int,
+               usecols: list[int] | None = None) -> InvalidInput:
     """Find the first bad data line (the error path only) and say what is wrong with it."""
     for number, line in _lines(data, start):
         if number < skip:
@@ -271,7 +284,7 @@ def _csv_error(data: bytes, start: int, skip: int, width: int) -> InvalidInput:
         if len(cells) != width:
             return InvalidInput(f"expected {width} columns on every CSV line, got {len(cells)} "
                                 f"on line {number + 1}", field=f"file:line {number + 1}")
-        for cell in cells:
+        for cell in cells if usecols is None else [cells[i] for i in usecols]:
             if not _is_number(cell.strip().strip('"').strip()):
                 return InvalidInput(f"expected numbers on CSV line {number + 1}, got "
                                     f"{cell.strip()[:40]!r}", field=f"file:line {number + 1}")
@@ -286,34 +299,83 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-def _columns_by_name(header: list[str], table: FloatArray, dim: int) -> ParsedUpload:
+#: Time columns in seconds, and (in order of preference) in nanoseconds: a ROS 1
+#: ``rostopic echo -p`` export's message stamp and its record time
+_TIME_NAMES_NS = ("field.header.stamp", "%time")
+
+
+@dataclass(frozen=True)
+class _CsvColumns:
+    """Which header columns hold the positions, time and quaternion (indices into the row)."""
+
+    positions: list[int]
+    time: int | None
+    time_unit: str | None
+    quaternion: list[int] | None
+
+    @property
+    def used(self) -> list[int]:
+        return sorted({*self.positions, *([] if self.time is None else [self.time]),
+                       *(self.quaternion or [])})
+
+    def read(self, table: FloatArray, usecols: list[int] | None) -> ParsedUpload:
+        """The arrays out of ``table`` (read with ``usecols``, or every column)."""
+        at = {c: k for k, c in enumerate(usecols)} if usecols is not None else None
+
+        def cols(indices: list[int]) -> FloatArray:
+            return np.ascontiguousarray(table[:, [at[i] if at else i for i in indices]])
+
+        return ParsedUpload(cols(self.positions),
+                            None if self.time is None else cols([self.time])[:, 0].copy(),
+                            None if self.quaternion is None else cols(self.quaternion),
+                            self.time_unit)
+
+
+def _named(header: list[str], exact: str, suffix: str) -> list[int]:
+    """Columns called ``exact``, or whose name ends in ``suffix`` as its last parts (``.`` or
+    ``/`` separated: ROS ``field.pose.position.x``, PlotJuggler ``/ee_pose/pose/position/x``)."""
+    return [i for i, name in enumerate(header)
+            if name == exact or ("." + name.replace("/", ".")).endswith("." + suffix)]
+
+
+def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
+    """The columns of a CSV header by name (see the module docstring)."""
     axes = ["x", "y", "z"][:dim]
-    missing = [a for a in axes if a not in header]
+    found = {a: _named(header, a, f"position.{a}") for a in ["x", "y", "z"]}
+    missing = [a for a in axes if not found[a]]
     if missing:
         raise InvalidInput(
-            f"expected CSV header columns {', '.join(axes)} for a {dim}-D skill (optional t), "
-            f"got {', '.join(header)}",
+            f"expected CSV header columns {', '.join(axes)} (or ROS-style "
+            f"...position.x) for a {dim}-D skill (optional t), got {', '.join(header)}",
             field="file:header",
         )
-    if dim == 2 and "z" in header:
+    for a in axes:
+        if len(found[a]) > 1:
+            raise InvalidInput(f"CSV header has several {a} columns "
+                               f"({', '.join(header[i] for i in found[a])}); expected one",
+                               field="file:header")
+    if dim == 2 and found["z"]:
         raise InvalidInput("CSV has a z column but the skill is 2-D", field="file:header")
-    times_named = [n for n in _TIME_NAMES if n in header]
+    times_named = [n for n in (*_TIME_NAMES, "__time") if n in header]
     if len(times_named) > 1:
         raise InvalidInput(f"CSV header has several time columns ({', '.join(times_named)}); "
                            "expected one", field="file:header")
-    positions = table[:, [header.index(a) for a in axes]]
-    time_col = header.index(times_named[0]) if times_named else None
-    times = None if time_col is None else table[:, time_col]
-    quats = None
-    quat_names = ["qx", "qy", "qz", "qw"]
-    if any(q in header for q in quat_names):
-        if not all(q in header for q in quat_names):
-            raise InvalidInput("expected all of qx, qy, qz, qw in the CSV header, or none",
+    time_col, unit = None, None
+    if times_named:
+        time_col = header.index(times_named[0])
+    else:
+        ns = [n for n in _TIME_NAMES_NS if n in header]
+        if ns:
+            time_col, unit = header.index(ns[0]), "ns"
+    quats = {c: _named(header, f"q{c}", f"orientation.{c}") for c in "xyzw"}
+    quaternion = None
+    if any(quats.values()):
+        if not all(len(q) == 1 for q in quats.values()):
+            raise InvalidInput("expected all of qx, qy, qz, qw (or ROS-style ...orientation.x "
+                               "to .w) once each in the CSV header, or none",
                                field="file:header")
-        quats = table[:, [header.index(q) for q in quat_names]]
-    return ParsedUpload(np.ascontiguousarray(positions),
-                        None if times is None else np.ascontiguousarray(times),
-                        None if quats is None else np.ascontiguousarray(quats))
+        quaternion = [quats[c][0] for c in "xyzw"]
+    return _CsvColumns([found[a][0] for a in axes], time_col, unit, quaternion)
 
 
 # ---- NPY ---------------------------------------------------------------------------------------

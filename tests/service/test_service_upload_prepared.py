@@ -168,3 +168,51 @@ def test_time_unit_for_json_and_where_it_does_not_apply(client: TestClient, skil
                     json={"positions": positions[1].tolist(), "timestamps": ms})
     assert r.status_code == 422 and "time_unit" in r.text
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 1
+
+
+def _rostopic_csv(times_s: np.ndarray, positions: np.ndarray, quats: np.ndarray) -> bytes:
+    """What `rostopic echo -p /ee_pose > run.csv` writes for a PoseStamped topic."""
+    stamp = 1_733_000_000_000_000_000 + np.round(times_s * 1e9).astype(np.int64)
+    record = stamp + 1_500_000  # received 1.5 ms after the stamp
+    head = ("%time,field.header.seq,field.header.stamp,field.header.frame_id,"
+            "field.pose.position.x,field.pose.position.y,field.pose.position.z,"
+            "field.pose.orientation.x,field.pose.orientation.y,field.pose.orientation.z,"
+            "field.pose.orientation.w")
+    rows = [f"{r},{k},{s},base_link,{p[0]!r},{p[1]!r},{p[2]!r},{q[0]!r},{q[1]!r},{q[2]!r},{q[3]!r}"
+            for k, (r, s, p, q) in enumerate(zip(record.tolist(), stamp.tolist(),
+                                                 positions.tolist(), quats.tolist(), strict=True))]
+    return (head + "\n" + "\n".join(rows) + "\n").encode()
+
+
+def test_ros_csv_exports_upload_as_they_are(client: TestClient, skill: str) -> None:
+    # rostopic's CSV (a frame_id text column, nanosecond stamps) and PlotJuggler's
+    # (slash-separated names, __time in seconds) were refused: "expected CSV header columns
+    # x, y, z", and the frame_id text would have failed the number parse.
+    positions, times, quats = ur5e_demos()
+    for j in range(2):
+        r = client.post(f"/skills/{skill}/demonstrations",
+                        files={"file": ("run.csv", _rostopic_csv(times[j], positions[j], quats[j]))})
+        assert r.status_code == 201, r.text
+        stored = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+        np.testing.assert_array_equal(stored["positions"], positions[j])
+        np.testing.assert_allclose(stored["orientations"], quats[j])
+        # the message stamps (not the record time), in seconds from the first
+        np.testing.assert_allclose(stored["timestamps"], times[j] - times[j][0], atol=1e-6)
+    pj = "__time,/ee_pose/pose/position/x,/ee_pose/pose/position/y,/ee_pose/pose/position/z\n"
+    pj += "\n".join(f"{1_733_000_000 + t!r},{p[0]!r},{p[1]!r},{p[2]!r}"
+                    for t, p in zip(times[2].tolist(), positions[2].tolist(), strict=True))
+    r = client.post(f"/skills/{skill}/demonstrations", files={"file": ("pj.csv", pj.encode())})
+    assert r.status_code == 201, r.text
+    stored = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+    np.testing.assert_allclose(np.diff(stored["timestamps"]), np.diff(times[2]), atol=1e-6)
+    r = client.post(f"/skills/{skill}/fit", json={"by_time": True})
+    assert r.status_code == 201, r.text
+    # tried: two poses in one export (two position.x columns), an orientation without w
+    two = b"a.position.x,a.position.y,a.position.z,b.position.x\n" + b"1,2,3,4\n" * 5
+    error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("t.csv", two)}))
+    assert error["field"] == "file:header" and "a.position.x, b.position.x" in error["message"]
+    no_w = (b"x,y,z,pose.orientation.x,pose.orientation.y,pose.orientation.z\n"
+            + b"\n".join(f"{k},0,0,0,0,0".encode() for k in range(6)))
+    error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("t.csv", no_w)}))
+    assert error["field"] == "file:header" and "orientation" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 3
