@@ -323,7 +323,7 @@ class _CsvColumns:
         at = {c: k for k, c in enumerate(usecols)} if usecols is not None else None
 
         def cols(indices: list[int]) -> FloatArray:
-            return np.ascontiguousarray(table[:, [at[i] if at else i for i in indices]])
+            return np.ascontiguousarray(table[:, [i if at is None else at[i] for i in indices]])
 
         return ParsedUpload(cols(self.positions),
                             None if self.time is None else cols([self.time])[:, 0].copy(),
