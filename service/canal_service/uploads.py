@@ -9,8 +9,11 @@ Formats (chosen by ``?format=``, else by the part's file name, else by content t
     ends in ``position.x`` (``.`` or ``/`` separated, as ``rostopic echo -p`` and PlotJuggler
     write them) is x, ``orientation.x`` .. ``.w`` the quaternion, and without a seconds column
     ``field.header.stamp`` (else ``%time``) is the time, in nanoseconds. Other columns
-    (frame ids, sequence numbers) are not read. Without a header, D columns are positions and
-    D + 1 columns are ``t`` followed by positions.
+    (frame ids, sequence numbers) are not read. UR's RTDE recorder files read as they are
+    too: ``actual_TCP_pose_0..2`` are x, y, z and ``_3..5`` the rotation vector (turned into
+    a quaternion), ``timestamp`` the time. Comma-separated, or tab, ``;`` or space separated
+    when the first line has no comma. Without a header, D columns are positions and D + 1
+    columns are ``t`` followed by positions.
 ``npy``
     A NumPy ``.npy`` array of real numbers, shape (T, D) or (T, D + 1) with time in column 0.
     Read with ``allow_pickle=False``; the header is checked against the data length before
@@ -213,7 +216,8 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
     if first is None:
         raise BadUpload("the CSV file has no rows", field="file")
     first_number, first_text = first
-    cells = [c.strip().strip('"').strip() for c in first_text.split(",")]
+    delimiter = _delimiter(first_text)
+    cells = [c.strip().strip('"').strip() for c in _split(first_text, delimiter)]
     header: list[str] | None = None
     skip = first_number
     if not all(_is_number(c) for c in cells):
@@ -237,13 +241,13 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
     stream = io.BytesIO(data)  # shares the bytes, no copy
     stream.seek(start)
     try:
-        table = np.loadtxt(stream, delimiter=",", dtype=np.float64, ndmin=2, comments=None,
+        table = np.loadtxt(stream, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
                            quotechar='"', skiprows=skip, max_rows=budget.limits.max_points + 1,
                            encoding="utf-8", usecols=usecols)
     except UnicodeDecodeError as exc:
         raise BadUpload(f"CSV must be UTF-8 text ({exc.reason})", field="file") from exc
     except ValueError:
-        raise _csv_error(data, start, skip, width, usecols) from None
+        raise _csv_error(data, start, skip, width, usecols, delimiter) from None
     budget.tick()
     budget.points(table.shape[0], "the CSV file")
     if table.shape[0] == 0:
@@ -274,13 +278,26 @@ def _lines(data: bytes, start: int) -> Iterator[tuple[int, str]]:
         number += 1
 
 
+def _delimiter(line: str) -> str | None:
+    """The file's delimiter, from its first line: a comma, else a tab, else ``;``, else runs
+    of spaces (None: numpy's whitespace split; UR's RTDE recorder writes space-separated)."""
+    for delimiter in (",", "\t", ";"):
+        if delimiter in line:
+            return delimiter
+    return None if " " in line.strip() else ","
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    return line.split(delimiter) if delimiter is not None else line.split()
+
+
 def _csv_error(data: bytes, start: int, skip: int, width: int,
-               usecols: list[int] | None = None) -> InvalidInput:
+               usecols: list[int] | None = None, delimiter: str | None = ",") -> InvalidInput:
     """Find the first bad data line (the error path only) and say what is wrong with it."""
     for number, line in _lines(data, start):
         if number < skip:
             continue
-        cells = line.split(",")
+        cells = _split(line, delimiter)
         if len(cells) != width:
             return InvalidInput(f"expected {width} columns on every CSV line, got {len(cells)} "
                                 f"on line {number + 1}", field=f"file:line {number + 1}")
@@ -312,11 +329,12 @@ class _CsvColumns:
     time: int | None
     time_unit: str | None
     quaternion: list[int] | None
+    rotation_vector: list[int] | None = None  # UR's axis-angle (rx, ry, rz), radians
 
     @property
     def used(self) -> list[int]:
         return sorted({*self.positions, *([] if self.time is None else [self.time]),
-                       *(self.quaternion or [])})
+                       *(self.quaternion or []), *(self.rotation_vector or [])})
 
     def read(self, table: FloatArray, usecols: list[int] | None) -> ParsedUpload:
         """The arrays out of ``table`` (read with ``usecols``, or every column)."""
@@ -325,10 +343,29 @@ class _CsvColumns:
         def cols(indices: list[int]) -> FloatArray:
             return np.ascontiguousarray(table[:, [i if at is None else at[i] for i in indices]])
 
+        quats = None if self.quaternion is None else cols(self.quaternion)
+        if self.rotation_vector is not None:
+            quats = _quaternions_of_rotation_vectors(cols(self.rotation_vector))
         return ParsedUpload(cols(self.positions),
                             None if self.time is None else cols([self.time])[:, 0].copy(),
-                            None if self.quaternion is None else cols(self.quaternion),
-                            self.time_unit)
+                            quats, self.time_unit)
+
+
+def _quaternions_of_rotation_vectors(rotvec: FloatArray) -> FloatArray:
+    """(T, 4) quaternions x, y, z, w of (T, 3) rotation vectors (axis times angle)."""
+    from scipy.spatial.transform import Rotation
+
+    bad = ~np.isfinite(rotvec)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise InvalidInput(f"expected finite rotation vectors (actual_TCP_pose_3..5), got NaN "
+                           f"or Inf at row {row}", field=f"orientations[{row}]")
+    return np.ascontiguousarray(Rotation.from_rotvec(rotvec).as_quat())
+
+
+#: Columns of UR's RTDE recorder (``record.py``: the tool pose in the base frame, metres and
+#: an axis-angle rotation vector), lower-cased like every header name
+_RTDE_POSE = [f"actual_tcp_pose_{k}" for k in range(6)]
 
 
 def _named(header: list[str], exact: str, suffix: str) -> list[int]:
@@ -342,6 +379,9 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
     """The columns of a CSV header by name (see the module docstring)."""
     axes = ["x", "y", "z"][:dim]
     found = {a: _named(header, a, f"position.{a}") for a in ["x", "y", "z"]}
+    rtde = all(name in header for name in _RTDE_POSE) and not any(found.values())
+    if rtde:
+        found = {a: [header.index(_RTDE_POSE[k])] for k, a in enumerate(["x", "y", "z"])}
     missing = [a for a in axes if not found[a]]
     if missing:
         raise InvalidInput(
@@ -368,6 +408,9 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
         if ns:
             time_col, unit = header.index(ns[0]), "ns"
     quats = {c: _named(header, f"q{c}", f"orientation.{c}") for c in "xyzw"}
+    if rtde and not any(quats.values()):
+        return _CsvColumns([found[a][0] for a in axes], time_col, unit, None,
+                           [header.index(name) for name in _RTDE_POSE[3:]])
     quaternion = None
     if any(quats.values()):
         if not all(len(q) == 1 for q in quats.values()):
