@@ -134,7 +134,8 @@ def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> Floa
         raise InvalidInput(
             f"expected timestamps in seconds spanning at most {MAX_DEMO_SECONDS:g} s (one "
             f"hour), got a span of {span:.3g} s: are they milliseconds, microseconds or "
-            f"nanoseconds? Say so with ?time_unit=ms, us or ns",
+            f"nanoseconds? An upload says so with ?time_unit=ms, us or ns (a live pose's t "
+            f"is in seconds)",
             field="timestamps",
         )
     return times

@@ -145,6 +145,21 @@ def test_live_demo_capture_json_and_bad_demo(live):
     assert live.client.get("/skills/empty2").json()["n_demonstrations"] == 1
 
 
+def test_live_capture_with_nanosecond_t_is_refused_saying_t_is_seconds(live):
+    # a robot stamping its poses with ROS time in ns: the demo would last 317 years
+    pts = np.column_stack([np.linspace(0, 1, 20), np.linspace(0, 0.5, 20), np.zeros(20)])
+    from canal_client.live import LiveError
+
+    with PoseStreamer("arc3", "ros", endpoint=live.endpoint) as ps:
+        ps.start_demo()
+        for k, p in enumerate(pts):
+            ps.send(p, None, 1.733e18 + k * 1e7)
+        with pytest.raises(LiveError) as err:
+            ps.stop_demo()
+    error = err.value.body["error"]
+    assert error["field"] == "timestamps" and "live pose's t is in seconds" in error["message"]
+
+
 def _stream_until(ps, x, canal, steps, gain=0.5):
     answers = []
     for _ in range(steps):
