@@ -255,6 +255,11 @@ def parse_csv(data: bytes, dim: int, budget: _Budget | None = None) -> ParsedUpl
     if usecols is None and table.shape[1] != width:
         raise InvalidInput(f"expected {width} columns on every CSV line (as on line "
                            f"{first_number + 1}), got {table.shape[1]}", field="file:line 2")
+    if usecols is not None and delimiter is not None and b'"' not in data:
+        # Reading some columns does not see a row with extra cells: its delimiters do.
+        mark = delimiter.encode()
+        if data.count(mark) - first_text.count(delimiter) != table.shape[0] * (width - 1):
+            raise _csv_error(data, start, skip, width, usecols, delimiter)
     if columns is None:
         return _split_time(table, dim, "file")
     return columns.read(table, usecols)

@@ -253,3 +253,20 @@ def test_ur_rtde_recordings_and_other_delimiters_upload_as_they_are(
     error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("b.csv", bad)}))
     assert error["field"] == "file:line 3" and "zero" in error["message"]
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 3
+
+
+def test_a_ragged_row_is_named_also_where_only_some_columns_are_read(
+        client: TestClient, skill: str) -> None:
+    # tried: a rostopic-style file (a text column, so only the pose columns are read) whose
+    # third line has one cell too many, then one cell too few
+    head = b"field.header.frame_id,field.pose.position.x,field.pose.position.y,field.pose.position.z\n"
+    good = [b"base,%d,%d,0" % (k, k * k) for k in range(6)]
+    for bad in (b"base,2,4,0,9", b"base,2,4"):
+        rows = [*good[:2], bad, *good[3:]]
+        data = head + b"\n".join(rows) + b"\n"
+        error = _error(client.post(f"/skills/{skill}/demonstrations",
+                                   files={"file": ("r.csv", data)}))
+        assert error["field"] == "file:line 4", error
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    files={"file": ("r.csv", head + b"\n".join(good) + b"\n")})
+    assert r.status_code == 201, r.text
