@@ -194,7 +194,8 @@ def _split_time(table: FloatArray, dim: int, field: str) -> ParsedUpload:
     return ParsedUpload(np.ascontiguousarray(table))
 
 
-_TIME_NAMES = ("t", "time", "timestamp", "stamp")
+#: Time columns in seconds (``__time``: PlotJuggler's CSV export)
+_TIME_NAMES = ("t", "time", "timestamp", "stamp", "__time")
 
 
 # ---- CSV ---------------------------------------------------------------------------------------
@@ -321,8 +322,8 @@ def _is_number(cell: str) -> bool:
     return True
 
 
-#: Time columns in seconds, and (in order of preference) in nanoseconds: a ROS 1
-#: ``rostopic echo -p`` export's message stamp and its record time
+#: Time columns in nanoseconds, in order of preference: a ROS 1 ``rostopic echo -p``
+#: export's message stamp and its record time
 _TIME_NAMES_NS = ("field.header.stamp", "%time")
 
 
@@ -401,7 +402,7 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
                                field="file:header")
     if dim == 2 and found["z"]:
         raise InvalidInput("CSV has a z column but the skill is 2-D", field="file:header")
-    times_named = [n for n in (*_TIME_NAMES, "__time") if n in header]
+    times_named = [n for n in _TIME_NAMES if n in header]
     if len(times_named) > 1:
         raise InvalidInput(f"CSV header has several time columns ({', '.join(times_named)}); "
                            "expected one", field="file:header")
