@@ -353,7 +353,7 @@ class _CsvColumns:
         if self.rotation_vector is not None:
             quats = _quaternions_of_rotation_vectors(cols(self.rotation_vector))
         return ParsedUpload(cols(self.positions),
-                            None if self.time is None else cols([self.time])[:, 0].copy(),
+                            None if self.time is None else cols([self.time])[:, 0],
                             quats, self.time_unit)
 
 
