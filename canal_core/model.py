@@ -19,6 +19,14 @@ from .alignment import (
     resampled_demonstrations,
     spline_parameter,
 )
+from .corrections import (
+    AppliedCorrection,
+    canal_digest,
+    checked_correction,
+    corrected_canal,
+    excluded_points,
+    exempt_crossings,
+)
 from .cross_sections import (
     KINDS_3D,
     CrossSections,
@@ -198,6 +206,11 @@ class Canal:
         The fit's report of how much the sections fitted to the plane crossings had to grow
         so that every demonstrated sample is inside: the largest relative enlargement of
         any section (0.02 = 2 %). See :func:`canal_core.envelope.enclosing_scales`.
+    parent : str or None
+        The digest (:func:`canal_core.corrections.canal_digest`) of the canal this one was
+        refined from by a correction; None for a canal fitted from demonstrations.
+    corrections : tuple of AppliedCorrection
+        Every correction applied since the fit, in order, with the sections each changed.
     """
 
     directrix: FloatArray
@@ -212,6 +225,10 @@ class Canal:
     orientation: OrientationModel | None = None
     section_times: FloatArray | None = None
     envelope_margin: float = 0.0
+    #: The content digest of the canal this one was refined from (None for a fit).
+    parent: str | None = None
+    #: Every correction applied since the fit, in order (:mod:`canal_core.corrections`).
+    corrections: tuple[AppliedCorrection, ...] = ()
 
     # -- one-line summaries (the dataclass repr would print every array) ---------------
     def _summary_numbers(self) -> tuple[float, float, float]:
@@ -290,6 +307,56 @@ class Canal:
         tol times the largest radius.
         """
         return self._inside(self.locate(points), tol)
+
+    def excluded(self, points: Any) -> BoolArray:
+        """Whether each point (M, D) lies on a side a person excluded (see
+        :mod:`canal_core.corrections`): demonstrated samples there are outside the canal by
+        that person's choice, and exempt from the all-samples-inside rule."""
+        return excluded_points(self, check_points(points, self.dim))
+
+    @cached_property
+    def exempt_crossings(self) -> BoolArray:
+        """Which demo crossings ``section_points`` (N, n) lie on an excluded side."""
+        return exempt_crossings(self)
+
+    @property
+    def digest(self) -> str:
+        """A content hash of the model (what a refined canal names as its ``parent``)."""
+        return canal_digest(self)
+
+    def corrected(
+        self,
+        kind: str,
+        samples: Any,
+        weight: Any = 1.0,
+        label: str = "",
+        *,
+        timestamps: Any = None,
+        orientations: Any = None,
+        plan: Any = None,
+    ) -> Canal:
+        """A new canal refined by a person's correction (:mod:`canal_core.corrections`).
+
+        Parameters
+        ----------
+        kind : {"include", "exclude"}
+        samples : array_like, shape (M, D)
+            The corrected path over part of the canal, M >= 4.
+        weight : float
+            How much an include counts against one demonstration.
+        plan : array_like, shape (P, D), optional
+            Exclude: the path the robot was on before the push (the canal's own
+            reproduction from the first sample when None).
+
+        Raises
+        ------
+        InvalidInputError
+            ``samples`` malformed, too short or outside every section; ``kind`` unknown or
+            an exclude that would close the canal.
+        """
+        correction = checked_correction(kind, samples, self.dim, weight, label, timestamps, orientations)
+        path = None if plan is None else check_points(plan, self.dim, "plan")
+        return corrected_canal(self, correction, path)
 
     def _inside(self, loc: Location, tol: float) -> BoolArray:
         axial_tol = tol * float(self.radii.max(initial=0.0))
@@ -495,6 +562,8 @@ class Canal:
             # Optional keys (absent in models written before them; from_dict defaults them).
             "section_times": None if self.section_times is None else self.section_times.tolist(),
             "envelope_margin": self.envelope_margin,
+            "parent": self.parent,
+            "corrections": [c.to_dict() for c in self.corrections],
         }
 
     @classmethod
@@ -556,6 +625,11 @@ class Canal:
                 orientation=orientation,
                 section_times=_optional_times(data.get("section_times"), n),
                 envelope_margin=float(data.get("envelope_margin", 0.0)),
+                # Absent in models written before corrections existed.
+                parent=None if data.get("parent") is None else str(data["parent"]),
+                corrections=tuple(
+                    AppliedCorrection.from_dict(c, n, dim) for c in data.get("corrections") or ()
+                ),
             )
         except ModelFormatError:
             raise

@@ -1,0 +1,233 @@
+"""Corrections: include grows the canal locally to hold a path, exclude narrows it on one side."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from core_data import helix_demos, sleeve_demos
+
+import canal_core
+from canal_core import InvalidInputError
+from canal_core.corrections import MIN_WIDTH_FRACTION, path_crossings, reapplied_canal
+from canal_core.cross_sections import boundary_distance
+
+KINDS = ("circle", "mec", "ellipse", "spline")
+ARRAYS = ("directrix", "tangents", "normals", "binormals", "arclength", "section_points")
+
+
+@pytest.fixture(scope="module")
+def demos() -> list[np.ndarray]:
+    return helix_demos(0.05, 6)
+
+
+@pytest.fixture(scope="module")
+def canal(demos: list[np.ndarray]) -> canal_core.Canal:
+    return canal_core.fit(demos, n_samples=200)
+
+
+def include_path(canal: canal_core.Canal, first: int = 80, last: int = 110, bulge: float = 0.12) -> np.ndarray:
+    idx = np.arange(first, last + 1)
+    off = 0.02 + bulge * np.sin(np.linspace(0.0, np.pi, idx.size))[:, None]
+    return np.asarray(canal.directrix[idx] + off * canal.normals[idx])
+
+
+def pushed_run(canal: canal_core.Canal, start_section: int = 60, depth: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """The canal's reproduction from a start near the +normal wall, and the same run pushed
+    towards -normal by ``depth`` of that wall's distance around its 40th sample (a person
+    keeping the arm off that side)."""
+    i = start_section
+    wall = float(boundary_distance(canal.sections, np.array([i]), np.array([[1.0, 0.0]]))[0])
+    start = canal.directrix[i] + 0.8 * wall * canal.normals[i]
+    run = canal.reproduce(start)
+    k = np.arange(run.shape[0])
+    sec = np.clip(start_section + k, 0, canal.n_sections - 1)
+    walls = boundary_distance(canal.sections, sec, np.tile([1.0, 0.0], (k.size, 1)))
+    bump = np.exp(-0.5 * ((k - 40) / 8.0) ** 2)
+    return run, run - (depth * walls * bump)[:, None] * canal.normals[sec]
+
+
+def unchanged_outside(parent: canal_core.Canal, child: canal_core.Canal, lo: int, hi: int) -> None:
+    outside = np.ones(parent.n_sections, dtype=bool)
+    outside[lo : hi + 1] = False
+    for name in ARRAYS:
+        a, b = getattr(parent, name), getattr(child, name)
+        if a is None:  # binormals of a planar canal
+            assert b is None
+            continue
+        assert np.array_equal(a[outside], b[outside]), name
+    for name, values in parent.sections.params.items():
+        assert np.array_equal(values[outside], child.sections.params[name][outside]), name
+
+
+def cut_sides(canal: canal_core.Canal, path: np.ndarray) -> np.ndarray:
+    """How far a path goes past each exclude cut (> 0: on the excluded side), per cut section."""
+    applied = canal.corrections[-1]
+    assert applied.cut_points is not None and applied.cut_directions is not None
+    crossed, coords = path_crossings(path, canal.directrix, canal.tangents, canal.basis, 3.0 * canal.radii)
+    idx = np.arange(applied.first, applied.last + 1)
+    ok = ~np.isnan(applied.cut_points[:, 0]) & crossed[idx]
+    world = canal.directrix[idx] + np.einsum("sk,skd->sd", coords[idx], canal.basis[idx])
+    return np.asarray(np.einsum("sd,sd->s", world - applied.cut_points, applied.cut_directions)[ok])
+
+
+def test_include_holds_the_path_and_changes_nothing_outside_its_span(
+    canal: canal_core.Canal, demos: list[np.ndarray]
+) -> None:
+    path = include_path(canal)
+    refined = canal.corrected("include", path, weight=1.0, label="wider here")
+    applied = refined.corrections[0]
+    assert (applied.first, applied.last) == (78, 112)  # the path runs from plane 80 to plane 110
+    assert applied.lo < applied.first and applied.hi > applied.last
+    assert refined.contains(path).all()
+    assert all(refined.contains(d).all() for d in demos)
+    assert refined.radii[95] > canal.radii[95] * 1.5
+    unchanged_outside(canal, refined, applied.lo, applied.hi)
+    # Reproductions that start after the changed range are the parent's.
+    for offset in (0.0, 0.02, 0.045):
+        i = applied.hi + 3
+        start = canal.directrix[i] + offset * canal.binormals[i] + 1e-4 * canal.tangents[i]
+        np.testing.assert_allclose(refined.reproduce(start), canal.reproduce(start), atol=1e-9, rtol=0)
+
+
+def test_include_weight_sets_how_far_the_directrix_moves(canal: canal_core.Canal) -> None:
+    path = include_path(canal)
+    moves = [
+        np.linalg.norm(canal.corrected("include", path, weight=w).directrix[95] - canal.directrix[95])
+        for w in (0.5, 1.0, 6.0)
+    ]
+    assert moves[0] < moves[1] < moves[2]
+    # Weight w among n = 6 demos: the centre moves w / (n + w) of the way to the path.
+    offset = np.linalg.norm(path[15] - canal.directrix[95])
+    np.testing.assert_allclose(moves[2], 0.5 * offset, rtol=0.05)
+
+
+def test_exclude_keeps_every_reproduction_on_the_side_the_person_showed(
+    canal: canal_core.Canal, demos: list[np.ndarray]
+) -> None:
+    run, pushed = pushed_run(canal)
+    refined = canal.corrected("exclude", pushed)
+    applied = refined.corrections[0]
+    assert applied.correction.kind == "exclude"
+    # The unrefined run went past the cut; reproductions from anywhere before it no longer do.
+    assert cut_sides(refined, run).max() > 0.01
+    rng = np.random.default_rng(3)
+    for _ in range(25):
+        i = int(rng.integers(0, 60))
+        angle, share = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(0.0, 1.0)
+        start = canal.directrix[i] + share * canal.radii[i] * (np.cos(angle) * canal.normals[i] + np.sin(angle) * canal.binormals[i])
+        path = refined.reproduce(start)
+        assert cut_sides(refined, path).max(initial=-1.0) <= 1e-9
+    unchanged_outside(canal, refined, applied.lo, applied.hi)
+    # Demonstrated samples that are now outside lie where the person excluded, and the model says so.
+    for demo in demos:
+        assert (refined.contains(demo) | refined.excluded(demo)).all()
+    assert refined.exempt_crossings.any()
+    assert not canal.exempt_crossings.any()
+
+
+def test_tracker_targets_respect_an_exclusion(canal: canal_core.Canal) -> None:
+    run, pushed = pushed_run(canal)
+    refined = canal.corrected("exclude", pushed)
+    tracker = refined.tracker()
+    position = run[0].copy()
+    targets = []
+    for _ in range(run.shape[0] + 20):
+        answer = tracker.step(position)
+        targets.append(answer.target)
+        position = answer.target
+        if answer.done:
+            break
+    assert cut_sides(refined, np.array(targets)).max(initial=-1.0) <= 1e-6
+
+
+def test_an_exclude_that_would_close_the_canal_is_refused(canal: canal_core.Canal) -> None:
+    _, pushed = pushed_run(canal, depth=2.5)  # pushed across to beyond the far wall
+    with pytest.raises(InvalidInputError) as err:
+        canal.corrected("exclude", pushed)
+    assert err.value.field == "kind"
+    assert f"{MIN_WIDTH_FRACTION:.0%}" in err.value.message and "close" in err.value.message
+
+
+@pytest.mark.parametrize(
+    ("kind", "samples", "field"),
+    [
+        ("include", np.zeros((10, 2)), "samples"),  # wrong dimension
+        ("include", "three", "samples"),
+        ("sideways", None, "kind"),
+    ],
+)
+def test_malformed_corrections_name_their_field(canal: canal_core.Canal, kind: str, samples: object, field: str) -> None:
+    with pytest.raises(InvalidInputError) as err:
+        canal.corrected(kind, include_path(canal) if samples is None else samples)
+    assert err.value.field == field
+
+
+def test_short_far_and_weightless_corrections_are_refused(canal: canal_core.Canal) -> None:
+    path = include_path(canal)
+    with pytest.raises(InvalidInputError, match="at least 4") as err:
+        canal.corrected("include", path[:3])
+    assert err.value.field == "samples"
+    with pytest.raises(InvalidInputError, match="outside every section") as err:
+        canal.corrected("include", path + np.array([0.0, 0.0, 5.0]))
+    assert err.value.field == "samples"
+    with pytest.raises(InvalidInputError) as err:
+        canal.corrected("include", path, weight=0.0)
+    assert err.value.field == "weight"
+    with pytest.raises(InvalidInputError, match="pushed away") as err:
+        canal.corrected("exclude", canal.reproduce(canal.directrix[60] + 0.01 * canal.normals[60]))
+    assert err.value.field == "samples"
+
+
+def test_a_refined_model_names_its_parent_and_round_trips(canal: canal_core.Canal) -> None:
+    once = canal.corrected("include", include_path(canal), label="wider")
+    twice = once.corrected("exclude", pushed_run(canal)[1])
+    assert once.parent == canal.digest and twice.parent == once.digest
+    data = json.loads(json.dumps(twice.to_dict()))
+    back = canal_core.Canal.from_dict(data)
+    assert [c.correction.kind for c in back.corrections] == ["include", "exclude"]
+    assert back.corrections[0].correction.label == "wider"
+    assert back.parent == twice.parent
+    for name in ARRAYS:
+        assert np.array_equal(getattr(back, name), getattr(twice, name))
+    probe = canal.directrix[100:140] + 0.04 * canal.normals[100:140]
+    assert np.array_equal(back.excluded(probe), twice.excluded(probe))
+    # Re-applying the same corrections to the fit gives the same canal (a refit or an undo).
+    again = reapplied_canal(canal, [c.correction for c in twice.corrections])
+    assert np.array_equal(again.directrix, twice.directrix)
+    assert np.array_equal(again.sections.params["radius"], twice.sections.params["radius"])
+
+
+def test_models_written_before_corrections_still_load(canal: canal_core.Canal) -> None:
+    data = canal.to_dict()
+    del data["parent"], data["corrections"]
+    back = canal_core.Canal.from_dict(data)
+    assert back.parent is None and back.corrections == ()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_section_kind_is_corrected_locally(kind: str) -> None:
+    demos = sleeve_demos(0.05, 6)
+    canal = canal_core.fit(demos, cross_section=kind, n_samples=120)
+    run, pushed = pushed_run(canal, start_section=30)
+    refined = canal.corrected("exclude", pushed)
+    applied = refined.corrections[0]
+    unchanged_outside(canal, refined, applied.lo, applied.hi)
+    assert cut_sides(refined, refined.reproduce(run[0])).max(initial=-1.0) <= 1e-9
+    grown = canal.corrected("include", include_path(canal, 50, 70))
+    assert grown.contains(include_path(canal, 50, 70)).all()
+    for demo in demos:
+        assert (refined.contains(demo) | refined.excluded(demo)).all()
+        assert grown.contains(demo).all()
+
+
+def test_a_planar_canal_is_corrected_too() -> None:
+    x = np.linspace(0.0, 1.0, 80)
+    demos = [np.column_stack([x, 0.1 * np.sin(np.pi * x) + dy]) for dy in (-0.05, 0.0, 0.05)]
+    canal = canal_core.fit(demos, n_samples=100)
+    idx = np.arange(40, 61)
+    wide = canal.directrix[idx] + 0.12 * canal.normals[idx]
+    grown = canal.corrected("include", wide)
+    assert grown.contains(wide).all()
+    unchanged_outside(canal, grown, grown.corrections[0].lo, grown.corrections[0].hi)
