@@ -494,7 +494,8 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
     """Per-pose cost (us) of each stage of the pose path, measured in this process."""
     import zenoh
 
-    from canal_core.tracker import Tracker, step_trackers, tracker_geometry
+    from canal_core.tracker import Tracker, tracker_geometry
+    from canal_core.tracker_batch import step_trackers
     from canal_protocol import wire
 
     geometry = tracker_geometry(canal.directrix, canal.tangents, canal.basis, canal.sections)
@@ -566,7 +567,7 @@ def stages(path: np.ndarray, canal, n_batch: int = 16, repeats: int = 4000) -> l
         have (1 robot, 4, 16), robots spread along ``path``; each against one robot's scalar
         step timed in the same rounds (the best of 3 interleaved rounds: the machine is
         shared)."""
-        from canal_core.tracker import TrackerBank
+        from canal_core.tracker_bank import TrackerBank
         from canal_core.tracker_kernel import compile_step_rows
 
         compile_step_rows()  # as the bridge does at start

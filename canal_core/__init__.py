@@ -21,8 +21,11 @@ from .errors import (
     ModelFormatError,
     OutsideCanalError,
 )
-from .model import Canal, FitOptions, Reproduction, fit, fit_options
+from .fit import fit
+from .model import Canal
+from .options import FitOptions, fit_options
 from .orientation import OrientationModel
+from .reproduction import Reproduction
 from .sections import SectionKind, register_section_kind, section_kind, section_kinds
 from .surface import Mesh
 from .tracker import Tracker, TrackerTarget

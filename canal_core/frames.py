@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 
+from .options import FitOptions
 from .validation import FloatArray
 
 #: Relative size below which a tangent step or a curvature vector counts as zero.
@@ -252,3 +253,14 @@ def planar_frames(points: FloatArray) -> tuple[FloatArray, FloatArray]:
     tangents = unit_tangents(points)
     normals = np.column_stack([-tangents[:, 1], tangents[:, 0]])
     return tangents, normals
+
+
+def canal_frames(centres: FloatArray, options: FitOptions) -> tuple[FloatArray, FloatArray, FloatArray | None]:
+    """Tangents, normals and binormals (None in 2-D) of a directrix (N, D), as ``options`` ask."""
+    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
+    if centres.shape[1] == 2:
+        tangents, normals = planar_frames(frame_curve)
+        return tangents, normals, None
+    if options.frames == "frenet":
+        return frenet_frames(frame_curve)
+    return rotation_minimizing_frames(frame_curve)

@@ -25,7 +25,7 @@ import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
 from .crossings import crosses_plane
-from .validation import FloatArray, IntArray
+from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
 INSIDE_TOLERANCE = 1e-9
@@ -49,6 +49,9 @@ PERSISTENCES = ("learned", "constant")
 #: Measured (docs/method.md), median DTW leave-one-out, weight 0 / 1: LASA 1.115 / 1.108 mm,
 #: UR5e 0.0340 / 0.0326 m, generated 3-D 0.0154 / 0.0152.
 PERSISTENCE_PRIOR_WEIGHT = 1.0
+#: Relative tolerance of :meth:`canal_core.model.Canal.contains` on eta and on the axial
+#: offset at the ends.
+CONTAINS_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,6 +223,15 @@ def _picked(
         eta=eta[first],
         axial=axial[first],
     )
+
+
+def located_inside(loc: Location, end_depths: FloatArray, radii: FloatArray, tol: float) -> BoolArray:
+    """Whether each located point (M,) lies in the canal: eta <= 1 + tol, and at the two
+    ends an axial offset within the end depth (2,) plus tol times the largest radius of
+    ``radii`` (N,)."""
+    axial_tol = tol * float(radii.max(initial=0.0))
+    reach = np.where(loc.axial < 0.0, end_depths[0], end_depths[1]) + axial_tol
+    return np.asarray((loc.eta <= 1.0 + tol) & (np.abs(loc.axial) <= reach))
 
 
 def located_points(

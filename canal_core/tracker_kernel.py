@@ -1,8 +1,8 @@
-"""The live tracker step compiled: every row of a :class:`~canal_core.tracker.TrackerBank`
+"""The live tracker step compiled: every row of a :class:`~canal_core.tracker_bank.TrackerBank`
 call in one machine-code loop (numba), for circle-section canals.
 
 Why compiled: a live bridge steps one to a few dozen rows per call, and the vectorised numpy
-pass (:func:`canal_core.tracker.batched_tracker_step`) costs about 50 numpy calls whatever
+pass (:func:`canal_core.tracker_batch.batched_tracker_step`) costs about 50 numpy calls whatever
 the batch size: 30-60 us a call, most of a 1 kHz robot's budget on one core shared with the
 middleware. Here each row costs a few dozen floating-point operations and a call about a
 microsecond, so a one-robot drain and a sixteen-robot drain both cost next to nothing.

@@ -1,9 +1,9 @@
 """The fit options of the HTTP contract, derived from :mod:`canal_core` (never written out).
 
 The names a client may choose are canal_core's: the ``Literal`` aliases of
-:mod:`canal_core.model` for frames, alignment and directrix, and canal_core's cross-section
-names for ``cross_section`` (``canal_core.model.CROSS_SECTIONS``, the tuple ``fit``
-validates against). Defaults are :class:`canal_core.model.FitOptions`'s, limits are
+:mod:`canal_core.options` for frames, alignment and directrix, and canal_core's cross-section
+names for ``cross_section`` (``canal_core.options.CROSS_SECTIONS``, the tuple ``fit``
+validates against). Defaults are :class:`canal_core.options.FitOptions`'s, limits are
 canal_core's constants. A new cross-section kind in canal_core is therefore accepted by the
 service, offered by the client and listed in the OpenAPI schema without touching this package.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Literal
 
-from canal_core import model as _core
+from canal_core import options as _core
 
 __all__ = [
     "ALIGNMENTS",

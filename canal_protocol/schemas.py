@@ -225,7 +225,7 @@ class FitRequest(_In):
     """canal_core fit options; every field left out takes canal_core's default.
 
     Names, defaults and limits come from :mod:`canal_protocol.options` (derived from
-    :mod:`canal_core.model`), never written out here.
+    :mod:`canal_core.options`), never written out here.
     """
 
     cross_section: CrossSection = options.DEFAULTS.cross_section

@@ -29,7 +29,7 @@ from canal_live import (
 from click.testing import Result
 from mcap.reader import make_reader
 
-from canal_core.model import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
+from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
 from canal_protocol.schemas import FitRequest, ReproductionRequest
 
 Run = Callable[..., Result]  # the `run` fixture (conftest.py)

@@ -8,7 +8,7 @@ from core_data import helix_demos, sleeve_demos, tracker_starts
 
 import canal_core
 from canal_core import datasets
-from canal_core.tracker import VECTORISE_FROM, TrackerBank
+from canal_core.tracker_bank import VECTORISE_FROM, TrackerBank
 
 
 def _check(got, k: int, e) -> None:

@@ -8,7 +8,8 @@ from core_data import helix_demos, sleeve_demos, tracker_starts
 
 import canal_core
 from canal_core import datasets
-from canal_core.tracker import Tracker, TrackerState, step_trackers, tracker_steps
+from canal_core.tracker import Tracker, TrackerState
+from canal_core.tracker_batch import step_trackers, tracker_steps
 
 
 @pytest.mark.parametrize("cross_section", ["circle", "ellipse"])

@@ -16,7 +16,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import canal_core
-from canal_core.tracker import TrackerBank, TrackerBatch, TrackerTarget, tracker_steps
+from canal_core.tracker import TrackerTarget
+from canal_core.tracker_bank import TrackerBank
+from canal_core.tracker_batch import TrackerBatch, tracker_steps
 from canal_core.tracker_kernel import compile_step_rows, step_rows
 
 KINDS = ["follow", "follow", "follow", "inside", "outside", "far", "far", "back", "ahead",

@@ -12,7 +12,7 @@ from typing import Any, get_args
 import pytest
 from pydantic import ValidationError
 
-from canal_core import model as core
+from canal_core import options as core
 from canal_core.errors import InvalidInputError
 from canal_protocol import options
 from canal_protocol.schemas import FitRequest

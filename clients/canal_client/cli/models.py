@@ -1,7 +1,7 @@
 """``canal fit`` and ``canal reproduce``: model versions and the trajectories they give.
 
 The choices and limits of the options are not written here: the fit choices are
-canal_core's (:data:`canal_core.model.CROSS_SECTIONS`, ``FRAMES``, ``ALIGNMENTS``,
+canal_core's (:data:`canal_core.options.CROSS_SECTIONS`, ``FRAMES``, ``ALIGNMENTS``,
 ``DIRECTRICES``), the numeric limits and ``--outside`` are the HTTP contract's
 (:class:`canal_protocol.schemas.FitRequest`, :class:`~canal_protocol.schemas.ReproductionRequest`),
 so a kind or a limit added there shows up in ``canal fit --help`` by itself.

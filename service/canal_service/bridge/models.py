@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from canal_core.tracker import TrackerBank
+from canal_core.tracker_bank import TrackerBank
 from canal_protocol import keys as keyspace
 
 from ..errors import NoModelYet, SkillNotFound

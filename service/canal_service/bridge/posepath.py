@@ -3,7 +3,7 @@
 The worker blocks on its pose channel (GIL released), drains everything else queued without
 blocking and handles the drain as one batch: decode every pose, step the trackers of all
 streams of one model in **one** vectorised numpy pass over the model's
-:class:`canal_core.tracker.TrackerBank` (every stream's tracker state is a slot of its
+:class:`canal_core.tracker_bank.TrackerBank` (every stream's tracker state is a slot of its
 arrays: no per-tracker Python object on the way in or out), turn the answer arrays into
 Python lists once per drain, then encode and put each answer. A stream with
 several poses in one drain is stepped in order (one pass per pose). Metrics are plain
@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from canal_core.tracker import TrackerBank
+from canal_core.tracker_bank import TrackerBank
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
@@ -477,7 +477,7 @@ class PosePath:
 
     def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[list[float]]]]:
         """Step every job's tracker, one bank pass per model, the answers as packed rows
-        (:meth:`canal_core.tracker.TrackerBank.step_packed`, one ``tolist()`` a pass); jobs
+        (:meth:`canal_core.tracker_bank.TrackerBank.step_packed`, one ``tolist()`` a pass); jobs
         that cannot be stepped are answered with their error here. The caller silences
         NumPy's overflow warnings (:meth:`batch`, or the worker thread's error state)."""
         by_model: dict[int, tuple[ModelEntry, list[Job], list[int],

@@ -1,0 +1,216 @@
+"""Fitting a canal to demonstrations (Alg. 1 lines 1-6, ENCODING DEMONSTRATIONS).
+
+:func:`fit` prepares the raw demonstrations (:mod:`canal_core.preprocess`), aligns them
+(:mod:`canal_core.alignment`), takes their mean as the directrix (:mod:`canal_core.directrix`),
+frames it (:mod:`canal_core.frames`), fits a cross-section to each plane's crossings
+(:mod:`canal_core.cross_sections`) and grows the sections until every demonstrated sample is
+inside (:mod:`canal_core.envelope`); it returns a :class:`~canal_core.model.Canal`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .alignment import (
+    dtw_aligned_demonstrations,
+    dtw_parameters,
+    resampled_demonstrations,
+    spline_parameter,
+)
+from .cross_sections import fitted_sections, floored_sections, scaled_sections, section_kind
+from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
+from .directrix import directrix_gmr, directrix_mean
+from .envelope import enclosing_scales
+from .errors import DegenerateCanalError, InvalidInputError
+from .frames import canal_frames
+from .model import Canal
+from .options import FitOptions, fit_options
+from .orientation import OrientationModel, fitted_orientations
+from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples_many
+from .reproduce import section_basis
+from .timing import section_times
+from .validation import FloatArray, check_demonstration_orientations, check_demonstrations
+
+
+def end_depths(
+    samples: FloatArray, phase: FloatArray, centres: FloatArray, tangents: FloatArray
+) -> FloatArray:
+    """How far demo samples (M, D) reach behind plane 0 and past plane N-1, shape (2,).
+
+    Only samples in the first and last 5 % of their demo (by ``phase`` in [0, 1]) count,
+    so a curve that loops back near its start later on does not stretch the canal.
+    """
+    behind = (np.take(samples, np.flatnonzero(phase < 0.05), axis=0) - centres[0]) @ tangents[0]
+    past = (np.take(samples, np.flatnonzero(phase > 0.95), axis=0) - centres[-1]) @ tangents[-1]
+    return np.array(
+        [max(0.0, -float(behind.min(initial=0.0))), max(0.0, float(past.max(initial=0.0)))]
+    )
+
+
+def fit(
+    demos: Any,
+    timestamps: Any = None,
+    cross_section: str = "circle",
+    frames: str = "rmf",
+    alignment: str = "spline",
+    directrix: str = "mean",
+    n_samples: int = 200,
+    still_tolerance: float = STILL_TOLERANCE,
+    frame_smoothing: float = FitOptions.frame_smoothing,
+    orientations: Any = None,
+    by_time: bool | None = None,
+) -> Canal:
+    """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
+
+    Parameters
+    ----------
+    demos : sequence of array_like, each shape (T_j, D)
+        n >= 2 demonstrations, D in {2, 3}, T_j >= 4 (lengths may differ).
+    timestamps : sequence of (array_like, shape (T_j,) or None), optional
+        Seconds; raw logs are fine: every demo goes through
+        :func:`canal_core.preprocess.prepared_demonstration` (repeats, rounding-level steps,
+        glitches, still ends, equal or isolated out-of-order stamps). They give the canal its
+        speed profile (``section_times``, :mod:`canal_core.timing`) and, unless ``by_time``
+        is False, its alignment (by time where given, else by arc length).
+    cross_section : {"circle", "mec", "ellipse", "spline"}
+    frames : {"rmf", "frenet"}
+    alignment : {"spline", "dtw"}
+    directrix : {"mean", "gmr"}
+    n_samples : int
+        N, the number of cross-sections.
+    frame_smoothing : float
+        Frames are computed on the directrix smoothed by a Gaussian of this fraction of N
+        (0.02 by default; 0 = the paper's frames of the raw directrix). See
+        :func:`canal_core.frames.smoothed_curve`.
+    by_time : bool, optional
+        Align by the time stamps (default when they are given) or, when False, by arc
+        length while still keeping the speed profile.
+    still_tolerance : float
+        Head and tail samples within this fraction of the path length of the first/last
+        sample are trimmed (see :mod:`canal_core.preprocess`).
+    orientations : sequence of array_like, each shape (T_j, 4), optional
+        Unit quaternions [qx, qy, qz, qw], one per position of each demo (q and -q alike).
+        When given, the canal also learns a mean orientation and a spread per section on the
+        positions' alignment (:mod:`canal_core.orientation`). Rows dropped with the position
+        repeats and still ends are dropped here too.
+
+    Returns
+    -------
+    Canal
+
+    Raises
+    ------
+    InvalidInputError
+        Malformed demonstrations, timestamps or options, coordinates beyond +-1e15, a demo
+        that does not move; ``field`` names the demo (``demos[j]`` / ``timestamps[j]``).
+    DegenerateCanalError
+        Every demonstration identical, or a directrix of zero length.
+    """
+    options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
+    demos_, times_, dim = check_demonstrations(demos, timestamps)
+    quats_ = None if orientations is None else check_demonstration_orientations(orientations, demos_)
+    min_demos = section_kind(options.cross_section).min_demos
+    if dim == 3 and len(demos_) < min_demos:
+        # Two crossings per plane fix one axis only (spline, ellipse): the other would be made up.
+        raise InvalidInputError(
+            f"expected at least {min_demos} demonstrations for {options.cross_section} cross-sections, "
+            f"got {len(demos_)}; use circle or mec with 2",
+            field="cross_section",
+        )
+
+    # Timestamps are prepared (repaired or refused) even when the alignment is by arc
+    # length: they still give the speed profile.
+    prepared = prepared_samples_many(
+        demos_, times_, [f"demos[{j}]" for j in range(len(demos_))],
+        [f"timestamps[{j}]" for j in range(len(demos_))], still_tolerance=still_tolerance,
+    )
+    positions = [p.positions for p in prepared]
+    stamped = [p.timestamps for p in prepared]
+    align_by_time = by_time is None or bool(by_time)
+    times: list[FloatArray | None] = stamped if align_by_time else [None] * len(stamped)
+
+    if options.alignment == "dtw":
+        aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
+    else:
+        aligned = resampled_demonstrations(positions, times, options.n_samples)
+
+    centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    arclength = np.concatenate([[0.0], np.cumsum(steps)])
+    spread = max(float(aligned[..., d].max() - aligned[..., d].min()) for d in range(dim))
+    if arclength[-1] <= 1e-12 * max(spread, 1e-300) or arclength[-1] == 0.0:
+        raise DegenerateCanalError(
+            "the directrix has zero length: the demonstrations do not move (or cancel out on average)",
+            field="demos",
+        )
+
+    tangents, normals, binormals = canal_frames(centres, options)
+
+    crossings, crossing_index = located_crossings(aligned, centres, tangents)
+    # A demo that starts behind the first plane (or ends past the last) is measured at the
+    # end section by its projected end sample, so the extruded ends hold the whole demo.
+    for end, outward in ((0, -1.0), (-1, 1.0)):
+        offset = (aligned[:, end] - centres[end]) @ tangents[end]
+        beyond = outward * offset > 0.0
+        crossings[end, beyond] = aligned[beyond, end] - offset[beyond, None] * tangents[end]
+    basis = section_basis(normals, binormals)
+    coords = in_plane_coordinates(crossings, centres, basis)
+    if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
+        raise DegenerateCanalError(
+            "every demonstration is identical: the canal has zero radius everywhere", field="demos"
+        )
+    size = float(np.abs(coords).max())
+    sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
+    # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
+    # Every genuine sample counts, the trimmed still ends included (glitches do not); its
+    # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
+    samples = np.vstack([np.take(d, p.sample_rows, axis=0) for d, p in zip(demos_, prepared, strict=True)])
+    phase = np.concatenate([p.sample_phase for p in prepared])
+    # Each sample starts its search at the sections its demo crosses there (not at its own
+    # phase): demos ahead of or behind the mean are then found at once.
+    approx = np.rint(np.concatenate([
+        sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
+        for j, p in enumerate(prepared)
+    ])).astype(np.int64)
+    envelope = enclosing_scales(samples, approx, centres, tangents, basis, sections)
+    sections = scaled_sections(sections, envelope.scale)
+    orientation = None
+    if quats_ is not None:
+        orientation = _fitted_orientation(prepared, times, quats_, options)
+    return Canal(
+        end_depths=np.maximum(end_depths(samples, phase, centres, tangents), envelope.depths),
+        section_times=section_times(positions, stamped, options.n_samples, align_by_time),
+        envelope_margin=float(envelope.scale.max() - 1.0),
+        directrix=centres,
+        tangents=tangents,
+        normals=normals,
+        binormals=binormals,
+        arclength=arclength,
+        sections=sections,
+        section_points=coords,
+        options=options,
+        orientation=orientation,
+    )
+
+
+def _fitted_orientation(
+    prepared: list[PreparedDemonstration],
+    times: list[FloatArray | None],
+    quaternions: list[FloatArray],
+    options: FitOptions,
+) -> OrientationModel:
+    """The orientation model on the same alignment as the positions.
+
+    Orientations follow the rows the preparation stage kept for their positions, at the
+    spline parameter the positions were aligned by (``times``: the stamps, or None for arc
+    length).
+    """
+    positions = [p.positions for p in prepared]
+    parameters = [spline_parameter(d, t) for d, t in zip(positions, times, strict=True)]
+    if options.alignment == "dtw":
+        at = dtw_parameters(positions, times, options.n_samples)
+    else:
+        at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(prepared), options.n_samples))
+    return fitted_orientations([q[p.rows] for q, p in zip(quaternions, prepared, strict=True)], parameters, at)

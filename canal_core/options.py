@@ -1,0 +1,75 @@
+"""The fit's options: the names a caller may choose, their defaults and their limits.
+
+Each ``Literal`` is the one list of names; the tuples are derived from it, and
+canal_protocol derives the HTTP contract from both. This module needs numpy only (no
+scipy), so a client can validate options without loading the fitting code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal, cast, get_args
+
+from .cross_sections import KINDS_3D
+from .sections import section_kinds
+from .validation import check_choice, check_fraction, check_int
+
+FrameKind = Literal["rmf", "frenet"]
+AlignmentKind = Literal["spline", "dtw"]
+DirectrixKind = Literal["mean", "gmr"]
+#: The built-in choices of ``cross_section`` ("interval" is the 2-D form of each and is not
+#: chosen by name); kinds registered later are accepted by :func:`canal_core.fit.fit` too
+#: (:func:`canal_core.sections.section_kinds` with dim=3 lists them all).
+CROSS_SECTIONS: tuple[str, ...] = KINDS_3D
+FRAMES: tuple[FrameKind, ...] = get_args(FrameKind)
+ALIGNMENTS: tuple[AlignmentKind, ...] = get_args(AlignmentKind)
+DIRECTRICES: tuple[DirectrixKind, ...] = get_args(DirectrixKind)
+#: What a reproduction does with a start outside the canal (:meth:`Canal.reproduce_detailed`).
+OutsideRule = Literal["project", "raise"]
+OUTSIDE_RULES: tuple[OutsideRule, ...] = get_args(OutsideRule)
+#: Bounds of ``n_samples`` (N, the number of cross-sections) and of ``frame_smoothing``; the
+#: service's limits are these. A fit's cost grows faster than N (5 demos of 1,000 points:
+#: about 1 s at N = 5,000, 38 s at 20,000, over 7 min at 100,000, on a busy 2-core machine),
+#: so N stops where a fit still answers within an HTTP request's patience.
+MIN_SAMPLES = 2
+MAX_SAMPLES = 5_000
+MAX_FRAME_SMOOTHING = 0.25
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How a canal was fitted (see :func:`canal_core.fit.fit`)."""
+
+    #: One of :data:`CROSS_SECTIONS`.
+    cross_section: str = "circle"
+    frames: FrameKind = "rmf"
+    alignment: AlignmentKind = "spline"
+    directrix: DirectrixKind = "mean"
+    #: In [MIN_SAMPLES, MAX_SAMPLES].
+    n_samples: int = 200
+    #: Gaussian smoothing of the curve the frames are computed on, as a fraction of
+    #: n_samples (0 = frames of the raw directrix, as in the paper). See canal_core.frames.
+    frame_smoothing: float = 0.02
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def fit_options(
+    cross_section: str = "circle",
+    frames: str = "rmf",
+    alignment: str = "spline",
+    directrix: str = "mean",
+    n_samples: int = 200,
+    frame_smoothing: float = FitOptions.frame_smoothing,
+) -> FitOptions:
+    """Validated :class:`FitOptions`."""
+    return FitOptions(
+        cross_section=check_choice(cross_section, section_kinds(3), "cross_section"),
+        frames=cast(FrameKind, check_choice(frames, FRAMES, "frames")),
+        alignment=cast(AlignmentKind, check_choice(alignment, ALIGNMENTS, "alignment")),
+        directrix=cast(DirectrixKind, check_choice(directrix, DIRECTRICES, "directrix")),
+        n_samples=check_int(n_samples, MIN_SAMPLES, "n_samples", maximum=MAX_SAMPLES),
+        frame_smoothing=check_fraction(frame_smoothing, "frame_smoothing",
+                                       maximum=MAX_FRAME_SMOOTHING),
+    )

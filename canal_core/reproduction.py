@@ -1,0 +1,195 @@
+"""A reproduction (Alg. 1 lines 7-15) on a fitted canal: :func:`reproduce` composes the step
+functions of :mod:`canal_core.reproduce`, :mod:`canal_core.timing` and
+:mod:`canal_core.orientation`; :meth:`canal_core.model.Canal.reproduce_detailed` calls it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .errors import OutsideCanalError
+from .options import OUTSIDE_RULES
+from .reproduce import (
+    CONTAINS_TOLERANCE,
+    END_DECAY,
+    ENTRY_FRACTION,
+    PERSISTENCE_PRIOR_WEIGHT,
+    PERSISTENCES,
+    learned_persistence,
+    located_inside,
+    path_ratios,
+    ratio_rule_positions,
+    reach_along,
+    start_and_located_points,
+)
+from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
+from .validation import (
+    FloatArray,
+    check_choice,
+    check_fraction,
+    check_point,
+    check_positive,
+    check_quaternion,
+)
+
+if TYPE_CHECKING:
+    from .model import Canal
+
+
+@dataclass(frozen=True, eq=False)
+class Reproduction:
+    """A trajectory reproduced by the ratio rule.
+
+    Attributes
+    ----------
+    positions : array, shape (N', D)
+        The start, then one point per remaining cross-section, ending on the last one.
+    start : array, shape (D,)
+    inside : bool
+        Whether the start lies inside the canal.
+    eta : float
+        Ratio the trajectory follows after the start (the start's, at most 1); it fades to 0
+        into the last sections (see :func:`canal_core.reproduce.path_ratios`).
+    section_index : int
+        Section the start was located at.
+    projected : bool
+        True when the start's ratio exceeded 1: the path enters the canal over the entry
+        blend and then follows the boundary's ratio 1.
+    times : array, shape (N',), or None
+        Seconds from the start, following the demonstrations' mean speed profile (None
+        when they carried no time stamps and no duration was asked for).
+    velocities : array, shape (N', D), or None
+        Finite differences of ``positions`` over ``times`` (zero at the end).
+    orientations : array, shape (N', 4), or None
+        One unit quaternion [qx, qy, qz, qw] per position when the canal learned orientation
+        (see :mod:`canal_core.orientation`): the start orientation (or its section's mean),
+        then the rotational ratio rule. Hemisphere-continuous.
+    orientation_eta : float or None
+        The start orientation's angle from its section mean over the section's spread,
+        before clamping to 1 (None without a start orientation or orientation model).
+    goal : array, shape (D,), or None
+        The goal the canal was deformed to, when one was given.
+    """
+
+    positions: FloatArray
+    start: FloatArray
+    inside: bool
+    eta: float
+    section_index: int
+    projected: bool
+    times: FloatArray | None = None
+    velocities: FloatArray | None = None
+    orientations: FloatArray | None = None
+    orientation_eta: float | None = None
+    goal: FloatArray | None = None
+
+
+
+def reproduce(
+    canal: Canal,
+    start: Any,
+    outside: str = "project",
+    start_orientation: Any = None,
+    goal: Any = None,
+    duration: Any = None,
+    *,
+    entry: float = ENTRY_FRACTION,
+    end_decay: float = END_DECAY,
+    persistence: str = "learned",
+) -> Reproduction:
+    """Reproduce from ``start`` (D,) on ``canal`` by the ratio rule (Alg. 1 lines 7-15).
+
+    The start is located on the earliest section that holds it
+    (:func:`canal_core.reproduce.start_locations`); its ratio eta is carried along the
+    canal on the schedule of :func:`canal_core.reproduce.path_ratios` (entry blend for a
+    start outside, end decay onto the demonstrations' end).
+
+    Parameters
+    ----------
+    canal : Canal
+    start : array_like, shape (D,)
+    outside : {"project", "raise"}
+        For a start outside the canal: enter the canal over the entry blend and say so
+        in ``projected``, or raise :class:`OutsideCanalError`.
+    start_orientation : array_like, shape (4,), optional
+        Unit quaternion [qx, qy, qz, qw] of the start pose. Its offset from the start
+        section's mean orientation is carried by the rotational ratio rule
+        (:mod:`canal_core.orientation`). Checked always, used only when the canal has an
+        orientation model; without it the orientations are the section means.
+    goal : array_like, shape (D,), optional
+        End the reproduction here: the canal is deformed first (:meth:`Canal.with_goal`).
+    duration : float, optional
+        Seconds; the times are stretched to end there (constant speed along the path
+        when the model has no speed profile).
+    entry, end_decay : float
+        Fractions of the canal's length (0 and 0 with ``persistence="constant"``: the
+        paper's constant, clamped ratio).
+    persistence : {"learned", "constant"}
+        How much of the start's ratio is kept along the canal before the end decay:
+        what the demonstrations themselves kept of their start offsets, section by
+        section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
+        paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
+    """
+    point = check_point(start, canal.dim, "start")
+    check_choice(outside, OUTSIDE_RULES, "outside")
+    quat = None if start_orientation is None else check_quaternion(start_orientation)
+    entry = check_fraction(entry, "entry", maximum=1.0)
+    end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
+    check_choice(persistence, PERSISTENCES, "persistence")
+    seconds = None if duration is None else check_positive(duration, "duration")
+    target = None if goal is None else check_point(goal, canal.dim, "goal")
+    if target is not None:
+        canal = canal.with_goal(target)
+    loc, held = start_and_located_points(
+        point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets
+    )
+    eta = float(loc.eta[0])
+    index, alpha = int(loc.index[0]), float(loc.alpha[0])
+    inside = bool(located_inside(held, canal.end_depths, canal.radii, CONTAINS_TOLERANCE)[0])
+    if outside == "raise" and not inside:
+        raise OutsideCanalError(
+            f"expected start inside the canal, got eta={eta:.4g} at section {index}"
+            + (f" and {float(loc.axial[0]):.4g} beyond its end plane" if loc.axial[0] else ""),
+            field="start",
+        )
+    first = min(index + 1, canal.n_sections - 1)
+    s0 = float(canal.arclength[index] + alpha * (canal.arclength[first] - canal.arclength[index]))
+    u = loc.direction[0]
+    reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
+    share: FloatArray | None = None
+    if persistence == "learned":
+        kept = learned_persistence(
+            canal.section_points[index:], reach, u, alpha, prior=1.0, weight=PERSISTENCE_PRIOR_WEIGHT
+        )
+        if kept is not None:
+            # At most the start's own ratio: an inside start stays inside by construction.
+            share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
+    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share)
+    path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
+    positions = np.vstack([point, path])
+    times = None
+    if canal.section_times is not None:
+        times = reproduction_times(canal.section_times, index, alpha, positions.shape[0])
+        if seconds is not None:
+            times = rescaled_times(times, seconds)
+    elif seconds is not None:
+        times = arc_length_times(positions, seconds)
+    orientations, orientation_eta = None, None
+    if canal.orientation is not None:
+        orientations, orientation_eta = canal.orientation.reproduced(index, first, quat)
+    return Reproduction(
+        positions=positions,
+        start=point,
+        inside=inside,
+        eta=min(eta, 1.0),
+        section_index=index,
+        projected=eta > 1.0,
+        times=times,
+        velocities=None if times is None else finite_velocities(positions, times),
+        orientations=orientations,
+        orientation_eta=orientation_eta,
+        goal=target,
+    )
