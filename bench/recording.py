@@ -259,6 +259,7 @@ def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
     """
     import orjson
     import zenoh
+    from canal_service import record_batches
     from canal_service.recording.live import LiveOptions, LiveSubscriber
 
     from canal_protocol import keys as keyspace
@@ -288,7 +289,7 @@ def bench_live_drain(n: int = 20_000) -> list[dict[str, Any]]:
             batches = max(n // (16 * per), 1)
             for k in range(batches):
                 row[0] = time.time_ns()
-                bridge.put(key, wire.encode_record_batch("bench", k, [
+                bridge.put(key, record_batches.encode_record_batch("bench", k, [
                     ("b", f"r{i}", 100, 100, 0, 0, 100 - per, [row] * per) for i in range(16)]),
                     encoding=wire.JSON_ENCODING)
             time.sleep(1.0)

@@ -194,7 +194,8 @@ class PoseStreamer:
             except Exception:
                 return
             try:
-                answer = wire.decode_any_target(str(sample.encoding), sample.payload.to_bytes())
+                answer = wire.decode_target_by_encoding(str(sample.encoding),
+                                                        sample.payload.to_bytes())
             except wire.WireError:
                 continue
             # Only answers to a seq this streamer has sent count: a stranger's high-seq pose

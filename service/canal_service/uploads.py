@@ -51,6 +51,8 @@ from typing import Any, Literal
 import numpy as np
 import orjson
 
+from canal_protocol import codecs
+
 from .errors import BadUpload, InvalidInput, TooLarge
 from .validation import FloatArray
 
@@ -788,10 +790,13 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
         raise InvalidInput(f"topic {topic!r} has no messages", field="topic")
     try:
         if schema.name == ROS2_POSE_STAMPED:
-            fast = _ros2_pose_arrays(messages)
-            if fast is not None:
+            columns = codecs.pose_stamped_columns([m[1] for m in messages])
+            if columns is not None:
                 scan.budget.tick()
-                fast_positions, fast_quats, fast_times = fast
+                fast_positions, fast_quats, stamps = columns
+                log_times = np.array([m[0] for m in messages], dtype=np.int64)
+                stamps = np.where(stamps == 0, log_times, stamps)  # unset stamps: the log time
+                fast_times = (stamps - stamps[0]).astype(np.float64) * 1e-9
                 return ParsedUpload(np.ascontiguousarray(fast_positions[:, :dim]), fast_times,
                                     fast_quats)
             samples = list(_ros2_poses(schema, channel, messages, scan.budget))
@@ -833,54 +838,21 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
 _Sample = tuple[int | None, list[float], list[float]]
 
 
-def _ros2_pose_arrays(messages: list[tuple[int, bytes]]
-                      ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """PoseStamped messages decoded in one numpy pass, or None to take the generic decoder.
-
-    Little-endian CDR of ``geometry_msgs/msg/PoseStamped``: a 4-byte encapsulation header,
-    then (offsets after it) stamp.sec int32 @0, stamp.nanosec uint32 @4, frame_id as uint32
-    length @8 and its bytes, then 7 float64 (position, orientation) aligned to 8. A logger
-    writes the same frame_id every time, so every message has the same length and layout;
-    anything else (big-endian, mixed frame ids) goes to the generic decoder.
-    """
-    size = len(messages[0][1])
-    if size < 16 or any(len(m[1]) != size for m in messages):
-        return None
-    rows = np.frombuffer(b"".join(m[1] for m in messages), dtype=np.uint8).reshape(-1, size)
-    if not ((rows[:, 0] == 0) & (rows[:, 1] == 1)).all():
-        return None
-    name_length = int.from_bytes(bytes(rows[0, 12:16]), "little")
-    start = 4 + -(-(12 + name_length) // 8) * 8
-    if start + 56 != size or not (rows[:, 12:16] == rows[0, 12:16]).all():
-        return None
-    values = np.ascontiguousarray(rows[:, start:start + 56]).view("<f8").astype(np.float64)
-    sec = np.ascontiguousarray(rows[:, 4:8]).view("<i4").astype(np.int64).ravel()
-    nsec = np.ascontiguousarray(rows[:, 8:12]).view("<u4").astype(np.int64).ravel()
-    stamps = sec * 1_000_000_000 + nsec
-    log_times = np.array([m[0] for m in messages], dtype=np.int64)
-    stamps = np.where(stamps == 0, log_times, stamps)  # unset stamps: the log time
-    times = (stamps - stamps[0]).astype(np.float64) * 1e-9
-    return values[:, :3], values[:, 3:7], times
-
-
 def _ros2_poses(schema: _Schema, channel: _Channel, messages: Iterable[tuple[int, bytes]],
                 budget: _Budget) -> Iterable[_Sample]:
-    from mcap.records import Schema
-    from mcap_ros2.decoder import DecoderFactory
-
-    decoder = DecoderFactory().decoder_for(
-        channel.message_encoding,
-        Schema(id=schema.id, name=schema.name, encoding=schema.encoding, data=schema.data))
-    if decoder is None:
+    """PoseStamped messages one by one (big-endian, or frame ids that differ), read by the
+    live bridge's CDR codec."""
+    # The channel's encoding alone decides (an empty payload leaves nothing to sniff).
+    if codecs.pose_format(channel.message_encoding, b"") != codecs.FORMAT_CDR:
         raise BadUpload(f"cannot decode message encoding {channel.message_encoding!r} with "
                         f"schema encoding {schema.encoding!r}", field="file")
     for i, (log_time, payload) in enumerate(messages):
-        msg = decoder(payload)
-        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        p, q = msg.pose.position, msg.pose.orientation
+        _, pose, ros = codecs.decode_pose_by_encoding(channel.message_encoding, payload)
+        assert ros is not None
+        stamp = int(ros.sec) * 1_000_000_000 + int(ros.nanosec)
         if not i & 0xFFF:
             budget.tick()
-        yield (stamp or int(log_time), [p.x, p.y, p.z], [q.x, q.y, q.z, q.w])
+        yield (stamp or int(log_time), list(pose.position), list(pose.orientation or ()))
 
 
 def _foxglove_pose(payload: dict[str, Any], log_time: int) -> _Sample:

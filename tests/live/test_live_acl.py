@@ -191,11 +191,12 @@ def test_recording_batches_flow_between_service_sessions_only(secure):
     try:
         arm2.declare_subscriber("canal/@recorder/live/*", lambda s: heard.append(str(s.key_expr)))
         time.sleep(0.3)
+        from canal_service import record_batches
+
         from canal_protocol import keys as keyspace
-        from canal_protocol import wire
 
         row = [1, [0.0, 0.0, 0.0], None, [0.0, 0.0, 0.0], None, 0.0, 0.1, 0, True, False, "ok"]
-        arm1.put(keyspace.recorder_key("x1"), wire.encode_record_batch(
+        arm1.put(keyspace.recorder_key("x1"), record_batches.encode_record_batch(
             "x1", 0, [("s", "forged", 1, 1, 0, 0, 0, [row])]))
         with PoseStreamer("s", "arm1", zenoh_config=_robot(secure, "arm1")) as ps:
             for k in range(20):
@@ -208,7 +209,7 @@ def test_recording_batches_flow_between_service_sessions_only(secure):
             if streams.get("s/arm1", {}).get("poses", 0) >= before + 20:
                 break
             time.sleep(0.1)
-        arm1.put(keyspace.recorder_key("x1"), wire.encode_record_batch(
+        arm1.put(keyspace.recorder_key("x1"), record_batches.encode_record_batch(
             "x1", 1, [("s", "forged", 1, 1, 0, 0, 0, [row])]))
         time.sleep(0.5)
     finally:

@@ -10,6 +10,7 @@ import orjson
 import pytest
 
 from canal_protocol import wire
+from canal_protocol.codecs import json as json_codec
 
 NAN, INF = math.nan, math.inf
 
@@ -58,7 +59,7 @@ def test_json_pose_fast_path_equals_full_checks(data):
     except orjson.JSONDecodeError:
         assert got[0] == "bad_payload"
         return
-    assert got == _outcome(wire._checked_pose_json, body)
+    assert got == _outcome(json_codec._checked_pose_json, body)
     if isinstance(got, wire.Pose):
         assert all(type(v) is float for v in got.position)
         assert got == wire.Pose(got.seq, got.position, got.orientation, got.t, got.restart)

@@ -26,6 +26,7 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from canal_client.live import PoseStreamer, client_config
+from canal_service import record_batches
 from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.recording.live import LiveOptions
@@ -214,7 +215,7 @@ def test_forged_garbage_and_missing_batches_are_counted_not_recorded(app):
         row = [1, [0.0, 0.0, 0.0], None, [0.0, 0.0, 0.0], None, 0.0, 0.1, 0, True, False, "ok"]
 
         def batch(n: int, bridge: str = "x1", rows: int = 1, poses: int = 1) -> bytes:
-            return wire.encode_record_batch(bridge, n, [
+            return record_batches.encode_record_batch(bridge, n, [
                 ("forged", "r", poses, poses, 0, 0, poses - rows, [row] * rows)])
 
         stranger.put(key, b"{not json")

@@ -1,6 +1,6 @@
 """The live recording's batch codec and writers: columns in, the same files out.
 
-The bridges hand the recorder binary column batches (``canal_protocol.wire``, version 2); the
+The bridges hand the recorder binary column batches (``canal_service.record_batches``, version 2); the
 recorder writes them as columns (MCAP messages from per-topic templates, added to the chunk
 in one write). These tests decode what was encoded, refuse what is not a whole batch (and
 queue nothing of it), and read the MCAP back record by record with mcap's own reader.
@@ -19,6 +19,7 @@ import orjson
 import pytest
 import rerun as rr
 import zstandard
+from canal_service import record_batches
 from canal_service.recording import Recorder
 from canal_service.recording import foxglove as fx
 from canal_service.recording.events import live_rows
@@ -64,7 +65,7 @@ def _same(a: Any, b: Any) -> bool:
 def test_a_batch_round_trips_every_field() -> None:
     streams = [("pour", "arm1", 10, 9, 1, 0, 7, _rows3()), ("draw", "pen", 1, 1, 0, 0, 0, _rows2()),
                ("pour", "idle", 4, 0, 0, 4, 4, [])]
-    batch = wire.decode_record_batch(wire.encode_record_batch("b0-1-ab", 17, streams))
+    batch = record_batches.decode_record_batch(record_batches.encode_record_batch("b0-1-ab", 17, streams))
     assert (batch.bridge, batch.n) == ("b0-1-ab", 17)
     assert [(s.skill, s.robot, s.poses, s.answered, s.coalesced, s.errors, s.decimated, len(s))
             for s in batch.streams] == [("pour", "arm1", 10, 9, 1, 0, 7, 3),
@@ -80,7 +81,7 @@ def test_a_batch_round_trips_every_field() -> None:
 
 
 def test_the_recorder_gets_the_columns_as_sent() -> None:
-    stream = wire.decode_record_batch(wire.encode_record_batch(
+    stream = record_batches.decode_record_batch(record_batches.encode_record_batch(
         "b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])).streams[0]
     from canal_service.recording.live import rows_of
 
@@ -91,7 +92,7 @@ def test_the_recorder_gets_the_columns_as_sent() -> None:
     assert np.isnan(rows.eta[0]) and rows.eta[1] == 1e308
     assert rows.inside.tolist() == [True, False, True] and rows.done.tolist() == [False, False, True]
     assert rows.section_index.tolist() == [3, 4, 79]
-    flat = wire.decode_record_batch(wire.encode_record_batch(
+    flat = record_batches.decode_record_batch(record_batches.encode_record_batch(
         "b", 0, [("draw", "pen", 1, 1, 0, 0, 0, _rows2())])).streams[0]
     assert rows_of(flat).position.tolist() == [[0.1, 0.2, 0.0]]  # 2-D in the z=0 plane
 
@@ -105,15 +106,15 @@ def _old_json_batch() -> bytes:
 
 def test_a_bridge_of_another_version_is_named_as_such() -> None:
     with pytest.raises(wire.WireError, match=r"JSON \(version 1\).*older Canal"):
-        wire.decode_record_batch(_old_json_batch())
-    good = wire.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])
+        record_batches.decode_record_batch(_old_json_batch())
+    good = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])
     with pytest.raises(wire.WireError, match="version 2, got version 3"):
-        wire.decode_record_batch(good[:3] + bytes([3]) + good[4:])
+        record_batches.decode_record_batch(good[:3] + bytes([3]) + good[4:])
 
 
 def _malformed() -> dict[str, bytes]:
     """Batches that are not whole version 2 batches (each must be refused whole)."""
-    good = wire.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()),
+    good = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()),
                                              ("pour", "arm2", 3, 3, 0, 0, 0, _rows3())])
     size = int.from_bytes(good[4:8], "little")
     header = orjson.loads(good[8:8 + size])
@@ -144,7 +145,7 @@ def _malformed() -> dict[str, bytes]:
 @pytest.mark.parametrize("case", sorted(_malformed()))
 def test_a_malformed_batch_is_refused(case: str) -> None:
     with pytest.raises(wire.WireError):
-        wire.decode_record_batch(_malformed()[case])
+        record_batches.decode_record_batch(_malformed()[case])
 
 
 def test_a_malformed_batch_is_counted_and_nothing_of_it_is_queued(tmp_path: Path) -> None:
@@ -154,16 +155,16 @@ def test_a_malformed_batch_is_counted_and_nothing_of_it_is_queued(tmp_path: Path
     try:
         refused = [*_malformed().values(), _old_json_batch(),
                    # whole but inconsistent: the second stream's counts do not add up
-                   wire.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()),
+                   record_batches.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()),
                                                      ("pour", "arm2", 9, 3, 0, 0, 0, _rows3())]),
                    # a batch of another bridge than the key names
-                   wire.encode_record_batch("c", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])]
+                   record_batches.encode_record_batch("c", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])]
         for data in refused:
             assert sub.take(key, data) is False
         assert sub.stats.bad_payload == len(refused)
         assert sub.stats.batches == 0 and not sub.stats.streams and not sub.stats.last_n
         assert rec.health()["queued"] == 0
-        ok = wire.encode_record_batch("b", 0, [("pour", "arm1", 5, 3, 0, 0, 2, _rows3())])
+        ok = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 5, 3, 0, 0, 2, _rows3())])
         assert sub.take(key, ok) is True
         assert rec.health()["queued"] == 6  # three rows: a pose and a target sample each
     finally:

@@ -71,6 +71,7 @@ from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
 from ..errors import ServiceError, error_type
+from ..record_batches import encode_record_batch
 from ..service import CanalService
 from ..validation import check_demonstration
 from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, zenoh_config
@@ -360,7 +361,7 @@ class Bridge:
             # the metrics' identity is canal_live_poses_total == recorded + decimated; the
             # coalesced poses are not in canal_live_poses_total (they have their own counter)
             decimated = sum(st[6] - st[4] for st in streams)
-            pub.put(wire.encode_record_batch(self.bridge_id, self._record_n, streams),
+            pub.put(encode_record_batch(self.bridge_id, self._record_n, streams),
                     encoding=wire.BINARY_ENCODING)
             self._record_n += 1
             self.counts.recorded += kept

@@ -39,6 +39,7 @@ and answers only on its own target key.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import logging
 import math
 import queue
@@ -355,7 +356,7 @@ class PosePath:
     def take_record(self) -> list[tuple[Any, ...]]:
         """Each stream's rows and count deltas since the last call, as
         ``(skill, robot, poses, answered, coalesced, errors, decimated, rows)`` (streams
-        with nothing new are left out); see :func:`canal_protocol.wire.encode_record_batch`."""
+        with nothing new are left out); see :func:`canal_service.record_batches.encode_record_batch`."""
         out = []
         with self.rec_lock:
             retired, self.retired = self.retired, []
@@ -444,24 +445,10 @@ class PosePath:
                 fmt = _FJSON
                 pose = wire.decode_pose_json(data)
             else:
-                fmt = _FBIN
-                encoding = str(encoding)
-                if encoding.startswith(("application/json", "text/json")):
-                    fmt = _FJSON
-                    pose = wire.decode_pose_json(data)
-                elif encoding.startswith(wire.CDR_ENCODING):
-                    fmt = _FCDR
-                    pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
+                fmt = wire.pose_format(str(encoding), data)
+                pose, ros = wire.decode_pose_as(fmt, data, st.cdr_seq)
+                if ros is not None:
                     st.cdr_seq += 1
-                elif data[:1] == b"{" and encoding.startswith("zenoh/bytes"):
-                    fmt = _FJSON
-                    pose = wire.decode_pose_json(data)
-                elif data[:1] == b"\x00":
-                    fmt = _FCDR
-                    pose, ros = wire.decode_pose_cdr(data, st.cdr_seq)
-                    st.cdr_seq += 1
-                else:
-                    pose = wire.decode_pose(data)
         except wire.WireError as exc:
             if answer:
                 self.error(st, None, exc.key, exc.message, fmt)
@@ -661,17 +648,10 @@ class PosePath:
         data = sample.payload.to_bytes()
         encoding = str(sample.encoding)
         seq: int | None = None
-        try:
-            if wire.is_json(encoding, data):
-                seq = wire.decode_pose_json(data).seq
-                fmt = _FJSON
-            elif wire.is_cdr(encoding, data):
-                fmt = _FCDR
-            else:
-                seq = wire.decode_pose(data).seq
-                fmt = _FBIN
-        except wire.WireError:
-            fmt = _FJSON if data[:1] == b"{" else _FBIN
+        fmt = wire.pose_format(encoding, data)
+        if fmt != _FCDR:
+            with contextlib.suppress(wire.WireError):
+                seq = wire.decode_pose_as(fmt, data)[0].seq
         answer = wire.Target(seq=seq, status=entry.status, message=entry.message)
         base = key[: -len(keyspace.POSE)]
         if fmt == _FJSON:

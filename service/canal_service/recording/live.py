@@ -4,11 +4,11 @@ The bridges answer poses; the recorder does not listen to poses or targets. Each
 per stream the poses the recording wants (``recordings_live_hz`` per stream, plus every
 status/inside/done flip) with the targets it answered, and every ~0.1 s puts one batch with
 them and the stream's count deltas on ``{prefix}/@recorder/live/{bridge}``
-(:func:`canal_protocol.keys.recorder_key`, format in :mod:`canal_protocol.wire`). This
+(:func:`canal_protocol.keys.recorder_key`, format in :mod:`canal_service.record_batches`). This
 subscriber hears ~10 small messages a second per bridge instead of every pose and target:
 
 - The batches wait in a Zenoh FIFO channel; a thread drains it every ``interval_s`` (0.2 s).
-- Each stream's rows arrive as columns (:func:`canal_protocol.wire.decode_record_batch`) and
+- Each stream's rows arrive as columns (:func:`canal_service.record_batches.decode_record_batch`) and
   go to the recorder as :class:`~.events.LiveRows` (numpy views of those columns, no
   per-row Python) without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
 - The counts make the recording checkable: per stream, every pose a bridge handled is in
@@ -36,6 +36,7 @@ import zenoh
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
+from .. import record_batches
 from .events import LiveRows, live_rows
 
 log = logging.getLogger("canal_service.recording")
@@ -102,7 +103,7 @@ def zenoh_config(options: LiveOptions) -> zenoh.Config:
     return config
 
 
-def rows_of(stream: wire.RecordStream) -> LiveRows:
+def rows_of(stream: record_batches.RecordStream) -> LiveRows:
     """A batch's stream as :class:`~.events.LiveRows` (its columns read in place)."""
     m = len(stream)
     flags = np.frombuffer(stream.flags, dtype=np.uint8)
@@ -114,7 +115,7 @@ def rows_of(stream: wire.RecordStream) -> LiveRows:
                      np.frombuffer(stream.progress, dtype=np.float64),
                      np.frombuffer(stream.eta, dtype=np.float64),
                      np.frombuffer(stream.section, dtype=np.int32),
-                     (flags & wire.RECORD_INSIDE) != 0, (flags & wire.RECORD_DONE) != 0)
+                     (flags & record_batches.RECORD_INSIDE) != 0, (flags & record_batches.RECORD_DONE) != 0)
 
 
 @dataclass
@@ -221,7 +222,7 @@ class LiveSubscriber:
         stats = self.stats
         bridge = keyspace.bridge_of_batch(key, self._prefix)
         try:
-            batch = wire.decode_record_batch(data)
+            batch = record_batches.decode_record_batch(data)
         except wire.WireError:
             stats.bad_payload += 1
             return False

@@ -1,0 +1,126 @@
+"""What the live codecs carry: the pose and target messages, status codes and encodings.
+
+Shared by :mod:`canal_protocol.codecs.binary`, :mod:`~canal_protocol.codecs.json` and
+:mod:`~canal_protocol.codecs.cdr`; the layouts are described in :mod:`canal_protocol.wire`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+VERSION = 1
+KIND_POSE = 1
+KIND_TARGET = 2
+MAX_DIM = 16
+
+POSE_ORIENTATION = 0x01
+POSE_TIME = 0x02
+POSE_RESTART = 0x04
+
+TARGET_INSIDE = 0x01
+TARGET_DONE = 0x02
+TARGET_SEQ = 0x04
+TARGET_MESSAGE = 0x08
+TARGET_ORIENTATION = 0x10
+TARGET_VELOCITY = 0x20
+TARGET_COALESCED = 0x40
+
+SEQ_MAX = 2**64 - 1
+
+STATUS_CODES: dict[str, int] = {
+    "ok": 0,
+    "outside_canal": 1,
+    "bad_payload": 16,
+    "wrong_dimension": 17,
+    "non_finite": 18,
+    "unknown_skill": 19,
+    "no_model": 20,
+    "internal_error": 21,
+}
+STATUS_KEYS: dict[int, str] = {code: key for key, code in STATUS_CODES.items()}
+USABLE = frozenset({"ok", "outside_canal"})
+
+JSON_ENCODING = "application/json"
+BINARY_ENCODING = "application/octet-stream"
+CDR_ENCODING = "application/cdr"
+
+FORMAT_JSON = 0
+FORMAT_BINARY = 1
+FORMAT_CDR = 2
+
+
+class WireError(ValueError):
+    """A message that cannot be read; ``key`` is the status key to answer with."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
+
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A robot pose: ``position`` (D floats), optional quaternion (x, y, z, w) and time (s)."""
+
+    seq: int
+    position: tuple[float, ...]
+    orientation: tuple[float, float, float, float] | None = None
+    t: float | None = None
+    restart: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """Canal's answer to one pose. ``target`` is None when ``status`` is an error."""
+
+    seq: int | None
+    status: str
+    target: tuple[float, ...] | None = None
+    progress: float = 0.0
+    eta: float | None = None
+    section: int | None = None
+    inside: bool = False
+    done: bool = False
+    model_version: int | None = None
+    message: str | None = None
+    orientation: tuple[float, float, float, float] | None = None
+    velocity: tuple[float, ...] | None = None
+    coalesced: int = 0
+
+    @property
+    def usable(self) -> bool:
+        """Whether ``target`` can be moved to (status ok or outside_canal)."""
+        return self.status in USABLE
+
+
+_isfinite = math.isfinite
+
+
+def all_finite(values: Any) -> bool:
+    """Whether every number of ``values`` is finite."""
+    for v in values:
+        if not _isfinite(v):
+            return False
+    return True
+
+
+_new = object.__new__
+_set_seq, _set_position, _set_orientation, _set_t, _set_restart = (
+    Pose.__dict__[name].__set__ for name in ("seq", "position", "orientation", "t", "restart"))
+
+
+def plain_pose(seq: int, position: tuple[float, ...]) -> Pose:
+    """``Pose(seq, position)`` without the frozen dataclass's ``__init__`` (its
+    ``object.__setattr__`` per field costs 0.3 us a pose on the bridge's path)."""
+    pose: Pose = _new(Pose)
+    _set_seq(pose, seq)
+    _set_position(pose, position)
+    _set_orientation(pose, None)
+    _set_t(pose, None)
+    _set_restart(pose, False)
+    return pose
