@@ -29,6 +29,7 @@ from .errors import InvalidInputError
 from .frames import canal_frames
 from .goal import goal_displacements
 from .io import canal_dict, canal_fields
+from .obstacles import demonstrated_largest_step
 from .options import FitOptions
 from .orientation import OrientationModel
 from .reproduce import (
@@ -238,6 +239,7 @@ class Canal:
         entry: float = ENTRY_FRACTION,
         end_decay: float = END_DECAY,
         persistence: str = "learned",
+        obstacles: Any = None,
     ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15): see
         :func:`canal_core.reproduction.reproduce`.
@@ -271,9 +273,19 @@ class Canal:
             what the demonstrations themselves kept of their start offsets, section by
             section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
             paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
+        obstacles : Scene or list of obstacle dicts, optional
+            What stands in the canal (:mod:`canal_core.obstacles`): the path detours through
+            the free part of each section, or stops short saying ``blocked``.
         """
         return reproduction.reproduce(self, start, outside, start_orientation, goal, duration,
-                                      entry=entry, end_decay=end_decay, persistence=persistence)
+                                      entry=entry, end_decay=end_decay, persistence=persistence,
+                                      obstacles=obstacles)
+
+    @cached_property
+    def largest_step(self) -> float:
+        """The longest step a demonstration takes from one section to the next (or the
+        directrix, when longer): no detour around obstacles steps further."""
+        return demonstrated_largest_step(self.directrix, self.basis, self.section_points)
 
     def with_goal(self, goal: Any) -> Canal:
         """This canal deformed so that its directrix ends at ``goal`` (D,) (:mod:`canal_core.goal`).

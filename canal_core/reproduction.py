@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .errors import OutsideCanalError
+from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
 from .reproduce import (
     CONTAINS_TOLERANCE,
@@ -27,6 +28,7 @@ from .reproduce import (
 )
 from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
 from .validation import (
+    BoolArray,
     FloatArray,
     check_choice,
     check_fraction,
@@ -72,6 +74,14 @@ class Reproduction:
         before clamping to 1 (None without a start orientation or orientation model).
     goal : array, shape (D,), or None
         The goal the canal was deformed to, when one was given.
+    blocked : Blocked or None
+        When obstacles close the canal: the section the reproduction cannot enter and why;
+        ``positions`` (and times, orientations) then end at the section before it.
+    detoured : array of bool, shape (N' - 1,), or None
+        With obstacles: which points left the ratio rule's path to go around them.
+    start_clearance : float or None
+        With obstacles: the start's distance to the nearest one minus its clearance
+        (negative: the start is inside it; the path leaves it first).
     """
 
     positions: FloatArray
@@ -85,7 +95,9 @@ class Reproduction:
     orientations: FloatArray | None = None
     orientation_eta: float | None = None
     goal: FloatArray | None = None
-
+    blocked: Blocked | None = None
+    detoured: BoolArray | None = None
+    start_clearance: float | None = None
 
 
 def reproduce(
@@ -99,6 +111,7 @@ def reproduce(
     entry: float = ENTRY_FRACTION,
     end_decay: float = END_DECAY,
     persistence: str = "learned",
+    obstacles: Any = None,
 ) -> Reproduction:
     """Reproduce from ``start`` (D,) on ``canal`` by the ratio rule (Alg. 1 lines 7-15).
 
@@ -132,8 +145,14 @@ def reproduce(
         what the demonstrations themselves kept of their start offsets, section by
         section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
         paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
+    obstacles : Scene or list of obstacle dicts, optional
+        What stands in the canal (:mod:`canal_core.obstacles`): the path goes through the
+        free part of each section, keeps every clearance, steps no further than the
+        demonstrations' largest step, and stops short, saying ``blocked``, where the
+        obstacles close the canal.
     """
     point = check_point(start, canal.dim, "start")
+    scene = None if obstacles is None else scene_from_list(obstacles, canal.dim)
     check_choice(outside, OUTSIDE_RULES, "outside")
     quat = None if start_orientation is None else check_quaternion(start_orientation)
     entry = check_fraction(entry, "entry", maximum=1.0)
@@ -170,16 +189,24 @@ def reproduce(
     ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
     positions = np.vstack([point, path])
+    blocked, detoured, start_clearance = None, None, None
+    if scene is not None:
+        largest = demonstrated_largest_step(canal.directrix, canal.basis, canal.section_points)
+        avoided = avoided_path(point, path, first, canal.directrix, canal.basis, canal.sections, scene, largest)
+        positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
+        start_clearance = avoided.start_clearance
     times = None
     if canal.section_times is not None:
-        times = reproduction_times(canal.section_times, index, alpha, positions.shape[0])
+        times = reproduction_times(canal.section_times, index, alpha, path.shape[0] + 1)
         if seconds is not None:
             times = rescaled_times(times, seconds)
+        times = times[: positions.shape[0]]  # a blocked path keeps its own times
     elif seconds is not None:
         times = arc_length_times(positions, seconds)
     orientations, orientation_eta = None, None
     if canal.orientation is not None:
         orientations, orientation_eta = canal.orientation.reproduced(index, first, quat)
+        orientations = orientations[: positions.shape[0]]
     return Reproduction(
         positions=positions,
         start=point,
@@ -192,4 +219,7 @@ def reproduce(
         orientations=orientations,
         orientation_eta=orientation_eta,
         goal=target,
+        blocked=blocked,
+        detoured=detoured,
+        start_clearance=start_clearance,
     )
