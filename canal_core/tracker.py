@@ -21,6 +21,24 @@ robot is not found in the window (it was pushed far ahead), the sections ahead a
 once, vectorised, and the bracketing pair whose centre is nearest the robot is taken (the
 first plane crossed could be a later turn of a helix). "Done" is only reported at the last
 pair of sections, not anywhere in the last plane's half-space.
+
+Plausible steps: one glitch sample (a sensor spike, one pose in the wrong frame) must not
+move a robot's plan, and progress never goes back, so a stream with a plan takes a pose as
+it takes any only when it is *plausible*: located at most :data:`MAX_ADVANCE` sections past
+the section reached, and not far from the canal (its ratio at most :data:`FAR_ETA`, and not
+more than :data:`FAR_ETA` local radii before the first plane or beyond the last). A suspect
+pose changes nothing: it is answered from the stream's last plausible state (the target
+``lookahead`` sections past the section reached, on the kept plan), as outside the canal,
+with its own live ratio. :data:`SUSTAIN` consecutive suspect poses that agree (each within
+:data:`FAR_ETA` local radii of the one before) are a real displacement (a push, a robot
+moved by hand): the last of them is taken as any pose is, as if it had come first, and so
+is every next one that agrees. A stream with no
+plan yet (a new stream, a restart) has no plausible state to hold: a pose near the canal is
+taken wherever it is located, a far one is answered with the entry the canal gives it (the
+located section ahead, at :data:`MAX_PLAN_ETA` in its direction) and leaves the stream
+unplaced. The rule counts poses, not seconds: at 1 kHz a robot advances a few hundredths of
+a section a pose, so :data:`MAX_ADVANCE` is wide for any stream faster than about 10 Hz;
+a slower stream moving faster than that is followed :data:`SUSTAIN` poses late.
 """
 
 from __future__ import annotations
@@ -40,6 +58,15 @@ REPLAN_TOLERANCE = 0.25
 #: Largest planned ratio: positions nearer the boundary (or outside) are planned at this
 #: eta, leaving a lagging robot a margin. Offline reproduction keeps the exact ratio.
 MAX_PLAN_ETA = 0.9
+#: Most sections one pose may advance a stream's section reached (see "Plausible steps" in
+#: the module docstring); a pose located further ahead is suspect.
+MAX_ADVANCE = 8
+#: A pose whose ratio exceeds this, or that lies more than this many local radii beyond the
+#: first or the last plane, is far from the canal: suspect.
+FAR_ETA = 3.0
+#: Consecutive suspect poses, each within :data:`FAR_ETA` local radii of the one before,
+#: taken as a real displacement: the SUSTAIN-th is followed as any pose is.
+SUSTAIN = 4
 
 # On the directrix eta = 0 and any direction gives the same point (as unit_directions does).
 DEFAULT_DIRECTIONS = {1: np.array([1.0]), 2: np.array([1.0, 0.0])}
@@ -92,11 +119,18 @@ class TrackerState:
         Planned ratio; None until the first step (or after a reset).
     direction : array, shape (D - 1,), or None
         Planned unit in-plane direction.
+    pending : array, shape (D,), or None
+        The last suspect pose's position (None: the last pose was plausible).
+    strikes : int
+        Consecutive suspect poses that agree, up to :data:`SUSTAIN` (see the module
+        docstring; 0: the last pose was plausible).
     """
 
     index: int = 0
     eta: float | None = None
     direction: FloatArray | None = None
+    pending: FloatArray | None = None
+    strikes: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,7 +183,8 @@ def tracker_step(
     lookahead: int = 1,
     replan_tolerance: float = REPLAN_TOLERANCE,
 ) -> tuple[TrackerTarget, TrackerState]:
-    """One reactive step.
+    """One reactive step (a suspect pose is held: see "Plausible steps" in the module
+    docstring).
 
     Parameters
     ----------
@@ -179,6 +214,7 @@ def tracker_step(
     g = geometry
     n = g.centres.shape[0]
     last_index = state.index
+    planned = state.direction is not None and state.eta is not None
     lo = max(last_index - 1, 0)
     hi = min(last_index + WINDOW, n - 1)
     dist = g.tangents[lo : hi + 1] @ position - g.offsets[lo : hi + 1]
@@ -202,7 +238,6 @@ def tracker_step(
     norm = math.sqrt(float(q @ q))
     direction = q / norm if norm > 0.0 else DEFAULT_DIRECTIONS[q.shape[0]]
     target_index = min(index + max(lookahead, 1), n - 1)
-    planned = state.direction is not None and state.eta is not None
     if g.sections.spec.isotropic:
         # The default kind: the boundary distance does not depend on the direction.
         radius = g.sections.params["radius"]
@@ -224,6 +259,18 @@ def tracker_step(
         eta = norm / reach
     else:
         eta = math.inf if norm > 0.0 else 0.0
+    # plausible steps (module docstring): a suspect pose of a stream with a plan is held
+    unplaced = False
+    pending, strikes = None, 0
+    if is_far(eta, d0, d1, reach) or (planned and index - last_index > MAX_ADVANCE):
+        if not planned:  # nothing plausible to hold: the entry, the stream left unplaced
+            unplaced = True
+        else:
+            strikes = suspect_strikes(state.pending, state.strikes, position, reach)
+            pending = np.array(position, dtype=np.float64)
+            if strikes < SUSTAIN or not math.isfinite(eta):  # an overflow is never followed
+                return _held_answer(g, state, eta, lookahead), \
+                    TrackerState(last_index, state.eta, state.direction, pending, strikes)
 
     # Plan a margin inside the boundary: a lagging robot asked to ride the boundary itself
     # hovers just outside it (a first-order robot settles about 0.05 in eta off its plan).
@@ -258,8 +305,70 @@ def tracker_step(
             target, float(progress), float(eta), index, inside, done, velocity,
             orientation=None if g.orientations is None else g.orientations[target_index],
         ),
-        TrackerState(max(last_index, index), plan_eta, plan_direction),
+        state if unplaced else TrackerState(max(last_index, index), plan_eta, plan_direction,
+                                            pending, strikes),
     )
+
+
+def start_section(geometry: TrackerGeometry, position: FloatArray, located: int) -> int:
+    """The section a stream with no plan starts from: ``located`` (where the canal locates
+    the stream's first ``position``, shape (D,)) when the position is near the canal there,
+    else 0 (a first pose far from the canal, perhaps a glitch, must not place the stream:
+    :func:`tracker_step` then answers it with the entry and places the stream at its first
+    pose near the canal)."""
+    n = geometry.centres.shape[0]
+    state = TrackerState(min(max(int(located), 0), max(n - 1, 0)))
+    with np.errstate(all="ignore"):
+        _, after = tracker_step(geometry, state, np.asarray(position, dtype=np.float64))
+    # a far pose leaves a stream with no plan as it was (the very same state)
+    return state.index if after is not state else 0
+
+
+def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
+    """Whether a pose is far from the canal: its ratio ``eta`` above :data:`FAR_ETA` (or
+    not a number), or it lies more than :data:`FAR_ETA` times the local ``reach`` outside
+    the pair of planes it was located between (``d0`` < 0: behind the first of them, ``d1``
+    > 0: beyond the second; signed plane distances)."""
+    return not eta <= FAR_ETA or d0 < -FAR_ETA * reach or d1 > FAR_ETA * reach
+
+
+def suspect_strikes(pending: FloatArray | None, strikes: int, position: FloatArray,
+                    reach: float) -> int:
+    """Consecutive agreeing suspect poses once a suspect pose at ``position`` (D,) has come:
+    the streak goes on when the previous pose was suspect too (``strikes`` > 0, at
+    ``pending``) and lies within :data:`FAR_ETA` local reaches of it, else it starts over
+    at 1. At most :data:`SUSTAIN` (a followed displacement stays followed while its poses
+    agree)."""
+    if strikes > 0 and pending is not None:
+        gap = position - pending
+        if math.sqrt(float(gap @ gap)) <= FAR_ETA * reach:
+            return min(strikes + 1, SUSTAIN)
+    return 1
+
+
+def _held_answer(g: TrackerGeometry, state: TrackerState, eta: float,
+                 lookahead: int) -> TrackerTarget:
+    """The answer to a suspect pose of a stream with a plan: its last plausible state's (the
+    target ``lookahead`` sections past the section reached, on the kept plan), outside the
+    canal, with the pose's live ratio ``eta``."""
+    assert state.eta is not None and state.direction is not None
+    n = g.centres.shape[0]
+    hold = max(min(state.index, n - 2), 0)
+    target_index = min(hold + max(lookahead, 1), n - 1)
+    if g.sections.spec.isotropic:
+        reach = float(g.sections.params["radius"][target_index])
+    else:
+        reach = float(boundary_distance(g.sections, np.array([target_index]),
+                                        state.direction[None, :])[0])
+    target = g.centres[target_index] + (state.eta * reach) * (state.direction @ g.basis[target_index])
+    velocity = None
+    if g.section_times is not None:
+        velocity = _feed_forward(g, target_index, target, state.eta, state.direction)
+    return TrackerTarget(
+        target, float(hold / max(n - 1, 1)), float(eta), hold, False, False, velocity,
+        orientation=None if g.orientations is None else g.orientations[target_index])
+
+
 
 def _feed_forward(
     g: TrackerGeometry, index: int, target: FloatArray, eta: float, direction: FloatArray

@@ -14,8 +14,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .tracker import (
+    FAR_ETA,
+    MAX_ADVANCE,
     MAX_PLAN_ETA,
     REPLAN_TOLERANCE,
+    SUSTAIN,
     WINDOW,
     TrackerGeometry,
     TrackerState,
@@ -72,6 +75,9 @@ class TrackerBank:
         self.eta = np.full(cap, np.nan)
         #: planned unit in-plane direction per slot, shape (capacity, D - 1)
         self.direction = np.zeros((cap, k))
+        #: section of the slot's last suspect pose (-1: none) and the streak's length
+        self.pending = np.zeros((cap, k + 1))
+        self.strikes = np.zeros(cap, dtype=np.intp)
         self._free = list(range(cap - 1, -1, -1))
         self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
         self.compiled = bool(compiled)
@@ -98,6 +104,8 @@ class TrackerBank:
             self.index = np.concatenate([self.index, np.zeros(cap, dtype=np.intp)])
             self.eta = np.concatenate([self.eta, np.full(cap, np.nan)])
             self.direction = np.concatenate([self.direction, np.zeros_like(self.direction)])
+            self.pending = np.concatenate([self.pending, np.zeros_like(self.pending)])
+            self.strikes = np.concatenate([self.strikes, np.zeros(cap, dtype=np.intp)])
             self._free = list(range(2 * cap - 1, cap - 1, -1))
         slot = self._free.pop()
         self.reset(slot, index)
@@ -113,13 +121,17 @@ class TrackerBank:
         no plan."""
         self.index[slot] = min(max(int(index), 0), self.geometry.centres.shape[0] - 1)
         self.eta[slot] = np.nan
+        self.strikes[slot] = 0
 
     def state(self, slot: int) -> TrackerState:
         """``slot``'s state as a :class:`TrackerState`."""
         eta = float(self.eta[slot])
+        strikes = int(self.strikes[slot])
+        pending = self.pending[slot].copy() if strikes else None
         if math.isnan(eta):
-            return TrackerState(int(self.index[slot]))
-        return TrackerState(int(self.index[slot]), eta, self.direction[slot].copy())
+            return TrackerState(int(self.index[slot]), None, None, pending, strikes)
+        return TrackerState(int(self.index[slot]), eta, self.direction[slot].copy(), pending,
+                            strikes)
 
     def step(self, slots: Any, positions: FloatArray) -> TrackerBatch:
         """Step the given slots (distinct) with their live positions, shape (B, D)."""
@@ -188,8 +200,9 @@ class TrackerBank:
         b, d = p.shape
         out = np.empty((b, packed_width(d)))
         kernel(*self._kernel_arrays, np.array(slots, dtype=np.intp),
-               np.ascontiguousarray(p), self.index, self.eta, self.direction, self.lookahead,
-               WINDOW, self.replan_tolerance, MAX_PLAN_ETA, float(g.done_tolerance), out)
+               np.ascontiguousarray(p), self.index, self.eta, self.direction, self.pending,
+               self.strikes, self.lookahead, WINDOW, self.replan_tolerance, MAX_PLAN_ETA,
+               float(g.done_tolerance), MAX_ADVANCE, FAR_ETA, SUSTAIN, out)
         return out
 
     def _batch_of_rows(self, rows: FloatArray) -> TrackerBatch:
@@ -231,6 +244,9 @@ class TrackerBank:
     def _keep(self, slot: int, st: TrackerState) -> None:
         """A scalar step's new state, written into ``slot``'s arrays."""
         self.index[slot] = st.index
+        self.strikes[slot] = st.strikes
+        if st.pending is not None:
+            self.pending[slot] = st.pending
         if st.eta is None or st.direction is None:
             self.eta[slot] = np.nan
         else:
@@ -264,7 +280,8 @@ class TrackerBank:
     def _vectorised(self, slots: NDArray[np.intp], p: FloatArray) -> TrackerBatch:
         """Every row in one pass (:func:`batched_tracker_step`), state read and written in
         the slot arrays."""
-        out, self.index[slots], self.eta[slots], self.direction[slots] = batched_tracker_step(
+        (out, self.index[slots], self.eta[slots], self.direction[slots], self.pending[slots],
+         self.strikes[slots]) = batched_tracker_step(
             self.geometry, self.index[slots], self.eta[slots], self.direction[slots], p,
-            self.lookahead, self.replan_tolerance)
+            self.lookahead, self.replan_tolerance, self.pending[slots], self.strikes[slots])
         return out

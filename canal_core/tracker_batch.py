@@ -18,8 +18,11 @@ from numpy.typing import NDArray
 
 from .tracker import (
     DEFAULT_DIRECTIONS,
+    FAR_ETA,
+    MAX_ADVANCE,
     MAX_PLAN_ETA,
     REPLAN_TOLERANCE,
+    SUSTAIN,
     WINDOW,
     Tracker,
     TrackerGeometry,
@@ -104,8 +107,11 @@ def tracker_steps(
                        for st in states], dtype=np.float64, count=b)
     direction = np.array([np.zeros(k) if st.direction is None else st.direction
                           for st in states], dtype=np.float64).reshape(b, k)
-    out, new_index, plan_eta, plan_dir = batched_tracker_step(
-        g, index, eta, direction, positions, lookahead, replan_tolerance)
+    pending = np.array([np.zeros(k + 1) if st.pending is None else st.pending
+                        for st in states], dtype=np.float64).reshape(b, k + 1)
+    strikes = np.fromiter([st.strikes for st in states], dtype=np.intp, count=b)
+    out, new_index, plan_eta, plan_dir, pending, strikes = batched_tracker_step(
+        g, index, eta, direction, positions, lookahead, replan_tolerance, pending, strikes)
     velocity = out.velocity
     orientation = out.orientation
     targets = [
@@ -115,9 +121,11 @@ def tracker_steps(
         for r, (prog, et, ix, ins, dn) in enumerate(zip(
             out.progress.tolist(), out.eta.tolist(), out.section_index.tolist(),
             out.inside.tolist(), out.done.tolist(), strict=True))]
-    new_states = [TrackerState(ni, pe, plan_dir[r])
-                  for r, (ni, pe) in enumerate(zip(new_index.tolist(), plan_eta.tolist(),
-                                                   strict=True))]
+    new_states = [TrackerState(ni, None if math.isnan(pe) else pe,
+                               None if math.isnan(pe) else plan_dir[r],
+                               pending[r].copy() if sk else None, sk)
+                  for r, (ni, pe, sk) in enumerate(zip(
+                      new_index.tolist(), plan_eta.tolist(), strikes.tolist(), strict=True))]
     return targets, new_states
 
 
@@ -208,7 +216,10 @@ def batched_tracker_step(
     p: FloatArray,
     lookahead: int,
     replan_tolerance: float = REPLAN_TOLERANCE,
-) -> tuple[TrackerBatch, NDArray[np.intp], FloatArray, FloatArray]:
+    pending: FloatArray | None = None,
+    strikes: NDArray[np.intp] | None = None,
+) -> tuple[TrackerBatch, NDArray[np.intp], FloatArray, FloatArray, FloatArray,
+           NDArray[np.intp]]:
     """:func:`tracker_step` for B streams of one circle-section canal (N >= 3) in one pass.
 
     The window search for every row, and for the rows it cannot place the same rules as
@@ -230,6 +241,10 @@ def batched_tracker_step(
         Live positions.
     lookahead, replan_tolerance
         As :func:`tracker_step` (lookahead >= 1).
+    pending : array, shape (B, D), optional
+    strikes : array of int, shape (B,), optional
+        Each stream's :class:`TrackerState` ``pending`` (any value where ``strikes`` is 0)
+        and ``strikes`` (None: no stream has a streak).
 
     Returns
     -------
@@ -239,6 +254,9 @@ def batched_tracker_step(
     plan_eta : array, shape (B,)
     plan_dir : array, shape (B, D - 1)
         The plan after the step.
+    pending : array, shape (B, D)
+    strikes : array of int, shape (B,)
+        The suspect-pose streak after the step.
 
     Notes
     -----
@@ -309,6 +327,13 @@ def batched_tracker_step(
         np.copyto(plan_dir, old_dir, where=keep[:, None])
         inside = eta <= 1.0 + 1e-9
         done = np.zeros(b, dtype=bool)
+        # plausible steps (tracker_step's rule): far from the canal, or too far ahead
+        planned = old_eta == old_eta  # NaN: no plan
+        suspect = eta > FAR_ETA
+        suspect |= eta != eta
+        suspect |= planned & (index - last_index > MAX_ADVANCE)
+        suspect |= d0 < -FAR_ETA * reach
+        suspect |= d1 > FAR_ETA * reach
         at = index.tolist()
         if 0 in at:  # behind the first plane
             inside &= ~((index == 0) & (d0 < 0.0))
@@ -316,6 +341,17 @@ def batched_tracker_step(
             end = index == n - 2
             inside &= ~(end & (d1 > 0.0))
             done = end & (d1 >= -g.done_tolerance)
+        new_index = np.maximum(last_index, index)
+        new_pending = p
+        new_strikes = np.zeros(b, dtype=np.intp)
+        unplaced = None
+        if True in suspect.tolist():
+            new_pending = p.copy()
+            unplaced, index = _suspect_rows(
+                suspect, planned, last_index, index, eta, alpha, inside, done, plan_eta,
+                plan_dir, old_eta, old_dir, new_index, new_pending, new_strikes,
+                p if pending is None else pending,
+                np.zeros(b, dtype=np.intp) if strikes is None else strikes, p, reach, n)
         target_index = index + max(int(lookahead), 1)
         np.minimum(target_index, n - 1, out=target_index)
         target = _planned_points(t, target_index, plan_eta, plan_dir)
@@ -325,9 +361,48 @@ def batched_tracker_step(
             progress[done] = 1.0
         velocity = None if g.section_times is None else _feed_forwards(
             g, target_index, target, plan_eta, plan_dir)
+        if unplaced is not None:  # answered with the entry, their state left as it was
+            plan_eta[unplaced] = old_eta[unplaced]
+            plan_dir[unplaced] = old_dir[unplaced]
     orientation = None if g.orientations is None else g.orientations[target_index]
     answers = TrackerBatch(target, progress, eta, index, inside, done, velocity, orientation)
-    return answers, np.maximum(last_index, index), plan_eta, plan_dir
+    return answers, new_index, plan_eta, plan_dir, new_pending, new_strikes
+
+
+def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
+                  last_index: NDArray[np.intp], index: NDArray[np.intp], eta: FloatArray,
+                  alpha: FloatArray, inside: NDArray[np.bool_], done: NDArray[np.bool_],
+                  plan_eta: FloatArray, plan_dir: FloatArray, old_eta: FloatArray,
+                  old_dir: FloatArray, new_index: NDArray[np.intp],
+                  new_pending: FloatArray, new_strikes: NDArray[np.intp],
+                  pending: FloatArray, strikes: NDArray[np.intp], p: FloatArray,
+                  reach: FloatArray, n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """:func:`batched_tracker_step`'s suspect rows by :func:`tracker_step`'s rules, written
+    into its arrays in place: a held row answers from its last plausible state (section,
+    plan) and keeps its state but the streak; a row with no plan is answered as located
+    and its state is left as it was. Returns the unplaced rows (whose returned plan the
+    caller restores once the answers are built) and the answers' sections."""
+    unplaced = np.flatnonzero(suspect & ~planned)
+    new_index[unplaced] = last_index[unplaced]
+    new_pending[unplaced] = pending[unplaced]
+    new_strikes[unplaced] = strikes[unplaced]
+    rows = np.flatnonzero(suspect & planned)
+    if rows.size:
+        agree = _row_norms(p[rows] - pending[rows]) <= FAR_ETA * reach[rows]
+        agree &= strikes[rows] > 0
+        streak = np.where(agree, np.minimum(strikes[rows] + 1, SUSTAIN), 1)
+        new_strikes[rows] = streak
+        hold = (streak < SUSTAIN) | ~np.isfinite(eta[rows])
+        held = rows[hold]
+        index = index.copy()
+        index[held] = np.minimum(np.maximum(last_index[held], 0), n - 2)
+        alpha[held] = 0.0
+        inside[held] = False
+        done[held] = False
+        plan_eta[held] = old_eta[held]
+        plan_dir[held] = old_dir[held]
+        new_index[held] = last_index[held]
+    return unplaced, index
 
 
 def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,

@@ -35,8 +35,10 @@ _compiled: Any = None  # step_rows compiled: its entry point (or dispatcher), se
 
 def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any,
               times: Any, orientations: Any, default_direction: Any, slots: Any, p: Any,
-              index: Any, eta: Any, direction: Any, lookahead: int, window: int,
-              tolerance: float, max_plan_eta: float, done_tolerance: float, out: Any) -> None:
+              index: Any, eta: Any, direction: Any, pending: Any, strikes: Any,
+              lookahead: int, window: int, tolerance: float, max_plan_eta: float,
+              done_tolerance: float, max_advance: int, far_eta: float, sustain: int,
+              out: Any) -> None:
     """Step the trackers of ``slots`` (B,) at live positions ``p`` (B, D) in place, the
     answers packed in the rows of ``out`` (see :func:`packed_width`).
 
@@ -61,6 +63,10 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         Planned ratio per slot, NaN: no plan. Updated in place, as ``index`` and
         ``direction``.
     direction : array, shape (S, D - 1)
+    pending : array, shape (S, D)
+    strikes : array of int, shape (S,)
+        Each slot's last suspect pose and the streak's length (0: none;
+        :class:`canal_core.tracker.TrackerState`); updated in place.
     lookahead : int
         >= 1.
     window : int
@@ -68,6 +74,9 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
     tolerance, max_plan_eta, done_tolerance : float
         The replan tolerance (a fraction of the reach), the largest planned ratio and the
         distance to the last plane that counts as reached.
+    max_advance, far_eta, sustain
+        The plausible-step rule's :data:`~canal_core.tracker.MAX_ADVANCE`,
+        :data:`~canal_core.tracker.FAR_ETA` and :data:`~canal_core.tracker.SUSTAIN`.
     out : array, shape (B, 2 D + 9)
         Row b: target (D), progress, live eta, section index, inside (1.0 or 0.0), done
         (1.0 or 0.0), feed-forward velocity (D; NaN when ``times`` is empty), orientation (4;
@@ -158,10 +167,35 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             live_eta = norm / reach
         else:
             live_eta = math.inf if norm > 0.0 else 0.0
+        # plausible steps (canal_core.tracker): a suspect pose of a stream with a plan is
+        # held, one with no plan is answered as located and leaves the stream unplaced
+        old = eta[slot]
+        planned = not math.isnan(old)
+        unplaced = False
+        held = False
+        streak = 0
+        if not live_eta <= far_eta or d0 < -far_eta * reach or d1 > far_eta * reach \
+                or (planned and at - last > max_advance):
+            if not planned:
+                unplaced = True
+            else:
+                streak = 1
+                if strikes[slot] > 0:
+                    gap = 0.0
+                    for j in range(d):
+                        e = p[r, j] - pending[slot, j]
+                        gap += e * e
+                    if math.sqrt(gap) <= far_eta * reach:
+                        streak = min(strikes[slot] + 1, sustain)
+                held = streak < sustain or not math.isfinite(live_eta)
+        if held:
+            at = max(min(last, n - 2), 0)
+            alpha = 0.0
         # the plan: kept while the live position is near it, else the live eta and direction
         keep = False
-        old = eta[slot]
-        if not math.isnan(old):
+        if held:
+            keep = True
+        elif planned:
             dev = 0.0
             for m in range(k):
                 e = q[m] - (old * reach) * direction[slot, m]
@@ -176,8 +210,8 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             for m in range(k):
                 plan[m] = q[m] / norm if norm > 0.0 else default_direction[m]
         inside = live_eta <= 1.0 + 1e-9 and not (at == 0 and d0 < 0.0) \
-            and not (at == n - 2 and d1 > 0.0)
-        done = at >= n - 2 and d1 >= -done_tolerance
+            and not (at == n - 2 and d1 > 0.0) and not held
+        done = at >= n - 2 and d1 >= -done_tolerance and not held
         aim = min(at + lookahead, n - 1)
         scale = plan_eta * radius[aim]
         for j in range(d):
@@ -215,10 +249,17 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         else:
             for j in range(4):
                 out[r, o0 + j] = orientations[aim, j]
-        index[slot] = max(last, at)
-        eta[slot] = plan_eta
-        for m in range(k):
-            direction[slot, m] = plan[m]
+        if not unplaced:
+            # a followed displacement stays followed while its poses agree
+            strikes[slot] = streak
+            if streak > 0:
+                for j in range(d):
+                    pending[slot, j] = p[r, j]
+        if not held and not unplaced:
+            index[slot] = max(last, at)
+            eta[slot] = plan_eta
+            for m in range(k):
+                direction[slot, m] = plan[m]
 
 
 def packed_width(d: int) -> int:
@@ -280,7 +321,8 @@ def _run_once(kernel: Callable[..., None]) -> None:
     kernel(centres, tangents, centres[:, 0].copy(), basis, np.ones(n), np.zeros(0),
            np.zeros((0, 4)), np.array([1.0, 0.0]), np.zeros(1, dtype=np.intp),
            np.array([[0.5, 0.1, 0.0]]), np.zeros(1, dtype=np.intp), np.full(1, np.nan),
-           np.zeros((1, d - 1)), 1, 16, 0.25, 0.9, 1e-9, np.empty((1, packed_width(d))))
+           np.zeros((1, d - 1)), np.zeros((1, d)), np.zeros(1, dtype=np.intp),
+           1, 16, 0.25, 0.9, 1e-9, 8, 3.0, 4, np.empty((1, packed_width(d))))
 
 
 __all__ = ["compile_step_rows", "compiled_step_rows", "numba_available", "packed_width",

@@ -3,7 +3,8 @@ row, on random canals and random walks (hypothesis).
 
 Walks mix every kind of pose a live stream sends: following its targets, anywhere inside,
 outside, far away (50 m, 1e308 that overflows the plane distances), jumps backward, jumps
-ahead past the window, beyond either end, and restarts. Each step moves a random subset of
+ahead past the window, beyond either end, restarts, and the same pose again (so that suspect
+poses run into sustained ones and are followed). Each step moves a random subset of
 the streams, so the bank sees single rows (the scalar step) and batches (the vectorised
 pass) of varying sizes in any slot order.
 """
@@ -22,7 +23,7 @@ from canal_core.tracker_batch import TrackerBatch, tracker_steps
 from canal_core.tracker_kernel import compile_step_rows, step_rows
 
 KINDS = ["follow", "follow", "follow", "inside", "outside", "far", "far", "back", "ahead",
-         "ahead", "end", "start", "restart"]
+         "ahead", "end", "start", "restart", "again", "again", "again"]
 
 
 @st.composite
@@ -60,6 +61,8 @@ def _pose(canal: canal_core.Canal, kind: str, x: np.ndarray, target: np.ndarray,
     r = float(canal.radii.max())
     if kind == "follow":
         return x + 0.4 * (target - x) + 0.05 * r * rng.standard_normal(dim)
+    if kind == "again":
+        return x.copy()
     if kind == "far":
         far = [np.full(dim, 50.0), np.full(dim, 1e308), np.full(dim, -1e308),
                np.eye(dim)[int(rng.integers(dim))] * 1e308]
@@ -202,6 +205,10 @@ def walk_and_compare(canal: canal_core.Canal, seed: int, n_streams: int,
             _same(again[j], e)
             for state in (bank.state(slots[r]), states[j]):
                 assert state.index == scalar[r].state.index
+                assert state.strikes == scalar[r].state.strikes
+                assert (state.pending is None) == (scalar[r].state.pending is None)
+                if state.pending is not None:
+                    np.testing.assert_array_equal(state.pending, scalar[r].state.pending)
                 assert (state.eta is None) == (scalar[r].state.eta is None)
                 np.testing.assert_allclose(
                     np.nan if state.eta is None else state.eta,

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from canal_core.tracker import start_section
 from canal_core.tracker_bank import TrackerBank
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
@@ -527,7 +528,10 @@ class PosePath:
             st.bank, st.slot = bank, bank.add()
         point = np.array(position, dtype=np.float64)
         try:
-            bank.reset(st.slot, int(entry.canal.reproduce_detailed(point).section_index))
+            located = int(entry.canal.reproduce_detailed(point).section_index)
+            # a first pose far from the canal (a glitch?) places nothing: from the first
+            # section, where the tracker places the stream at its first pose near the canal
+            bank.reset(st.slot, start_section(bank.geometry, point, located))
         except Exception:  # a start no section brackets: from the first one
             bank.reset(st.slot, 0)
         st.version = entry.version
