@@ -1,6 +1,6 @@
 """Persistence: tables, the database handle and repository functions."""
 
 from .db import Database
-from .models import Base, Demonstration, ModelVersion, Skill
+from .models import Base, Demonstration, ModelVersion, Skill, StoredReproduction
 
-__all__ = ["Base", "Database", "Demonstration", "ModelVersion", "Skill"]
+__all__ = ["Base", "Database", "Demonstration", "ModelVersion", "Skill", "StoredReproduction"]

@@ -7,7 +7,9 @@ from typing import Any
 
 from sqlalchemy import (
     JSON,
+    Boolean,
     DateTime,
+    Float,
     ForeignKey,
     Integer,
     LargeBinary,
@@ -88,3 +90,34 @@ class ModelVersion(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
     skill: Mapped[Skill] = relationship(back_populates="models")
+
+
+class StoredReproduction(Base):
+    """One reproduction the service answered, kept for the skill's recording.
+
+    Every replica draws a skill's recording from the database; reproductions are not
+    otherwise stored, so the recording keeps them here (the latest
+    ``recordings_reproductions_kept`` per skill). ``number`` counts the skill's
+    reproductions from 1 and names the reproduction's entity in the recording.
+    """
+
+    __tablename__ = "reproductions"
+    __table_args__ = (UniqueConstraint("skill_id", "number", name="uq_reproductions_skill_number"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), index=True, nullable=False
+    )
+    number: Mapped[int] = mapped_column(Integer, nullable=False)
+    model_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    n_points: Mapped[int] = mapped_column(Integer, nullable=False)
+    dim: Mapped[int] = mapped_column(Integer, nullable=False)
+    positions: Mapped[bytes] = mapped_column(LargeBinary, nullable=False)
+    start: Mapped[bytes] = mapped_column(LargeBinary, nullable=False)
+    times: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    orientations: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    inside: Mapped[bool] = mapped_column(Boolean, nullable=False)
+    projected: Mapped[bool] = mapped_column(Boolean, nullable=False)
+    eta: Mapped[float] = mapped_column(Float, nullable=False)
+    section_index: Mapped[int] = mapped_column(Integer, nullable=False)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
+import numpy as np
 from sqlalchemy import and_, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
@@ -26,7 +27,7 @@ from ..errors import (
 )
 from . import arrays
 from .db import Database
-from .models import Demonstration, ModelVersion, Skill, utcnow
+from .models import Demonstration, ModelVersion, Skill, StoredReproduction, utcnow
 
 
 @dataclass(frozen=True)
@@ -88,11 +89,13 @@ def list_skills(session: Session, offset: int, limit: int) -> tuple[list[Skill],
 
 
 def delete_skill(session: Session, name: str) -> None:
-    """Delete a skill; its demonstrations and models go with it (FK cascade)."""
+    """Delete a skill; its demonstrations, models and kept reproductions go with it (FK
+    cascade)."""
     skill = get_skill(session, name)
     # Explicit deletes too, so the cascade does not depend on the backend's FK enforcement.
     session.execute(delete(Demonstration).where(Demonstration.skill_id == skill.id))
     session.execute(delete(ModelVersion).where(ModelVersion.skill_id == skill.id))
+    session.execute(delete(StoredReproduction).where(StoredReproduction.skill_id == skill.id))
     session.execute(delete(Skill).where(Skill.id == skill.id))
 
 
@@ -387,3 +390,89 @@ def get_model(session: Session, model_id: int) -> ModelVersion:
     if model is None:
         raise ModelVersionNotFound(f"model {model_id} is gone", field="model")
     return model
+
+
+# ---- a skill's identity, and the reproductions its recording keeps ----------------------------
+
+
+def skill_instance(skill_id: int, created_at: datetime) -> str:
+    """The one name of a skill *instance*: its id with its creation time (UTC, microseconds).
+
+    A name is not an identity: a skill deleted and created again under the same name is
+    another skill, and on SQLite it can even get the deleted row's id back. Its creation
+    time tells them apart. Naive times are UTC (SQLite returns them so).
+    """
+    if created_at.tzinfo is not None:
+        created_at = created_at.astimezone(UTC).replace(tzinfo=None)
+    return f"{int(skill_id)}-{created_at.strftime('%Y%m%dT%H%M%S%f')}"
+
+
+def created_ns(created_at: datetime) -> int:
+    """A row's creation time in nanoseconds since the epoch (naive times are UTC): the log
+    time of what the row records, the same on every replica."""
+    if created_at.tzinfo is None:
+        created_at = created_at.replace(tzinfo=UTC)
+    whole_seconds = int(created_at.replace(microsecond=0).timestamp())
+    return whole_seconds * 1_000_000_000 + created_at.microsecond * 1_000
+
+
+def skill_instances(session: Session, name: str | None = None) -> dict[str, str]:
+    """Skill name -> :func:`skill_instance` of every skill (or of the one named)."""
+    query = select(Skill.name, Skill.id, Skill.created_at)
+    if name is not None:
+        query = query.where(Skill.name == name)
+    return {str(n): skill_instance(i, c) for n, i, c in session.execute(query)}
+
+
+@dataclass(frozen=True)
+class KeptReproduction:
+    """A stored reproduction's number and creation time."""
+
+    number: int
+    created_at: datetime
+
+
+def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime, version: int,
+                         results: Sequence[Any], keep: int) -> list[KeptReproduction]:
+    """Store ``results`` (``canal_core.Reproduction``) for the skill's recording, numbered on
+    from the skill's last one, and delete those ``keep`` or more behind the newest.
+
+    Nothing is stored when the skill is gone or is another instance than the one the
+    reproduction was computed for (deleted and created again meanwhile). Numbers are taken
+    under the skill row's lock, as model versions are: replicas do not collide.
+    """
+    with db.write() as session:
+        row = session.execute(select(Skill.id, Skill.created_at).where(Skill.id == skill_id)
+                              .with_for_update(key_share=True)).first()
+        if row is None or (skill_instance(row[0], row[1])
+                           != skill_instance(skill_id, skill_created_at)):
+            return []
+        last = session.scalar(select(func.max(StoredReproduction.number))
+                              .where(StoredReproduction.skill_id == skill_id))
+        first = int(last or 0) + 1
+        now = utcnow()
+        values = []
+        for k, result in enumerate(results):
+            positions = np.asarray(result.positions, dtype=np.float64)
+            times = getattr(result, "times", None)
+            quats = getattr(result, "orientations", None)
+            values.append({
+                "skill_id": skill_id, "number": first + k, "model_version": int(version),
+                "n_points": int(positions.shape[0]), "dim": int(positions.shape[1]),
+                "positions": arrays.pack(positions),
+                "start": arrays.pack(np.asarray(result.start, dtype=np.float64)),
+                "times": None if times is None else arrays.pack(np.asarray(times, np.float64)),
+                "orientations": None if quats is None else arrays.pack(
+                    np.asarray(quats, dtype=np.float64)),
+                "inside": bool(result.inside), "projected": bool(result.projected),
+                "eta": float(result.eta), "section_index": int(result.section_index),
+                "created_at": now,
+            })
+        if values:
+            session.execute(insert(StoredReproduction), values)
+        newest = first + len(values) - 1
+        if keep > 0 and newest - keep >= 1:
+            session.execute(delete(StoredReproduction).where(
+                StoredReproduction.skill_id == skill_id,
+                StoredReproduction.number <= newest - keep))
+        return [KeptReproduction(first + k, now) for k in range(len(values))]
