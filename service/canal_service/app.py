@@ -85,7 +85,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     recorder = make_recorder(settings, db)
     try:
         service = CanalService(db, metrics, cache_size=settings.model_cache_size,
-                               recorder=recorder, fit_listeners=FitListeners())
+                               recorder=recorder, fit_listeners=FitListeners(),
+                               reproductions_kept=settings.recordings_reproductions_kept)
         bridge = make_bridge(settings, service)
     except BaseException:
         # No lifespan will run to close what was opened: close it here.

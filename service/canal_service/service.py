@@ -8,7 +8,9 @@ hears about a change only after it committed.
 from __future__ import annotations
 
 import logging
+import os
 import re
+import socket
 import threading
 import time
 from collections import OrderedDict
@@ -44,6 +46,8 @@ from .validation import DemoArrays, check_demonstration
 log = logging.getLogger("canal_service")
 
 _VERSION_RETRIES = 5
+#: Which replica answered (host and process), as exports name it.
+REPLICA = f"{socket.gethostname()}:{os.getpid()}"
 
 
 class RecorderLike(Protocol):
@@ -56,8 +60,11 @@ class RecorderLike(Protocol):
     def demo_added(self, skill: str, dim: int, demo_id: int, positions: npt.ArrayLike,
                    timestamps: npt.ArrayLike | None, label: str | None) -> None: ...
     def demo_removed(self, skill: str, demo_id: int) -> None: ...
-    def model_fitted(self, skill: str, version: int, canal: canal_core.Canal) -> None: ...
-    def reproduction(self, skill: str, version: int, result: canal_core.Reproduction) -> None: ...
+    def model_fitted(self, skill: str, version: int, canal: canal_core.Canal, *,
+                     t_ns: int | None = None, instance: str | None = None) -> None: ...
+    def reproduction(self, skill: str, version: int, result: canal_core.Reproduction, *,
+                     number: int | None = None, t_ns: int | None = None,
+                     instance: str | None = None) -> None: ...
     def live(self, skill: str, robot: str, position: npt.ArrayLike,
              target: canal_core.TrackerTarget, t_ns: int | None = None,
              orientation: npt.ArrayLike | None = None) -> None: ...
@@ -187,12 +194,17 @@ class CanalService:
         Hears of every committed change; None when recordings are off.
     fit_listeners : FitListeners, optional
         Told of every committed fit (the live bridge subscribes); a fresh empty set if None.
+    reproductions_kept : int
+        With a recorder, reproductions are stored for the recordings, this many per skill
+        (the newest); 0 stores none.
     """
 
     def __init__(self, db: Database, metrics: Metrics, *, cache_size: int = 64,
                  recorder: RecorderLike | None = None,
-                 fit_listeners: FitListeners | None = None) -> None:
+                 fit_listeners: FitListeners | None = None,
+                 reproductions_kept: int = 1000) -> None:
         self.db = db
+        self.reproductions_kept = int(reproductions_kept)
         self.metrics = metrics
         self.recorder = recorder
         self.cache = CanalCache(cache_size)
@@ -376,14 +388,17 @@ class CanalService:
         self.cache.put(model[0], canal)  # the next reproduction needs no decoding
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
-        version = model[1].version
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal))
+        version, instance = model[1].version, model[2]
+        created = model[1].created_at
+        stored_ns = None if created is None else repo.created_ns(created)
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
+                                                              t_ns=stored_ns, instance=instance))
         self.fit_listeners.notify(name, version, canal)
         return model[1]
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
                      serialized: dict[str, Any], seconds: float, canal: canal_core.Canal
-                     ) -> tuple[CacheKey, schemas.ModelSummary]:
+                     ) -> tuple[CacheKey, schemas.ModelSummary, str]:
         # Versions are max + 1 under a unique constraint: two replicas fitting at once both
         # try the same number, one wins, the other retries with the next.
         clash: IntegrityError | None = None
@@ -395,7 +410,8 @@ class CanalService:
                     row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
                                          int(canal.n_sections), str(canal.section_kind))
                     return (model_cache_key(row.id, skill.created_at),
-                            self._model_summary(row, skill.dim, len(demo_ids)))
+                            self._model_summary(row, skill.dim, len(demo_ids)),
+                            repo.skill_instance(skill.id, skill.created_at))
             except IntegrityError as exc:
                 clash = exc
         raise VersionConflict(
@@ -431,6 +447,12 @@ class CanalService:
         Raises :class:`SkillNotFound`, :class:`NoModelYet` (latest of a skill never fitted)
         or :class:`ModelVersionNotFound`.
         """
+        canal, row, ref = self._load_canal(name, version)
+        return canal, row, ref.version, ref.dim
+
+    def _load_canal(self, name: str, version: int | None
+                    ) -> tuple[canal_core.Canal, ModelVersion | None, repo.ModelRef]:
+        """:meth:`load_canal` with the row's reference (its skill's id and creation time)."""
         ref = repo.model_ref_by_name(self.db, name, version)
         key = model_cache_key(ref.model_id, ref.skill_created_at)
         canal = self.cache.get(key)
@@ -445,7 +467,7 @@ class CanalService:
                     field="model")
             canal = canal_core.Canal.from_dict(row.canal)
             self.cache.put(key, canal)
-        return canal, row, ref.version, ref.dim
+        return canal, row, ref
 
     def latest_version(self, name: str) -> int:
         """The skill's latest model version, from one query (no canal read or decoded).
@@ -498,7 +520,8 @@ class CanalService:
                   ) -> schemas.ReproductionOut | schemas.ReproductionBatchOut:
         """Reproduce from one start or a batch; every start is checked before any is computed."""
         version = None if body.model == "latest" else int(body.model)
-        canal, _row, found_version, dim = self.load_canal(name, version)
+        canal, _row, ref = self._load_canal(name, version)
+        found_version, dim = ref.version, ref.dim
         if body.start is not None:
             starts, fields = [body.start], ["start"]
         else:
@@ -533,10 +556,10 @@ class CanalService:
                 at = field if exc.field in (None, "start") else exc.field
                 raise CanalRejected(exc, exc.message, field=at) from exc
             results.append(result)
+        self._keep_reproductions(name, ref, results)
         outs = []
         for result in results:
             self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
-            self._record("reproduction", partial(_tell_reproduction, name, found_version, result))
             # Built from values made here (floats, ints, bools, lists of them): validating
             # 6,000 floats again would cost more than the reproduction's math.
             outs.append(schemas.ReproductionOut.model_construct(
@@ -551,6 +574,25 @@ class CanalService:
         if body.start is not None:
             return outs[0]
         return schemas.ReproductionBatchOut.model_construct(reproductions=outs)
+
+    def _keep_reproductions(self, name: str, ref: repo.ModelRef,
+                            results: list[canal_core.Reproduction]) -> None:
+        """Store the reproductions for the recordings (every replica's recording draws them
+        from the database) and tell the recorder."""
+        if self.recorder is None:
+            return
+        if self.reproductions_kept <= 0:
+            for result in results:
+                self._record("reproduction", partial(_tell_reproduction, name, ref.version,
+                                                     result))
+            return
+        kept = repo.insert_reproductions(self.db, ref.skill_id, ref.skill_created_at,
+                                         ref.version, results, self.reproductions_kept)
+        instance = repo.skill_instance(ref.skill_id, ref.skill_created_at)
+        for result, stored in zip(results, kept, strict=False):
+            self._record("reproduction", partial(
+                _tell_reproduction, name, ref.version, result, number=stored.number,
+                t_ns=repo.created_ns(stored.created_at), instance=instance))
 
     # ---- recordings -------------------------------------------------------------------------
 
@@ -572,6 +614,15 @@ class CanalService:
         if kind == "rrd":
             return recorder.export_rrd(name)
         return recorder.export_mcap(name, profile=profile)
+
+    def recording_provenance(self) -> dict[str, str]:
+        """Headers of an export: which parts every replica answers alike (drawn from the
+        database) and which only this replica recorded (what its recorder heard)."""
+        shared = "demonstrations, models" + (", reproductions" if self.reproductions_kept > 0
+                                             else "")
+        local = "live" if self.reproductions_kept > 0 else "live, reproductions"
+        return {"Canal-Recording-Shared": shared, "Canal-Recording-Per-Replica": local,
+                "Canal-Replica": REPLICA}
 
     def rebuild_recording(self, name: str) -> dict[str, Any]:
         """Regenerate the skill's recording from the database; counts of what was logged."""
@@ -631,8 +682,9 @@ class ServiceHealth:
 
 
 def _tell_reproduction(skill: str, version: int, result: canal_core.Reproduction,
-                       recorder: RecorderLike) -> None:
-    recorder.reproduction(skill, version, result)
+                       recorder: RecorderLike, *, number: int | None = None,
+                       t_ns: int | None = None, instance: str | None = None) -> None:
+    recorder.reproduction(skill, version, result, number=number, t_ns=t_ns, instance=instance)
 
 
 def _orientation_notes(canal: canal_core.Canal, result: canal_core.Reproduction,

@@ -65,7 +65,8 @@ def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> 
         r = CliRunner().invoke(app, ["--url", server.url, "--json", "recordings", "rebuild",
                                      "pour"])
         assert r.exit_code == 0, r.output
-        assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0}
+        assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0,
+                                       "reproductions": 0}
         mcap = c.get("/skills/pour/recording.mcap").content
         assert c.post("/skills/nope/recording/rebuild").status_code == 404
         ros2 = tmp_path / "pour-ros2.mcap"
@@ -110,7 +111,7 @@ def test_a_restart_reconciles_the_recording_with_the_database(tmp_path: Path) ->
     with TestClient(create_app(settings(True))) as c:
         mcap = c.get("/skills/pour/recording.mcap").content
         reconciled = c.get("/healthz").json()["recorder"]["reconciled"]
-    assert reconciled == {"demos": 1, "models": 1, "removed": 1}
+    assert reconciled == {"demos": 1, "models": 1, "removed": 1, "reproductions": 0}
     shown: set[str] = set()
     for _, _, m in make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/demos"],
                                                                log_time_order=False):

@@ -60,6 +60,11 @@ class Settings(BaseSettings):
         100.0, ge=0.0,
         description="Live poses kept in the recordings per (skill, robot) stream and second; "
                     "changes of the inside/done flags are always kept; 0 keeps every pose.")
+    recordings_reproductions_kept: int = Field(
+        1000, ge=0, le=1_000_000,
+        description="Reproductions kept in the database per skill for the recordings (the "
+                    "newest; every replica's recording draws them from there); 0 keeps none, "
+                    "and each replica's recording then holds only the reproductions it served.")
     recordings_view_coordinates: str = Field(
         "RIGHT_HAND_Z_UP", description="rr.ViewCoordinates of the world in the .rrd recordings.")
     token: Annotated[SecretStr | None, Flag(metavar="TOKEN")] = Field(

@@ -59,6 +59,7 @@ class ModelFitted:
     skill: str
     version: int
     canal: Any  # canal_core.Canal: immutable, so holding a reference is safe
+    instance: str | None = None  # the skill instance it was fitted for, when known
 
 
 @dataclass(slots=True)
@@ -67,6 +68,8 @@ class ReproductionMade:
     skill: str
     version: int
     result: Any  # canal_core.Reproduction (immutable)
+    number: int | None = None  # the database's number when it was kept, else the recorder's
+    instance: str | None = None  # the skill instance it was computed for, when known
 
 
 @dataclass(slots=True)

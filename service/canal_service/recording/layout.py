@@ -7,6 +7,7 @@
       .rerun/                       rerun CLI config (analytics off) for our CLI subprocesses
       <skill>/
         recording_id                the Rerun recording id shared by every segment
+        instance                    the skill instance recorded (its id and creation time)
         ledger                      ids of the demos/models flushed to the files (reconcile)
         seg-000001-000004.rrd       closed: segments 1..4 merged (footer / summary written)
         seg-000005-000005.mcap      closed: one segment
@@ -20,10 +21,11 @@ one is ignored and removed at the next compaction.
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
@@ -45,7 +47,8 @@ class Ledger:
 
     demos: set[int]
     models: set[int]
-    reproductions: int
+    reproductions: int  # the highest number
+    numbers: set[int] = field(default_factory=set)  # every reproduction's number
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,7 @@ class SkillDir:
         """What the ledger says the recording holds (empty when there is none)."""
         demos: set[int] = set()
         models: set[int] = set()
+        numbers: set[int] = set()
         repro = 0
         try:
             text = self.ledger_path.read_text()
@@ -112,7 +116,29 @@ class SkillDir:
                 models.add(n)
             elif kind == "p":
                 repro = max(repro, n)
-        return Ledger(demos, models, repro)
+                numbers.add(n)
+        return Ledger(demos, models, repro, numbers)
+
+    @property
+    def instance_path(self) -> Path:
+        """``{"skill": name, "instance": ...}``: which skill instance the files record."""
+        return self.path / "instance"
+
+    def instance(self) -> tuple[str, str] | None:
+        """(skill name, instance) the files record, or None when not written (a recording
+        made without a database, or before instances were recorded)."""
+        try:
+            data = json.loads(self.instance_path.read_text())
+            return str(data["skill"]), str(data["instance"])
+        except (FileNotFoundError, ValueError, KeyError, TypeError):
+            return None
+
+    def write_instance(self, skill: str, instance: str) -> None:
+        """Say which skill instance the files record (atomically)."""
+        self.ensure()
+        tmp = self.instance_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"skill": skill, "instance": instance}))
+        tmp.replace(self.instance_path)
 
     def append_ledger(self, lines: list[str]) -> None:
         """Append ``lines`` to the ledger (one write: a crash cuts at most the last line)."""

@@ -45,7 +45,7 @@ from .geometry import model_geometry, points3d
 from .layout import KINDS, SkillDir, skill_dirname, skill_dirs
 from .mcap_log import McapSegment, empty_mcap, merge_mcap
 from .rerun_log import RerunSegment, cli_env, empty_rrd, merge_rrd, view_coordinates
-from .source import DbSource
+from .source import DbSource, Inventory
 
 log = logging.getLogger("canal_service.recording")
 
@@ -89,6 +89,10 @@ class _SkillState:
         self.pending_ledger: list[str] = []
         ledger = sdir.ledger()
         self.n_reproductions = ledger.reproductions
+        self.reproductions: set[int] = ledger.numbers
+        # The skill instance the files record (None: not known yet, or no database).
+        recorded = sdir.instance()
+        self.instance: str | None = recorded[1] if recorded is not None else None
         # What the files hold or the open segment got (ledger + pending): never logged twice.
         self.demos: set[int] = ledger.demos
         self.models: set[int] = ledger.models
@@ -144,7 +148,8 @@ class Recorder:
         self.coordinates = coordinates
         self.source = source
         self._dims: dict[str, int] = {}
-        self.reconciled: dict[str, int] = {"demos": 0, "models": 0, "removed": 0}
+        self.reconciled: dict[str, int] = {"demos": 0, "models": 0, "removed": 0,
+                                           "reproductions": 0}
         self.root = Path(root)
         self.enabled = enabled
         self.flush_interval_s = float(flush_interval_s)
@@ -164,6 +169,8 @@ class Recorder:
         self._errors: dict[str, str] = {}
         self._skills: dict[str, _SkillState] = {}
         self._rerun_env: dict[str, str] | None = None
+        # Each skill's instance in the database, read at most once per pass of the writer.
+        self._current: dict[str, str | None] = {}
         self.dropped_events = 0
         self.dropped_live = 0
         # CPU seconds the writer thread spent on its work (not waiting): what the recorder
@@ -216,21 +223,28 @@ class Recorder:
         except Exception:
             self._caller_error("demo_removed")
 
-    def model_fitted(self, skill: str, version: int, canal: Any) -> None:
-        """A model version was fitted (geometry is built on the writer thread)."""
+    def model_fitted(self, skill: str, version: int, canal: Any, *, t_ns: int | None = None,
+                     instance: str | None = None) -> None:
+        """A model version was fitted (geometry is built on the writer thread); ``t_ns`` is
+        its stored creation time and ``instance`` the skill instance, when known."""
         if self._closed:
             return
         try:
-            self._put(ModelFitted(time.time_ns(), skill, int(version), canal))
+            self._put(ModelFitted(time.time_ns() if t_ns is None else int(t_ns), skill,
+                                  int(version), canal, instance))
         except Exception:
             self._caller_error("model_fitted")
 
-    def reproduction(self, skill: str, version: int, result: Any) -> None:
-        """A reproduction was computed with model ``version``."""
+    def reproduction(self, skill: str, version: int, result: Any, *, number: int | None = None,
+                     t_ns: int | None = None, instance: str | None = None) -> None:
+        """A reproduction was computed with model ``version``; ``number``, ``t_ns`` and
+        ``instance`` when the database keeps it (the recorder numbers it otherwise)."""
         if self._closed:
             return
         try:
-            self._put(ReproductionMade(time.time_ns(), skill, int(version), result))
+            self._put(ReproductionMade(time.time_ns() if t_ns is None else int(t_ns), skill,
+                                       int(version), result,
+                                       None if number is None else int(number), instance))
         except Exception:
             self._caller_error("reproduction")
 
@@ -396,6 +410,8 @@ class Recorder:
         sdir = SkillDir.of(self.root, skill)
         with self._skill_lock(skill):
             segments = sdir.closed_segments(kind)
+            if segments and self.source is not None and not self._current_files(skill, sdir):
+                segments = []  # another skill instance's files: never served
             if not segments:
                 if kind == "rrd":
                     empty_rrd(out, str(uuid.uuid4()), skill, dim=self._dims.get(skill, 3),
@@ -418,6 +434,18 @@ class Recorder:
             except OSError:
                 shutil.copyfile(source, out)
         return out
+
+    def _current_files(self, skill: str, sdir: SkillDir) -> bool:
+        """Whether the skill's files record the instance the database holds now (checked
+        again at export: the skill may have been deleted and created again since the writer
+        brought them up to date, or the writer did not answer in time)."""
+        assert self.source is not None
+        recorded = sdir.instance()
+        try:
+            current = self.source.instance(skill)
+        except Exception:
+            return False
+        return recorded is not None and current == recorded[1]
 
     def _merge(self, inputs: list[Path], out: Path, kind: str, *, recover: bool = False) -> None:
         if kind == "rrd":
@@ -524,6 +552,7 @@ class Recorder:
             self._mark_urgent()
             self._events.appendleft(Reconcile(None))
         next_flush = time.monotonic() + self.flush_interval_s
+        next_collect = time.monotonic() + self.idle_close_s
         while True:
             timeout = next_flush - time.monotonic()
             if self._events:
@@ -531,6 +560,7 @@ class Recorder:
             self._wake.wait(max(0.0, timeout))
             self._wake.clear()
             started = time.thread_time()
+            self._current.clear()
             try:
                 if self._events and not self._busy() and self._drain_events():
                     break
@@ -538,6 +568,9 @@ class Recorder:
                     self._drain_live()
                     self._flush_all()
                     next_flush = time.monotonic() + self.flush_interval_s
+                if time.monotonic() >= next_collect:
+                    self._collect()
+                    next_collect = time.monotonic() + self.idle_close_s
             except Exception as exc:  # the writer must outlive any bug in one event
                 log.exception("recorder writer loop")
                 self._note("writer", f"{type(exc).__name__}: {exc}")
@@ -606,13 +639,15 @@ class Recorder:
         assert self.source is not None
         for skill, group in by_skill.items():
             try:
+                if not self._owner(skill, None):
+                    continue  # the skill is gone
                 stored = {d.demo_id: d for d in self.source.demos(skill, [r.demo_id for r in group])}
                 logged = self._state(skill).demos
                 for ref in group:
                     d = stored.get(ref.demo_id)
                     if d is None or d.demo_id in logged:
                         continue  # deleted since (its removal is queued behind), or reconciled
-                    self._handle(DemoAdded(ref.t_ns, skill, d.demo_id, d.positions,
+                    self._handle(DemoAdded(d.t_ns or ref.t_ns, skill, d.demo_id, d.positions,
                                            d.timestamps, d.label, d.orientations))
             except Exception as exc:
                 log.exception("recorder could not record demonstrations of %s", skill)
@@ -630,11 +665,15 @@ class Recorder:
                                                event.orientations),
                         ledger=f"d {event.demo_id}")
         elif isinstance(event, DemoRemoved):
+            if not self._owner(event.skill, None):
+                return
             self._write(event.skill, event.t_ns,
                         lambda r: r.demo_removed(event.t_ns, event.demo_id),
                         lambda m: m.demo_removed(event.t_ns, event.demo_id),
                         ledger=f"x {event.demo_id}")
         elif isinstance(event, ModelFitted):
+            if not self._owner(event.skill, event.instance):
+                return  # fitted for a skill deleted since
             if self.source is not None and event.version in self._state(event.skill).models:
                 return  # reconciled from the database before its own event came
             self._dims[event.skill] = int(event.canal.dim)
@@ -646,14 +685,20 @@ class Recorder:
             for stored in self.source.models(event.skill, [event.version]):
                 self._handle(ModelFitted(event.t_ns, event.skill, stored.version, stored.canal))
         elif isinstance(event, ReproductionMade):
+            if not self._owner(event.skill, event.instance):
+                return  # computed for a skill deleted since
             state = self._state(event.skill)
-            number = state.n_reproductions + 1
+            number = event.number if event.number is not None else state.n_reproductions + 1
+            if number in state.reproductions:
+                return  # reconciled from the database before its own event came
             rep = reproduction_view(event.version, event.result, number)
             self._write(event.skill, event.t_ns, lambda r: r.reproduction(event.t_ns, rep),
                         lambda m: m.reproduction(event.t_ns, rep), ledger=f"p {number}")
-            state.n_reproductions = number
+            state.n_reproductions = max(state.n_reproductions, number)
         elif isinstance(event, Rotate):
             self._drain_live()
+            if self.source is not None:
+                self._sync(event.skill)
             open_state = self._skills.get(event.skill)
             if open_state is not None:
                 self._close_segment(open_state)
@@ -671,6 +716,11 @@ class Recorder:
 
     def _delete(self, skill: str) -> None:
         self._drain_live()
+        self._wipe(skill)
+        self._current.pop(skill, None)  # deleted here: what comes next is another instance
+
+    def _wipe(self, skill: str) -> None:
+        """Drop the skill's open segment and delete its files."""
         state = self._skills.pop(skill, None)
         if state is not None:
             self._abandon(state, reconcile=False)
@@ -685,11 +735,12 @@ class Recorder:
         """Log what the database holds and the ledger does not (one skill or all)."""
         if self.source is None:
             return {}
-        dims = self.source.skills()
-        names = [skill] if skill is not None else sorted(dims)
-        total = {"demos": 0, "models": 0, "removed": 0}
+        if skill is None:
+            self._collect()
+        names = [skill] if skill is not None else sorted(self.source.skills())
+        total = {"demos": 0, "models": 0, "removed": 0, "reproductions": 0}
         for name in names:
-            for k, v in self._reconcile_skill(name, full=False, dims=dims).items():
+            for k, v in self._reconcile_skill(name, full=False).items():
                 total[k] += v
         for k, v in total.items():
             self.reconciled[k] += v
@@ -698,20 +749,22 @@ class Recorder:
         return total
 
     def _reconcile_skill(self, skill: str, *, full: bool,
-                         dims: dict[str, int] | None = None) -> dict[str, int]:
+                         inventory: Inventory | None = None) -> dict[str, int]:
         assert self.source is not None
-        inventory = self.source.inventory(skill)
         if inventory is None:
-            return {"demos": 0, "models": 0, "removed": 0}
-        db_demos, db_models = inventory
+            inventory = self.source.inventory(skill)
+        if inventory is None:
+            return {"demos": 0, "models": 0, "removed": 0, "reproductions": 0}
+        self._current[skill] = inventory.instance
+        if not self._owner(skill, inventory.instance):
+            return {"demos": 0, "models": 0, "removed": 0, "reproductions": 0}
+        db_demos, db_models = inventory.demos, inventory.models
         state = self._state(skill)
         logged_demos, logged_models = set(state.demos), set(state.models)
+        logged_numbers = set(state.reproductions)
         if full:
-            logged_demos, logged_models = set(), set()
-        if dims is None:
-            dims = self.source.skills()
-        if skill in dims:
-            self._dims[skill] = dims[skill]
+            logged_demos, logged_models, logged_numbers = set(), set(), set()
+        self._dims[skill] = inventory.dim
         missing = sorted(db_demos - logged_demos)
         stale = sorted(logged_demos - db_demos)
         now = time.time_ns()
@@ -723,7 +776,63 @@ class Recorder:
         versions = sorted(db_models - logged_models)
         for m in self.source.models(skill, versions) if versions else []:
             self._handle(ModelFitted(m.t_ns or now, skill, m.version, m.canal))
-        return {"demos": len(missing), "models": len(versions), "removed": len(stale)}
+        numbers = sorted(inventory.reproductions - logged_numbers)
+        for p in self.source.reproductions(skill, numbers) if numbers else []:
+            self._handle(ReproductionMade(p.t_ns or now, skill, p.version, p, p.number))
+        return {"demos": len(missing), "models": len(versions), "removed": len(stale),
+                "reproductions": len(numbers)}
+
+    # ---- which skill instance the files record ------------------------------------------------
+
+    def _owner(self, skill: str, instance: str | None) -> bool:
+        """Whether an event of ``skill`` (computed for ``instance``, None when unknown) may
+        be written: the skill's files then record the database's current instance.
+
+        A name is not an identity: another replica may have deleted the skill and created
+        it again. Files of another instance are deleted here, before anything new is
+        written, and an event computed for an instance that is gone is dropped.
+        """
+        if self.source is None:
+            return True
+        state = self._state(skill)
+        if instance is not None and instance == state.instance:
+            return True
+        if skill not in self._current:
+            self._current[skill] = self.source.instance(skill)
+        current = self._current[skill]
+        if current is None or (instance is not None and instance != current):
+            return False
+        if state.instance != current:
+            if state.instance is not None:
+                self._wipe(skill)  # another instance's recording: gone with its skill
+                state = self._state(skill)
+            state.instance = current  # files without an instance are this skill's own
+            state.dir.write_instance(skill, current)
+        return True
+
+    def _sync(self, skill: str) -> None:
+        """Bring the skill's files to what the database holds now (an export's first step):
+        another instance's files are deleted, what other replicas stored is logged."""
+        assert self.source is not None
+        self._current.pop(skill, None)
+        inventory = self.source.inventory(skill)
+        if inventory is None:
+            self._wipe(skill)
+            return
+        result = self._reconcile_skill(skill, full=False, inventory=inventory)
+        for k, v in result.items():
+            self.reconciled[k] = self.reconciled.get(k, 0) + v
+
+    def _collect(self) -> None:
+        """Delete the files of skill instances the database no longer holds (deleted on
+        another replica: unreachable since, as every export checks the instance first)."""
+        if self.source is None:
+            return
+        current = self.source.instances()
+        for path in skill_dirs(self.root):
+            recorded = SkillDir(path).instance()
+            if recorded is not None and current.get(recorded[0]) != recorded[1]:
+                self._wipe(recorded[0])
 
     def _state(self, skill: str) -> _SkillState:
         state = self._skills.get(skill)
@@ -758,6 +867,8 @@ class Recorder:
                 state.demos.discard(int(value))
             elif kind == "m":
                 state.models.add(int(value))
+            elif kind == "p":
+                state.reproductions.add(int(value))
 
     def _open(self, skill: str, t_ns: int) -> _SkillState:
         state = self._state(skill)
@@ -789,6 +900,12 @@ class Recorder:
             streams.setdefault((chunk.skill, chunk.robot), []).append(chunk)
         for (skill, robot), parts in streams.items():
             rows = concat_rows(parts)
+            if not self._owner(skill, None):
+                with self._live_lock:
+                    self.dropped_live += 2 * len(rows)
+                    key = (skill, robot)
+                    self._live_dropped[key] = self._live_dropped.get(key, 0) + len(rows)
+                continue  # the skill is gone
             if skill not in self._dims:
                 self._dims[skill] = self._source_dim(skill)
             try:
@@ -879,6 +996,8 @@ class Recorder:
                 state.demos.discard(int(value))
             elif kind == "m":
                 state.models.discard(int(value))
+            elif kind == "p":
+                state.reproductions.discard(int(value))
         state.pending_ledger = []
         if reconcile and lost and self.source is not None:
             # Not in the ledger, so the database fills them in again at the next reconcile.

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 from sqlalchemy import select
 
-from ..storage import Database, Demonstration, ModelVersion, Skill, arrays
+from ..storage import Database, Demonstration, ModelVersion, Skill, StoredReproduction, arrays
+from ..storage import repository as repo
 
 #: Rows read per query when a whole skill is (re-)logged.
 BATCH = 256
@@ -43,8 +44,48 @@ class StoredModel:
     t_ns: int
 
 
+@dataclass(frozen=True)
+class Inventory:
+    """What the database holds of one skill: its instance and the ids of its parts."""
+
+    instance: str
+    dim: int
+    demos: set[int]
+    models: set[int]
+    reproductions: set[int]
+
+
+@dataclass(frozen=True)
+class StoredReproductionView:
+    """A kept reproduction, with the attributes of a ``canal_core.Reproduction`` the
+    recording draws."""
+
+    number: int
+    version: int
+    positions: arrays.FloatArray  # (M, D)
+    start: arrays.FloatArray  # (D,)
+    times: arrays.FloatArray | None  # (M,)
+    orientations: arrays.FloatArray | None  # (M, 4)
+    inside: bool
+    projected: bool
+    eta: float
+    section_index: int
+    t_ns: int
+
+
+def _reproduction(row: StoredReproduction) -> StoredReproductionView:
+    n, dim = row.n_points, row.dim
+    return StoredReproductionView(
+        number=int(row.number), version=int(row.model_version),
+        positions=arrays.unpack(row.positions, n, dim), start=arrays.unpack(row.start, dim),
+        times=None if row.times is None else arrays.unpack(row.times, n),
+        orientations=None if row.orientations is None else arrays.unpack(row.orientations, n, 4),
+        inside=bool(row.inside), projected=bool(row.projected), eta=float(row.eta),
+        section_index=int(row.section_index), t_ns=_t_ns(row.created_at))
+
+
 def _t_ns(created_at: Any) -> int:
-    return int(created_at.timestamp() * 1e9) if created_at is not None else 0
+    return 0 if created_at is None else repo.created_ns(created_at)
 
 
 def _demo(skill: str, row: Demonstration) -> StoredDemo:
@@ -69,16 +110,48 @@ class DbSource:
         with self.db.read() as s:
             return {name: int(dim) for name, dim in s.execute(select(Skill.name, Skill.dim))}
 
-    def inventory(self, skill: str) -> tuple[set[int], set[int]] | None:
-        """(demo ids, model versions) of ``skill``, or None when it does not exist."""
+    def instance(self, skill: str) -> str | None:
+        """The skill's :func:`~canal_service.storage.repository.skill_instance`, or None
+        when no skill has that name."""
         with self.db.read() as s:
-            sid = s.scalar(select(Skill.id).where(Skill.name == skill))
-            if sid is None:
+            return repo.skill_instances(s, skill).get(skill)
+
+    def instances(self) -> dict[str, str]:
+        """Every skill's name with its instance."""
+        with self.db.read() as s:
+            return repo.skill_instances(s)
+
+    def inventory(self, skill: str) -> Inventory | None:
+        """What the database holds of ``skill`` (ids only), or None when it does not exist."""
+        with self.db.read() as s:
+            row = s.execute(select(Skill.id, Skill.created_at, Skill.dim)
+                            .where(Skill.name == skill)).first()
+            if row is None:
                 return None
+            sid = row[0]
             demos = set(s.scalars(select(Demonstration.id).where(Demonstration.skill_id == sid)))
             versions = set(s.scalars(select(ModelVersion.version)
                                      .where(ModelVersion.skill_id == sid)))
-        return {int(d) for d in demos}, {int(v) for v in versions}
+            numbers = set(s.scalars(select(StoredReproduction.number)
+                                    .where(StoredReproduction.skill_id == sid)))
+        return Inventory(repo.skill_instance(row[0], row[1]), int(row[2]), {int(d) for d in demos},
+                         {int(v) for v in versions}, {int(n) for n in numbers})
+
+    def reproductions(self, skill: str, numbers: Iterable[int]) -> list[StoredReproductionView]:
+        """The skill's kept reproductions of these numbers (those still kept), in order."""
+        wanted = sorted({int(n) for n in numbers})
+        out: list[StoredReproductionView] = []
+        with self.db.read() as s:
+            sid = s.scalar(select(Skill.id).where(Skill.name == skill))
+            if sid is None:
+                return out
+            for k in range(0, len(wanted), BATCH):
+                rows = s.scalars(select(StoredReproduction)
+                                 .where(StoredReproduction.skill_id == sid,
+                                        StoredReproduction.number.in_(wanted[k:k + BATCH]))
+                                 .order_by(StoredReproduction.number))
+                out.extend(_reproduction(r) for r in rows)
+        return out
 
     def demos(self, skill: str, ids: Iterable[int] | None = None) -> list[StoredDemo]:
         """Stored demos of ``skill`` (the given ids that still exist, or all), in id order."""

@@ -27,13 +27,18 @@ async def _export(service: CanalService, name: str, kind: RecordingKind,
     path = await run_in_threadpool(service.export_recording, name, kind, profile)
     # The snapshot is ours to delete once sent (Recorder contract).
     return FileResponse(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
+                        headers=service.recording_provenance(),
                         background=BackgroundTask(path.unlink, missing_ok=True))
 
 
 @router.get("/recording.rrd", response_class=FileResponse, responses={
     **_RESPONSES, 200: {"content": {"application/octet-stream": {}}}})
 async def recording_rrd(name: SkillName, service: ServiceDep) -> FileResponse:
-    """A Rerun .rrd snapshot of the skill's demonstrations, fits and reproductions."""
+    """A Rerun .rrd snapshot of the skill's demonstrations, fits and reproductions.
+
+    Every replica answers the same for the same database; live poses are the part recorded
+    per replica: the headers ``Canal-Recording-Shared``, ``Canal-Recording-Per-Replica`` and
+    ``Canal-Replica`` say which parts are which and which replica answered."""
     return await _export(service, name, "rrd")
 
 
@@ -53,6 +58,6 @@ async def recording_mcap(
 @router.post("/recording/rebuild", responses={**_RESPONSES, 409: {"model": ErrorResponse}})
 async def rebuild_recording(name: SkillName, service: ServiceDep) -> dict[str, Any]:
     """Regenerate the skill's .rrd and .mcap from the database: every stored demonstration and
-    model version. Live poses and reproductions are not stored, so a rebuilt recording does
-    not have them. Answers how many demonstrations and models were logged."""
+    model version, and the reproductions the database keeps. Live poses are not stored, so a
+    rebuilt recording does not have them. Answers how many of each were logged."""
     return await run_in_threadpool(service.rebuild_recording, name)

@@ -1,0 +1,59 @@
+"""A recording records one skill instance (its id and creation time), not a name.
+
+One SQLite file shared by a recorder and a service that does not tell it anything (another
+replica, as far as the recorder knows): a skill deleted there has its files collected by the
+writer, and an event computed for the deleted skill never reaches the new one's recording.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from canal_service.metrics import Metrics
+from canal_service.recording import Recorder
+from canal_service.recording.source import DbSource
+from canal_service.service import CanalService
+from canal_service.storage import Database
+from recording_helpers import helix_demo, mcap_messages
+
+import canal_core
+from canal_protocol.schemas import DemonstrationIn, SkillCreate
+
+
+def test_a_deleted_skills_files_are_collected_and_its_late_events_dropped(tmp_path: Path) -> None:
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    elsewhere = CanalService(db, Metrics())  # another replica: the recorder hears nothing
+    source = DbSource(db)
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, idle_close_s=0.3, source=source)
+    try:
+        elsewhere.create_skill(SkillCreate(name="pour", description="", dim=3))
+        ids = [elsewhere.add_json_demonstration("pour", DemonstrationIn(
+            positions=helix_demo(k).tolist())).id for k in range(2)]
+        old = source.instance("pour")
+        rec.export_mcap("pour").unlink()  # the export logs both demos from the database
+        folder = tmp_path / "rec" / "pour"
+        assert (folder / "instance").exists()
+
+        elsewhere.delete_skill("pour")
+        deadline = time.monotonic() + 30
+        while folder.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not folder.exists()  # collected without any request on this replica
+
+        elsewhere.create_skill(SkillCreate(name="pour", description="", dim=3))
+        new = source.instance("pour")
+        assert new is not None and new != old
+        canal = canal_core.fit([helix_demo(k) for k in range(3)], n_samples=30)
+        rec.model_fitted("pour", 1, canal, instance=old)  # queued before the delete
+        rec.reproduction("pour", 1, canal.reproduce_detailed(helix_demo(0)[0]), number=1,
+                         instance=old)
+        path = rec.export_mcap("pour")
+    finally:
+        rec.close()
+        db.dispose()
+    assert mcap_messages(path, "/canal/model") == []
+    assert mcap_messages(path, "/canal/reproductions") == []
+    assert [e["id"] for m in mcap_messages(path, "/canal/demos") for e in m["entities"]] == []
+    assert ids  # the old skill's demos were stored and are gone with it
