@@ -28,7 +28,8 @@ else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
     from plots import markdown_images, write_plots
 
 HERE = Path(__file__).parent
-SCRIPTS = ["core", "service", "recording", "live", "quality", "scale", "orientation", "startup"]
+SCRIPTS = ["core", "service", "recording", "replicas", "live", "quality", "scale", "orientation",
+           "startup"]
 PLOTS_DIR = HERE.parent / "docs" / "img" / "bench"
 START, END = "<!-- summary-table:start -->", "<!-- summary-table:end -->"
 HEADING = "## Summary (`python -m bench`)"

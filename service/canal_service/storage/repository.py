@@ -441,7 +441,7 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
     reproduction was computed for (deleted and created again meanwhile). Numbers are taken
     under the skill row's lock, as model versions are: replicas do not collide.
     """
-    with db.write() as session:
+    with db.write_connection() as session:  # Core only: no ORM session on this path
         row = session.execute(select(Skill.id, Skill.created_at).where(Skill.id == skill_id)
                               .with_for_update(key_share=True)).first()
         if row is None or (skill_instance(row[0], row[1])
