@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run example walkthrough figure test lint bench clean
+.PHONY: run example walkthrough figure test lint bench clean browser
 
 $(STAMP): pyproject.toml docker/constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,7 +29,13 @@ lint: $(STAMP)
 	$(PY) -m ruff check canal_core canal_protocol service clients tests bench examples
 	$(PY) -m mypy canal_core canal_protocol service/canal_service clients/canal_client
 
-test: lint
+# tests/browser drive Debian's chromium headless (no browser is downloaded at run time)
+browser:
+	@command -v chromium >/dev/null || command -v chromium-browser >/dev/null || { \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq chromium; }
+
+test: lint browser
 	$(PY) -m pytest
 
 bench: $(STAMP)

@@ -23,7 +23,7 @@ from .errors import install_error_handlers
 from .lanes import Lane
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, RequestMetrics
-from .routes import api_router, health, view
+from .routes import api_router, docs, health, view
 from .service import CanalService, FitListeners, RecorderLike, ServiceHealth
 from .storage import Database
 from .uploads import UploadLimits
@@ -118,6 +118,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
+        # /docs and /redoc come from routes/docs.py: the same pages without a CDN
+        docs_url=None,
+        redoc_url=None,
         responses={401: {"description": "Missing or wrong bearer token (when one is set)"}},
     )
     app.state.settings = settings
@@ -134,6 +137,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(health.router)
     app.include_router(api_router)
     app.include_router(view.router)
+    app.include_router(docs.router)
 
     # Added innermost first: auth runs before the body is read, the size limit wraps
     # everything that reads a body, the error net wraps them all but the metrics (which then

@@ -51,9 +51,10 @@ def test_rrd_export_verifies_and_holds_every_entity(
     assert rows[("/live/ur5/frame", "TransformAxes3D:axis_length")] == 1
     # The world is Z-up, right-handed.
     assert rows[("/", "ViewCoordinates:xyz")] == 1
-    # The default blueprint travels with the recording.
-    assert rows[("/time_panel", "TimePanelBlueprint:timeline")] == 1
-    assert rows[("/viewport", "ViewportBlueprint:root_container")] == 1
+    # The default blueprint travels with the recording: one at its start, and one framed on
+    # each new canal (the last one sent is the one a viewer opens with).
+    assert rows[("/time_panel", "TimePanelBlueprint:timeline")] == 1 + logged["versions"]
+    assert rows[("/viewport", "ViewportBlueprint:root_container")] == 1 + logged["versions"]
 
 
 def test_rrd_snapshot_of_a_skill_without_events_is_a_valid_file(
@@ -129,3 +130,18 @@ def test_a_2d_skill_is_drawn_in_2d(recorder: Recorder, canal2: Any,
     assert rows[("/", "ViewCoordinates:xyz")] == 0  # 3-D axes mean nothing in a 2-D view
     assert isinstance(review_blueprint(2).root_container.contents[0], rrb.Spatial2DView)
     assert isinstance(review_blueprint(3).root_container.contents[0], rrb.Spatial3DView)
+
+
+def test_review_eye_sees_every_point_of_the_canal(canal3: Any) -> None:
+    from canal_service.recording.rerun_log import _FOV_Y, framing_eye, up_axis
+
+    points = np.asarray(canal3.mesh(n_angles=16).vertices)
+    up = up_axis("RIGHT_HAND_Z_UP")
+    eye, target = framing_eye(points, up)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    rays = points - eye
+    # every vertex in front of the eye, within half the vertical field of view of the axis
+    cos_angle = rays @ forward / np.linalg.norm(rays, axis=1)
+    assert np.all(cos_angle > np.cos(_FOV_Y / 2))
+    assert eye @ up > target @ up  # seen from above
+    np.testing.assert_allclose(up_axis("RIGHT_HAND_Y_DOWN"), [0.0, -1.0, 0.0])

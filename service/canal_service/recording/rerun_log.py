@@ -11,6 +11,7 @@ Entities and timelines::
     model/rings             LineStrips3D       wall_time, model_version
     model/frames            Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
     model/info              AnyValues          wall_time, model_version
+    model/radius            BarChart           wall_time, model_version (radius per section index)
     radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
     reproductions/<n>/path  LineStrips3D       wall_time, model_version (n-th reproduction)
     reproductions/<n>/start Points3D           wall_time, model_version
@@ -59,6 +60,7 @@ _INSIDE_COLOR = (25, 190, 75, 255)
 _OUTSIDE_COLOR = (240, 130, 25, 255)
 _POSE_COLOR = (220, 40, 160, 255)
 _TARGET_COLOR = (40, 200, 220, 255)
+_RADIUS_COLOR = (200, 160, 60, 255)
 
 
 # ---- live rows as Rerun chunks ----------------------------------------------------------------
@@ -138,30 +140,91 @@ def live_chunks(base: str, rows: LiveRows, dim: int = 3
     return out
 
 
-def review_blueprint(dim: int = 3) -> rrb.Blueprint:
-    """Spatial view of demos, canal, reproductions and live poses; plots of radii and progress.
+#: The canal's surface is drawn see-through, so what lies inside it (demonstrations,
+#: directrix, reproductions, live poses) stays visible; its rings mark the sections.
+CANAL_ALPHA = 0.3
+#: Where the eye sits, as a direction from the canal's centre in (right, forward, up) terms:
+#: in front, to the side and above, so a curve in a horizontal plane is seen in full.
+_EYE_DIRECTION = np.array([0.45, -1.0, 0.75])
+#: Vertical field of view Rerun's 3-D view draws with (radians).
+_FOV_Y = np.deg2rad(55.0)
+
+
+def up_axis(coordinates: str) -> FloatArray:
+    """The world's up vector for a ``rr.ViewCoordinates`` name (``RIGHT_HAND_Z_UP`` -> +z)."""
+    name = coordinates.upper()
+    for axis, vector in (("X", (1.0, 0.0, 0.0)), ("Y", (0.0, 1.0, 0.0)), ("Z", (0.0, 0.0, 1.0))):
+        if name.endswith(f"{axis}_UP"):
+            return np.array(vector)
+        if name.endswith(f"{axis}_DOWN"):
+            return -np.array(vector)
+    return np.array([0.0, 0.0, 1.0])
+
+
+def framing_eye(points: FloatArray, up: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Eye position and look target that show every point of ``points`` (M, 3) in a 3-D view.
+
+    The eye looks at the centre of the bounding box from :data:`_EYE_DIRECTION` (relative to
+    ``up``), far enough for the box's bounding sphere to fit the narrower field of view of a
+    view about as wide as high.
+    """
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = (lo + hi) / 2.0
+    radius = max(float(np.linalg.norm(hi - lo)) / 2.0, 1e-3)
+    up = up / np.linalg.norm(up)
+    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    forward = np.cross(up, side)
+    direction = _EYE_DIRECTION[0] * side + _EYE_DIRECTION[1] * forward + _EYE_DIRECTION[2] * up
+    direction /= np.linalg.norm(direction)
+    distance = radius / np.sin(_FOV_Y / 2.0)
+    return centre + distance * direction, centre
+
+
+def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
+                     coordinates: str = "RIGHT_HAND_Z_UP") -> rrb.Blueprint:
+    """What a person sees first: the canal with everything inside it, and plots of its data.
+
+    - "Canal": demos, the see-through canal (directrix, surface, section rings), reproductions
+      and live poses; with ``frame`` (points, (M, 3)) the eye is placed to show all of them.
+    - "Radius per section": the latest canal's radius along its section index (a bar chart, so
+      it reads the same on every timeline).
+    - "Reproductions" and "Live streams": one series per reproduction and per robot along
+      ``wall_time``, drawn as points so a single reproduction is visible.
+    - The time panel follows ``wall_time`` to its end: the recording opens at its latest state
+      (every demo, the latest canal, its reproductions), ready to scrub back.
 
     A 2-D skill gets a 2-D view (its entities are logged with the 2-D archetypes).
     """
-    spatial = rrb.Spatial2DView if dim == 2 else rrb.Spatial3DView
+    # Entity filters match whole subtrees (``/**``), not ``*`` inside a path; the plots'
+    # scalars and the info values under these trees are not drawn by a spatial view.
+    contents = ["+ /**", "- /model/frames", "- /model/radius", "- /radius/**"]
+    if dim == 2:
+        spatial: rrb.View = rrb.Spatial2DView(name="Canal", origin="/", contents=contents)
+    else:
+        eye = None
+        if frame is not None and len(frame):
+            position, target = framing_eye(frame, up_axis(coordinates))
+            eye = rrb.EyeControls3D(position=position, look_target=target,
+                                    eye_up=up_axis(coordinates))
+        spatial = rrb.Spatial3DView(name="Canal", origin="/", contents=contents,
+                                    eye_controls=eye)
     return rrb.Blueprint(
         rrb.Horizontal(
-            spatial(name="Canal", origin="/", contents=[
-                "+ /demos/*/path", "+ /model/**", "+ /reproductions/*/path",
-                "+ /reproductions/*/start", "+ /reproductions/*/orientation",
-                "+ /reproductions/*/point", "+ /live/*/pose", "+ /live/*/target",
-                "+ /live/*/frame"]),
+            spatial,
             rrb.Vertical(
-                rrb.TimeSeriesView(name="Radius per section (timeline: section)",
-                                   origin="/radius"),
-                rrb.TimeSeriesView(name="Live progress and eta", origin="/live",
-                                   contents=["+ /live/*/progress", "+ /live/*/eta"]),
-                rrb.TimeSeriesView(name="Reproductions: eta, inside", origin="/reproductions",
-                                   contents=["+ /reproductions/*/eta", "+ /reproductions/*/inside"]),
+                rrb.BarChartView(name="Radius per section (latest canal, section index)",
+                                 origin="/model/radius"),
+                rrb.Tabs(
+                    rrb.TimeSeriesView(name="Reproductions: eta, inside",
+                                       origin="/reproductions"),
+                    rrb.TimeSeriesView(name="Live streams: progress, eta", origin="/live"),
+                ),
             ),
             column_shares=[2, 1],
         ),
-        rrb.TimePanel(timeline="wall_time"),
+        rrb.TimePanel(timeline="wall_time", play_state="following"),
+        rrb.SelectionPanel(state="collapsed"),
     )
 
 
@@ -211,13 +274,14 @@ class RerunSegment:
                  dim: int = 3, coordinates: str = "RIGHT_HAND_Z_UP") -> None:
         self.path = path
         self.dim = 2 if dim == 2 else 3
+        self.coordinates = coordinates
         self._axes: set[str] = set()  # live frames whose static axes this segment has
         self._file = open(path, "wb")
         self.rec = rr.RecordingStream(APP_ID, recording_id=recording_id)
         self._stream = self.rec.binary_stream()  # type: ignore[misc]  # rerun's stub types it as a free function
         if blueprint:
-            self.rec.send_blueprint(review_blueprint(self.dim), make_active=False,
-                                    make_default=True)
+            self.rec.send_blueprint(review_blueprint(self.dim, coordinates=coordinates),
+                                    make_active=False, make_default=True)
         self.rec.send_recording_name(skill)
         if self.dim == 3:
             self.rec.log("/", view_coordinates(coordinates), static=True)
@@ -302,17 +366,25 @@ class RerunSegment:
             self.rec.log("model/mesh", rr.Mesh3D(
                 vertex_positions=geo.vertices, triangle_indices=geo.faces,
                 vertex_normals=geo.vertex_normals,
-                vertex_colors=geo.vertex_colors.astype(np.float32)))
+                vertex_colors=geo.vertex_colors.astype(np.float32),
+                albedo_factor=[255, 255, 255, round(255 * CANAL_ALPHA)]))
         self.rec.log("model/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
         n_axes = geo.frame_vectors.shape[1]
         self.rec.log("model/frames", self._arrows(
             np.repeat(geo.frame_origins, n_axes, axis=0), geo.frame_vectors.reshape(-1, 3),
             np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
         self.rec.log("model/info", rr.AnyValues(version=geo.version, n_sections=geo.n_sections))
+        self.rec.log("model/radius", rr.BarChart(geo.radii, color=_RADIUS_COLOR,
+                                                 abscissa=np.arange(geo.n_sections)))
         radius = f"radius/v{geo.version}"
         self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
         self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
             geo.n_sections))], columns=rr.Scalars.columns(scalars=geo.radii))
+        if self.dim == 3:
+            # The newest canal decides the framing: the default blueprint sent last wins.
+            self.rec.send_blueprint(review_blueprint(self.dim, frame=geo.vertices,
+                                                     coordinates=self.coordinates),
+                                    make_active=True, make_default=True)
 
     def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
         """One reproduction under its own entity ``reproductions/<n>``.
@@ -329,6 +401,10 @@ class RerunSegment:
         if rep.orientations is not None and self.dim == 3:
             self._triads(f"{base}/orientation", rep.positions, rep.orientations)
         self._at(t_ns)
+        # One value per reproduction: points, since a line needs two
+        self.rec.log(f"{base}/eta", rr.SeriesPoints(names=[f"eta {rep.number}"]), static=True)
+        self.rec.log(f"{base}/inside", rr.SeriesPoints(names=[f"inside {rep.number}"]),
+                     static=True)
         self.rec.log(f"{base}/eta", rr.Scalars(rep.eta))
         self.rec.log(f"{base}/inside", rr.Scalars(float(rep.inside)))
         if rep.times is not None:

@@ -9,12 +9,18 @@ The viewer's files live inside the ``rerun`` binary. The first request copies th
 starts ``rerun --serve-web --bind 127.0.0.1`` on free loopback ports (analytics off, its own
 config folder), downloads the few files the page loads, stops it, and keeps them under
 ``DATA_DIR/viewer/rerun-<version>/``. Later requests (and restarts) serve that folder.
+
+The page is private and works offline: Rerun's ``index.html`` is served without its web-font
+links (Google Fonts) and its analytics snippet, with a first script that refuses requests to
+any other origin before they leave the browser (the viewer's usage analytics and its check for
+a newer release on GitHub). The viewer falls back to its bundled fonts and runs unchanged.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -29,7 +35,7 @@ from urllib.parse import urlencode
 
 from fastapi import APIRouter, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse, RedirectResponse
+from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 
 from canal_protocol.schemas import ErrorResponse
 
@@ -50,6 +56,39 @@ ASSETS: dict[str, str] = {
 REQUIRED = ("index.html", "re_viewer.js", "re_viewer_bg.wasm")
 START_TIMEOUT_S = 60.0
 _lock = threading.Lock()
+
+
+#: Runs before the viewer's own scripts: ``fetch`` and ``sendBeacon`` to another origin fail at
+#: once, so nothing leaves the page for hosts other than this service.
+OWN_ORIGIN_ONLY = """<script>
+(function () {
+  var own = window.location.origin;
+  function foreign(target) {
+    var url = new URL(target instanceof Request ? target.url : String(target), window.location.href);
+    return url.origin !== own && url.protocol !== "blob:" && url.protocol !== "data:";
+  }
+  var fetchOwn = window.fetch.bind(window);
+  window.fetch = function (target, init) {
+    if (foreign(target)) {
+      return Promise.reject(new TypeError("not fetched: this page loads from its own service only"));
+    }
+    return fetchOwn(target, init);
+  };
+  if (navigator.sendBeacon) {
+    var beaconOwn = navigator.sendBeacon.bind(navigator);
+    navigator.sendBeacon = function (target, data) { return !foreign(target) && beaconOwn(target, data); };
+  }
+})();
+</script>"""
+_EXTERNAL_LINK = re.compile(r"<link\b[^>]*\bhref=\"https?://[^>]*>\s*", re.S)
+_ANALYTICS = re.compile(r"if \(window\.location\.hostname == \"app\.rerun\.io\"\) \{.*?\n\s*\}\n", re.S)
+
+
+def offline_page(html: str) -> str:
+    """Rerun's ``index.html`` without external links and analytics, own origin only."""
+    html = _EXTERNAL_LINK.sub("", html)
+    html = _ANALYTICS.sub("", html)
+    return html.replace("<head>", "<head>\n" + OWN_ORIGIN_ONLY, 1)
 
 
 class ViewerUnavailable(Disabled):
@@ -178,9 +217,12 @@ async def view_skill(name: SkillName, request: Request, service: ServiceDep) -> 
 
 @router.get("/viewer/", response_class=FileResponse, name="viewer_page",
             summary="Rerun's web viewer (index page)", responses=_RESPONSES)
-async def viewer_page(request: Request) -> FileResponse:
-    """The viewer page; ``?url=`` names the recording it opens."""
-    return await _asset(request, "index.html")
+async def viewer_page(request: Request) -> HTMLResponse:
+    """The viewer page; ``?url=`` names the recording it opens. It loads nothing from
+    other hosts (no web fonts, no analytics)."""
+    path = await _asset_path(request, "index.html")
+    html = await run_in_threadpool(path.read_text, encoding="utf-8")
+    return HTMLResponse(offline_page(html), headers={"Cache-Control": "no-cache"})
 
 
 @router.get("/viewer/{asset}", response_class=FileResponse, include_in_schema=False)
@@ -190,6 +232,13 @@ async def viewer_asset(asset: str, request: Request) -> FileResponse:
 
 
 async def _asset(request: Request, asset: str) -> FileResponse:
+    if asset == "index.html":
+        raise NotFound("the viewer page is /viewer/", field="asset")
+    path = await _asset_path(request, asset)
+    return FileResponse(path, media_type=ASSETS[asset], headers={"Cache-Control": "no-cache"})
+
+
+async def _asset_path(request: Request, asset: str) -> Path:
     if asset not in ASSETS:
         raise NotFound(f"no viewer file {asset!r}", field="asset")
     settings: Settings = request.app.state.settings
@@ -197,5 +246,4 @@ async def _asset(request: Request, asset: str) -> FileResponse:
     path = folder / asset
     if not path.is_file():
         raise NotFound(f"no viewer file {asset!r}", field="asset")
-    return FileResponse(path, media_type=ASSETS[asset],
-                        headers={"Cache-Control": "no-cache"})
+    return path
