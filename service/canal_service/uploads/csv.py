@@ -1,0 +1,246 @@
+"""CSV uploads: a header read by name (ROS exports, PlotJuggler, UR RTDE files as they are)
+or bare columns, parsed by numpy's C reader and stopped one row past the point cap."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BadUpload, InvalidInput
+from ..validation import FloatArray
+from .common import Budget, ParsedUpload, UploadLimits, split_time
+
+#: Time columns in seconds (``__time``: PlotJuggler's CSV export)
+_TIME_NAMES = ("t", "time", "timestamp", "stamp", "__time")
+
+
+def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUpload:
+    """CSV with or without a header (see module docstring).
+
+    numpy's C reader parses the rows straight from the bytes into one float array (no text
+    copy, no Python object per cell) and stops one row past the points limit, so a huge file
+    costs at most that much.
+    """
+    budget = budget or Budget(UploadLimits())
+    if b"\x00" in data:
+        raise BadUpload("CSV must be text; found NUL bytes", field="file")
+    start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a BOM from spreadsheet exports
+    lines = _lines(data, start)
+    first = next(lines, None)
+    if first is None:
+        raise BadUpload("the CSV file has no rows", field="file")
+    first_number, first_text = first
+    delimiter = _delimiter(first_text)
+    cells = [c.strip().strip('"').strip() for c in _split(first_text, delimiter)]
+    header: list[str] | None = None
+    skip = first_number
+    if not all(_is_number(c) for c in cells):
+        header = [c.lower() for c in cells]
+        skip = first_number + 1
+        seen: set[str] = set()
+        for name in header:
+            if name in seen:
+                raise InvalidInput(f"CSV header names column {name!r} twice; expected each "
+                                   "column once", field="file:header")
+            seen.add(name)
+        if next(lines, None) is None:
+            raise BadUpload("the CSV file has a header but no data rows", field="file")
+    width = len(cells)
+    columns = None if header is None else _csv_columns(header, dim)
+    # Only the columns named are read when the file has others (a ROS export's frame_id
+    # text, sequence numbers): they are neither parsed nor required to be numbers.
+    usecols = None
+    if columns is not None and len(columns.used) < width:
+        usecols = columns.used
+    stream = io.BytesIO(data)  # shares the bytes, no copy
+    stream.seek(start)
+    try:
+        table = np.loadtxt(stream, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           quotechar='"', skiprows=skip, max_rows=budget.limits.max_points + 1,
+                           encoding="utf-8", usecols=usecols)
+    except UnicodeDecodeError as exc:
+        raise BadUpload(f"CSV must be UTF-8 text ({exc.reason})", field="file") from exc
+    except ValueError:
+        raise _csv_error(data, start, skip, width, usecols, delimiter) from None
+    budget.tick()
+    budget.points(table.shape[0], "the CSV file")
+    if table.shape[0] == 0:
+        raise BadUpload("the CSV file has no data rows", field="file")
+    if usecols is None and table.shape[1] != width:
+        raise InvalidInput(f"expected {width} columns on every CSV line (as on line "
+                           f"{first_number + 1}), got {table.shape[1]}", field="file:line 2")
+    if usecols is not None and delimiter is not None and b'"' not in data:
+        # Reading some columns does not see a row with extra cells: its delimiters do.
+        mark = delimiter.encode()
+        if data.count(mark) - first_text.count(delimiter) != table.shape[0] * (width - 1):
+            raise _csv_error(data, start, skip, width, usecols, delimiter)
+    if columns is None:
+        return split_time(table, dim, "file")
+    return columns.read(table, usecols)
+
+
+def _lines(data: bytes, start: int) -> Iterator[tuple[int, str]]:
+    """(0-based line number, text) of the non-blank lines, decoded one at a time, lazily."""
+    number = 0
+    while start < len(data):
+        end = data.find(b"\n", start)
+        if end < 0:
+            end = len(data)
+        raw = data[start:end]
+        if raw.strip():
+            try:
+                yield number, raw.decode("utf-8").rstrip("\r")
+            except UnicodeDecodeError as exc:
+                raise BadUpload(f"CSV must be UTF-8 text ({exc.reason} on line {number + 1})",
+                                field="file") from exc
+        start = end + 1
+        number += 1
+
+
+def _delimiter(line: str) -> str | None:
+    """The file's delimiter, from its first line: a comma, else a tab, else ``;``, else runs
+    of spaces (None: numpy's whitespace split; UR's RTDE recorder writes space-separated)."""
+    for delimiter in (",", "\t", ";"):
+        if delimiter in line:
+            return delimiter
+    return None if " " in line.strip() else ","
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    return line.split(delimiter) if delimiter is not None else line.split()
+
+
+def _csv_error(data: bytes, start: int, skip: int, width: int,
+               usecols: list[int] | None = None, delimiter: str | None = ",") -> InvalidInput:
+    """Find the first bad data line (the error path only) and say what is wrong with it."""
+    for number, line in _lines(data, start):
+        if number < skip:
+            continue
+        cells = _split(line, delimiter)
+        if len(cells) != width:
+            return InvalidInput(f"expected {width} columns on every CSV line, got {len(cells)} "
+                                f"on line {number + 1}", field=f"file:line {number + 1}")
+        for cell in cells if usecols is None else [cells[i] for i in usecols]:
+            if not _is_number(cell.strip().strip('"').strip()):
+                return InvalidInput(f"expected numbers on CSV line {number + 1}, got "
+                                    f"{cell.strip()[:40]!r}", field=f"file:line {number + 1}")
+    return InvalidInput("unreadable CSV rows", field="file")
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+#: Time columns in nanoseconds, in order of preference: a ROS 1 ``rostopic echo -p``
+#: export's message stamp and its record time
+_TIME_NAMES_NS = ("field.header.stamp", "%time")
+
+
+@dataclass(frozen=True)
+class _CsvColumns:
+    """Which header columns hold the positions, time and quaternion (indices into the row)."""
+
+    positions: list[int]
+    time: int | None
+    time_unit: str | None
+    quaternion: list[int] | None
+    rotation_vector: list[int] | None = None  # UR's axis-angle (rx, ry, rz), radians
+
+    @property
+    def used(self) -> list[int]:
+        return sorted({*self.positions, *([] if self.time is None else [self.time]),
+                       *(self.quaternion or []), *(self.rotation_vector or [])})
+
+    def read(self, table: FloatArray, usecols: list[int] | None) -> ParsedUpload:
+        """The arrays out of ``table`` (read with ``usecols``, or every column)."""
+        at = {c: k for k, c in enumerate(usecols)} if usecols is not None else None
+
+        def cols(indices: list[int]) -> FloatArray:
+            return np.ascontiguousarray(table[:, [i if at is None else at[i] for i in indices]])
+
+        quats = None if self.quaternion is None else cols(self.quaternion)
+        if self.rotation_vector is not None:
+            quats = _quaternions_of_rotation_vectors(cols(self.rotation_vector))
+        return ParsedUpload(cols(self.positions),
+                            None if self.time is None else cols([self.time])[:, 0],
+                            quats, self.time_unit)
+
+
+def _quaternions_of_rotation_vectors(rotvec: FloatArray) -> FloatArray:
+    """(T, 4) quaternions x, y, z, w of (T, 3) rotation vectors (axis times angle)."""
+    from scipy.spatial.transform import Rotation
+
+    bad = ~np.isfinite(rotvec)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        raise InvalidInput(f"expected finite rotation vectors (actual_TCP_pose_3..5), got NaN "
+                           f"or Inf at row {row}", field=f"orientations[{row}]")
+    return np.ascontiguousarray(Rotation.from_rotvec(rotvec).as_quat())
+
+
+#: Columns of UR's RTDE recorder (``record.py``: the tool pose in the base frame, metres and
+#: an axis-angle rotation vector), lower-cased like every header name
+_RTDE_POSE = [f"actual_tcp_pose_{k}" for k in range(6)]
+
+
+def _named(header: list[str], exact: str, suffix: str) -> list[int]:
+    """Columns called ``exact``, or whose name ends in ``suffix`` as its last parts (``.`` or
+    ``/`` separated: ROS ``field.pose.position.x``, PlotJuggler ``/ee_pose/pose/position/x``)."""
+    return [i for i, name in enumerate(header)
+            if name == exact or ("." + name.replace("/", ".")).endswith("." + suffix)]
+
+
+def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
+    """The columns of a CSV header by name (see the module docstring)."""
+    axes = ["x", "y", "z"][:dim]
+    found = {a: _named(header, a, f"position.{a}") for a in ["x", "y", "z"]}
+    rtde = all(name in header for name in _RTDE_POSE) and not any(found.values())
+    if rtde:
+        found = {a: [header.index(_RTDE_POSE[k])] for k, a in enumerate(["x", "y", "z"])}
+    missing = [a for a in axes if not found[a]]
+    if missing:
+        raise InvalidInput(
+            f"expected CSV header columns {', '.join(axes)} (or ROS-style "
+            f"...position.x) for a {dim}-D skill (optional t), got {', '.join(header)}",
+            field="file:header",
+        )
+    for a in axes:
+        if len(found[a]) > 1:
+            raise InvalidInput(f"CSV header has several {a} columns "
+                               f"({', '.join(header[i] for i in found[a])}); expected one",
+                               field="file:header")
+    if dim == 2 and found["z"]:
+        raise InvalidInput("CSV has a z column but the skill is 2-D", field="file:header")
+    times_named = [n for n in _TIME_NAMES if n in header]
+    if len(times_named) > 1:
+        raise InvalidInput(f"CSV header has several time columns ({', '.join(times_named)}); "
+                           "expected one", field="file:header")
+    time_col, unit = None, None
+    if times_named:
+        time_col = header.index(times_named[0])
+    else:
+        ns = [n for n in _TIME_NAMES_NS if n in header]
+        if ns:
+            time_col, unit = header.index(ns[0]), "ns"
+    quats = {c: _named(header, f"q{c}", f"orientation.{c}") for c in "xyzw"}
+    if rtde and not any(quats.values()):
+        return _CsvColumns([found[a][0] for a in axes], time_col, unit, None,
+                           [header.index(name) for name in _RTDE_POSE[3:]])
+    quaternion = None
+    if any(quats.values()):
+        if not all(len(q) == 1 for q in quats.values()):
+            raise InvalidInput("expected all of qx, qy, qz, qw (or ROS-style ...orientation.x "
+                               "to .w) once each in the CSV header, or none",
+                               field="file:header")
+        quaternion = [quats[c][0] for c in "xyzw"]
+    return _CsvColumns([found[a][0] for a in axes], time_col, unit, quaternion)
+
+
+# ---- NPY ---------------------------------------------------------------------------------------

@@ -1,0 +1,48 @@
+"""NumPy ``.npy`` uploads: the header checked against the data before any allocation."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from ..errors import BadUpload
+from .common import NPY_MAGIC, Budget, ParsedUpload, UploadLimits, split_time
+
+
+def parse_npy(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUpload:
+    """A ``.npy`` array of real numbers; never unpickles, never allocates more than the data."""
+    from numpy.lib import format as npformat
+
+    budget = budget or Budget(UploadLimits())
+    if not data.startswith(NPY_MAGIC):
+        raise BadUpload("not a .npy file (missing the \\x93NUMPY magic)", field="file")
+    stream = io.BytesIO(data)
+    try:
+        version = npformat.read_magic(stream)
+        if version == (1, 0):
+            shape, _fortran, dtype = npformat.read_array_header_1_0(stream)
+        elif version == (2, 0):
+            shape, _fortran, dtype = npformat.read_array_header_2_0(stream)
+        else:
+            raise BadUpload(f"unsupported .npy format version {version}", field="file")
+    except BadUpload:
+        raise
+    except Exception as exc:  # hostile header: any parser failure is a bad upload
+        raise BadUpload(f"unreadable .npy header: {exc}", field="file") from exc
+    if dtype.hasobject or dtype.kind not in "fiu" or dtype.fields is not None:
+        raise BadUpload(f"expected a .npy array of real numbers, got dtype {dtype}", field="file")
+    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    if count * dtype.itemsize != len(data) - stream.tell():
+        raise BadUpload(
+            f".npy header promises {count * dtype.itemsize} data bytes, file has "
+            f"{len(data) - stream.tell()}",
+            field="file",
+        )
+    if shape:
+        budget.points(int(shape[0]), "the .npy array")
+    try:
+        array = np.load(io.BytesIO(data), allow_pickle=False)
+    except Exception as exc:  # same reason as above
+        raise BadUpload(f"unreadable .npy data: {exc}", field="file") from exc
+    return split_time(np.asarray(array, dtype=np.float64), dim, "file")
