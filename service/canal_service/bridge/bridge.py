@@ -76,7 +76,8 @@ from ..service import CanalService
 from ..validation import check_demonstration
 from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, zenoh_config
 from .models import ModelEntry, ModelTable
-from .posepath import ENC_JSON, ERROR_KEYS, Counts, PosePath, Stream
+from .posepath import PosePath
+from .streams import ENC_JSON, ERROR_KEYS, Counts, Stream
 
 log = logging.getLogger("canal_service.bridge")
 

@@ -1,0 +1,93 @@
+"""The pose path's step: every job's tracker stepped, one
+:class:`~canal_core.tracker_bank.TrackerBank` pass per model; a stream (re)seeded at the
+section its robot is at on a new stream, a restart or a model switch."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from canal_core.tracker import start_section
+from canal_protocol import wire
+
+from .answers import Answers
+from .models import ModelEntry
+from .streams import Job, Stream, release_slot
+
+_FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
+
+
+class Stepper(Answers):
+    """The pose path's layer that steps the trackers."""
+
+    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[list[float]]]]:
+        """Step every job's tracker, one bank pass per model, the answers as packed rows
+        (:meth:`canal_core.tracker_bank.TrackerBank.step_packed`, one ``tolist()`` a pass); jobs
+        that cannot be stepped are answered with their error here. The caller silences
+        NumPy's overflow warnings (:meth:`batch`, or the worker thread's error state)."""
+        by_model: dict[int, tuple[ModelEntry, list[Job], list[int],
+                                  list[tuple[float, ...]]]] = {}
+        models = self.models.models
+        # most drains are one skill's poses: the last job's model and lists are reused
+        last_skill = None
+        entry: ModelEntry | None = None
+        group_jobs: list[Job] = []
+        slots: list[int] = []
+        positions: list[tuple[float, ...]] = []
+        for job in jobs:
+            st, pose, fmt, _ros = job
+            if st.skill != last_skill:
+                entry = models.get(st.skill)
+                if entry is None:
+                    entry = self.models.entry(st.skill)
+                if entry.status != "ok":
+                    last_skill = None
+                    self.error(st, pose.seq, entry.status, entry.message, fmt)
+                    continue
+                last_skill = st.skill
+                group = by_model.get(id(entry))
+                if group is None:
+                    group = by_model[id(entry)] = (entry, [], [], [])
+                _, group_jobs, slots, positions = group
+            assert entry is not None
+            position = pose.position
+            if len(position) != entry.dim:
+                if fmt == _FCDR and entry.dim == 2:  # a PoseStamped always has z
+                    position = position[:2]
+                else:
+                    self.error(st, pose.seq, "wrong_dimension",
+                               f"expected {entry.dim} coordinates for skill {st.skill!r}, "
+                               f"got {len(position)}", fmt)
+                    continue
+            if st.bank is not entry.bank or st.version != entry.version or pose.restart:
+                self._seed(st, entry, position)
+            group_jobs.append(job)
+            slots.append(st.slot)
+            positions.append(position)
+        out = []
+        for model, model_jobs, model_slots, model_positions in by_model.values():
+            if not model_jobs:
+                continue
+            assert model.bank is not None
+            out.append((model, model_jobs, model.bank.step_packed(
+                model_slots, np.array(model_positions, dtype=np.float64)).tolist()))
+        return out
+
+    def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
+        """The stream's slot in the entry's bank, started at the section the robot is
+        located at (a new stream, a restart, a model switch)."""
+        if st.bank is not None and st.version != entry.version:
+            self.counts.switches += 1
+        bank = entry.bank
+        assert bank is not None
+        if st.bank is not bank:
+            release_slot(st)
+            st.bank, st.slot = bank, bank.add()
+        point = np.array(position, dtype=np.float64)
+        try:
+            located = int(entry.canal.reproduce_detailed(point).section_index)
+            # a first pose far from the canal (a glitch?) places nothing: from the first
+            # section, where the tracker places the stream at its first pose near the canal
+            bank.reset(st.slot, start_section(bank.geometry, point, located))
+        except Exception:  # a start no section brackets: from the first one
+            bank.reset(st.slot, 0)
+        st.version = entry.version

@@ -1,0 +1,242 @@
+"""The pose path's stream table: one :class:`Stream` per (skill, robot) key, created at its
+first pose with its target publisher, forgotten when idle; the path's shared state and
+metrics (:class:`Counts`).
+
+Security: a key chunk that is not a plain name is refused, logged (rate-limited) and
+counted as ``bad_key``; nothing is answered. Each stream's state is keyed by its exact key
+and answers only on its own target key.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from canal_core.tracker_bank import TrackerBank
+from canal_protocol import keys as keyspace
+from canal_protocol import wire
+
+from .config import BridgeOptions
+from .models import ModelEntry, ModelTable
+
+log = logging.getLogger("canal_service.bridge")
+
+ENC_JSON = zenoh.Encoding.APPLICATION_JSON
+ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
+ENC_CDR = zenoh.Encoding.APPLICATION_CDR
+#: Skills whose first samples wait for the loader thread at once (then the worker loads)
+PARK_MAX = 256
+ERROR_KEYS = ("outside_canal", "bad_payload", "wrong_dimension", "non_finite",
+              "unknown_skill", "no_model", "internal_error", "bad_key")
+
+Job = tuple["Stream", wire.Pose, int, Any]
+
+
+@dataclass(eq=False)
+class Stream:
+    """One (skill, robot) pose stream."""
+
+    key: str
+    skill: str
+    robot: str
+    publisher: Any
+    bank: TrackerBank | None = None  # the bank of the model version it is tracked with
+    slot: int = -1  # its row in that bank
+    version: int = -1
+    last_seen: float = 0.0
+    last_seq: int = -1
+    coalesced: int = 0
+    cdr_seq: int = 0
+    cdr_status: str = ""
+    status_key: str = ""
+    capture: list[wire.Pose] | None = None
+    capture_from: int = 0
+    capture_label: str | None = None
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    closed: bool = False
+    # the recording: count deltas since the last batch, the rows kept, the rate limit
+    rec_poses: int = 0
+    rec_answered: int = 0
+    rec_coalesced: int = 0
+    rec_errors: int = 0
+    rec_rows: list[tuple[Any, ...]] = field(default_factory=list)
+    rec_next: int = 0
+    rec_state: tuple[int, bool, bool] = (-1, False, False)
+
+
+class Counts:
+    """The worker's metrics as plain integers (read and reset by the metrics thread)."""
+
+    __slots__ = (
+        "coalesced",
+        "decimated",
+        "drains",
+        "errors",
+        "last_idle",
+        "parked",
+        "poses",
+        "recorded",
+        "step_bounds",
+        "step_buckets",
+        "step_sum",
+        "switches",
+        "targets",
+        "unknown",
+        "waiting",
+    )
+
+    def __init__(self, step_bounds: tuple[float, ...] = (math.inf,)) -> None:
+        self.poses = 0
+        self.targets = 0
+        self.coalesced = 0
+        self.errors: dict[str, int] = dict.fromkeys(ERROR_KEYS, 0)
+        self.switches = 0
+        self.drains = 0  # drains handled (poses / drains: the mean drain size)
+        #: the step histogram's upper bounds (the last one +inf) and per-bucket pose counts:
+        #: the worker adds to them, the metrics thread hands the deltas to Prometheus
+        self.step_bounds = step_bounds
+        self.step_buckets = [0] * len(step_bounds)
+        self.step_sum = 0.0
+        self.last_idle = time.monotonic()
+        self.waiting = True  # blocked on an empty queue
+        self.recorded = 0  # poses handed to the recorder (with their targets)
+        self.decimated = 0  # poses handled but not handed to the recorder (recording thread)
+        self.unknown = 0  # poses of unknown skills while recording (worker thread)
+        self.parked = 0  # poses that waited for their skill's model on the loader thread
+
+    def snapshot(self) -> dict[str, Any]:
+        return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
+                "errors": dict(self.errors), "switches": self.switches, "drains": self.drains,
+                "recorded": self.recorded, "decimated": self.decimated + self.unknown,
+                "parked": self.parked}
+
+
+
+class StreamTable:
+    """The streams of one bridge and the state every layer of the
+    :class:`~canal_service.bridge.posepath.PosePath` shares (its first layer)."""
+
+    def __init__(self, options: BridgeOptions, models: ModelTable, counts: Counts) -> None:
+        self.options = options
+        self.prefix = options.prefix.rstrip("/")
+        self.models = models
+        self.counts = counts
+        self.session: Any = None
+        self.streams: dict[str, Stream] = {}
+        self.streams_lock = threading.Lock()
+        self.others: set[str] = set()  # keys of other shards' streams (a stray delivery)
+        self._bad_key_logged = 0.0
+        hz = options.record_hz
+        #: None: not recording; else the least time between two kept rows of a stream
+        self.record_period_ns: int | None = None if hz is None else (
+            int(1e9 / hz) if hz > 0 else 0)
+        self.rec_lock = threading.Lock()
+        self.retired: list[Stream] = []  # forgotten streams whose last counts are not sent
+        self.now_ns = 0  # wall clock of the drain being answered (the rows' time)
+        #: skill -> samples waiting for its model (under ``rec_lock``), in arrival order
+        self.parked: dict[str, list[Any]] = {}
+        #: the loader thread's queue of skills to load (:meth:`load_parked`); None: the
+        #: worker loads a model itself at its skill's first pose
+        self.loads: queue.SimpleQueue[str | None] | None = None
+        self._flushing = False  # the loader is answering parked samples: park nothing
+
+
+    def bad_key(self, key: str) -> None:
+        self.counts.errors["bad_key"] += 1
+        now = time.monotonic()
+        if now - self._bad_key_logged > 1.0:  # a flood must not flood the log
+            self._bad_key_logged = now
+            log.warning("refused a pose on %r: skill and robot must be plain key chunks "
+                        "(no '*', '**', '$*', '?', '#', '@'); not answered", key)
+
+    def stream(self, key: str, skill: str, robot: str) -> Stream:
+        """The stream of ``key``, created (with its target publisher) on first use."""
+        with self.streams_lock:
+            st = self.streams.get(key)
+            if st is not None and not st.closed:
+                return st
+            k = keyspace.stream_keys(skill, robot, self.prefix)
+            # Not express: an express put writes to the socket on the calling thread (10-35 us
+            # measured here), a batched one hands over to Zenoh's TX task (< 1 us).
+            # JSON by default: a JSON answer's put passes no encoding (0.2 us less a pose)
+            publisher = self.session.declare_publisher(
+                k.target, express=False, congestion_control=zenoh.CongestionControl.BLOCK,
+                encoding=ENC_JSON)
+            st = Stream(key, skill, robot, publisher, last_seen=time.monotonic(),
+                        status_key=k.status)
+            self.streams[key] = st
+            return st
+
+    def resolve(self, key: str) -> Stream | ModelEntry | str | None:
+        """The stream of a pose key; the negative entry for an unknown skill; the skill's
+        name when its samples are to be parked until the loader has its model; None for a
+        key that is refused or another shard's."""
+        if key in self.others:
+            return None
+        found = keyspace.stream_of(key, self.prefix)
+        if found is None:
+            self.bad_key(key)
+            return None
+        skill, robot = found
+        shards = self.options.shards
+        if shards > 1 and keyspace.shard_of(skill, robot, shards) != self.options.shard:
+            if len(self.others) < 100_000:
+                self.others.add(key)
+            return None
+        if skill in self.parked:
+            return skill  # behind the samples already waiting: answered in order
+        if self.loads is not None and not self._flushing and len(self.parked) < PARK_MAX \
+                and self.models.cached(skill) is None:
+            self.loads.put(skill)
+            return skill
+        entry = self.models.entry(skill)
+        if entry.status == "unknown_skill":
+            return entry
+        return self.stream(key, skill, robot)
+
+    def forget_idle(self, now: float) -> set[str]:
+        """Close the streams idle for ``idle_s`` (not capturing); the skills still live."""
+        with self.rec_lock, self.streams_lock:
+            idle = [k for k, st in self.streams.items()
+                    if now - st.last_seen > self.options.idle_s and st.capture is None]
+            gone = [self.streams.pop(k) for k in idle]
+            live_skills = {st.skill for st in self.streams.values()}
+            if self.record_period_ns is not None:
+                self.retired.extend(gone)
+            for st in gone:  # under rec_lock: the worker is not stepping the bank now
+                release_slot(st)
+        for st in gone:
+            close_stream(st)
+        return live_skills
+
+    def close_streams(self) -> None:
+        with self.rec_lock, self.streams_lock:
+            streams, self.streams = list(self.streams.values()), {}
+            if self.record_period_ns is not None:
+                self.retired.extend(streams)
+            for st in streams:
+                release_slot(st)
+        for st in streams:
+            close_stream(st)
+
+
+def release_slot(st: Stream) -> None:
+    """Give the stream's bank slot back (callers hold ``rec_lock``: the worker is idle)."""
+    if st.bank is not None:
+        st.bank.release(st.slot)
+        st.bank, st.slot = None, -1
+
+
+def close_stream(st: Stream) -> None:
+    st.closed = True
+    try:
+        st.publisher.undeclare()
+    except Exception:
+        pass
