@@ -7,12 +7,15 @@ correspondence; it names Dynamic Time Warping as the alternative. Both are here.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.linalg import solve_banded
 
 from .validation import FloatArray
 from .warping import dtw_path
+
+if TYPE_CHECKING:
+    from scipy.interpolate import CubicSpline
 
 #: Smallest step of a warp, in reference samples (keeps every warp strictly increasing).
 MIN_WARP_STEP = 1e-6
@@ -78,6 +81,8 @@ def demonstration_spline(positions: FloatArray, timestamps: FloatArray | None) -
 
     The parameter is strictly increasing by construction (:func:`increasing_rows`).
     """
+    from scipy.interpolate import CubicSpline
+
     knots, values = spline_knots(positions, timestamps)
     return CubicSpline(knots, values, axis=0)
 
@@ -103,6 +108,9 @@ def stacked_spline_values(knots: list[FloatArray], values: list[FloatArray], at:
     -------
     array, shape (n, M, D)
     """
+    from scipy.interpolate import CubicSpline
+    from scipy.linalg import solve_banded
+
     sizes = np.array([k.size for k in knots])
     if sizes.min() < 4:  # scipy's special cases (a line, a parabola)
         return np.stack([CubicSpline(k, v, axis=0)(at) for k, v in zip(knots, values, strict=True)])

@@ -9,7 +9,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.interpolate import interp1d
 
 from .alignment import normalised_arc_length
 from .validation import FloatArray
@@ -41,6 +40,8 @@ def path_length(positions: FloatArray) -> float:
 
 def resampled_by_arc_length(positions: FloatArray, n_samples: int) -> FloatArray:
     """Linear resampling of a polyline (T, D) at ``n_samples`` evenly spaced arc lengths."""
+    from scipy.interpolate import interp1d
+
     keep = np.ones(positions.shape[0], dtype=bool)
     keep[1:] = np.any(np.diff(positions, axis=0) != 0.0, axis=1)
     pts = positions[keep]

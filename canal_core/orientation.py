@@ -35,8 +35,6 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
-from scipy.spatial.transform import Rotation, Slerp
 
 from .errors import ModelFormatError
 from .validation import FloatArray
@@ -92,6 +90,8 @@ def aligned_orientations(
     -------
     aligned : array, shape (n, N, 4)
     """
+    from scipy.spatial.transform import Rotation, Slerp
+
     out = np.empty((len(quaternions), at.shape[1], 4))
     for j, (q, u) in enumerate(zip(quaternions, parameters, strict=True)):
         slerp = Slerp(u, Rotation.from_quat(q))
@@ -149,6 +149,8 @@ def orientation_offsets(aligned: FloatArray, means: FloatArray) -> FloatArray:
     offsets : array, shape (N, n, 3)
         ``log(m_k^-1 q_jk)``; its norm is the geodesic angle, in [0, pi].
     """
+    from scipy.spatial.transform import Rotation
+
     n, count = aligned.shape[:2]
     rel = Rotation.from_quat(np.tile(means, (n, 1))).inv() * Rotation.from_quat(aligned.reshape(-1, 4))
     return np.asarray(rel.as_rotvec().reshape(n, count, 3).transpose(1, 0, 2))
@@ -156,6 +158,8 @@ def orientation_offsets(aligned: FloatArray, means: FloatArray) -> FloatArray:
 
 def start_offset(mean: FloatArray, start: FloatArray) -> FloatArray:
     """The start orientation's offset from its section mean, ``log(m^-1 q_0)``, shape (3,)."""
+    from scipy.spatial.transform import Rotation
+
     return np.asarray((Rotation.from_quat(mean).inv() * Rotation.from_quat(start)).as_rotvec())
 
 
@@ -172,6 +176,8 @@ def carry_gains(offsets: FloatArray, section: int, smoothing: float = GAIN_SMOOT
     section : int
     smoothing : float
     """
+    from scipy.ndimage import gaussian_filter1d
+
     ref = offsets[section]
     energy = float(np.einsum("jd,jd->", ref, ref))
     if energy <= MIN_SPREAD**2:
@@ -195,6 +201,8 @@ def carried_orientations(means: FloatArray, gains: FloatArray, offset: FloatArra
     offset : array, shape (3,)
         The start's offset v_0 (:func:`start_offset`).
     """
+    from scipy.spatial.transform import Rotation
+
     return np.asarray((Rotation.from_quat(means) * Rotation.from_rotvec(gains[:, None] * offset[None, :])).as_quat())
 
 

@@ -152,3 +152,16 @@ def test_metadata_service_face_has_what_the_service_imports() -> None:
     closure = requirement_closure({"service"})
     assert SERVICE_DISTRIBUTIONS - {"psycopg-binary"} <= closure
     assert {"httpx", "pydantic", "eclipse-zenoh"} <= closure
+
+
+def test_client_and_cli_load_no_scipy() -> None:
+    """The client and the ``canal`` command start without the fitting code's scipy (about
+    half of the CLI's start-up): the options they validate against are numpy only."""
+    result = run_face(("scipy",), """
+        import canal_client, canal_client.cli
+        from canal_protocol import options
+        from canal_core.options import fit_options
+        assert fit_options(cross_section="ellipse").cross_section in options.CROSS_SECTIONS
+        """)
+    assert result.returncode == 0, result.stderr
+    assert "face ok" in result.stdout
