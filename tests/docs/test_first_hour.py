@@ -20,9 +20,10 @@ import pytest
 from canal_client.cli import app as cli_app
 from canal_client.cli.demos import cli_wording
 from canal_client.cli.simulation import live_endpoint
-from canal_service.__main__ import Bootstrap, endpoints_line, settings_from_args
 from canal_service.app import create_app
+from canal_service.core.cli import endpoints_line, settings_from_args
 from canal_service.core.config import Settings
+from canal_service.core.serve import Bootstrap
 from canal_testing import LiveServer, free_port
 from typer.testing import CliRunner
 

@@ -17,9 +17,9 @@ with warnings.catch_warnings():
     from fastapi.testclient import TestClient
 
 from canal_client.sim import run_sim
-from canal_service.__main__ import settings_from_args
 from canal_service.app import create_app
 from canal_service.bridge import BridgeOptions, zenoh_config
+from canal_service.core.cli import settings_from_args
 from canal_service.core.config import Settings
 from canal_testing import free_port
 from live_helpers import make_skill

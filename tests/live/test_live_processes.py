@@ -118,10 +118,10 @@ def test_canal_serve_passes_every_bridge_setting_to_its_bridge_processes(tmp_pat
     argv, parsed as the bridge parses it, gives the same bridge options as the service's
     settings. Before, only the preload flags were passed; backlog, idle, refresh, lookahead,
     queue capacity and the model cache silently took their defaults in the bridges."""
-    from canal_service.__main__ import settings_from_args
     from canal_service.bridge.__main__ import _take
     from canal_service.bridge.config import BridgeOptions
     from canal_service.bridge.processes import PASSED_SETTINGS, BridgeProcesses
+    from canal_service.core.cli import settings_from_args
 
     for name in [k for k in os.environ if k.startswith("CANAL_")]:
         monkeypatch.delenv(name)

@@ -12,8 +12,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from canal_service.__main__ import settings_from_args
 from canal_service.app import create_app
+from canal_service.core.cli import settings_from_args
 from canal_service.core.config import Settings
 from canal_testing import LiveServer, free_port
 from service_helpers import demo_positions

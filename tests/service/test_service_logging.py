@@ -13,7 +13,7 @@ import threading
 from collections.abc import Iterator
 
 import pytest
-from canal_service.__main__ import write_logs_off_the_loop
+from canal_service.core.serve import write_logs_off_the_loop
 from uvicorn.logging import AccessFormatter
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Annotated
 
 import pytest
-from canal_service.__main__ import build_parser, settings_from_args, settings_options
+from canal_service.core.cli import build_parser, settings_from_args, settings_options
 from canal_service.core.config import Flag, Settings
 from pydantic import Field
 

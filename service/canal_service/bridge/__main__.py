@@ -28,7 +28,7 @@ from typing import Any
 
 import orjson
 
-from ..__main__ import build_parser, settings_from_args
+from ..core.cli import build_parser, settings_from_args
 from ..metrics import Metrics
 from ..service import CanalService
 from ..storage import Database

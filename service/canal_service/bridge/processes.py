@@ -34,6 +34,7 @@ from typing import Any
 
 import orjson
 
+from ..core.cli import settings_options
 from ..core.config import Settings
 from ..service import CanalService
 
@@ -83,8 +84,6 @@ class BridgeProcesses:
         self._stopping = False
 
     def _argv(self, shard: int, shards: int) -> list[str]:
-        from ..__main__ import settings_options  # the CLI module imports this one
-
         s = self.settings
         argv = [sys.executable, "-m", "canal_service.bridge", "--supervised",
                 "--shard", f"{shard}/{shards}", "--data-dir", str(s.data_dir),
