@@ -1,11 +1,19 @@
-"""Shared helpers of the benchmarks: the summary rows behind ``python -m bench``'s one table.
+"""Shared helpers of the benchmarks: what a script hands to its section of BENCHMARKS.md.
 
-Summary mechanism
------------------
-``python -m bench`` runs every script as a subprocess with the environment variable
-``CANAL_BENCH_SUMMARY`` set to a JSON-lines file. A script that wants rows in the summary
-table appends one JSON object per headline figure to that file; when the variable is unset
-(the script run on its own) nothing is written. A script that writes nothing is fine.
+Sections
+--------
+``python -m bench`` (bench/__main__.py) runs every script as a subprocess and writes one
+section of BENCHMARKS.md per script from that run. A script hands over two things, both
+optional, both no-ops when the script runs on its own:
+
+- headline rows, :func:`write_summary` (to the JSON-lines file named by
+  ``CANAL_BENCH_SUMMARY``): each figure beside the yardstick measured in the same run; the
+  section shows them as a table and :mod:`bench.plots` draws its pictures from them;
+- its tables as markdown, :func:`write_section` (to the file named by ``CANAL_BENCH_SECTION``):
+  the section's body (a script without it gets the tail of what it printed instead).
+
+A new benchmark is ``bench/NAME.py`` listed in ``bench/__main__.py``'s SCRIPTS; its section is
+``python -m bench --only NAME --write``.
 
 Row fields: ``source`` (script name), ``name``, ``value``, ``unit``, optional ``peer_name`` and
 ``peer_value`` (the same figure for a peer or a target measured/stated in the same run; the
@@ -40,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 SUMMARY_ENV = "CANAL_BENCH_SUMMARY"
+SECTION_ENV = "CANAL_BENCH_SECTION"
 ROOT = Path(__file__).resolve().parent.parent
 BENCHMARKS = ROOT / "BENCHMARKS.md"
 
@@ -71,6 +80,16 @@ def write_summary(source: str, rows: Iterable[dict[str, Any]]) -> None:
     with open(path, "a", encoding="utf-8") as f:
         for row in rows:
             f.write(json.dumps({"source": source, **row}) + "\n")
+
+
+def write_section(markdown: str) -> None:
+    """The script's tables (markdown) for its section of BENCHMARKS.md; appended, so a script
+    may call it once per table. A no-op outside ``python -m bench``."""
+    path = os.environ.get(SECTION_ENV)
+    if not path:
+        return
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(markdown.strip() + "\n\n")
 
 
 def read_summary(path: str | Path) -> list[dict[str, Any]]:
@@ -111,6 +130,24 @@ def summary_markdown(rows: list[dict[str, Any]]) -> str:
             ratio = f"{r['value'] / peer:.3g}"
         lines.append(
             f"| {r.get('source', '')} | {r['name']} | {fmt(r['value'])} | {r.get('unit', '')} | "
+            f"{r.get('peer_name') or '-'} | {fmt(peer)} | {ratio} | {r.get('better', 'lower')} |"
+        )
+    return "\n".join(lines)
+
+
+def section_table(rows: list[dict[str, Any]]) -> str:
+    """A section's headline rows: figure, ours, yardstick and ours / yardstick."""
+    lines = [
+        "| figure | ours | unit | yardstick (same run) | yardstick | ours / yardstick | better |",
+        "|---|---:|---|---|---:|---:|---|",
+    ]
+    for r in rows:
+        peer = r.get("peer_value")
+        ratio = "-"
+        if peer not in (None, 0) and math.isfinite(peer) and math.isfinite(r["value"]):
+            ratio = f"{r['value'] / peer:.3g}"
+        lines.append(
+            f"| {r['name']} | {fmt(r['value'])} | {r.get('unit', '')} | "
             f"{r.get('peer_name') or '-'} | {fmt(peer)} | {ratio} | {r.get('better', 'lower')} |"
         )
     return "\n".join(lines)

@@ -1,8 +1,8 @@
 """Method quality, leave-one-demo-out: canal variants against GMR, DMP and ProMP on real data.
 
 Run: ``.venv/bin/python bench/quality.py`` (full) or ``--quick`` (6 LASA shapes, 2 generated
-instances; a smoke run). Tables are printed; a full run (or ``--write``) also writes them into
-BENCHMARKS.md between the quality markers.
+instances; a smoke run). Tables are printed; ``python -m bench --only quality --write`` puts
+them in BENCHMARKS.md's quality section.
 
 Groups (every demo of every set is held out once):
 
@@ -58,14 +58,12 @@ from canal_core import metrics
 from canal_core.preprocess import cleaned_demonstration
 
 try:
-    from bench.common import summary_row, timed, write_block, write_summary
+    from bench.common import summary_row, timed, write_section, write_summary
 except ImportError:  # run as a file: bench/ is sys.path[0]
-    from common import summary_row, timed, write_block, write_summary
+    from common import summary_row, timed, write_section, write_summary
 
 N = 200
 QUICK_SHAPES = ["Angle", "CShape", "GShape", "Sshape", "Snake", "Worm"]
-HEADING = "## Method quality (leave-one-out)"
-START, END = "<!-- quality-table:start -->", "<!-- quality-table:end -->"
 GMM_COMPONENTS = 8
 DMP_WEIGHTS = 30
 PROMP_WEIGHTS = 30
@@ -363,7 +361,6 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="6 LASA shapes, 1 generated instance per path")
     parser.add_argument("--instances", type=int, default=None, help="generated instances per path (default 3)")
-    parser.add_argument("--write", action="store_true", help="write BENCHMARKS.md even with --quick")
     parser.add_argument("--only", default="", help="comma-separated subset of lasa,ur5e,raw3d")
     args = parser.parse_args(argv)
     instances = args.instances or (1 if args.quick else 3)
@@ -394,7 +391,6 @@ def main(argv: list[str] | None = None) -> int:
     ratios = ratio_table(groups)
     print("\n" + ratios)
     total = time.perf_counter() - t_all
-    cmd = "`.venv/bin/python bench/quality.py" + (" --quick" if args.quick else "") + "`"
     print(f"\nquality: total wall time {total:.0f} s")
     summary = []
     for g, (rows, _) in groups.items():
@@ -404,10 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         summary.append(summary_row(f"canal circle training samples inside, {g}", 100 * float(np.min(rows[DEFAULT]["train in"])),
                                    "% (worst fold)", better="higher"))
     write_summary("quality", summary)
-    if args.write or not args.quick:
-        text = (__doc__ or "").split("\n\n")[0] + f" {cmd}, {total:.0f} s.\n\n" + "\n\n".join(blocks) + "\n\n" + ratios
-        write_block(text, START, END, HEADING)
-        print("wrote BENCHMARKS.md")
+    write_section("\n\n".join(blocks) + "\n\n" + ratios)
     return 0
 
 
