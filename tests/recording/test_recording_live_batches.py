@@ -20,12 +20,13 @@ import pytest
 import rerun as rr
 import zstandard
 from canal_service import record_batches
+from canal_service.adapters import mcap_writer
+from canal_service.adapters.rerun_chunks import live_chunks
 from canal_service.recording import Recorder
 from canal_service.recording import foxglove as fx
 from canal_service.recording.events import live_rows
 from canal_service.recording.live import LiveOptions, LiveSubscriber
 from canal_service.recording.mcap_log import McapSegment
-from canal_service.recording.rerun_log import live_chunks
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message, MessageIndex
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -233,7 +234,8 @@ def test_live_messages_have_exact_message_indexes(tmp_path: Path) -> None:
     path = tmp_path / "live.mcap"
     t0 = time.time_ns()
     seg = McapSegment(path, t0)  # puts world -> canal on /tf through add_message
-    assert seg._fast is not None  # mcap's Writer internals are there (mcap pinned): one write
+    # mcap's Writer internals are there (mcap as pinned): live rows in one write
+    assert mcap_writer.writer_internals(seg._writer) is not None
     m = 40
     for k, robot in enumerate(("arm1", "arm2", "arm1")):
         t = t0 + 10_000_000 * (np.arange(m) + k * m)

@@ -26,21 +26,17 @@ from __future__ import annotations
 
 import contextlib
 import os
-import struct
-from collections.abc import Callable, Iterable, Iterator
-from itertools import chain
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from mcap._chunk_builder import ChunkBuilder
-from mcap.data_stream import RecordBuilder
-from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Channel, Message, MessageIndex, Schema, Statistics
+from mcap.records import Channel, Message, Schema
 from mcap.writer import CompressionType, Writer
 from numpy.typing import NDArray
 
+from ..adapters.mcap_writer import pair_writer
 from . import foxglove as fx
 from .events import LiveRows, ReproductionView
 from .geometry import ModelGeometry
@@ -53,44 +49,6 @@ _RING_COLOR = (0.2, 0.2, 0.2, 0.8)
 _AXIS_COLORS = np.array([[0.9, 0.2, 0.2, 1.0], [0.2, 0.8, 0.2, 1.0], [0.2, 0.3, 0.95, 1.0]])
 _INSIDE_COLOR = (0.1, 0.75, 0.3, 1.0)
 _OUTSIDE_COLOR = (0.95, 0.5, 0.1, 1.0)
-
-
-#: A Message record's head: opcode, record length, channel id, sequence, log and publish time.
-_MESSAGE = struct.Struct("<BQHIQQ")
-_OP_MESSAGE = int(Opcode.MESSAGE)
-
-
-class _MessageIndex(MessageIndex):
-    """A chunk's message index whose entries the live path adds as packed (log time,
-    offset) pairs: no tuple per message to allocate (and for the garbage collector to
-    walk), one write per index at the chunk's end."""
-
-    packed: list[NDArray[np.uint64]]
-
-    def write(self, stream: RecordBuilder) -> None:
-        pairs = list(self.packed)
-        if self.records:  # entries the public add_message appended: in file order with ours
-            pairs.append(np.array(self.records, dtype=np.uint64).reshape(-1, 2))
-        table = np.concatenate(pairs) if pairs else np.empty((0, 2), np.uint64)
-        if len(pairs) > 1:
-            table = table[np.argsort(table[:, 1], kind="stable")]
-        data = table.astype("<u8").tobytes()
-        stream.start_record(Opcode.MESSAGE_INDEX)
-        stream.write2(self.channel_id)
-        stream.write4(len(data))
-        stream.write(data)
-        stream.finish_record()  # type: ignore[no-untyped-call]  # mcap is untyped
-
-
-def _writer_internals(writer: Writer) -> tuple[ChunkBuilder, Statistics, Callable[[], None]] | None:
-    """The chunk builder, statistics and chunk check of mcap's Writer, when it has them."""
-    builder = getattr(writer, "_Writer__chunk_builder", None)
-    stats = getattr(writer, "_Writer__statistics", None)
-    finalize = getattr(writer, "_Writer__maybe_finalize_chunk", None)
-    if (isinstance(builder, ChunkBuilder) and isinstance(stats, Statistics) and callable(finalize)
-            and hasattr(builder.record_writer, "_buffer")):
-        return builder, stats, finalize
-    return None
 
 
 def _open_writer(path: Path) -> tuple[IO[bytes], Writer]:
@@ -127,11 +85,11 @@ class _Channels:
 class McapSegment:
     """One open MCAP segment of a skill's recording (used by the writer thread only)."""
 
-    def __init__(self, path: Path, t_ns: int) -> None:
+    def __init__(self, path: Path, t_ns: int, fast: bool = True) -> None:
         self.path = path
         self._stream, self._writer = _open_writer(path)
         self._channels = _Channels(self._writer)
-        self._fast = _writer_internals(self._writer)
+        self._pairs = pair_writer(self._writer, fast)
         self._dirty = False
         self._write("/tf", "foxglove.FrameTransform", t_ns,
                     fx.frame_transform(t_ns, fx.WORLD_FRAME, fx.CANAL_FRAME))
@@ -218,63 +176,10 @@ class McapSegment:
 
     def _add_pairs(self, first: int, firsts: list[bytes], second: int, seconds: list[bytes],
                    t_ns: NDArray[np.int64]) -> None:
-        """Messages on two channels, interleaved (first, second) per row at ``times``.
-
-        ``Writer.add_message`` costs a record object, five small writes and two seeks per
-        message; here the chunk gets all records in one write, with the same message
-        indexes and statistics (mcap 1.6's Writer internals, pinned; without them, the
-        public call per message).
-        """
+        """Messages on two channels, interleaved (first, second) per row at ``t_ns``: all
+        records in one write when the mcap adapter can (:mod:`canal_service.adapters.mcap_writer`)."""
         self._dirty = True
-        times = t_ns.tolist()
-        fast = self._fast
-        if fast is None:
-            add = self._writer.add_message
-            for t, a, b in zip(times, firsts, seconds, strict=True):
-                add(first, log_time=t, data=a, publish_time=t)
-                add(second, log_time=t, data=b, publish_time=t)
-            return
-        builder, stats, finalize = fast
-        if not times:
-            return
-        buffer = builder.record_writer._buffer
-        offset = buffer.tell()
-        pack = _MESSAGE.pack
-        sizes_a = [len(a) for a in firsts]
-        sizes_b = [len(b) for b in seconds]
-        buffer.writelines(chain.from_iterable(zip(
-            [pack(_OP_MESSAGE, 22 + n, first, 0, t, t) for n, t in zip(sizes_a, times, strict=True)], firsts,
-            [pack(_OP_MESSAGE, 22 + n, second, 0, t, t) for n, t in zip(sizes_b, times, strict=True)],
-            seconds, strict=True)))
-        # where each record starts in the chunk: its message index entry
-        m = len(times)
-        sizes = np.empty(2 * m, dtype=np.uint64)
-        sizes[0::2] = sizes_a
-        sizes[1::2] = sizes_b
-        sizes += _MESSAGE.size
-        starts = np.cumsum(sizes) - sizes + np.uint64(offset)
-        for k, cid in enumerate((first, second)):
-            index = builder.message_indices.get(cid)
-            if type(index) is not _MessageIndex:
-                fresh = _MessageIndex(channel_id=cid, records=[] if index is None
-                                      else index.records)
-                fresh.packed = []
-                builder.message_indices[cid] = index = fresh
-            pairs = np.empty((m, 2), dtype=np.uint64)
-            pairs[:, 0] = t_ns
-            pairs[:, 1] = starts[k::2]
-            index.packed.append(pairs)
-            stats.channel_message_counts[cid] += m
-        lo, hi, n = min(times), max(times), 2 * len(times)
-        builder.message_start_time = lo if builder.num_messages == 0 else min(
-            builder.message_start_time, lo)
-        builder.message_end_time = max(builder.message_end_time, hi)
-        builder.num_messages += n
-        stats.message_start_time = lo if stats.message_count == 0 else min(
-            stats.message_start_time, lo)
-        stats.message_end_time = max(stats.message_end_time, hi)
-        stats.message_count += n
-        finalize()
+        self._pairs(first, firsts, second, seconds, t_ns)
 
     # ---- file -------------------------------------------------------------------------------
 

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ..adapters import adapter_paths
 from ..lanes import name_os_thread
 from .events import (
     ControlEvent,
@@ -110,6 +111,8 @@ class Recorder(Exporter, Reconciler):
             "writer_cpu_s": round(self.writer_cpu_s, 6),
             "live": self.live_source.health() if self.live_source is not None else {
                 "status": "disabled"},
+            # which path the files' writers take through other libraries' internals
+            "adapters": adapter_paths(),
         }
 
     def close(self) -> None:

@@ -35,7 +35,6 @@ recording. The first segment carries the default blueprint.
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import subprocess
 import sys
@@ -43,11 +42,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa  # type: ignore[import-untyped]  # rerun-sdk requires it; untyped
 import rerun as rr
 import rerun.blueprint as rrb
-import rerun_bindings as bindings
 
+from ..adapters.rerun_chunks import send_live
 from .events import LiveRows, ReproductionView
 from .geometry import FloatArray, ModelGeometry
 
@@ -58,86 +56,7 @@ _RING_COLOR = (60, 60, 60, 200)
 _AXIS_COLORS = np.array([[230, 50, 50, 255], [50, 200, 50, 255], [50, 80, 240, 255]], np.uint8)
 _INSIDE_COLOR = (25, 190, 75, 255)
 _OUTSIDE_COLOR = (240, 130, 25, 255)
-_POSE_COLOR = (220, 40, 160, 255)
-_TARGET_COLOR = (40, 200, 220, 255)
 _RADIUS_COLOR = (200, 160, 60, 255)
-
-
-# ---- live rows as Rerun chunks ----------------------------------------------------------------
-#
-# ``rr.send_columns(entity, indexes, columns=rr.Points3D.columns(...))`` spends most of its
-# time in Python (validating and converting each archetype field) for the ~100 rows a stream
-# has per flush. The live entities are always the same few components, so their Arrow
-# columns are built here straight from the numpy columns: the component descriptors and
-# Arrow types are the ones the archetypes report (learned once), and the arrays are equal to
-# what ``Archetype.columns`` builds (tested), sent with the same native call.
-
-
-@functools.cache
-def _components(archetype: str) -> dict[str, tuple[Any, pa.DataType]]:
-    """``{field: (component descriptor, Arrow type of one value)}`` of a live archetype."""
-    one3, color = np.zeros((1, 3)), np.array([[0, 0, 0, 255]])
-    sample = {
-        "Points3D": lambda: rr.Points3D.columns(positions=one3, colors=color),
-        "Points2D": lambda: rr.Points2D.columns(positions=one3[:, :2], colors=color),
-        "Transform3D": lambda: rr.Transform3D.columns(
-            translation=one3, quaternion=np.array([[0.0, 0.0, 0.0, 1.0]])),
-        "Scalars": lambda: rr.Scalars.columns(scalars=np.zeros(1)),
-    }[archetype]()
-    return {str(c.component_descriptor()).split(":", 1)[1]: (
-        c.component_descriptor(), c.component_batch.as_arrow_array().type) for c in sample}
-
-
-def _packed(rgba: tuple[int, int, int, int]) -> int:
-    """An RGBA colour as Rerun's Rgba32 (0xRRGGBBAA)."""
-    r, g, b, a = rgba
-    return (r << 24) | (g << 16) | (b << 8) | a
-
-
-def _values(values: np.ndarray, value_type: pa.DataType) -> pa.Array:
-    if pa.types.is_fixed_size_list(value_type):
-        with np.errstate(over="ignore"):  # a 1e308 pose is inf in float32, as rerun casts it
-            flat = np.ascontiguousarray(values, dtype=np.float32).ravel()
-        return pa.FixedSizeListArray.from_arrays(
-            pa.array(flat, type=value_type.value_type), type=value_type)
-    return pa.array(np.ascontiguousarray(values), type=value_type)
-
-
-def _chunk(archetype: str, offsets: pa.Array, **fields: np.ndarray) -> dict[Any, pa.Array]:
-    """One row per value (unit-length lists), as ``Archetype.columns`` partitions them."""
-    spec = _components(archetype)
-    return {spec[name][0]: pa.ListArray.from_arrays(offsets, _values(values, spec[name][1]))
-            for name, values in fields.items()}
-
-
-def live_chunks(base: str, rows: LiveRows, dim: int = 3
-                ) -> list[tuple[str, dict[str, pa.Array], dict[Any, pa.Array]]]:
-    """The live entities of one stream's rows as ``(entity, timelines, components)``.
-
-    ``base/pose`` and ``base/target`` points (pink / cyan), ``base/frame`` transform (3-D:
-    translation and the pose's quaternion), ``base/progress`` and ``base/eta`` scalars, all
-    on the ``wall_time`` timeline.
-    """
-    m = len(rows)
-    offsets = pa.array(np.arange(m + 1, dtype=np.int32))
-    timelines = {"wall_time": pa.array(rows.t_ns, type=pa.timestamp("ns"))}
-    points = "Points2D" if dim == 2 else "Points3D"
-    pose, target = (rows.position, rows.target) if dim != 2 else (
-        rows.position[:, :2], rows.target[:, :2])
-    out = [(f"{base}/pose", timelines, _chunk(
-        points, offsets, positions=pose,
-        colors=np.full(m, _packed(_POSE_COLOR), dtype=np.uint32)))]
-    if dim != 2:
-        out.append((f"{base}/frame", timelines, _chunk(
-            "Transform3D", offsets, translation=rows.position, quaternion=rows.orientation)))
-    out += [
-        (f"{base}/target", timelines, _chunk(
-            points, offsets, positions=target,
-            colors=np.full(m, _packed(_TARGET_COLOR), dtype=np.uint32))),
-        (f"{base}/progress", timelines, _chunk("Scalars", offsets, scalars=rows.progress)),
-        (f"{base}/eta", timelines, _chunk("Scalars", offsets, scalars=rows.eta)),
-    ]
-    return out
 
 
 #: The canal's surface is drawn see-through, so what lies inside it (demonstrations,
@@ -271,9 +190,10 @@ class RerunSegment:
     """
 
     def __init__(self, path: Path, recording_id: str, skill: str, *, blueprint: bool,
-                 dim: int = 3, coordinates: str = "RIGHT_HAND_Z_UP") -> None:
+                 dim: int = 3, coordinates: str = "RIGHT_HAND_Z_UP", fast: bool = True) -> None:
         self.path = path
         self.dim = 2 if dim == 2 else 3
+        self.fast = fast  # live rows by the adapter's native path when it can
         self.coordinates = coordinates
         self._axes: set[str] = set()  # live frames whose static axes this segment has
         self._file = open(path, "wb")
@@ -422,16 +342,13 @@ class RerunSegment:
 
     def live(self, rows: LiveRows) -> None:
         """One stream's live rows: poses (point and frame), targets (point, progress, eta),
-        one chunk per entity (:func:`live_chunks`)."""
+        one chunk per entity (:func:`canal_service.adapters.rerun_chunks.send_live`)."""
         self._dirty = True
         base = f"live/{_entity(rows.robot)}"
         if self.dim == 3 and base not in self._axes:  # static: once per segment
             self.rec.log(f"{base}/frame", rr.TransformAxes3D(0.1), static=True)
             self._axes.add(base)
-        native = self.rec.to_native()
-        for entity, timelines, components in live_chunks(base, rows, self.dim):
-            bindings.send_arrow_chunk(entity, timelines=timelines, components=components,
-                                      recording=native)
+        send_live(self.rec, base, rows, self.dim, self.fast)
 
     # ---- file -------------------------------------------------------------------------------
 
