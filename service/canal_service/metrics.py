@@ -2,13 +2,60 @@
 
 from __future__ import annotations
 
+import itertools
+import math
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client.core import HistogramMetricFamily, Metric
+from prometheus_client.registry import Collector
+from prometheus_client.utils import floatToGoString
+
+#: A bucket bound as Prometheus writes it ("+Inf", "0.0001"), as ``Histogram`` does.
+_bound_text: Callable[[float], str] = floatToGoString
 
 _LIVE_BUCKETS = (2.5e-5, 5e-5, 7.5e-5, 1e-4, 1.5e-4, 2e-4, 3e-4, 5e-4, 1e-3, 2.5e-3, 5e-3, 0.01,
                  0.05)
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0)
+
+
+class BulkHistogram(Collector):
+    """A histogram that takes many observations at once: counts per bucket and a sum added
+    by :meth:`add` (the live bridge's worker counts its poses per bucket as plain integers,
+    and its metrics thread hands over the deltas), rendered like ``Histogram`` by
+    ``collect``. A custom collector is prometheus_client's public way to export values
+    counted elsewhere; ``Histogram`` has no bulk observe."""
+
+    def __init__(self, name: str, documentation: str, buckets: tuple[float, ...],
+                 registry: CollectorRegistry | None) -> None:
+        self.name = name
+        self.documentation = documentation
+        #: upper bounds, the last one +inf (as ``Histogram`` adds it)
+        self.bounds: tuple[float, ...] = (
+            tuple(buckets) if buckets[-1] == math.inf else (*buckets, math.inf))
+        self._counts = [0] * len(self.bounds)
+        self._sum = 0.0
+        self._lock = threading.Lock()
+        if registry is not None:
+            registry.register(self)
+
+    def add(self, counts: list[int], total: float) -> None:
+        """Add ``counts[i]`` observations to bucket i (not cumulative) and ``total`` to the sum."""
+        with self._lock:
+            for i, n in enumerate(counts):
+                self._counts[i] += n
+            self._sum += total
+
+    def collect(self) -> Iterator[Metric]:
+        with self._lock:
+            counts, total = list(self._counts), self._sum
+        cumulative = list(itertools.accumulate(counts))
+        yield HistogramMetricFamily(
+            self.name, self.documentation,
+            buckets=[(_bound_text(b), n) for b, n in zip(self.bounds, cumulative, strict=True)],
+            sum_value=total)
 
 
 @dataclass
@@ -46,9 +93,9 @@ class Metrics:
                                    ["status"], registry=r)
         self.live_streams = Gauge("canal_live_streams", "Active (skill, robot) pose streams",
                                   registry=r)
-        self.live_step_seconds = Histogram("canal_live_step_seconds",
-                                           "Bridge time per pose: dequeue to target published",
-                                           buckets=_LIVE_BUCKETS, registry=r)
+        self.live_step_seconds = BulkHistogram(
+            "canal_live_step_seconds", "Bridge time per pose: dequeue to target published",
+            _LIVE_BUCKETS, r)
         self.live_up = Gauge("canal_live_bridge_up", "1 while the live Zenoh bridge runs",
                              registry=r)
         self.live_recorded = Counter("canal_live_poses_recorded_total",

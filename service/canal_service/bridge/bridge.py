@@ -108,7 +108,7 @@ class Bridge:
                                        "acl_default": None}
         m = service.metrics
         # the worker counts its step histogram in plain ints on these bounds (+inf last)
-        self.counts = Counts(tuple(m.live_step_seconds._upper_bounds))
+        self.counts = Counts(m.live_step_seconds.bounds)
         self.models = ModelTable(service, self.options)
         self.path = PosePath(self.options, self.models, self.counts)
         self._stop = threading.Event()
@@ -322,17 +322,13 @@ class Bridge:
             if n != before["errors"][key]:
                 self._m_error_children[key].inc(n - before["errors"][key])
         self._flushed = now
-        # The worker's bucket counts, added in one go: Histogram has no bulk observe, so
-        # its bucket and sum values are increased directly (what observe() does per pose).
+        # The worker's bucket counts, added in one go (one observation per pose).
         counts = self.counts
         buckets, total = list(counts.step_buckets), counts.step_sum
         before_buckets, before_total = self._flushed_step
-        step = self._m_step
-        for i, (n, b) in enumerate(zip(buckets, before_buckets, strict=True)):
-            if n != b:
-                step._buckets[i].inc(n - b)
-        if total != before_total:
-            step._sum.inc(total - before_total)
+        deltas = [n - b for n, b in zip(buckets, before_buckets, strict=True)]
+        if any(deltas) or total != before_total:
+            self._m_step.add(deltas, total - before_total)
         self._flushed_step = (buckets, total)
         self._m_streams.set(len(self.path.streams))
 
