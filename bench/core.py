@@ -161,7 +161,7 @@ def fit_stage_times(demos: list[np.ndarray], n: int) -> dict[str, float]:
     from canal_core.cross_sections import fitted_sections, floored_sections
     from canal_core.crossings import in_plane_coordinates, located_crossings, sections_of_samples
     from canal_core.directrix import directrix_mean
-    from canal_core.envelope import enclosing_scales
+    from canal_core.enclosing import enclosing_scales
     from canal_core.frames import canal_frames
     from canal_core.options import fit_options
     from canal_core.preprocess import prepared_samples_many

@@ -94,7 +94,7 @@ def scaled_sections(sections: CrossSections, scale: FloatArray) -> CrossSections
 def floored_sections(sections: CrossSections, floor: float) -> CrossSections:
     """Sections whose boundary lies at least about ``floor`` from c_i in every direction.
 
-    The envelope (:func:`canal_core.envelope.enclosing_scales`) grows sections by a
+    The fit (:func:`canal_core.enclosing.enclosing_scales`) grows sections by a
     homothety about c_i, which cannot enlarge a boundary that passes through c_i (a zero
     radius, a one-sided interval, a spline knot of radius 0). ``floor`` is a tiny length
     (1e-9 of the canal's size in :func:`canal_core.fit`), so every other section is unchanged.

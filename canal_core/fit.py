@@ -4,7 +4,7 @@
 (:mod:`canal_core.alignment`), takes their mean as the directrix (:mod:`canal_core.directrix`),
 frames it (:mod:`canal_core.frames`), fits a cross-section to each plane's crossings
 (:mod:`canal_core.cross_sections`) and grows the sections until every demonstrated sample is
-inside (:mod:`canal_core.envelope`); it returns a :class:`~canal_core.model.Canal`.
+inside (:mod:`canal_core.enclosing`); it returns a :class:`~canal_core.model.Canal`.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from .alignment import (
 from .cross_sections import fitted_sections, floored_sections, scaled_sections, section_kind
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
-from .envelope import enclosing_scales
+from .enclosing import enclosing_scales
 from .errors import DegenerateCanalError, InvalidInputError
 from .frames import canal_frames
 from .model import Canal
@@ -174,15 +174,15 @@ def fit(
         sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
         for j, p in enumerate(prepared)
     ])).astype(np.int64)
-    envelope = enclosing_scales(samples, approx, centres, tangents, basis, sections)
-    sections = scaled_sections(sections, envelope.scale)
+    enclosure = enclosing_scales(samples, approx, centres, tangents, basis, sections)
+    sections = scaled_sections(sections, enclosure.scale)
     orientation = None
     if quats_ is not None:
         orientation = _fitted_orientation(prepared, times, quats_, options)
     return Canal(
-        end_depths=np.maximum(end_depths(samples, phase, centres, tangents), envelope.depths),
+        end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
         section_times=section_times(positions, stamped, options.n_samples, align_by_time),
-        envelope_margin=float(envelope.scale.max() - 1.0),
+        envelope_margin=float(enclosure.scale.max() - 1.0),
         directrix=centres,
         tangents=tangents,
         normals=normals,

@@ -74,7 +74,7 @@ class Canal:
     envelope_margin : float
         The fit's report of how much the sections fitted to the plane crossings had to grow
         so that every demonstrated sample is inside: the largest relative enlargement of
-        any section (0.02 = 2 %). See :func:`canal_core.envelope.enclosing_scales`.
+        any section (0.02 = 2 %). See :func:`canal_core.enclosing.enclosing_scales`.
     parent : str or None
         The digest (:func:`canal_core.corrections.canal_digest`) of the canal this one was
         refined from by a correction; None for a canal fitted from demonstrations.

@@ -11,7 +11,7 @@ from raw_logs import raw_demo_set
 from canal_core import crossings
 from canal_core.alignment import resampled_demonstrations
 from canal_core.crossings import NEAR_WINDOW, plane_crossings
-from canal_core.envelope import bracketing_sections
+from canal_core.enclosing import bracketing_sections
 from canal_core.frames import rotation_minimizing_frames, smoothed_curve
 from canal_core.preprocess import prepared_demonstration
 

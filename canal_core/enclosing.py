@@ -1,4 +1,7 @@
-"""The envelope of the demonstrations: how much each fitted section grows to hold every sample.
+"""Sections grown to enclose every demonstrated sample: how much each fitted section grows.
+
+Not the envelope of Eqs. 1-2 (the surface a family of spheres sweeps, Eq. 9, which is
+:mod:`canal_core.surface`): this is the fit's guarantee that the canal holds its demonstrations.
 
 The cross-sections are fitted to where the demonstrations cross each plane (paper Section 4.1);
 between the planes the swept canal blends neighbouring sections, and a demonstrated sample can
@@ -138,7 +141,7 @@ def _location_columns(loc: Location) -> tuple[np.ndarray, ...]:
 
 
 @dataclass(frozen=True, eq=False)
-class Envelope:
+class Enclosure:
     """How much the fitted sections had to grow to hold every demonstrated sample.
 
     Attributes
@@ -165,7 +168,7 @@ def enclosing_scales(
     basis: FloatArray,
     sections: CrossSections,
     window: int = 32,
-) -> Envelope:
+) -> Enclosure:
     """Per-section enlargement that puts every demo sample inside the swept canal.
 
     Two passes, both vectorised:
@@ -204,13 +207,13 @@ def enclosing_scales(
 
     Returns
     -------
-    Envelope
+    Enclosure
     """
     n = centres.shape[0]
     scale = np.ones(n)
     depths = np.zeros(2)
     if n < 2 or samples.shape[0] == 0:
-        return Envelope(scale, depths, 0)
+        return Enclosure(scale, depths, 0)
     plane = np.einsum("nd,nd->n", centres, tangents)
     # Most samples sit within a few sections of their phase: search there first; the rest
     # get one row of all N plane distances each (the nearest bracketing pair to their phase,
@@ -276,4 +279,4 @@ def enclosing_scales(
             np.maximum.at(scale, rows[ok], need[ok])
         depths[0] = max(depths[0], -float(loc.axial[behind].min(initial=0.0)))
         depths[1] = max(depths[1], float(loc.axial[past].max(initial=0.0)))
-    return Envelope(scale, depths, int(far.size))
+    return Enclosure(scale, depths, int(far.size))
