@@ -28,6 +28,18 @@ Push = tuple[float | str, Sequence[float]]
 
 
 @dataclass
+class PushRecord:
+    """One push that happened: when, by how much, and what the bridge said next."""
+
+    when: float | str  # as asked: seconds, or progress ("50%", "0.5")
+    offset: list[float]
+    at_s: float  # seconds into the run when it was applied
+    progress: float  # the canal progress reached just before it
+    inside_after: bool | None = None  # the first answer after it: inside (or done)?
+    back_inside_s: float | None = None  # when it left the canal: seconds until back inside
+
+
+@dataclass
 class SimResult:
     """What happened in one simulated run."""
 
@@ -48,6 +60,7 @@ class SimResult:
     # Pushes still pending when the run ended (their time or progress was never reached).
     pushes_pending: list[tuple[float | str, list[float]]] = field(default_factory=list)
     seed: int | None = None
+    pushes: list[PushRecord] = field(default_factory=list)  # the ones applied, in order
 
 
 def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
@@ -80,6 +93,19 @@ def _push_due(when: float | str, elapsed: float, progress: float) -> bool:
         value = float(text[:-1]) / 100.0 if text.endswith("%") else float(text)
         return progress >= value
     return elapsed >= float(when)
+
+
+def describe_push(push: PushRecord) -> str:
+    """What one push did, in a line (for the CLI and logs)."""
+    shown = ",".join(f"{v:g}" for v in push.offset)
+    head = f"push ({shown}) applied at {push.at_s:.2f} s, progress {push.progress:.0%}"
+    if push.inside_after is None:
+        return f"{head}: no answer came after it"
+    if push.inside_after:
+        return f"{head}: still inside the canal"
+    if push.back_inside_s is None:
+        return f"{head}: out of the canal, not back inside before the run ended"
+    return f"{head}: out of the canal, back inside {push.back_inside_s:.2f} s later"
 
 
 def describe_pending(result: SimResult) -> list[str]:
@@ -132,6 +158,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
         inside: list[bool] = []
         statuses: dict[str, int] = {}
         missed = pushes_done = 0
+        applied: list[PushRecord] = []
         reached = False
         progress = 0.0
         version = None
@@ -148,6 +175,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                     x = x + offset
                     pending[k] = (when, None)  # type: ignore[assignment]
                     pushes_done += 1
+                    applied.append(PushRecord(when, [float(v) for v in offset], elapsed,
+                                              progress))
             seq = ps.send(x.tolist(), t=elapsed, restart=not positions)
             positions.append(x.copy())
             got = ps.wait_for(seq, wait)
@@ -159,6 +188,12 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                 statuses[got.status] = statuses.get(got.status, 0) + 1
                 inside.append(bool(got.inside or got.done))
                 progress = got.progress
+                if applied:
+                    last = applied[-1]
+                    if last.inside_after is None:
+                        last.inside_after = inside[-1]
+                    elif not last.inside_after and last.back_inside_s is None and inside[-1]:
+                        last.back_inside_s = time.monotonic() - t0 - last.at_s
                 version = got.model_version
                 if got.done:
                     reached = True
@@ -197,6 +232,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
         pushes_done=pushes_done,
         pushes_pending=left,
         seed=seed,
+        pushes=applied,
     )
 
 

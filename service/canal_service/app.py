@@ -22,7 +22,7 @@ from .core.config import Settings
 from .errors import install_error_handlers
 from .lanes import Lane
 from .metrics import Metrics
-from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, RequestMetrics
+from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, JsonNewline, RequestMetrics
 from .routes import api_router, docs, health, view
 from .service import CanalService, FitListeners, RecorderLike, ServiceHealth
 from .storage import Database
@@ -151,6 +151,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                            open_paths=OPEN_PATHS)
         _declare_bearer(app)
     app.add_middleware(CatchUnexpected)
+    app.add_middleware(JsonNewline)  # outside the error net: its 500s end in a newline too
     app.add_middleware(RequestMetrics, metrics=metrics)
     return app
 

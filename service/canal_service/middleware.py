@@ -1,4 +1,5 @@
-"""Pure ASGI middleware: unexpected-error net, body size limit, bearer token, request metrics.
+"""Pure ASGI middleware: unexpected-error net, body size limit, bearer token, request metrics,
+a newline after every JSON answer.
 
 Pure ASGI rather than ``BaseHTTPMiddleware`` because the size limit has to wrap
 ``receive`` (to stop a chunked upload mid-stream) and because it costs less per request.
@@ -30,6 +31,43 @@ async def _send_json(send: Send, status: int, body: dict[str, Any],
                     (b"content-length", str(len(payload)).encode()), *(headers or [])],
     })
     await send({"type": "http.response.body", "body": payload})
+
+
+class JsonNewline:
+    """End every ``application/json`` answer with a newline, as a terminal expects.
+
+    ``curl URL`` otherwise leaves the shell prompt glued to the closing brace. JSON allows
+    trailing whitespace, so every parser reads the same document; the Content-Length is
+    grown by the one byte.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        is_json = False
+
+        async def newline_send(message: Message) -> None:
+            nonlocal is_json
+            if message["type"] == "http.response.start":
+                headers = list(message.get("headers", []))
+                is_json = any(k.lower() == b"content-type"
+                              and v.split(b";")[0].strip().lower() == b"application/json"
+                              for k, v in headers)
+                if is_json:
+                    message = {**message, "headers": [
+                        (k, str(int(v) + 1).encode()) if k.lower() == b"content-length" else (k, v)
+                        for k, v in headers]}
+            elif (message["type"] == "http.response.body" and is_json
+                  and not message.get("more_body", False)):
+                message = {**message, "body": message.get("body", b"") + b"\n"}
+                is_json = False
+            await send(message)
+
+        await self.app(scope, receive, newline_send)
 
 
 class CatchUnexpected:

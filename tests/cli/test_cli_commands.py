@@ -197,15 +197,26 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     assert r.exit_code == 2 and "hexagon" in r.output
 
     with CanalClient(service.url) as c:
-        expected = c.reproduce(name, [0.0, 0.01, 0.0], model=1).positions
+        reproduced = c.reproduce(name, [0.0, 0.01, 0.0], model=1)
+    expected = reproduced.positions
     for suffix in ("csv", "npy", "json"):
         out = tmp_path / "out" / f"traj.{suffix}"
         r = run("reproduce", name, "--start", "0,0.01,0", "--model", "1", "--out", str(out))
         assert r.exit_code == 0, r.output
         assert "start inside" in r.stdout and f"wrote {out}" in r.stdout
+        if reproduced.times is None:
+            assert "the model is untimed" in r.stdout
+        else:
+            assert f"the trajectory lasts {reproduced.times[-1]:.3g} s" in r.stdout
         if suffix == "csv":
-            assert out.read_text().splitlines()[0] == "x,y,z"
-            got = np.loadtxt(out, delimiter=",", skiprows=1)
+            table = np.loadtxt(out, delimiter=",", skiprows=1)
+            if reproduced.times is None:
+                assert out.read_text().splitlines()[0] == "x,y,z"
+                got = table
+            else:
+                assert out.read_text().splitlines()[0] == "t,x,y,z"
+                np.testing.assert_allclose(table[:, 0], reproduced.times)
+                got = table[:, 1:]
         elif suffix == "npy":
             got = np.load(out)
         else:
@@ -232,8 +243,11 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     doc = json.loads(r.stdout)
     assert np.allclose(doc["positions"][-1], [1.05, 0.02, 0.1], atol=1e-9)
     assert abs(doc["times"][-1] - 2.5) < 1e-9 and len(doc["velocities"]) == len(doc["positions"])
-    r = run("reproduce", name, "--start", "0,0.01,0", "--duration", "3")
-    assert r.exit_code == 0 and "in 3 s" in r.stdout, r.output
+    timed_csv = tmp_path / "timed.csv"
+    r = run("reproduce", name, "--start", "0,0.01,0", "--duration", "3", "--out", str(timed_csv))
+    assert r.exit_code == 0 and "the trajectory lasts 3 s" in r.stdout, r.output
+    assert timed_csv.read_text().splitlines()[0] == "t,x,y,z"
+    assert np.loadtxt(timed_csv, delimiter=",", skiprows=1)[-1, 0] == pytest.approx(3.0)
     for bad in (("--goal", "1,2,x"), ("--duration", "0"), ("--duration", "-1")):
         r = run("reproduce", name, "--start", "0,0,0", *bad)
         assert r.exit_code == 2 and bad[0] in r.output, r.output
@@ -458,6 +472,14 @@ def test_sim_drives_a_robot_to_the_end(unique_name: Callable[[str], str], tmp_pa
         result = json.loads(r.stdout)
         assert result["reached_end"] is True and result["all_inside"] is True
         assert result["n_steps"] > 0 and result["min_eta"] <= result["max_eta"]
+        (push,) = result["pushes"]
+        assert push["offset"] == [0.0, 0.01, 0.0] and push["at_s"] >= 0.2
+        # the normal output says what each push did, and which never happened
+        r = CliRunner().invoke(app, ["sim", name, "--endpoint", endpoint, "--start", "0,0.01,0",
+                                     "--rate", "50", "--timeout", "30", "--push", "0.2:0,0.01,0",
+                                     "--push", "99:0,0.01,0"], env=env)
+        assert "push (0,0.01,0) applied at " in r.stdout, r.output
+        assert "push 99 s:0,0.01,0 not applied: the run ended" in r.stdout, r.output
         r = CliRunner().invoke(app, ["sim", name, "--endpoint", endpoint, "--push", "x"],
                                env=env)
         assert r.exit_code == 2 and "--push" in r.output

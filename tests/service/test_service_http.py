@@ -39,6 +39,26 @@ def test_smoke_over_real_http(live_server: LiveServer) -> None:
         assert "canal_fit_duration_seconds_count 1.0" in metrics
 
 
+def test_every_json_answer_ends_with_a_newline(live_server: LiveServer) -> None:
+    """``curl`` leaves the prompt on its own line: every JSON body ends in one newline, and
+    Content-Length counts it."""
+    with httpx.Client(base_url=live_server.url) as http:
+        answers = [http.get("/healthz"), http.get("/openapi.json"), http.get("/skills"),
+                   http.post("/skills", json={"name": "nl", "dim": 3}),
+                   http.get("/skills/nl"),
+                   http.post("/skills/nl/demonstrations",
+                             json={"positions": demo_positions(0).tolist()}),
+                   http.get("/skills/no-such-skill"),  # 404, an error body
+                   http.post("/skills", json={"name": "bad", "dim": 7})]  # 422
+        for r in answers:
+            assert r.headers["content-type"].startswith("application/json"), r.request.url
+            assert r.content.endswith(b"}\n") or r.content.endswith(b"]\n"), r.request.url
+            assert not r.content.endswith(b"\n\n")
+            assert int(r.headers["content-length"]) == len(r.content)
+        assert {r.status_code for r in answers} >= {200, 201, 404, 422}
+        assert not http.get("/metrics").content.endswith(b"}\n")  # text, untouched
+
+
 def _raw_post(port: int, path: str, headers: list[str], body_chunks: list[bytes]) -> bytes:
     """Send a request by hand (to control Content-Length and chunking) and read the reply."""
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:

@@ -80,16 +80,20 @@ def fit(
 
 
 def write_trajectory(path: Path, positions: FloatArray, payload: Any,
-                     orientations: FloatArray | None = None) -> None:
-    """Save a reproduction: .csv (x,y[,z] header, qx..qw columns with orientations),
-    .npy (positions only) or .json (``payload``, the whole reproduction)."""
+                     orientations: FloatArray | None = None,
+                     times: FloatArray | None = None) -> None:
+    """Save a reproduction: .csv (a ``t`` column of seconds when the model is timed, then
+    x,y[,z], then qx..qw with orientations), .npy (positions only) or .json (``payload``, the
+    whole reproduction)."""
     suffix = path.suffix.lower()
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
         header = "x,y,z" if positions.shape[1] == 3 else "x,y"
         table = positions
+        if times is not None:
+            header, table = "t," + header, np.column_stack([times, table])
         if orientations is not None:
-            header, table = header + ",qx,qy,qz,qw", np.hstack([positions, orientations])
+            header, table = header + ",qx,qy,qz,qw", np.hstack([table, orientations])
         np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.17g")
     elif suffix == ".npy":
         np.save(path, positions)
@@ -104,8 +108,8 @@ def reproduce(
     model: Annotated[str, typer.Option("--model", "-m",
                                        help="Model version or 'latest'.")] = "latest",
     out_path: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="Save the trajectory: .csv (x,y,z header), .npy (N, D) or .json "
-        "(with times and velocities).")
+        "--out", "-o", help="Save the trajectory: .csv (t,x,y,z header; t in seconds when the "
+        "model is timed), .npy (N, D positions) or .json (with times and velocities).")
     ] = None,
     outside: Annotated[Outside, typer.Option(
         "--outside", help="A start outside the canal: enter the canal over a short blend, or refuse.")
@@ -134,16 +138,19 @@ def reproduce(
         r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
                         duration=duration, start_orientation=quat)
     if out_path is not None:
-        write_trajectory(out_path, r.positions, r, r.orientations)
+        write_trajectory(out_path, r.positions, r, r.orientations, r.times)
     if options(ctx).json:
         print_json({**plain(r), "out": None if out_path is None else str(out_path)})
         return
     state = "inside" if r.inside else "outside, entering the canal" if r.projected \
         else "outside"
     end = ", ".join(f"{v:.4g}" for v in r.positions[-1])
-    timing = "" if r.times is None else f" in {r.times[-1]:.3g} s"
-    out.print(f"reproduced {len(r.positions)} points{timing} with model version {r.model_version}; "
-              f"start {state} (eta {r.eta:.3f}, section {r.section_index}); ends at ({end})")
+    # the trajectory's own duration (the model's timing), not how long computing it took
+    lasts = ("; the model is untimed (no time stamps)" if r.times is None
+             else f"; the trajectory lasts {r.times[-1] - r.times[0]:.3g} s")
+    out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}"
+              f"{lasts}; start {state} (eta {r.eta:.3f}, section {r.section_index}); "
+              f"ends at ({end})")
     if r.orientations is not None:
         last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])
         out.print(f"with orientations; ends at qx,qy,qz,qw ({last})")

@@ -16,7 +16,7 @@ from rich.markup import escape
 from canal_core.validation import FloatArray
 
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
-from .output import EXIT_REFUSED, err, error, out, print_json
+from .output import EXIT_REFUSED, error, out, print_json
 from .parsing import parse_point
 from .session import fail_unreachable, health_document, options
 
@@ -76,8 +76,8 @@ def live_endpoint(health: dict[str, Any], url: str) -> tuple[list[str], str]:
 
 
 _SIM_SUMMARY = ("reached_end", "all_inside", "n_steps", "duration", "min_eta", "max_eta",
-                "model_version", "start", "missed", "pushes_done", "pushes_pending", "statuses",
-                "seed")
+                "model_version", "start", "missed", "pushes_done", "pushes", "pushes_pending",
+                "statuses", "seed")
 
 
 def _eta(result: Any, which: str) -> float:
@@ -165,7 +165,9 @@ def sim(
             f"{'always inside' if result.all_inside else 'left the canal'}; "
             f"{result.n_steps} steps in {float(result.duration):.2f} s, "
             f"eta {_eta(result, 'min'):.3f}..{_eta(result, 'max'):.3f}")
+        for push_done in result.pushes:
+            out.print(escape(sim_module.describe_push(push_done)))
         for line in sim_module.describe_pending(result):
-            err.print(f"[yellow]note:[/yellow] {escape(line)}")
+            out.print(escape(line))
     if not ok:
         raise typer.Exit(EXIT_REFUSED)
