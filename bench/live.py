@@ -16,7 +16,7 @@ order, p50/p99 round trip and the ratio to the echo of the same drive. Each driv
 one robot or sixteen) alternates echo and canal serve in 4 rounds of 5 s (``--rounds``), so
 a slow spell of the shared machine falls on both.
 
-Targets (issue 15): 16 robots x 1 kHz, JSON, 20 s: >= 99.9 % answered, in order, p99 <= 1.5x
+Targets: 16 robots x 1 kHz, JSON, 20 s: >= 99.9 % answered, in order, p99 <= 1.5x
 the echo's; one robot, JSON: p50 <= 1.5x echo and p99 < 1 ms.
 
 It also prints the per-pose cost by stage of the bridge's pose path (in this process, no

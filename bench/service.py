@@ -22,7 +22,7 @@ rest (AnyIO's pool, Rerun's and Zenoh's threads), read from ``/proc/PID/task``.
 The client is honest but cheap: every upload body is a distinct demo, serialised once before
 the clock starts (so the client's CPU, on the same 2 cores, goes to HTTP only), and every
 stored demo is checked against the SHA-256 of what was sent. Prints uploads/s and p50/p99
-latency with the targets of issues #3 and #12 (on a 2-core machine: uploads >= 200/s at 8
+latency with the service's targets (on a 2-core machine: uploads >= 200/s at 8
 clients with the defaults and recordings costing <= 10 % of the ``--no-recordings`` rate,
 fit p99 < 100 ms for 10 x 1,000, reproduction p99 < 20 ms) and exits 1 when a target or the
 storage check fails. ``--quick`` runs a tenth of the work.

@@ -4,7 +4,7 @@ Starts the service as a newcomer does (its own process, fresh data folder, Zenoh
 recordings on, free loopback ports), polls /healthz every 10 ms and stops it; repeats and
 reports the median and the spread, beside the cost of a bare `python -c pass` and of a
 bare `import fastapi, uvicorn` measured in the same run (the floor any FastAPI service pays).
-Target (issue 17): /healthz answers within 2 s of the start.
+Target: /healthz answers within 2 s of the start.
 """
 
 from __future__ import annotations

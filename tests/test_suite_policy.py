@@ -6,8 +6,8 @@ skip that hides a broken install is caught when it is written:
   function in tests/) that does;
 - no ``assert MODULE`` (an imported module is always true);
 - nothing we ship or install with the dev extra is skipped when missing: no
-  ``pytest.importorskip``, no ``except ImportError`` in tests/ and bench/ (bench/quality.py,
-  engineer "method", is not covered yet);
+  ``pytest.importorskip``, no ``except ImportError`` in tests/ and bench/ (bench/quality.py
+  is not covered yet);
 - a skip says what the test needs: its reason starts with "needs ", so ``-ra`` lists it.
 """
 

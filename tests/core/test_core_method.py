@@ -1,4 +1,4 @@
-"""The method's guarantees (issue 13): envelope by construction, where starts are located,
+"""The method's guarantees: envelope by construction, where starts are located,
 the entry blend and end decay, goal deformation, and the demonstrations' timing."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Raw robot logs in, nothing breaks (issue 12): the preparation stage, property tests over
+"""Raw robot logs in, nothing breaks: the preparation stage, property tests over
 generated raw logs, the real UR5e demos, and the exact inputs that crashed before."""
 
 from __future__ import annotations

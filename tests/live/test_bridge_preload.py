@@ -1,4 +1,4 @@
-"""A skill's model is ready before its first live pose (issue 15).
+"""A skill's model is ready before its first live pose.
 
 Loading a model (database read, canal decoded, tracker geometry and bank tables built) on
 the bridge's one worker thread stalls every robot for milliseconds. These tests check, on a

@@ -300,7 +300,7 @@ def test_two_bridge_processes_both_feed_the_recorder(tmp_path):
             # generous waits: bridge 1 is reached through bridge 0's gossip
             with PoseStreamer("two", robot, endpoint=endpoint, connect_timeout=20) as ps:
                 # The publisher matches bridge 0's subscriber first; until gossip connects
-                # this session to bridge 1, r1's poses reach only bridge 0, which drops
+                # this Zenoh session to bridge 1, r1's poses reach only bridge 0, which drops
                 # another shard's pose uncounted. So the first pose is sent until answered.
                 deadline, answer = time.monotonic() + 20.0, None
                 while answer is None and time.monotonic() < deadline:

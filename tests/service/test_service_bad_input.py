@@ -1,4 +1,4 @@
-"""Every bad input of issue #3: a 4xx, a JSON error naming the field, and nothing stored."""
+"""Every bad input: a 4xx, a JSON error naming the field, and nothing stored."""
 
 from __future__ import annotations
 
@@ -71,7 +71,7 @@ JSON_CASES: list[tuple[str, dict[str, Any], int, str]] = [
     ("malformed JSON", raw_json('{"positions": [[0,0,0],'), 422, "body"),
     ("JSON array instead of object", raw_json("[[0,0,0]]"), 422, "body"),
     ("strings as coordinates", {"json": {"positions": [["a", 0, 0]] * 4}}, 422, "positions[0][0]"),
-    # issue 12: true and "1" became 1.0
+    # true and "1" must not become 1.0
     ("true as a coordinate", {"json": {"positions": [[0, 0, True], *GOOD[1:]]}}, 422,
      "positions[0][2]"),
     ('"1" (a string) as a coordinate', {"json": {"positions": [*GOOD[:2], ["1", 0, 0], *GOOD[3:]]}},
@@ -124,7 +124,7 @@ FILE_CASES: list[tuple[str, str, bytes, int, str]] = [
     ("CSV with text in a number column", "csv", b"x,y,z\n1,2,3\n1,two,3\n1,2,3\n1,2,3\n", 422,
      "line 3"),
     ("CSV with a ragged line", "csv", b"x,y,z\n1,2,3\n1,2\n1,2,3\n1,2,3\n", 422, "line 3"),
-    ("CSV with a duplicate x column (issue 12)", "csv",
+    ("CSV with a duplicate x column (a spreadsheet export)", "csv",
      b"x,y,z,x\n1,2,3,9\n2,2,3,9\n3,2,3,9\n4,2,3,9\n", 422, "header"),
     ("CSV with two time columns", "csv",
      b"t,time,x,y,z\n0,5,1,2,3\n1,4,2,2,3\n2,3,3,2,3\n3,2,4,2,3\n", 422, "header"),
@@ -228,7 +228,7 @@ def test_fit_on_identical_demos_is_degenerate(client: TestClient, skill: str) ->
 
 
 def test_unfittable_demonstration_is_refused_at_upload(client: TestClient, skill: str) -> None:
-    # Issue 12: uploads run canal_core's preparation, so a demo the fit would refuse is
+    # Uploads run canal_core's preparation, so a demo the fit would refuse is
     # refused when it arrives (it used to be stored and then block every fit of the skill).
     ok = client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD})
     assert ok.status_code == 201, ok.text

@@ -1,4 +1,4 @@
-"""Upload resource limits hold while parsing (issue 12, item 6).
+"""Upload resource limits hold while parsing.
 
 Every bomb goes to a real ``python -m canal_service`` process, and the server's peak resident
 memory (VmHWM) is read before and after: a refused bomb must leave it flat, not just answer
@@ -171,7 +171,7 @@ def _zstd_bomb(declared: int, holds: int) -> bytes:
 
 def test_other_topic_flood_streams_with_flat_memory(server: Server) -> None:
     # First in the module: VmHWM only grows, so a bomb let through would hide this one.
-    """Issue 12: 2 M empty messages on another topic took 24 s; now they are scanned in a
+    """2 M empty messages on another topic (they once took 24 s) are scanned in a
     stream and dropped (the pose topic is still read)."""
     data = _pose_mcap(50, other_topic_messages=300_000)
     before = server.peak_rss()
@@ -185,7 +185,7 @@ def test_other_topic_flood_streams_with_flat_memory(server: Server) -> None:
 
 
 def test_zstd_bomb_is_counted_as_produced_not_as_declared(server: Server) -> None:
-    """Issue 12: 61 KB declaring 100 bytes, holding 1.46 GB, took the server to 3.2 GB."""
+    """61 KB declaring 100 bytes and holding 1.46 GB (it once took the server to 3.2 GB)."""
     bomb = _zstd_bomb(declared=100, holds=512 * MIB)
     assert len(bomb) < 200_000
     _refused_flat(server, "mcap", bomb, 413, "decompresses to more than", budget=48 * MIB)
@@ -197,7 +197,7 @@ def test_pose_topic_over_the_points_limit(server: Server) -> None:
 
 
 def test_big_csv_is_refused_at_the_points_limit_without_amplifying(server: Server) -> None:
-    """Issue 12: 12 MB of CSV cost 17.8 s of server CPU."""
+    """12 MB of CSV (it once cost 17.8 s of server CPU)."""
     rows = np.tile(demo_positions(0, n=1000), (1000, 1))  # 1 M rows, ~25 MB
     data = _csv(rows)
     _refused_flat(server, "csv", data, 413, "more than 20000 samples",

@@ -1,4 +1,4 @@
-"""Issue 12: uploads run canal_core's preparation stage, so what cannot be fitted is a 422 at
+"""Uploads run canal_core's preparation stage, so what cannot be fitted is a 422 at
 upload naming it, and raw robot logs (repeats, rounding-level steps, still ends) fit through REST."""
 
 from __future__ import annotations
