@@ -12,7 +12,7 @@ Surfaces". Quick use::
     canal_core.Canal.from_dict(canal.to_dict())
 """
 
-from . import datasets, metrics
+from . import datasets, metrics, obstacles
 from .cross_sections import CrossSections
 from .errors import (
     CanalError,
@@ -52,6 +52,7 @@ __all__ = [
     "fit",
     "fit_options",
     "metrics",
+    "obstacles",
     "register_section_kind",
     "section_kind",
     "section_kinds",

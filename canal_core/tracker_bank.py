@@ -26,6 +26,7 @@ from .tracker import (
 )
 from .tracker_batch import TrackerBatch, batched_tracker_step, step_tables
 from .tracker_kernel import compiled_step_rows, packed_width
+from .tracker_obstacles import SceneTables, avoided_targets
 from .validation import FloatArray
 
 #: Batches of at least this many rows take :class:`TrackerBank`'s vectorised pass; a single
@@ -79,6 +80,8 @@ class TrackerBank:
         self.pending = np.zeros((cap, k + 1))
         self.strikes = np.zeros(cap, dtype=np.intp)
         self._free = list(range(cap - 1, -1, -1))
+        #: the scene every answer goes around (:meth:`avoid_packed`); None: no obstacles
+        self.scene: SceneTables | None = None
         self._isotropic = bool(geometry.sections.spec.isotropic) and geometry.centres.shape[0] >= 3
         self.compiled = bool(compiled)
         self._kernel_arrays: tuple[Any, ...] = ()
@@ -163,6 +166,25 @@ class TrackerBank:
         if kernel is not None:
             return self._compiled_rows(kernel, slots, p)
         return self._rows_of_batch(self._numpy_step(slots, p))
+
+    def avoid_packed(self, rows: FloatArray, positions: FloatArray) -> NDArray[np.int8] | None:
+        """Correct packed answers (:meth:`step_packed`) for the bank's scene, in place, in one
+        vectorised pass (:func:`canal_core.tracker_obstacles.avoided_targets`); each row's
+        obstacle status (0 ok, 1 detour, 2 blocked, 3 in_obstacle), or None without a scene.
+
+        The scene is read once, so a new one set by another thread applies from the next call.
+        """
+        tables = self.scene
+        if tables is None or not len(tables.scene):
+            return None
+        d = self.geometry.centres.shape[1]
+        n = self.geometry.centres.shape[0]
+        section = rows[:, d + 2].astype(np.intp)
+        target, status = avoided_targets(
+            tables, np.asarray(positions, dtype=np.float64), rows[:, :d], section,
+            np.minimum(section + self.lookahead, n - 1))
+        rows[:, :d] = target
+        return status
 
     @property
     def has_velocity(self) -> bool:

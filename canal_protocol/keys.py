@@ -9,6 +9,9 @@ chunks (no ``/``, ``*``, ``$``, ``?``, ``#``, and no leading ``@``)::
     {prefix}/{skill}/{robot}/status        Canal -> robot   put, JSON status of a ROS 2 stream
     {prefix}/{skill}/model                 queryable: latest model, JSON
     {prefix}/{skill}/model/updated         bridge -> bridges: a fit landed ({"version": v})
+    {prefix}/{skill}/scene                 operator -> Canal  put, JSON {"obstacles": [...]}:
+                                           the skill's new scene (the REST scene's twin)
+    {prefix}/{skill}/scene/updated         bridge -> bridges: a scene landed ({"version": v})
     {prefix}/{skill}/{robot}/demo/start    queryable: begin capturing this stream's poses
     {prefix}/{skill}/{robot}/demo/stop     queryable: store them as a new demonstration
     {prefix}/@recorder/live/{bridge}       bridge -> recorder   put, the batches to record
@@ -37,6 +40,8 @@ TARGET = "target"
 STATUS = "status"
 MODEL = "model"
 MODEL_UPDATED = "model/updated"
+SCENE = "scene"
+SCENE_UPDATED = "scene/updated"
 DEMO_START = "demo/start"
 DEMO_STOP = "demo/stop"
 RECORDER = "@recorder/live"
@@ -93,6 +98,22 @@ def skill_of_update(key: str, prefix: str = "canal") -> str | None:
     if len(parts) != 3 or parts[1:] != MODEL_UPDATED.split("/") or not is_plain_chunk(parts[0]):
         return None
     return parts[0]
+
+
+def scene_of_key(key: str, prefix: str = "canal") -> tuple[str, bool] | None:
+    """``(skill, updated)`` of a ``{prefix}/{skill}/scene`` (False) or
+    ``{prefix}/{skill}/scene/updated`` (True) key, else None."""
+    start = head(prefix)
+    if not key.startswith(start):
+        return None
+    parts = key[len(start):].split("/")
+    if not parts or not is_plain_chunk(parts[0]):
+        return None
+    if parts[1:] == [SCENE]:
+        return parts[0], False
+    if parts[1:] == SCENE_UPDATED.split("/"):
+        return parts[0], True
+    return None
 
 
 def query_of(key: str, prefix: str = "canal") -> list[str] | None:
@@ -174,6 +195,21 @@ def target_wildcard(prefix: str = "canal") -> str:
 def model_updated_wildcard(prefix: str = "canal") -> str:
     """Every skill's fit notices (between bridges)."""
     return f"{prefix.rstrip('/')}/*/{MODEL_UPDATED}"
+
+
+def scene_key(skill: str, prefix: str = "canal") -> str:
+    """``{prefix}/{skill}/scene``: where an operator puts the skill's scene."""
+    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/{SCENE}"
+
+
+def scene_updated_key(skill: str, prefix: str = "canal") -> str:
+    """``{prefix}/{skill}/scene/updated``."""
+    return f"{prefix.rstrip('/')}/{check_chunk(skill, 'skill')}/{SCENE_UPDATED}"
+
+
+def scene_wildcard(prefix: str = "canal") -> str:
+    """Every skill's scene puts and scene notices (``{prefix}/*/scene/**``)."""
+    return f"{prefix.rstrip('/')}/*/{SCENE}/**"
 
 
 def everything(prefix: str = "canal") -> str:

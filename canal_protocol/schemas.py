@@ -11,6 +11,8 @@ import numpy.typing as npt
 import orjson
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
 
+from canal_core import obstacles as canal_obstacles
+
 from . import options
 from .options import Alignment, CrossSection, Directrix, FrameKind, OutsideRule
 
@@ -298,6 +300,72 @@ class ModelOut(ModelSummary):
 # ---- reproductions ---------------------------------------------------------------------------
 
 
+# ---- scenes: obstacles ------------------------------------------------------------------------
+
+#: Most obstacles in one scene, and in one request.
+MAX_OBSTACLES = canal_obstacles.MAX_OBSTACLES
+ObstacleKind = canal_obstacles.ObstacleKind
+PositiveLength = Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)]
+
+
+class ObstacleIn(_In):
+    """One obstacle; which keys it takes depends on ``kind`` (checked against the skill's
+    dimension by the service, naming the key at fault)::
+
+        sphere (3-D), disc (2-D): center, radius
+        box: center, half_extents, rotation (optional: [qx, qy, qz, qw] in 3-D, an angle in
+             radians in 2-D; axis-aligned when absent)
+        capsule: a, b (the ends of its axis), radius
+
+    Every obstacle keeps ``clearance`` (>= 0, in the skill's units) between it and a path.
+    """
+
+    kind: ObstacleKind = Field(examples=["sphere"])
+    center: list[Coordinate] | None = Field(None, min_length=2, max_length=3, examples=[[0.4, 0.0, 0.3]])
+    radius: PositiveLength | None = Field(None, examples=[0.05])
+    half_extents: list[PositiveLength] | None = Field(None, min_length=2, max_length=3)
+    rotation: list[Coordinate] | Coordinate | None = Field(
+        None, description="Box orientation: [qx, qy, qz, qw] (3-D) or radians (2-D).")
+    a: list[Coordinate] | None = Field(None, min_length=2, max_length=3)
+    b: list[Coordinate] | None = Field(None, min_length=2, max_length=3)
+    clearance: float = Field(0.0, ge=0, allow_inf_nan=False,
+                             description="Distance every path keeps from the surface.")
+    name: str | None = Field(None, max_length=64, pattern=NO_NUL)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The keys that were given (canal_core's form)."""
+        return self.model_dump(exclude_none=True)
+
+
+class SceneIn(_In):
+    """A skill's scene: what stands in its canal. It replaces the previous one."""
+
+    obstacles: list[ObstacleIn] = Field(max_length=MAX_OBSTACLES)
+
+
+class SceneOut(BaseModel):
+    """A skill's scene: every reproduction and live stream of the skill goes around it.
+
+    ``version`` counts the scene's changes (0: never set); the last write wins.
+    """
+
+    skill: str
+    version: int
+    obstacles: list[dict[str, Any]]
+    updated_at: UtcDatetime = None
+
+
+class BlockedOut(BaseModel):
+    """Where obstacles close the canal: the reproduction ends at the section before."""
+
+    section: int = Field(description="The cross-section the path cannot enter.")
+    reason: Literal["closed", "unreachable", "start"] = Field(
+        description="closed: no clear point left in the section inside the canal; unreachable: "
+                    "none within the demonstrations' largest step; start: the start is inside an "
+                    "obstacle deeper than that step.")
+    obstacles: list[int] = Field(description="Indices (in the scene used) of the obstacles there.")
+
+
 class ReproductionRequest(_In):
     """Reproduce from one ``start`` or from a batch of ``starts`` (exactly one of the two)."""
 
@@ -326,6 +394,9 @@ class ReproductionRequest(_In):
         description="Unit quaternion qx, qy, qz, qw of the start pose (used for every start of "
                     "a batch). Its offset from the canal's mean orientation is carried along; "
                     "a model without orientation ignores it and says so in 'notes'.")
+    obstacles: list[ObstacleIn] | None = Field(
+        None, max_length=MAX_OBSTACLES,
+        description="Obstacles for this reproduction, added to the skill's scene (not stored).")
 
     @model_validator(mode="after")
     def _one_of_start_or_starts(self) -> ReproductionRequest:
@@ -352,6 +423,14 @@ class ReproductionOut(BaseModel):
         None, description="(N', 4) unit quaternions qx, qy, qz, qw, one per position, when the "
                           "model has orientation; null otherwise.")
     goal: list[float] | None = None
+    blocked: BlockedOut | None = Field(
+        None, description="Set when obstacles close the canal: positions end before it.")
+    scene_version: int | None = Field(
+        None, description="The skill's scene version the reproduction went around (null: none).")
+    obstacles: int = Field(0, description="How many obstacles it went around (scene + request).")
+    start_clearance: float | None = Field(
+        None, description="The start's distance to the nearest obstacle minus its clearance "
+                          "(negative: inside it).")
     notes: list[str] = Field(
         default_factory=list,
         description="What the service did that the request did not say, e.g. "

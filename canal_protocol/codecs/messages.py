@@ -32,6 +32,11 @@ SEQ_MAX = 2**64 - 1
 STATUS_CODES: dict[str, int] = {
     "ok": 0,
     "outside_canal": 1,
+    # obstacles (the skill's scene): the target goes around one, holds the robot before a
+    # section they close, or backs the robot out of one
+    "detour": 2,
+    "blocked": 3,
+    "in_obstacle": 4,
     "bad_payload": 16,
     "wrong_dimension": 17,
     "non_finite": 18,
@@ -40,7 +45,7 @@ STATUS_CODES: dict[str, int] = {
     "internal_error": 21,
 }
 STATUS_KEYS: dict[int, str] = {code: key for key, code in STATUS_CODES.items()}
-USABLE = frozenset({"ok", "outside_canal"})
+USABLE = frozenset({"ok", "outside_canal", "detour", "blocked", "in_obstacle"})
 
 JSON_ENCODING = "application/json"
 BINARY_ENCODING = "application/octet-stream"
@@ -94,7 +99,8 @@ class Target:
 
     @property
     def usable(self) -> bool:
-        """Whether ``target`` can be moved to (status ok or outside_canal)."""
+        """Whether ``target`` can be moved to (status ok, outside_canal, or an obstacle's:
+        detour, blocked (hold), in_obstacle (back away))."""
         return self.status in USABLE
 
 

@@ -130,6 +130,35 @@ class FitListeners:
 CacheKey = tuple[int, str]
 
 
+SceneListener = Callable[[str, int, "canal_core.obstacles.Scene"], None]
+
+
+class SceneListeners:
+    """Who hears of each committed scene change, as ``listener(skill, version, scene)``."""
+
+    def __init__(self) -> None:
+        self._listeners: list[SceneListener] = []
+        self._lock = threading.Lock()
+
+    def append(self, listener: SceneListener) -> None:
+        with self._lock:
+            self._listeners.append(listener)
+
+    def remove(self, listener: SceneListener) -> None:
+        with self._lock:
+            self._listeners.remove(listener)
+
+    def notify(self, skill: str, version: int, scene: canal_core.obstacles.Scene) -> None:
+        """Call every listener; one that raises is logged and does not stop the others."""
+        with self._lock:
+            listeners = list(self._listeners)
+        for listener in listeners:
+            try:
+                listener(skill, version, scene)
+            except Exception:
+                log.exception("scene listener failed")
+
+
 def model_cache_key(model_id: int, skill_created_at: datetime) -> CacheKey:
     """The key of a model row's decoded canal: its id with its skill's creation time (UTC).
 
@@ -209,6 +238,7 @@ class CanalService:
         self.recorder = recorder
         self.cache = CanalCache(cache_size)
         self.fit_listeners = fit_listeners if fit_listeners is not None else FitListeners()
+        self.scene_listeners = SceneListeners()
 
     # ---- recorder ---------------------------------------------------------------------------
 
@@ -544,13 +574,18 @@ class CanalService:
             notes.append("model has no orientation: start_orientation ignored")
             start_orientation = None
         goal = None if body.goal is None else np.asarray(body.goal, dtype=np.float64)
+        scene_version, scene = self.scene_of(name, dim)
+        if body.obstacles:
+            sent = canal_core.obstacles.scene_from_list([o.as_dict() for o in body.obstacles], dim)
+            scene = sent if scene is None else canal_core.obstacles.merged_scene(scene, sent)
         results = []
         for start, field in zip(starts, fields, strict=True):
             try:
                 result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
                                                   outside=body.outside, goal=goal,
                                                   duration=body.duration,
-                                                  start_orientation=start_orientation)
+                                                  start_orientation=start_orientation,
+                                                  obstacles=scene)
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field
@@ -569,6 +604,10 @@ class CanalService:
                 model_version=found_version,
                 times=_tolist(result.times), velocities=_tolist(result.velocities),
                 orientations=_tolist(result.orientations), goal=_tolist(result.goal),
+                blocked=None if result.blocked is None else schemas.BlockedOut.model_construct(
+                    **result.blocked.to_dict()),
+                scene_version=scene_version, obstacles=0 if scene is None else len(scene),
+                start_clearance=result.start_clearance,
                 notes=notes + _orientation_notes(canal, result, start_orientation),
             ))
         if body.start is not None:
@@ -593,6 +632,40 @@ class CanalService:
             self._record("reproduction", partial(
                 _tell_reproduction, name, ref.version, result, number=stored.number,
                 t_ns=repo.created_ns(stored.created_at), instance=instance))
+
+    # ---- scenes -----------------------------------------------------------------------------
+
+    def get_scene(self, name: str) -> schemas.SceneOut:
+        """The skill's scene (version 0 and no obstacles when it never had one)."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            row = repo.get_scene(s, skill)
+            if row is None:
+                return schemas.SceneOut(skill=name, version=0, obstacles=[])
+            return schemas.SceneOut(skill=name, version=row.version, obstacles=row.obstacles,
+                                    updated_at=row.updated_at)
+
+    def put_scene(self, name: str, obstacles: Sequence[dict[str, Any]]) -> schemas.SceneOut:
+        """Replace the skill's scene (checked against its dimension first: a malformed obstacle
+        stores nothing); every listener (the live bridge) hears of the new version."""
+        with self.db.write() as s:
+            skill = repo.get_skill(s, name)
+            scene = canal_core.obstacles.scene_from_list(list(obstacles), skill.dim)
+            row = repo.put_scene(s, skill, scene.to_list())
+            out = schemas.SceneOut(skill=name, version=row.version, obstacles=row.obstacles,
+                                   updated_at=row.updated_at)
+        self.scene_listeners.notify(name, out.version, scene)
+        return out
+
+    def scene_of(self, name: str, dim: int) -> tuple[int | None, canal_core.obstacles.Scene | None]:
+        """(version, scene) of the skill's stored scene; (None, None) when it has none."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            row = repo.get_scene(s, skill)
+            if row is None:
+                return None, None
+            version, items = row.version, row.obstacles
+        return version, canal_core.obstacles.scene_from_list(items, dim) if items else None
 
     # ---- recordings -------------------------------------------------------------------------
 

@@ -11,7 +11,7 @@ live recorder, which it hands over in batches on ``{prefix}/@recorder/live/{brid
                         c with ord(c) % K == I, and subscribe only to their pose keys
                         (canal_protocol.keys.shard_pose_keys)
   --metrics-port PORT   serve Prometheus metrics on 127.0.0.1:PORT
-  --supervised          (used by ``canal serve``) read fit notices on stdin, print status
+  --supervised          (used by ``canal serve``) read fit and scene notices on stdin, print status
                         lines on stdout
 
 Stops on SIGINT/SIGTERM, closing the Zenoh session.
@@ -66,7 +66,10 @@ def _read_fits(bridge: Bridge, stop: threading.Event, announce: bool) -> None:
     for raw in sys.stdin.buffer:
         try:
             body = orjson.loads(raw)
-            bridge.model_updated(str(body["fit"]), int(body["version"]), announce=announce)
+            if "scene" in body:
+                bridge.scene_updated(str(body["scene"]), int(body["version"]), announce=announce)
+            else:
+                bridge.model_updated(str(body["fit"]), int(body["version"]), announce=announce)
         except Exception:
             logging.getLogger("canal_service.bridge").exception("bad fit notice %r", raw[:200])
     stop.set()

@@ -21,6 +21,9 @@ from .streams import ENC_BINARY, ENC_CDR, ENC_JSON, Job, Stream, StreamTable
 
 _OK = wire.STATUS_CODES["ok"]
 _OUTSIDE = wire.STATUS_CODES["outside_canal"]
+#: obstacle status of a bank row (canal_core.tracker_obstacles) -> the answer's status key, code
+_OBSTACLE_KEYS = ("ok", "detour", "blocked", "in_obstacle")
+_OBSTACLE_CODES = tuple(wire.STATUS_CODES[k] for k in _OBSTACLE_KEYS)
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 _DONE_ETA = 1.0 + 1e-9
 _pack_json = wire.pack_target_json
@@ -29,10 +32,13 @@ _pack_json = wire.pack_target_json
 class Answers(StreamTable):
     """The pose path's layer that publishes answers (see the module docstring)."""
 
-    def answer_all(self, entry: ModelEntry, group: list[Job], rows: list[list[float]]) -> None:
+    def answer_all(self, entry: ModelEntry, group: list[Job], rows: list[list[float]],
+                   obstacles: list[int] | None = None) -> None:
         """Publish the answer of each job of one bank pass (and keep it for the recording
         when it is due). ``rows`` are the pass's packed answers: target (D), progress, eta,
-        section, inside, done, velocity (D), orientation (4).
+        section, inside, done, velocity (D), orientation (4); ``obstacles`` each row's
+        obstacle status (0 none, else ``detour``, ``blocked``, ``in_obstacle``, which is
+        the answer's status).
 
         One loop with no call per answer but the encoder's and the put: on a one-robot
         bridge this runs once a millisecond on cold caches, where every Python call and
@@ -46,7 +52,7 @@ class Answers(StreamTable):
         counts = self.counts
         period = self.record_period_ns
         now = self.now_ns
-        for (st, pose, fmt, ros), row in zip(group, rows, strict=True):
+        for i, ((st, pose, fmt, ros), row) in enumerate(zip(group, rows, strict=True)):
             target = row[:d]
             progress = row[d]
             eta = row[d + 1]
@@ -57,7 +63,7 @@ class Answers(StreamTable):
             done = row[d + 4] != 0.0 and eta <= _DONE_ETA
             velocity = row[v0:o0] if with_velocity else None
             if with_orientation:
-                orientation: list[float] | None = row[o0:]
+                orientation: list[float] | None = row[o0:o0 + 4]
             elif pose.orientation is not None:
                 orientation = list(pose.orientation)
             else:
@@ -69,6 +75,9 @@ class Answers(StreamTable):
                 code = _OUTSIDE
                 status = "outside_canal"
                 progress, target, eta = self._outside(entry, row, section, target, eta)
+            if obstacles is not None and obstacles[i]:
+                status = _OBSTACLE_KEYS[obstacles[i]]
+                code = _OBSTACLE_CODES[obstacles[i]]
             st.rec_answered += 1
             if period is not None and (now >= st.rec_next or code != st.rec_state[0]
                                        or inside != st.rec_state[1] or done != st.rec_state[2]):

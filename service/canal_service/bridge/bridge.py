@@ -66,6 +66,7 @@ from typing import Any
 import orjson
 import zenoh
 
+import canal_core
 from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
@@ -117,6 +118,7 @@ class Bridge:
         self._queue: queue.SimpleQueue[Any] | None = None
         self._queryable: Any = None
         self._updates: Any = None
+        self._scenes: Any = None
         self._published: dict[str, int] = {}
         self._metrics = m
         self._m_streams = m.live_streams
@@ -169,7 +171,12 @@ class Bridge:
                                               zenoh.handlers.FifoChannel(256))
         self._updates = s.declare_subscriber(keyspace.model_updated_wildcard(self.prefix),
                                              zenoh.handlers.FifoChannel(256))
+        # Scenes are applied on Zenoh's own thread as they arrive: a scene put reaches every
+        # bank before the worker's next drain (no queue behind a backlog of poses).
+        self._scenes = s.declare_subscriber(keyspace.scene_wildcard(self.prefix),
+                                            zenoh.handlers.Callback(self._hear_scene))
         self.service.fit_listeners.append(self._on_fit)
+        self.service.scene_listeners.append(self._on_scene)
         self.path.loads = queue.SimpleQueue()
         threads: list[tuple[str, Any, tuple[Any, ...]]] = [
             ("worker", self.path.work, (recv, try_recv)), ("loader", self.path.load_parked, ()),
@@ -251,7 +258,11 @@ class Bridge:
         self._stop.set()
         if self._on_fit in self.service.fit_listeners:
             self.service.fit_listeners.remove(self._on_fit)
-        for entity in (*self._subscribers, self._queryable, self._updates):
+        try:
+            self.service.scene_listeners.remove(self._on_scene)
+        except ValueError:
+            pass
+        for entity in (*self._subscribers, self._queryable, self._updates, self._scenes):
             try:
                 entity.undeclare()  # unblocks recv() in the worker / control thread
             except Exception:
@@ -398,6 +409,55 @@ class Bridge:
                                  orjson.dumps({"version": version}), encoding=ENC_JSON)
             except Exception:
                 log.exception("could not announce the new model of %r", skill)
+
+    def _on_scene(self, skill: str, version: int, scene: Any) -> None:
+        """``CanalService.put_scene`` listener: serve the new scene from the next pose on and
+        tell the bridges elsewhere on ``{prefix}/{skill}/scene/updated``."""
+        self.scene_updated(skill, int(version), scene, announce=True)
+
+    def scene_updated(self, skill: str, version: int, scene: Any = None,
+                      announce: bool = False) -> None:
+        """A scene landed (stored by this process or another): serve it (``scene``, or read
+        from the database when None) and, when told, announce its version."""
+        if not keyspace.is_plain_chunk(skill):
+            return
+        if scene is None and version > self.models.scene_version(skill):
+            self.models.reload_scene(skill)
+        elif scene is not None:
+            self.models.scene_changed(skill, version, scene)
+        if announce and self.session is not None:
+            try:
+                self.session.put(keyspace.scene_updated_key(skill, self.prefix),
+                                 orjson.dumps({"version": version}), encoding=ENC_JSON)
+            except Exception:
+                log.exception("could not announce the new scene of %r", skill)
+
+    def _hear_scene(self, sample: Any) -> None:
+        """A scene put (``{prefix}/{skill}/scene``, JSON ``{"obstacles": [...]}`` or a bare
+        list) or another bridge's scene notice. Every bridge serves a put scene at once;
+        shard 0 also stores it (a new version of the skill's scene, announced as REST's are)."""
+        try:
+            found = keyspace.scene_of_key(str(sample.key_expr), self.prefix)
+            if found is None:
+                return
+            skill, notice = found
+            body = orjson.loads(sample.payload.to_bytes())
+            if notice:
+                version = body.get("version") if isinstance(body, dict) else None
+                if isinstance(version, int):
+                    self.scene_updated(skill, version)
+                return
+            items = body.get("obstacles") if isinstance(body, dict) else body
+            dim = self.service.skill_dim(skill)
+            scene = canal_core.obstacles.scene_from_list(items, dim)
+            if self.options.shard == 0:
+                self.service.put_scene(skill, scene.to_list())  # -> _on_scene
+            else:
+                self.models.scene_changed(skill, self.models.scene_version(skill) + 1, scene)
+        except (canal_core.CanalError, ServiceError, orjson.JSONDecodeError) as exc:
+            log.warning("scene put on %s refused: %s", sample.key_expr, exc)
+        except Exception:
+            log.exception("scene put on %s failed", sample.key_expr)
 
     def _hear_updates(self) -> None:
         recv = self._updates.handler.recv

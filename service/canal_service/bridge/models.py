@@ -24,7 +24,9 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from canal_core.errors import InvalidInputError
 from canal_core.tracker_bank import TrackerBank
+from canal_core.tracker_obstacles import scene_tables
 from canal_protocol import keys as keyspace
 
 from ..errors import NoModelYet, SkillNotFound
@@ -77,6 +79,9 @@ class ModelTable:
         # happen under this lock, so an older version never replaces a newer one. The
         # worker's reads never take it.
         self._install_lock = threading.Lock()
+        #: skill -> (version, scene or None): the scene each skill's streams go around
+        self.scenes: dict[str, tuple[int, Any]] = {}
+        self._scene_lock = threading.Lock()
 
     def load(self, skill: str, current: ModelEntry | None = None) -> ModelEntry:
         """The skill's latest model from the service; ``current`` itself when it already
@@ -120,7 +125,53 @@ class ModelTable:
                 return False
             entry.used = time.monotonic() if used is None else used
             self.models[skill] = entry  # built completely before: one atomic assignment
+        if entry.status == "ok":
+            self._apply_scene(skill, entry)
         return True
+
+    def scene_changed(self, skill: str, version: int, scene: Any) -> bool:
+        """The skill's scene is now ``scene`` (None: none): its streams go around it from their
+        next pose. An older version than the one known is ignored (False)."""
+        with self._scene_lock:
+            old = self.scenes.get(skill)
+            if old is not None and old[0] > version:
+                return False
+            self.scenes[skill] = (int(version), scene)
+        entry = self.models.get(skill)
+        if entry is not None and entry.status == "ok":
+            self._apply_scene(skill, entry)
+        return True
+
+    def scene_version(self, skill: str) -> int:
+        """The version of the skill's scene this bridge serves (-1: not read yet)."""
+        known = self.scenes.get(skill)
+        return -1 if known is None else known[0]
+
+    def reload_scene(self, skill: str) -> None:
+        """Read the skill's stored scene and serve it (a notice from another bridge)."""
+        try:
+            version, scene = self.service.scene_of(skill, self.service.skill_dim(skill))
+        except (SkillNotFound, InvalidInputError):
+            return
+        self.scene_changed(skill, 0 if version is None else version, scene)
+
+    def _apply_scene(self, skill: str, entry: ModelEntry) -> None:
+        """Give the entry's bank the skill's scene (read from the service the first time)."""
+        if skill not in self.scenes:
+            try:
+                version, scene = self.service.scene_of(skill, entry.dim)
+            except (SkillNotFound, InvalidInputError):
+                version, scene = None, None
+            with self._scene_lock:
+                self.scenes.setdefault(skill, (0 if version is None else version, scene))
+        version, scene = self.scenes[skill]
+        bank = entry.bank
+        if bank is None:
+            return
+        if scene is None or not len(scene) or scene.dim != entry.dim:
+            bank.scene = None
+        else:
+            bank.scene = scene_tables(bank.geometry, scene, entry.canal.largest_step, version)
 
     def _drop(self, skill: str, entry: ModelEntry) -> None:
         """Forget the skill's entry if it is still ``entry`` (not one installed meanwhile)."""

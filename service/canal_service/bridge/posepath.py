@@ -115,8 +115,8 @@ class PosePath(Decoder, Stepper, RecordTap):
     def _handle_locked(self, batch: list[Any]) -> None:
         self.now_ns = time.time_ns()
         for jobs in self.decode_batch(batch):
-            for entry, group, targets in self.step(jobs):
-                self.answer_all(entry, group, targets)
+            for entry, group, targets, obstacles in self.step(jobs):
+                self.answer_all(entry, group, targets, obstacles)
 
     def load_parked(self) -> None:
         """The loader thread: load each parked skill's model off the worker, then install

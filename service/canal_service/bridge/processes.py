@@ -145,6 +145,7 @@ class BridgeProcesses:
                 self.state = "down"
                 return False
         self.service.fit_listeners.append(self._on_fit)
+        self.service.scene_listeners.append(self._on_scene)
         self.state, self.detail = "ok", None
         self.service.metrics.live_up.set(1)
         return True
@@ -200,14 +201,21 @@ class BridgeProcesses:
         m.live_streams.set(sum(int(c.health.get("streams", 0)) for c in self.children))
 
     def _on_fit(self, skill: str, version: int, canal: Any) -> None:
-        line = orjson.dumps({"fit": skill, "version": int(version)}) + b"\n"
+        self._tell({"fit": skill, "version": int(version)})
+
+    def _on_scene(self, skill: str, version: int, scene: Any) -> None:
+        self._tell({"scene": skill, "version": int(version)})
+
+    def _tell(self, notice: dict[str, Any]) -> None:
+        """One JSON line to every bridge process (a fit or scene notice)."""
+        line = orjson.dumps(notice) + b"\n"
         for child in self.children:
             try:
                 assert child.proc.stdin is not None
                 child.proc.stdin.write(line)
                 child.proc.stdin.flush()
             except (OSError, ValueError):
-                log.warning("bridge process %d did not take the fit notice", child.shard)
+                log.warning("bridge process %d did not take the notice %s", child.shard, notice)
 
     def health(self) -> dict[str, Any]:
         """State for /healthz: "ok", "behind" (a bridge is not keeping up or not reporting),
@@ -257,6 +265,10 @@ class BridgeProcesses:
         self._stopping = True
         if self._on_fit in self.service.fit_listeners:
             self.service.fit_listeners.remove(self._on_fit)
+        try:
+            self.service.scene_listeners.remove(self._on_scene)
+        except ValueError:
+            pass
         for c in self.children:
             if c.proc.poll() is None:
                 c.proc.terminate()

@@ -19,9 +19,12 @@ _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 class Stepper(Answers):
     """The pose path's layer that steps the trackers."""
 
-    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[list[float]]]]:
+    def step(self, jobs: list[Job]) -> list[tuple[ModelEntry, list[Job], list[list[float]],
+                                                  list[int] | None]]:
         """Step every job's tracker, one bank pass per model, the answers as packed rows
-        (:meth:`canal_core.tracker_bank.TrackerBank.step_packed`, one ``tolist()`` a pass); jobs
+        (:meth:`canal_core.tracker_bank.TrackerBank.step_packed`, one ``tolist()`` a pass) and,
+        when the skill has a scene, each row's obstacle status (the targets corrected in the
+        same pass, :meth:`~canal_core.tracker_bank.TrackerBank.avoid_packed`); jobs
         that cannot be stepped are answered with their error here. The caller silences
         NumPy's overflow warnings (:meth:`batch`, or the worker thread's error state)."""
         by_model: dict[int, tuple[ModelEntry, list[Job], list[int],
@@ -67,9 +70,14 @@ class Stepper(Answers):
         for model, model_jobs, model_slots, model_positions in by_model.values():
             if not model_jobs:
                 continue
-            assert model.bank is not None
-            out.append((model, model_jobs, model.bank.step_packed(
-                model_slots, np.array(model_positions, dtype=np.float64)).tolist()))
+            bank = model.bank
+            assert bank is not None
+            p = np.array(model_positions, dtype=np.float64)
+            rows = bank.step_packed(model_slots, p)
+            # With a scene, the answers go around it (corrected in place, one vectorised pass).
+            status = None if bank.scene is None else bank.avoid_packed(rows, p)
+            out.append((model, model_jobs, rows.tolist(),
+                        None if status is None else status.tolist()))
         return out
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:

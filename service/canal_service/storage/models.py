@@ -121,3 +121,19 @@ class StoredReproduction(Base):
     eta: Mapped[float] = mapped_column(Float, nullable=False)
     section_index: Mapped[int] = mapped_column(Integer, nullable=False)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class SceneRow(Base):
+    """A skill's scene: the obstacles every reproduction and live stream of it goes around.
+
+    One row per skill; ``version`` counts its changes (the last write wins).
+    """
+
+    __tablename__ = "scenes"
+
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), primary_key=True
+    )
+    version: Mapped[int] = mapped_column(Integer, nullable=False)
+    obstacles: Mapped[list[dict[str, Any]]] = mapped_column(JSON, nullable=False)
+    updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

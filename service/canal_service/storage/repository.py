@@ -27,7 +27,7 @@ from ..errors import (
 )
 from . import arrays
 from .db import Database
-from .models import Demonstration, ModelVersion, Skill, StoredReproduction, utcnow
+from .models import Demonstration, ModelVersion, SceneRow, Skill, StoredReproduction, utcnow
 
 
 @dataclass(frozen=True)
@@ -96,6 +96,7 @@ def delete_skill(session: Session, name: str) -> None:
     session.execute(delete(Demonstration).where(Demonstration.skill_id == skill.id))
     session.execute(delete(ModelVersion).where(ModelVersion.skill_id == skill.id))
     session.execute(delete(StoredReproduction).where(StoredReproduction.skill_id == skill.id))
+    session.execute(delete(SceneRow).where(SceneRow.skill_id == skill.id))
     session.execute(delete(Skill).where(Skill.id == skill.id))
 
 
@@ -476,3 +477,23 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
                 StoredReproduction.skill_id == skill_id,
                 StoredReproduction.number <= newest - keep))
         return [KeptReproduction(first + k, now) for k in range(len(values))]
+# ---- scenes ------------------------------------------------------------------------------------
+
+
+def get_scene(session: Session, skill: Skill) -> SceneRow | None:
+    """The skill's scene row, None when it never had one."""
+    return session.get(SceneRow, skill.id)
+
+
+def put_scene(session: Session, skill: Skill, obstacles: list[dict[str, Any]]) -> SceneRow:
+    """Replace the skill's obstacles; the version goes up by one (the last write wins)."""
+    row = session.get(SceneRow, skill.id, with_for_update=True)
+    if row is None:
+        row = SceneRow(skill_id=skill.id, version=1, obstacles=obstacles)
+        session.add(row)
+    else:
+        row.version = row.version + 1
+        row.obstacles = obstacles
+        row.updated_at = utcnow()
+    session.flush()
+    return row

@@ -1,0 +1,277 @@
+"""Live targets around obstacles: the tracker's answers, corrected for a scene in one pass.
+
+The tracker (:mod:`canal_core.tracker_bank`) answers each pose with the ratio rule's point a
+few sections ahead. With a scene (:mod:`canal_core.obstacles`) each answer is then checked,
+all rows at once, and corrected where needed:
+
+* the robot inside an obstacle (or its clearance): the target backs away along the
+  obstacle's outward normal, by at most one step (``in_obstacle``);
+* the straight move to the target keeps every clearance (the 1-Lipschitz test of
+  :func:`canal_core.obstacles.segments_keep_clearance`): the answer is the tracker's (``ok``);
+* otherwise the target is the clear point of the target section nearest the tracker's
+  (``detour``), among a polar grid of each section (:func:`canal_core.obstacles.section_candidates`,
+  free distances precomputed per scene), no further from the robot than the tracker's own
+  answer (or one step, when that is further) and at least half a step clear of every
+  obstacle (so that the next move has room along the obstacle, not only away from it);
+* no such point in the target section (out of reach): the nearest clear point of an earlier
+  section up to the robot's own (``detour``: it swerves before it goes on); before a section
+  the scene closes, or with no clear point in reach at all, the robot holds there or where it
+  is (``blocked``).
+
+A candidate whose *lane* (the same point relative to each later section) runs into an
+obstacle within a horizon of sections is taken only when no clear lane is in reach, and
+then the one nearest a clear lane: the robot starts to swerve while there is room, instead
+of meeting the obstacle head on.
+
+A step is the demonstrations' largest step from one section to the next
+(:func:`canal_core.obstacles.demonstrated_largest_step`). Every quantity a pose needs is a
+gather of the per-scene tables and a few vectorised operations over the rows: no Python
+loop over poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .obstacles import Scene, obstacle_free_distances, section_candidates
+from .tracker import TrackerGeometry
+from .validation import FloatArray
+
+#: Obstacle status of a live answer (the wire's status keys are these names).
+OK, DETOUR, BLOCKED, IN_OBSTACLE = 0, 1, 2, 3
+STATUS_NAMES = ("ok", "detour", "blocked", "in_obstacle")
+#: A detour target keeps at least this share of a step of free distance beyond the clearance.
+LIVE_MARGIN = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class SceneTables:
+    """A scene measured once against one canal's sections.
+
+    Attributes
+    ----------
+    scene : Scene
+    version : int
+        The scene's version (the skill's scene counter; 0 when it has none).
+    candidates : array, shape (N, G, D)
+        Polar grid of points inside each section.
+    free : array, shape (N, G)
+        Their free distance to the scene.
+    closed : array of bool, shape (N,)
+        Sections with no candidate clear by :data:`LIVE_MARGIN` steps.
+    step : float
+        The longest move of one answer.
+    lane_free : array, shape (N, G)
+        The smallest free distance of each candidate's *lane* (the same in-plane point,
+        relative to each section's size and frame) over the next ``horizon`` sections: a lane
+        that is clear now but runs into an obstacle soon is left while there is room to.
+    horizon : int
+    lane_gap : array, shape (N, G)
+        Distance from each candidate to the nearest candidate of its section whose lane is
+        clear (inf when none is): a detour that cannot reach a clear lane in one answer
+        heads for the nearest.
+    closed_ahead : array of bool, shape (N,)
+        Sections none of whose lanes is clear within the horizon: the scene closes the canal
+        ahead of them, and a stream there is ``blocked`` (it moves on to the last free
+        section and holds).
+    """
+
+    scene: Scene
+    version: int
+    candidates: FloatArray
+    free: FloatArray
+    closed: NDArray[np.bool_]
+    step: float
+    lane_free: FloatArray
+    horizon: int
+    lane_gap: FloatArray
+    closed_ahead: NDArray[np.bool_]
+
+
+def scene_tables(geometry: TrackerGeometry, scene: Scene, step: float, version: int = 0) -> SceneTables:
+    """Measure ``scene`` against every section of ``geometry`` (one pass; a few ms).
+
+    Parameters
+    ----------
+    geometry : TrackerGeometry
+    scene : Scene
+    step : float
+        The longest move of one answer (the demonstrations' largest step).
+    version : int
+    """
+    n, d = geometry.centres.shape
+    cand = section_candidates(np.arange(n), geometry.centres, geometry.basis, geometry.sections)
+    g = cand.shape[1]
+    if len(scene):
+        free = obstacle_free_distances(cand.reshape(-1, d), scene).min(axis=1).reshape(n, g)
+    else:
+        free = np.full((n, g), np.inf)
+    closed = ~(free >= LIVE_MARGIN * step).any(axis=1)
+    # The horizon: as many sections as a step's sideways room takes to cross the widest
+    # section (as the offline detour's window), at least 3.
+    spacing = float(np.median(np.sqrt((np.diff(geometry.centres, axis=0) ** 2).sum(axis=1)))) if n > 1 else 0.0
+    sideways = np.sqrt(max(step**2 - spacing**2, 1e-300))
+    widest = float(np.sqrt(((cand - geometry.centres[:, None, :]) ** 2).sum(axis=2)).max())
+    horizon = int(np.clip(np.ceil(widest / sideways) + 2, 3, max(3, n // 3)))
+    lane = free.copy()
+    for h in range(1, horizon + 1):
+        np.minimum(lane, free[np.minimum(np.arange(n) + h, n - 1)], out=lane)
+    clear_lane = lane >= LIVE_MARGIN * step
+    gap = np.full((n, cand.shape[1]), np.inf)
+    gap[clear_lane] = 0.0
+    # Only sections with a blocked lane need the search (a few, around each obstacle).
+    mixed = np.flatnonzero(~clear_lane.all(axis=1) & clear_lane.any(axis=1))
+    rel = cand[mixed] - geometry.centres[mixed][:, None, :]  # small numbers: the expansion is exact enough
+    sq = (rel**2).sum(axis=2)
+    for lo in range(0, mixed.size, 32):  # (32, G, G) at a time, one batched matrix product each
+        r = rel[lo : lo + 32]
+        d2 = sq[lo : lo + 32, :, None] + sq[lo : lo + 32, None, :] - 2.0 * (r @ r.transpose(0, 2, 1))
+        d2 = np.where(clear_lane[mixed[lo : lo + 32], None, :], d2, np.inf)
+        gap[mixed[lo : lo + 32]] = np.sqrt(np.maximum(d2.min(axis=2), 0.0))
+    closed_ahead = ~clear_lane.any(axis=1)
+    return SceneTables(scene, int(version), cand, free, closed, float(step), lane, horizon, gap,
+                       closed_ahead)
+
+
+def avoided_targets(
+    tables: SceneTables,
+    positions: FloatArray,
+    targets: FloatArray,
+    section: NDArray[np.intp],
+    target_section: NDArray[np.intp],
+) -> tuple[FloatArray, NDArray[np.int8]]:
+    """The tracker's targets corrected for the scene, and each row's obstacle status.
+
+    Parameters
+    ----------
+    tables : SceneTables
+    positions : array, shape (B, D)
+        Live positions.
+    targets : array, shape (B, D)
+        The tracker's answers.
+    section : array of int, shape (B,)
+        Section each robot was located at.
+    target_section : array of int, shape (B,)
+        Section of each answer (>= ``section``).
+
+    Returns
+    -------
+    targets : array, shape (B, D)
+    status : array of int8, shape (B,)
+        :data:`OK`, :data:`DETOUR`, :data:`BLOCKED` or :data:`IN_OBSTACLE`.
+    """
+    scene = tables.scene
+    b = positions.shape[0]
+    status = np.zeros(b, dtype=np.int8)
+    out = np.array(targets, dtype=np.float64, copy=True)
+    if not len(scene) or b == 0:
+        return out, status
+    each = obstacle_free_distances(np.concatenate([positions, out]), scene)  # (2B, O)
+    fp_each = each[:b]
+    fp = fp_each.min(axis=1)
+    ft = each[b:].min(axis=1)
+    step = tables.step
+    move = np.sqrt(((out - positions) ** 2).sum(axis=1))
+    with np.errstate(invalid="ignore"):
+        clear = (fp >= 0.0) & (ft >= 0.0) & (fp + ft >= move)
+    inside = ~(fp >= 0.0)  # NaN (a non-finite pose) counts as inside nothing: left as it is
+    inside &= np.isfinite(fp)
+    if inside.any():
+        rows = np.flatnonzero(inside)
+        out[rows] = _backed_away(scene, positions[rows], fp_each[rows], step)
+        status[rows] = IN_OBSTACLE
+    # Anticipation: a clear move whose lane runs into an obstacle within the horizon is
+    # detoured too, while there is still room to swerve.
+    k = np.minimum(target_section, tables.candidates.shape[0] - 1)
+    near = ((tables.candidates[k] - out[:, None, :]) ** 2).sum(axis=2).argmin(axis=1)
+    ahead = tables.lane_free[k, near] < LIVE_MARGIN * step
+    todo = np.flatnonzero((~clear | ahead) & ~inside & np.isfinite(fp))
+    if todo.size:
+        out[todo], status[todo] = _detoured(tables, positions[todo], out[todo], fp[todo],
+                                            section[todo], target_section[todo])
+    return out, status
+
+
+def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: float) -> FloatArray:
+    """Targets one step (at most) out of the deepest obstacle, along its outward normal."""
+    deepest = free_each.argmin(axis=1)
+    depth = -free_each[np.arange(p.shape[0]), deepest]
+    # The normal by central differences of that obstacle's distance (exact shapes, tiny h).
+    h = 1e-7 * (1.0 + np.abs(p).max(axis=1))
+    grad = np.zeros_like(p)
+    for axis in range(p.shape[1]):
+        e = np.zeros(p.shape[1])
+        e[axis] = 1.0
+        hi = obstacle_free_distances(p + h[:, None] * e, scene)[np.arange(p.shape[0]), deepest]
+        lo = obstacle_free_distances(p - h[:, None] * e, scene)[np.arange(p.shape[0]), deepest]
+        grad[:, axis] = (hi - lo) / (2.0 * h)
+    norm = np.sqrt((grad**2).sum(axis=1))
+    flat = norm <= 1e-12  # at a sphere's centre: any way out
+    grad[flat] = 0.0
+    grad[flat, 0] = 1.0
+    norm[flat] = 1.0
+    return np.asarray(p + (np.minimum(depth, step) / norm)[:, None] * grad)
+
+
+def _detoured(
+    tables: SceneTables,
+    p: FloatArray,
+    t: FloatArray,
+    fp: FloatArray,
+    section: NDArray[np.intp],
+    target_section: NDArray[np.intp],
+) -> tuple[FloatArray, NDArray[np.int8]]:
+    """Rows whose straight move is not clear: the nearest clear candidate of the target section,
+    else of an earlier one (blocked), else the robot's own position (blocked)."""
+    r = p.shape[0]
+    step = tables.step
+    # A detour moves no further than the tracker's own answer would have, or one step.
+    reach = np.maximum(np.sqrt(((t - p) ** 2).sum(axis=1)), step)
+    n = tables.candidates.shape[0]
+    # Tiers: the target section, then back to the robot's own section.
+    depth = int(np.max(target_section - section, initial=0)) + 1
+    out = p.copy()
+    status = np.full(r, BLOCKED, dtype=np.int8)
+    found = np.zeros(r, dtype=bool)
+    for tier in range(depth):  # a handful of tiers (the lookahead + 1), each all rows at once
+        sec = np.clip(target_section - tier, np.minimum(section, target_section), n - 1)
+        cand = tables.candidates[sec]  # (R, G, D)
+        free = tables.free[sec]
+        dist = np.sqrt(((cand - p[:, None, :]) ** 2).sum(axis=2))
+        ok = (free >= LIVE_MARGIN * step) & (fp[:, None] + free >= dist) & (dist <= reach[:, None])
+        ok &= ~found[:, None]
+        if tier == 0:
+            ok &= ~tables.closed[sec][:, None]
+        # Nearest the tracker's target, among lanes clear ahead first.
+        blocked_lane = tables.lane_free[sec] < LIVE_MARGIN * step
+        gap = tables.lane_gap[sec]
+        # No clear lane at all (the canal is closed ahead): every clear point is as good.
+        detour = np.where(blocked_lane & np.isfinite(gap), 1e6 * step**2 + 1e3 * gap**2, 0.0)
+        cost = ((cand - t[:, None, :]) ** 2).sum(axis=2) + detour
+        cost = np.where(ok, cost, np.inf)
+        best = cost.argmin(axis=1)
+        hit = np.isfinite(cost[np.arange(r), best])
+        out[hit] = cand[np.flatnonzero(hit), best[hit]]
+        # Holding back in an earlier section is still a detour while the target section is
+        # open (the robot swerves first); it is blocked only before a closed one.
+        status[hit] = np.where(tables.closed_ahead[target_section[hit]], BLOCKED, DETOUR)
+        found |= hit
+        if found.all():
+            break
+    return out, status
+
+
+__all__ = [
+    "BLOCKED",
+    "DETOUR",
+    "IN_OBSTACLE",
+    "LIVE_MARGIN",
+    "OK",
+    "STATUS_NAMES",
+    "SceneTables",
+    "avoided_targets",
+    "scene_tables",
+]

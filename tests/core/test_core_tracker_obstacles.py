@@ -1,0 +1,91 @@
+"""Live targets around a scene (the tracker bank's obstacle pass), driven by a lagging robot."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from canal_testing import arc_demo
+from core_data import tube_demos
+
+import canal_core
+from canal_core.obstacles import free_distances, rotation_parameters, scene_from_list
+from canal_core.tracker_bank import TrackerBank
+from canal_core.tracker_obstacles import BLOCKED, DETOUR, IN_OBSTACLE, OK, scene_tables
+
+
+@pytest.fixture(scope="module")
+def tube() -> canal_core.Canal:
+    demos = tube_demos(radius=0.5, n_demos=6, n_points=80)
+    for j, d in enumerate(demos):
+        d[:, 1] += 0.08 * np.sin(2.0 * d[:, 0] + j)
+        d[:, 2] += 0.08 * np.cos(2.5 * d[:, 0] + 2 * j)
+    return canal_core.fit(demos, n_samples=120)
+
+
+def drive(canal: canal_core.Canal, items: list[dict[str, object]], x: np.ndarray, steps: int = 400,
+          robots: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``robots`` first-order robots from around ``x``, stepped together: poses, targets,
+    statuses (steps, robots, ...) and whether each finished."""
+    bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
+    bank.scene = scene_tables(bank.geometry, scene_from_list(items, 3), canal.largest_step)
+    slots = [bank.add(0) for _ in range(robots)]
+    pos = x + np.linspace(-0.2, 0.2, robots)[:, None] * float(canal.radii[0]) * canal.normals[0]
+    poses, targets, statuses = [], [], []
+    done = np.zeros(robots, dtype=bool)
+    for _ in range(steps):
+        rows = bank.step_packed(slots, pos)
+        status = bank.avoid_packed(rows, pos)
+        assert status is not None
+        poses.append(pos.copy())
+        targets.append(rows[:, :3].copy())
+        statuses.append(status)
+        done |= rows[:, 7] != 0.0
+        if done.all():
+            break
+        pos = pos + 0.6 * (rows[:, :3] - pos)
+    return np.array(poses), np.array(targets), np.array(statuses), done
+
+
+def test_robots_swerve_around_a_ball_on_their_way_and_finish() -> None:
+    arc = canal_core.fit([arc_demo(j, 60, spread=0.03) for j in range(4)], n_samples=100)
+    k = arc.n_sections // 2
+    ball = {"kind": "sphere", "center": arc.directrix[k].tolist(), "radius": 0.5 * float(arc.radii[k]),
+            "clearance": 0.002}
+    poses, targets, statuses, done = drive(arc, [ball], arc.directrix[0], robots=3)
+    scene = scene_from_list([ball], 3)
+    assert done.all()
+    assert (statuses == DETOUR).any() and not (statuses == BLOCKED).any()
+    assert free_distances(poses.reshape(-1, 3), scene).min() >= 0.0
+    assert free_distances(targets.reshape(-1, 3), scene).min() >= 0.0
+
+
+def test_a_wall_holds_the_robots_before_it(tube: canal_core.Canal) -> None:
+    k = 60
+    axes = np.stack([tube.tangents[k], tube.normals[k], tube.binormals[k]], axis=1)
+    wall = {"kind": "box", "center": tube.directrix[k].tolist(), "half_extents": [0.02, 2.0, 2.0],
+            "rotation": rotation_parameters(axes)}
+    poses, _targets, statuses, done = drive(tube, [wall], tube.directrix[0], steps=300)
+    assert not done.any()
+    assert (statuses[-20:] == BLOCKED).all()
+    assert ((poses.reshape(-1, 3) - tube.directrix[k]) @ tube.tangents[k]).max() < -0.02
+
+
+def test_a_robot_inside_an_obstacle_is_told_and_backed_away(tube: canal_core.Canal) -> None:
+    x = tube.directrix[20] + np.array([0.0, 0.05, 0.0])
+    ball = {"kind": "sphere", "center": tube.directrix[20].tolist(), "radius": 0.15}
+    bank = TrackerBank(tube.tracker_geometry(), 2, compiled=False)
+    bank.scene = scene_tables(bank.geometry, scene_from_list([ball], 3), tube.largest_step)
+    slot = bank.add(20)
+    rows = bank.step_packed([slot], x[None])
+    status = bank.avoid_packed(rows, x[None])
+    assert status is not None and status[0] == IN_OBSTACLE
+    target = rows[0, :3]
+    assert np.linalg.norm(target - tube.directrix[20]) > np.linalg.norm(x - tube.directrix[20])
+    assert np.linalg.norm(target - x) <= tube.largest_step + 1e-12
+    # Away from every obstacle the tracker's answer is left as it is.
+    far = tube.directrix[100][None]
+    slot2 = bank.add(99)
+    rows = bank.step_packed([slot2], far)
+    plain = rows.copy()
+    assert bank.avoid_packed(rows, far)[0] == OK
+    np.testing.assert_array_equal(rows, plain)

@@ -1,0 +1,124 @@
+"""Live targets around a skill's scene, over a real Zenoh session on 127.0.0.1: a scene put in
+flight, a blocked section, an obstacle on the robot itself, and the REST scene's twin."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import orjson
+import pytest
+from canal_client.live import PoseStreamer
+from live_helpers import make_skill, wait_until
+
+import canal_core
+from canal_core.obstacles import free_distances, scene_from_list
+from canal_protocol import wire
+
+pytestmark = pytest.mark.timeout(90)
+
+
+def canal_of(live, skill: str) -> canal_core.Canal:
+    body = live.client.get(f"/skills/{skill}/models/latest", params={"serialized": True}).json()
+    return canal_core.Canal.from_dict(body["serialized"])
+
+
+def drive(ps: PoseStreamer, x: np.ndarray, steps: int, gain: float = 0.6,
+          on_step=None) -> tuple[np.ndarray, list[tuple[np.ndarray, wire.Target]]]:
+    """A first-order robot: each pose moves ``gain`` of the way to its answer."""
+    seen: list[tuple[np.ndarray, wire.Target]] = []
+    for k in range(steps):
+        if on_step is not None:
+            on_step(k)
+        seq = ps.send(x.tolist(), restart=k == 0 and not seen)
+        answer = ps.wait_for(seq, 5.0)
+        assert answer is not None and answer.usable and answer.target is not None, answer
+        seen.append((x.copy(), answer))
+        x = x + gain * (np.asarray(answer.target) - x)
+        if answer.done:
+            break
+    return x, seen
+
+
+@pytest.fixture(scope="module")
+def scn(live) -> str:
+    make_skill(live.client, "scn", 3)
+    return "scn"
+
+
+def test_a_scene_put_in_flight_is_gone_around_from_the_next_pose(live, scn) -> None:
+    canal = canal_of(live, scn)
+    k = canal.n_sections // 2
+    ball = {"kind": "sphere", "center": canal.directrix[k].tolist(),
+            "radius": 0.5 * float(canal.radii[k]), "clearance": 0.002, "name": "hand"}
+    scene = scene_from_list([ball], 3)
+    step = canal.largest_step
+    with PoseStreamer(scn, "flight", endpoint=live.endpoint) as ps:
+        put_at = 5
+
+        def put(i: int) -> None:
+            if i == put_at:
+                ps.session.put(f"canal/{scn}/scene", orjson.dumps({"obstacles": [ball]}))
+                # the bridge measures it against the canal as it arrives (tens of ms) and
+                # stores it (shard 0): wait until it is served, then go on moving
+                bank = live.client.app.state.bridge.models.models[scn].bank
+                assert wait_until(lambda: bank.scene is not None)
+                assert live.client.get(f"/skills/{scn}/scene").json()["version"] >= 1
+
+        _, seen = drive(ps, canal.directrix[0].copy(), 400, on_step=put)
+    after = seen[put_at + 1:]
+    statuses = {a.status for _, a in after}
+    assert "detour" in statuses and seen[-1][1].done
+    poses = np.array([p for p, _ in after])
+    targets = np.array([a.target for _, a in after])
+    # The robot moves along pose -> target: every such move keeps the clearance.
+    assert free_distances(poses, scene).min() >= -1e-9
+    assert free_distances(targets, scene).min() >= -1e-9
+    # A detour's target moves on from the previous one by no more than a step (plus the
+    # tracker's own advance of lookahead sections): no jump around the obstacle.
+    detour = np.array([a.status == "detour" for _, a in after])
+    jumps = np.linalg.norm(np.diff(targets, axis=0), axis=1)[detour[1:]]
+    print("largest target jump on a detour", jumps.max(), "step", step)
+    assert jumps.max() <= 2.0 * step
+    stored = live.client.get(f"/skills/{scn}/scene").json()
+    assert stored["obstacles"][0]["name"] == "hand"
+    assert live.client.delete(f"/skills/{scn}/scene").status_code == 204
+
+
+def test_a_closed_section_holds_the_stream_before_it(live, scn) -> None:
+    canal = canal_of(live, scn)
+    k = int(0.6 * canal.n_sections)
+    t = canal.tangents[k]
+    # a slab across the canal at section k, oriented with the section's plane
+    axes = np.stack([t, canal.normals[k], canal.binormals[k]], axis=1)
+    q = canal_core.obstacles.rotation_parameters(axes)
+    wall = {"kind": "box", "center": canal.directrix[k].tolist(), "half_extents": [0.005, 1.0, 1.0],
+            "rotation": q}
+    r = live.client.put(f"/skills/{scn}/scene", json={"obstacles": [wall]})
+    assert r.status_code == 200, r.text
+    with PoseStreamer(scn, "walled", endpoint=live.endpoint) as ps:
+        wait_until(lambda: ps.session is not None)
+        time.sleep(0.1)
+        x, seen = drive(ps, canal.directrix[0].copy(), 300)
+    last = [a for _, a in seen[-20:]]
+    assert all(a.status == "blocked" for a in last), [a.status for a in last]
+    assert not seen[-1][1].done
+    along = np.array([(p - canal.directrix[k]) @ t for p, _ in seen])
+    assert along.max() < 0.0  # never in or past the wall
+    assert live.client.delete(f"/skills/{scn}/scene").status_code == 204
+
+
+def test_an_obstacle_on_the_robot_says_so_and_backs_it_away(live, scn) -> None:
+    canal = canal_of(live, scn)
+    x = canal.directrix[10].copy()
+    ball = {"kind": "sphere", "center": x.tolist(), "radius": 0.4 * float(canal.radii[10])}
+    assert live.client.put(f"/skills/{scn}/scene", json={"obstacles": [ball]}).status_code == 200
+    with PoseStreamer(scn, "inside", endpoint=live.endpoint) as ps:
+        time.sleep(0.1)
+        seq = ps.send((x + 1e-4).tolist(), restart=True)
+        answer = ps.wait_for(seq, 5.0)
+    assert answer is not None and answer.status == "in_obstacle", answer
+    target = np.asarray(answer.target)
+    assert np.linalg.norm(target - x) > 1e-4  # away from the centre
+    assert np.linalg.norm(target - (x + 1e-4)) <= canal.largest_step + 1e-9
+    assert live.client.delete(f"/skills/{scn}/scene").status_code == 204

@@ -1,0 +1,131 @@
+"""A skill's scene over real HTTP: stored, versioned, honoured by every reproduction, refused
+whole when an obstacle is malformed."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+import pytest
+from canal_testing import LiveServer
+
+from canal_core.obstacles import scene_from_list, segment_free_distances
+
+
+def wavy_demo(j: int, n: int = 120) -> list[list[float]]:
+    """A straight reach along x whose demonstrators wander sideways (room to swerve)."""
+    x = np.linspace(0.0, 1.0, n)
+    a = 2.0 * np.pi * j / 5
+    y = 0.06 * np.cos(a) + 0.012 * np.sin(7.0 * x + j)
+    z = 0.06 * np.sin(a) + 0.012 * np.cos(9.0 * x + 2 * j)
+    return np.column_stack([x, y, z]).tolist()
+
+
+@pytest.fixture
+def http(live_server: LiveServer) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=live_server.url, timeout=60) as c:
+        assert c.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+        for j in range(5):
+            assert c.post("/skills/reach/demonstrations", json={"positions": wavy_demo(j)}).status_code == 201
+        assert c.post("/skills/reach/fit", json={"n_samples": 100}).status_code == 201
+        yield c
+
+
+BALL = {"kind": "sphere", "center": [0.5, 0.01, 0.0], "radius": 0.02, "clearance": 0.005, "name": "cup"}
+START = [0.0, 0.01, 0.0]
+
+
+def _clear(positions: list[list[float]], obstacles: list[dict[str, object]]) -> float:
+    p = np.asarray(positions)
+    return float(segment_free_distances(p[1:-1], p[2:], scene_from_list(obstacles, 3)).min())
+
+
+def test_a_stored_scene_is_gone_around_by_every_reproduction(http: httpx.Client) -> None:
+    plain = http.post("/skills/reach/reproductions", json={"start": START}).json()
+    assert plain["scene_version"] is None and plain["blocked"] is None
+    assert _clear(plain["positions"], [BALL]) < 0.0  # straight through the cup without a scene
+
+    put = http.put("/skills/reach/scene", json={"obstacles": [BALL]})
+    assert put.status_code == 200, put.text
+    assert put.json()["version"] == 1 and put.json()["obstacles"][0]["name"] == "cup"
+    assert http.get("/skills/reach/scene").json()["obstacles"] == put.json()["obstacles"]
+
+    rep = http.post("/skills/reach/reproductions", json={"start": START}).json()
+    assert rep["scene_version"] == 1 and rep["obstacles"] == 1 and rep["blocked"] is None
+    assert _clear(rep["positions"], [BALL]) >= 0.0
+    np.testing.assert_allclose(rep["positions"][-1], plain["positions"][-1], atol=1e-9)
+
+    batch = http.post("/skills/reach/reproductions", json={"starts": [START, [0.0, 0.0, 0.02]]}).json()
+    for one in batch["reproductions"]:
+        assert one["scene_version"] == 1 and _clear(one["positions"], [BALL]) >= 0.0
+
+    # Obstacles sent with a reproduction add to the scene for it; the scene stays as it was.
+    extra = {"kind": "box", "center": [0.75, 0.0, 0.0], "half_extents": [0.01, 0.03, 0.03]}
+    both = http.post("/skills/reach/reproductions", json={"start": START, "obstacles": [extra]}).json()
+    assert both["obstacles"] == 2 and both["blocked"] is None
+    assert _clear(both["positions"], [BALL, extra]) >= 0.0
+    assert http.get("/skills/reach/scene").json()["version"] == 1
+
+    # The last write wins; DELETE is a new, empty version.
+    assert http.put("/skills/reach/scene", json={"obstacles": [extra]}).json()["version"] == 2
+    assert http.delete("/skills/reach/scene").status_code == 204
+    cleared = http.get("/skills/reach/scene").json()
+    assert cleared["version"] == 3 and cleared["obstacles"] == []
+    again = http.post("/skills/reach/reproductions", json={"start": START}).json()
+    np.testing.assert_allclose(again["positions"], plain["positions"])
+
+
+def test_a_wall_across_the_canal_blocks_with_its_section(http: httpx.Client) -> None:
+    wall = {"kind": "box", "center": [0.6, 0.0, 0.0], "half_extents": [0.01, 0.5, 0.5], "name": "door"}
+    assert http.put("/skills/reach/scene", json={"obstacles": [BALL, wall]}).status_code == 200
+    rep = http.post("/skills/reach/reproductions", json={"start": START}).json()
+    assert rep["blocked"]["reason"] == "closed" and rep["blocked"]["obstacles"] == [1]
+    positions = np.asarray(rep["positions"])
+    assert positions[:, 0].max() < 0.59
+    assert _clear(rep["positions"], [BALL, wall]) >= 0.0
+    model = http.get("/skills/reach/models/latest").json()
+    assert 0.58 <= model["directrix"][rep["blocked"]["section"]][0] <= 0.62
+
+
+@pytest.mark.parametrize(
+    ("obstacle", "field"),
+    [
+        ({"kind": "sphere", "center": [0.5, 0, 0], "radius": -0.1}, "obstacles[0].radius"),
+        ({"kind": "sphere", "center": [0.5, 0], "radius": 0.1}, "obstacles[0].center"),
+        ({"kind": "disc", "center": [0.5, 0], "radius": 0.1}, "obstacles[0].kind"),
+        ({"kind": "cube", "center": [0.5, 0, 0], "radius": 0.1}, "obstacles[0].kind"),
+        ({"kind": "box", "center": [0.5, 0, 0]}, "obstacles[0].half_extents"),
+        ({"kind": "sphere", "center": [0.5, 0, 0], "radius": 0.1, "clearance": -1}, "obstacles[0].clearance"),
+    ],
+)
+def test_a_malformed_obstacle_is_refused_naming_it_and_nothing_is_stored(
+    http: httpx.Client, obstacle: dict[str, object], field: str
+) -> None:
+    assert http.put("/skills/reach/scene", json={"obstacles": [BALL]}).status_code == 200
+    for method, path, body in (
+        ("PUT", "/skills/reach/scene", {"obstacles": [obstacle]}),
+        ("POST", "/skills/reach/reproductions", {"start": START, "obstacles": [obstacle]}),
+    ):
+        r = http.request(method, path, json=body)
+        assert r.status_code == 422, r.text
+        assert r.json()["error"]["field"] == field, r.json()
+    scene = http.get("/skills/reach/scene").json()
+    assert scene["version"] == 1 and scene["obstacles"][0]["name"] == "cup"
+
+
+def test_nan_in_an_obstacle_is_refused(http: httpx.Client) -> None:
+    body = b'{"obstacles": [{"kind": "sphere", "center": [0.5, NaN, 0], "radius": 0.1}]}'
+    r = http.put("/skills/reach/scene", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 422
+    assert r.json()["error"]["field"].startswith("obstacles[0].center"), r.json()
+    assert http.get("/skills/reach/scene").json()["version"] == 0
+
+
+def test_a_scene_goes_with_its_skill(http: httpx.Client) -> None:
+    assert http.put("/skills/reach/scene", json={"obstacles": [BALL]}).status_code == 200
+    assert http.delete("/skills/reach").status_code == 204
+    assert http.get("/skills/reach/scene").status_code == 404
+    assert http.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+    assert http.get("/skills/reach/scene").json() == {
+        "skill": "reach", "version": 0, "obstacles": [], "updated_at": None}
