@@ -60,6 +60,8 @@ from canal_protocol.schemas import (
     FitRequest,
     Page,
     ReproductionRequest,
+    SceneIn,
+    SceneOut,
     SkillCreate,
 )
 
@@ -171,6 +173,9 @@ GET_MESH = Endpoint("GET", _MODEL + "/mesh", query=("format", "n_angles", "caps"
 REPRODUCE = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRequest, Reproduction)
 REPRODUCE_MANY = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRequest,
                           ReproductionBatch)
+GET_SCENE = Endpoint("GET", "/skills/{name}/scene", response=SceneOut)
+PUT_SCENE = Endpoint("PUT", "/skills/{name}/scene", SceneIn, SceneOut)
+DELETE_SCENE = Endpoint("DELETE", "/skills/{name}/scene", status=204)
 RECORDING_RRD = Endpoint("GET", "/skills/{name}/recording.rrd")
 RECORDING_MCAP = Endpoint("GET", "/skills/{name}/recording.mcap", query=("profile",))
 REBUILD_RECORDING = Endpoint("POST", "/skills/{name}/recording/rebuild")
@@ -470,33 +475,62 @@ def _mesh(skill: str, version: Version = "latest", format: str = "ply",
                            lambda resp: resp.content, params=params))
 
 
+def _obstacles(value: Iterable[Any] | None) -> list[dict[str, Any]] | None:
+    """Obstacles as the service takes them: dicts (``{"kind": "sphere", "center": [...],
+    "radius": r}``, see :class:`canal_protocol.schemas.ObstacleIn`), or anything with
+    ``to_dict()`` (:class:`canal_core.obstacles.Obstacle`), or a ``Scene``."""
+    if value is None:
+        return None
+    items = value.to_list() if hasattr(value, "to_list") else list(value)
+    return [o.to_dict() if hasattr(o, "to_dict") else dict(o) for o in items]
+
+
+def _get_scene(skill: str) -> _Steps[SceneOut]:
+    """The skill's scene (``version`` 0 and no obstacles when none was set)."""
+    return (yield _request(GET_SCENE, name=skill))
+
+
+def _set_scene(skill: str, obstacles: Iterable[Any]) -> _Steps[SceneOut]:
+    """Replace the skill's scene: every later reproduction, and every live stream from its
+    next pose, goes around these obstacles. The answer carries the new ``version``."""
+    return (yield _request(PUT_SCENE, name=skill, body={"obstacles": _obstacles(obstacles)}))
+
+
+def _clear_scene(skill: str) -> _Steps[None]:
+    """Remove every obstacle from the skill's scene (a new, empty version)."""
+    return (yield _request(DELETE_SCENE, name=skill))
+
+
 def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
                outside: Outside = "project", goal: ArrayLike | None = None,
-               duration: float | None = None, start_orientation: ArrayLike | None = None
-               ) -> _Steps[Reproduction]:
+               duration: float | None = None, start_orientation: ArrayLike | None = None,
+               obstacles: Iterable[Any] | None = None) -> _Steps[Reproduction]:
     """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
     (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
     (``outside="raise"``). ``goal`` (D,) deforms the canal to end there; ``duration``
     (seconds) stretches the returned ``times``. ``start_orientation`` (4,) qx, qy, qz, qw:
     the start pose's orientation, carried along when the model has orientation
     (``result.orientations``); a model without it ignores it and says so in
-    ``result.notes``."""
+    ``result.notes``. ``obstacles`` are added to the skill's scene for this reproduction
+    (``result.blocked`` says where they close the canal)."""
     return (yield _request(REPRODUCE, name=skill, body={
         "start": _point(start), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
-        "start_orientation": _point(start_orientation, "start_orientation")}))
+        "start_orientation": _point(start_orientation, "start_orientation"),
+        "obstacles": _obstacles(obstacles)}))
 
 
 def _reproduce_many(skill: str, starts: ArrayLike, *, model: Version = "latest",
                     outside: Outside = "project", goal: ArrayLike | None = None,
-                    duration: float | None = None, start_orientation: ArrayLike | None = None
-                    ) -> _Steps[list[Reproduction]]:
+                    duration: float | None = None, start_orientation: ArrayLike | None = None,
+                    obstacles: Iterable[Any] | None = None) -> _Steps[list[Reproduction]]:
     """Reproduce from each start (at most 1000) in one request, in order
-    (``start_orientation`` is used for every start)."""
+    (``start_orientation`` and ``obstacles`` are used for every start)."""
     batch: ReproductionBatch = yield _request(REPRODUCE_MANY, name=skill, body={
         "starts": _rows(starts, "starts"), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
-        "start_orientation": _point(start_orientation, "start_orientation")})
+        "start_orientation": _point(start_orientation, "start_orientation"),
+        "obstacles": _obstacles(obstacles)})
     return batch.reproductions
 
 
@@ -569,6 +603,9 @@ class _Operations:
     mesh = _operation(_mesh)
     reproduce = _operation(_reproduce)
     reproduce_many = _operation(_reproduce_many)
+    get_scene = _operation(_get_scene)
+    set_scene = _operation(_set_scene)
+    clear_scene = _operation(_clear_scene)
     download_recording = _operation(_download_recording)
     rebuild_recording = _operation(_rebuild_recording)
 

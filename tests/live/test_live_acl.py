@@ -31,7 +31,8 @@ from live_helpers import make_skill
 pytestmark = pytest.mark.timeout(90)
 
 SECURE = Path(__file__).resolve().parents[2] / "docker" / "zenoh"
-PASSWORDS = {"canal-service": "svc-secret", "arm1": "arm1-secret", "arm2": "arm2-secret"}
+PASSWORDS = {"canal-service": "svc-secret", "arm1": "arm1-secret", "arm2": "arm2-secret",
+             "operator": "op-secret"}
 
 
 def _certificates(folder: Path) -> None:
@@ -219,3 +220,33 @@ def test_recording_batches_flow_between_service_sessions_only(secure):
     assert live["streams"]["s/arm1"]["poses"] == before + 20  # the real batches went through
     assert "s/forged" not in live["streams"] and live["bad_payload"] == 0
     assert heard == []  # and the robot heard none of them
+
+
+def test_only_the_service_and_an_operator_write_scenes(secure):
+    """A robot's scene put is dropped by the router; an operator's reaches the bridge, which
+    stores it as the skill's next scene version."""
+    import orjson
+
+    client = secure[2]
+    centre = client.get("/skills/s/models/latest").json()["directrix"][20]
+    body = orjson.dumps({"obstacles": [{"kind": "sphere", "center": centre, "radius": 0.01}]})
+    before = client.get("/skills/s/scene").json()["version"]
+    arm1 = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "arm1"))))
+    try:
+        arm1.put("canal/s/scene", body)
+        time.sleep(1.0)
+    finally:
+        arm1.close()
+    assert client.get("/skills/s/scene").json()["version"] == before
+    operator = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "operator"))))
+    try:
+        deadline = time.monotonic() + 10.0
+        while client.get("/skills/s/scene").json()["version"] == before:
+            assert time.monotonic() < deadline, "the operator's scene never arrived"
+            operator.put("canal/s/scene", body)
+            time.sleep(0.3)
+    finally:
+        operator.close()
+    scene = client.get("/skills/s/scene").json()
+    assert scene["obstacles"][0]["radius"] == 0.01
+    assert client.delete("/skills/s/scene").status_code == 204

@@ -25,7 +25,7 @@ from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
 from .output import err, out, plain, print_json
-from .parsing import parse_point, parse_quaternion
+from .parsing import parse_obstacle, parse_point, parse_quaternion
 from .session import connected, options
 
 # typer shows and checks each Literal's values as choices (canal_protocol's aliases of
@@ -123,9 +123,15 @@ def reproduce(
     duration: Annotated[float | None, typer.Option(
         "--duration", "-d", help="Seconds: stretch the reproduction's times to end there.")
     ] = None,
+    obstacle: Annotated[list[str] | None, typer.Option(
+        "--obstacle", help="sphere:x,y,z,r[,clearance] (also box:, capsule:, disc:; repeat): "
+                           "go around it too (added to the skill's scene for this run).")
+    ] = None,
 ) -> None:
-    """Reproduce a trajectory from a new start (optionally to a new goal, in a given time)."""
+    """Reproduce a trajectory from a new start (optionally to a new goal, in a given time,
+    around obstacles)."""
     point = parse_point(start)
+    obstacles = [parse_obstacle(o) for o in obstacle or []] or None
     quat = None if start_orientation is None else parse_quaternion(start_orientation)
     goal_point = None if goal is None else parse_point(goal, "--goal")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
@@ -136,7 +142,7 @@ def reproduce(
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:
         r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
-                        duration=duration, start_orientation=quat)
+                        duration=duration, start_orientation=quat, obstacles=obstacles)
     if out_path is not None:
         write_trajectory(out_path, r.positions, r, r.orientations, r.times)
     if options(ctx).json:
@@ -154,6 +160,12 @@ def reproduce(
     if r.orientations is not None:
         last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])
         out.print(f"with orientations; ends at qx,qy,qz,qw ({last})")
+    if r.obstacles:
+        out.print(f"around {r.obstacles} obstacle{'s' if r.obstacles > 1 else ''}"
+                  + ("" if r.scene_version is None else f" (scene version {r.scene_version})"))
+    if r.blocked is not None:
+        out.print(f"[yellow]blocked[/yellow] at section {r.blocked.section} ({r.blocked.reason}, "
+                  f"obstacles {r.blocked.obstacles}): the trajectory stops before it")
     for note in r.notes:
         out.print(f"note: {escape(note)}")
     if out_path is not None:

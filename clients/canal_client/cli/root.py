@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from . import demos, models, recordings, serve, simulation, skills
+from . import demos, models, recordings, scenes, serve, simulation, skills
 from .session import global_options
 
 HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
@@ -17,6 +17,7 @@ HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
   canal demo list|rm SKILL                look at / remove demonstrations
   canal fit SKILL [--cross-section ...]   fit a new model version
   canal reproduce SKILL --start x,y,z     a new trajectory (--out traj.csv)
+  canal scene set|show|clear SKILL        obstacles every reproduction goes around
   canal export SKILL [--rrd F] [--mcap F] download the review recordings
   canal view SKILL [--web]                open the recording in the Rerun viewer
   canal recordings rebuild SKILL          regenerate the recordings from the database
@@ -43,6 +44,7 @@ app.command()(simulation.sim)
 app.add_typer(skills.app, name="skill")
 app.add_typer(demos.app, name="demo")
 app.add_typer(recordings.app, name="recordings")
+app.add_typer(scenes.app, name="scene")
 
 
 def main() -> None:

@@ -17,8 +17,8 @@ from canal_core.validation import FloatArray
 
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
 from .output import EXIT_REFUSED, error, out, print_json
-from .parsing import parse_point
-from .session import fail_unreachable, health_document, options
+from .parsing import parse_obstacle, parse_point
+from .session import connected, fail_unreachable, health_document, options
 
 #: What ``canal sim`` needs beyond the REST client, and how to get it.
 ZENOH_MODULE = "zenoh"
@@ -108,6 +108,10 @@ def sim(
     encoding: Annotated[Encoding | None, typer.Option("--encoding")] = None,
     seed: Annotated[int | None, typer.Option(
         "--seed", help="Seed of the random start (same seed, same start).")] = None,
+    obstacle: Annotated[list[str] | None, typer.Option(
+        "--obstacle", help="sphere:x,y,z,r[,clearance] (also box:, capsule:, disc:; repeat): "
+                           "set the skill's scene to these before the run (it stays set; "
+                           "canal scene clear removes it).")] = None,
 ) -> None:
     """Drive a simulated robot along the skill's canal over Zenoh. The Zenoh endpoint and
     key prefix come from the service at --url (its /healthz) unless --endpoint/--prefix or
@@ -116,6 +120,7 @@ def sim(
     reported on its own line."""
     pushes = [parse_push(p) for p in push or []]
     point = parse_point(start) if start is not None else None
+    obstacles = [parse_obstacle(o) for o in obstacle or []]
     if importlib.util.find_spec(ZENOH_MODULE) is None:
         error(f"canal sim talks to the service over Zenoh, which is not installed here: "
               f"{ZENOH_INSTALL}")
@@ -136,6 +141,11 @@ def sim(
         if endpoint is None and zenoh_config is None:
             endpoint = ",".join(found)
         prefix = prefix or found_prefix
+    if obstacles:
+        with connected(ctx) as c:
+            scene = c.set_scene(skill, obstacles)
+        out.print(f"scene of {escape(skill)} set (version {scene.version}, "
+                  f"{len(scene.obstacles)} obstacles)")
     kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed}
     for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
                        ("lag", lag.value if lag else None), ("gain", gain),
@@ -167,6 +177,9 @@ def sim(
             f"eta {_eta(result, 'min'):.3f}..{_eta(result, 'max'):.3f}")
         for push_done in result.pushes:
             out.print(escape(sim_module.describe_push(push_done)))
+        around = {k: v for k, v in result.statuses.items() if k in ("detour", "blocked", "in_obstacle")}
+        if around:
+            out.print("obstacles: " + ", ".join(f"{v} {k}" for k, v in sorted(around.items())))
         for line in sim_module.describe_pending(result):
             out.print(escape(line))
     if not ok:
