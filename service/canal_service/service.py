@@ -68,6 +68,8 @@ class RecorderLike(Protocol):
     def live(self, skill: str, robot: str, position: npt.ArrayLike,
              target: canal_core.TrackerTarget, t_ns: int | None = None,
              orientation: npt.ArrayLike | None = None) -> None: ...
+    def scene_changed(self, skill: str, version: int, obstacles: list[dict[str, Any]],
+                      dim: int) -> None: ...
     def skill_deleted(self, skill: str) -> None: ...
     def export_rrd(self, skill: str) -> Path: ...
     def export_mcap(self, skill: str, profile: str = "foxglove") -> Path: ...
@@ -655,6 +657,8 @@ class CanalService:
             out = schemas.SceneOut(skill=name, version=row.version, obstacles=row.obstacles,
                                    updated_at=row.updated_at)
         self.scene_listeners.notify(name, out.version, scene)
+        self._record("scene_changed", lambda r: r.scene_changed(name, out.version, out.obstacles,
+                                                                scene.dim))
         return out
 
     def scene_of(self, name: str, dim: int) -> tuple[int | None, canal_core.obstacles.Scene | None]:

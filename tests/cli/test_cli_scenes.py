@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from canal_client import CanalClient
 from canal_live import LiveService
-from conftest import Run
+from click.testing import Result
 
 from canal_core.obstacles import scene_from_list, segment_free_distances
 
@@ -23,7 +23,7 @@ def wavy(j: int, n: int = 80) -> np.ndarray:
                             0.06 * np.sin(a) + 0.012 * np.cos(9.0 * x + 2 * j)])
 
 
-def test_scene_commands_and_reproduce_with_an_obstacle(run: Run, service: LiveService,
+def test_scene_commands_and_reproduce_with_an_obstacle(run: Callable[..., Result], service: LiveService,
                                                        unique_name: Callable[[str], str],
                                                        tmp_path: Path) -> None:
     name = unique_name("scene")

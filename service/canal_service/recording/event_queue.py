@@ -22,6 +22,7 @@ from .events import (
     LiveRows,
     ModelFitted,
     ReproductionMade,
+    SceneChanged,
     SkillDeleted,
     live_rows,
 )
@@ -140,6 +141,17 @@ class RecorderQueue:
                                   int(version), canal, instance))
         except Exception:
             self._caller_error("model_fitted")
+
+    def scene_changed(self, skill: str, version: int, obstacles: list[dict[str, Any]], dim: int,
+                      *, t_ns: int | None = None) -> None:
+        """The skill's scene is now ``obstacles`` (canal_core's JSON form) at ``version``."""
+        if self._closed:
+            return
+        try:
+            self._put(SceneChanged(time.time_ns() if t_ns is None else int(t_ns), skill,
+                                   int(version), [dict(o) for o in obstacles], int(dim)))
+        except Exception:
+            self._caller_error("scene_changed")
 
     def reproduction(self, skill: str, version: int, result: Any, *, number: int | None = None,
                      t_ns: int | None = None, instance: str | None = None) -> None:

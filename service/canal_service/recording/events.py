@@ -73,6 +73,15 @@ class ReproductionMade:
 
 
 @dataclass(slots=True)
+class SceneChanged:
+    t_ns: int
+    skill: str
+    version: int
+    obstacles: list[dict[str, Any]]  # canal_core's JSON form, as stored
+    dim: int
+
+
+@dataclass(slots=True)
 class SkillDeleted:
     t_ns: int
     skill: str
@@ -110,7 +119,7 @@ class Stop:
     """Drain, close every segment and end the writer thread."""
 
 
-ControlEvent = (DemoAdded | DemoRef | ModelRef | DemoRemoved | ModelFitted | ReproductionMade
+ControlEvent = (DemoAdded | DemoRef | ModelRef | DemoRemoved | ModelFitted | ReproductionMade | SceneChanged
                 | SkillDeleted | Rotate | Rebuild | Reconcile | Stop)
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ WORLD_FRAME = "world"
 CANAL_FRAME = "canal"
 LINE_STRIP, LINE_LOOP, LINE_LIST = 0, 1, 2
 DELETE_MATCHING_ID = 0
+DELETE_ALL = 1
 
 
 # ---- schemas --------------------------------------------------------------------------------
@@ -170,9 +171,45 @@ def triangles(vertices: FloatArray, faces: np.ndarray, colors: FloatArray) -> di
                                                     option=orjson.OPT_SERIALIZE_NUMPY))}
 
 
+Vec = Sequence[float] | FloatArray
+
+
+def _pose(center: Vec, quaternion: Vec = (0.0, 0.0, 0.0, 1.0)) -> dict[str, Any]:
+    x, y, z = (float(v) for v in center)
+    qx, qy, qz, qw = (float(v) for v in quaternion)
+    return {"position": {"x": x, "y": y, "z": z},
+            "orientation": {"x": qx, "y": qy, "z": qz, "w": qw}}
+
+
+def sphere(center: Vec, diameters: Vec,
+           rgba: tuple[float, float, float, float]) -> dict[str, Any]:
+    """A ``foxglove.SpherePrimitive`` (``diameters`` along x, y, z)."""
+    x, y, z = (float(v) for v in diameters)
+    return {"pose": _pose(center), "size": {"x": x, "y": y, "z": z}, "color": color(rgba)}
+
+
+def cube(center: Vec, sizes: Vec, quaternion: Vec,
+         rgba: tuple[float, float, float, float]) -> dict[str, Any]:
+    """A ``foxglove.CubePrimitive`` (full ``sizes`` along its axes, rotated by ``quaternion``)."""
+    x, y, z = (float(v) for v in sizes)
+    return {"pose": _pose(center, quaternion), "size": {"x": x, "y": y, "z": z},
+            "color": color(rgba)}
+
+
+def cylinder(center: Vec, diameter: float, length: float, quaternion: Vec,
+             rgba: tuple[float, float, float, float]) -> dict[str, Any]:
+    """A ``foxglove.CylinderPrimitive`` along its z axis, rotated by ``quaternion``."""
+    return {"pose": _pose(center, quaternion),
+            "size": {"x": float(diameter), "y": float(diameter), "z": float(length)},
+            "bottom_scale": 1.0, "top_scale": 1.0, "color": color(rgba)}
+
+
 def entity(t_ns: int, entity_id: str, *, lines: list[dict[str, Any]] | None = None,
            triangle_lists: list[dict[str, Any]] | None = None,
-           metadata: dict[str, Any] | None = None) -> dict[str, Any]:
+           metadata: dict[str, Any] | None = None,
+           spheres: list[dict[str, Any]] | None = None,
+           cubes: list[dict[str, Any]] | None = None,
+           cylinders: list[dict[str, Any]] | None = None) -> dict[str, Any]:
     """A ``foxglove.SceneEntity`` in the canal frame that stays until replaced or deleted."""
     out: dict[str, Any] = {
         "timestamp": stamp(t_ns), "frame_id": CANAL_FRAME, "id": entity_id,
@@ -183,15 +220,22 @@ def entity(t_ns: int, entity_id: str, *, lines: list[dict[str, Any]] | None = No
         out[name] = []
     out["lines"] = lines or []
     out["triangles"] = triangle_lists or []
+    out["spheres"] = spheres or []
+    out["cubes"] = cubes or []
+    out["cylinders"] = cylinders or []
     return out
 
 
 def scene_update(entities: Sequence[dict[str, Any]] = (),
-                 deletions: Sequence[tuple[int, str]] = ()) -> bytes:
-    """A ``foxglove.SceneUpdate`` message: ``deletions`` are (t_ns, entity id) pairs."""
+                 deletions: Sequence[tuple[int, str]] = (), *,
+                 clear_at: int | None = None) -> bytes:
+    """A ``foxglove.SceneUpdate`` message: ``deletions`` are (t_ns, entity id) pairs;
+    ``clear_at`` (t_ns) first deletes every entity the topic showed."""
+    cleared = [] if clear_at is None else [
+        {"timestamp": stamp(clear_at), "type": DELETE_ALL, "id": ""}]
     return orjson.dumps({
-        "deletions": [{"timestamp": stamp(t), "type": DELETE_MATCHING_ID, "id": i}
-                      for t, i in deletions],
+        "deletions": cleared + [{"timestamp": stamp(t), "type": DELETE_MATCHING_ID, "id": i}
+                                for t, i in deletions],
         "entities": list(entities),
     })
 

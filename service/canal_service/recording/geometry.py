@@ -152,3 +152,67 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
         faces=np.ascontiguousarray(mesh.faces, dtype=np.uint32),
         vertex_colors=colors, rings=rings, frame_origins=centres, frame_vectors=axes * scale,
     )
+
+
+@dataclass(frozen=True)
+class ObstacleShape:
+    """One obstacle of a scene as both logs draw it, in 3-D (a 2-D scene in the z=0 plane).
+
+    ``kind`` sphere (a disc too), box or capsule; ``center`` (3,); ``half_sizes`` (3,): a
+    box's half extents along its axes, a sphere's radius thrice; ``quaternion`` (4,) [x, y, z,
+    w]: a box's rotation, a capsule's rotation from +z to its axis; ``radius`` and ``length``
+    a capsule's (``center`` its midpoint, ``a`` and ``b`` its ends).
+    """
+
+    kind: str
+    name: str
+    center: FloatArray
+    half_sizes: FloatArray
+    quaternion: FloatArray
+    radius: float
+    length: float
+    a: FloatArray
+    b: FloatArray
+
+
+def _quaternion_between(u: FloatArray, v: FloatArray) -> FloatArray:
+    """The shortest rotation [x, y, z, w] taking unit vector ``u`` to unit vector ``v``."""
+    w = 1.0 + float(u @ v)
+    if w < 1e-12:  # opposite: any perpendicular axis
+        axis = np.cross(u, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-9:
+            axis = np.cross(u, [0.0, 1.0, 0.0])
+        axis = axis / np.linalg.norm(axis)
+        return np.array([*axis, 0.0])
+    q = np.array([*np.cross(u, v), w])
+    return np.asarray(q / np.linalg.norm(q))
+
+
+def obstacle_shapes(obstacles: list[dict[str, Any]], dim: int) -> list[ObstacleShape]:
+    """A scene's stored obstacles (canal_core's JSON form) as :class:`ObstacleShape` s."""
+    from canal_core.obstacles import rotation_parameters, scene_from_list
+
+    out = []
+    for i, o in enumerate(scene_from_list(obstacles, dim).obstacles):
+        center, a, b = points3d(o.center), points3d(o.a), points3d(o.b)
+        if o.kind == "box":
+            half = points3d(o.half_extents) if dim == 3 else np.array([*o.half_extents, 0.0])
+            if dim == 2:
+                half[2] = 0.5 * float(np.min(o.half_extents))  # a slab to see it by
+                angle = float(rotation_parameters(o.rotation))  # type: ignore[arg-type]
+                quat = np.array([0.0, 0.0, np.sin(angle / 2), np.cos(angle / 2)])
+            else:
+                quat = np.asarray(rotation_parameters(o.rotation), dtype=np.float64)
+            shape = ObstacleShape("box", o.name or f"obstacle {i}", center, half, quat, 0.0, 0.0, a, b)
+        elif o.kind == "capsule":
+            axis = b - a
+            length = float(np.linalg.norm(axis))
+            quat = (np.array([0.0, 0.0, 0.0, 1.0]) if length == 0.0
+                    else _quaternion_between(np.array([0.0, 0.0, 1.0]), axis / length))
+            shape = ObstacleShape("capsule", o.name or f"obstacle {i}", center,
+                                  np.full(3, o.radius), quat, o.radius, length, a, b)
+        else:
+            shape = ObstacleShape("sphere", o.name or f"obstacle {i}", center, np.full(3, o.radius),
+                                  np.array([0.0, 0.0, 0.0, 1.0]), o.radius, 0.0, a, b)
+        out.append(shape)
+    return out

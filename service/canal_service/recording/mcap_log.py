@@ -13,6 +13,9 @@ Topics (all JSON, see :mod:`.foxglove` for the schemas)::
     /canal/reproduction_result canal.ReproductionResult  eta, inside, times, ...
     /canal/reproduction_poses  foxglove.PosesInFrame     a reproduction's poses (when it has
                                                           orientations)
+    /canal/scene               foxglove.SceneUpdate      scene/<i>: each obstacle of the skill's
+                                                          scene (spheres, cubes, a capsule's
+                                                          cylinder + spheres), all replaced per change
     /live/<robot>/pose         foxglove.PoseInFrame      the robot's orientation (identity when
                                                           the pose had none)
     /live/<robot>/target       foxglove.PoseInFrame      the target's orientation (likewise)
@@ -39,7 +42,7 @@ from numpy.typing import NDArray
 from ..adapters.mcap_writer import pair_writer
 from . import foxglove as fx
 from .events import LiveRows, ReproductionView
-from .geometry import ModelGeometry
+from .geometry import ModelGeometry, ObstacleShape
 
 CHUNK_SIZE = 1024 * 1024
 LIBRARY = "canal-recorder"
@@ -49,6 +52,7 @@ _RING_COLOR = (0.2, 0.2, 0.2, 0.8)
 _AXIS_COLORS = np.array([[0.9, 0.2, 0.2, 1.0], [0.2, 0.8, 0.2, 1.0], [0.2, 0.3, 0.95, 1.0]])
 _INSIDE_COLOR = (0.1, 0.75, 0.3, 1.0)
 _OUTSIDE_COLOR = (0.95, 0.5, 0.1, 1.0)
+_OBSTACLE_COLOR = (0.8, 0.15, 0.15, 0.6)
 
 
 def _open_writer(path: Path) -> tuple[IO[bytes], Writer]:
@@ -137,6 +141,30 @@ class McapSegment:
         self._write("/canal/model_info", "canal.ModelInfo", t_ns, fx.plain(
             t_ns, version=geo.version, n_sections=geo.n_sections, radii=geo.radii,
             arclength=geo.arclength))
+
+    def scene(self, t_ns: int, version: int, shapes: list[ObstacleShape]) -> None:
+        """The skill's scene as one ``scene/<i>`` entity per obstacle (sphere, cube, or a
+        capsule's cylinder and end spheres), replacing the previous scene's."""
+        entities = []
+        for i, o in enumerate(shapes):
+            meta = {"version": version, "kind": o.kind, "name": o.name}
+            if o.kind == "box":
+                ent = fx.entity(t_ns, f"scene/{i}", metadata=meta, cubes=[
+                    fx.cube(o.center, 2.0 * o.half_sizes, o.quaternion, _OBSTACLE_COLOR)])
+            elif o.kind == "capsule":
+                d = 2.0 * o.radius
+                ent = fx.entity(t_ns, f"scene/{i}", metadata=meta, cylinders=[
+                    fx.cylinder(o.center, d, o.length, o.quaternion, _OBSTACLE_COLOR)],
+                    spheres=[fx.sphere(o.a, (d, d, d), _OBSTACLE_COLOR),
+                             fx.sphere(o.b, (d, d, d), _OBSTACLE_COLOR)])
+            else:
+                ent = fx.entity(t_ns, f"scene/{i}", metadata=meta, spheres=[
+                    fx.sphere(o.center, 2.0 * o.half_sizes, _OBSTACLE_COLOR)])
+            entities.append(ent)
+        # Every earlier obstacle goes first (this topic holds the scene only): a smaller
+        # scene leaves none behind.
+        self._write("/canal/scene", "foxglove.SceneUpdate", t_ns,
+                    fx.scene_update(entities, clear_at=t_ns))
 
     def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
         """One reproduction as its own entity ``reproduction/<n>`` (green inside, orange

@@ -19,6 +19,8 @@ Entities and timelines::
     reproductions/<n>/point Points3D+Transform3D  reproduction_time (when it has times)
     reproductions/<n>/eta   Scalars            wall_time
     reproductions/<n>/inside Scalars (0/1)     wall_time
+    scene/obstacles/<i>     Ellipsoids3D | Boxes3D | Capsules3D  wall_time (the skill's scene;
+                            scene/obstacles is cleared at each change); scene/info AnyValues
     live/<robot>/pose       Points3D           wall_time
     live/<robot>/frame      Transform3D + TransformAxes3D  wall_time (the pose's orientation)
     live/<robot>/target     Points3D           wall_time
@@ -47,7 +49,7 @@ import rerun.blueprint as rrb
 
 from ..adapters.rerun_chunks import send_live
 from .events import LiveRows, ReproductionView
-from .geometry import FloatArray, ModelGeometry
+from .geometry import FloatArray, ModelGeometry, ObstacleShape
 
 APP_ID = "canal"
 _DEMO_COLOR = (90, 140, 240, 255)
@@ -57,6 +59,7 @@ _AXIS_COLORS = np.array([[230, 50, 50, 255], [50, 200, 50, 255], [50, 80, 240, 2
 _INSIDE_COLOR = (25, 190, 75, 255)
 _OUTSIDE_COLOR = (240, 130, 25, 255)
 _RADIUS_COLOR = (200, 160, 60, 255)
+_OBSTACLE_COLOR = (200, 40, 40, 160)
 
 
 #: The canal's surface is drawn see-through, so what lies inside it (demonstrations,
@@ -305,6 +308,29 @@ class RerunSegment:
             self.rec.send_blueprint(review_blueprint(self.dim, frame=geo.vertices,
                                                      coordinates=self.coordinates),
                                     make_active=True, make_default=True)
+
+    def scene(self, t_ns: int, version: int, shapes: list[ObstacleShape]) -> None:
+        """The skill's scene, replacing the previous one: each obstacle its own entity
+        ``scene/obstacles/<i>`` (Ellipsoids3D, Boxes3D, Capsules3D), shown with the canal."""
+        self._at(t_ns)
+        self.rec.log("scene/obstacles", rr.Clear(recursive=True))
+        for i, o in enumerate(shapes):
+            path = f"scene/obstacles/{i}"
+            if o.kind == "box":
+                self.rec.log(path, rr.Boxes3D(centers=[o.center], half_sizes=[o.half_sizes],
+                                              quaternions=[rr.Quaternion(xyzw=o.quaternion)],
+                                              colors=[_OBSTACLE_COLOR], labels=[o.name],
+                                              fill_mode="solid"))
+            elif o.kind == "capsule":
+                self.rec.log(path, rr.Capsules3D(lengths=[o.length], radii=[o.radius],
+                                                 translations=[o.a],
+                                                 quaternions=[rr.Quaternion(xyzw=o.quaternion)],
+                                                 colors=[_OBSTACLE_COLOR], labels=[o.name]))
+            else:
+                self.rec.log(path, rr.Ellipsoids3D(centers=[o.center], half_sizes=[o.half_sizes],
+                                                   colors=[_OBSTACLE_COLOR], labels=[o.name],
+                                                   fill_mode="solid"))
+        self.rec.log("scene/info", rr.AnyValues(version=version, obstacles=len(shapes)))
 
     def reproduction(self, t_ns: int, rep: ReproductionView) -> None:
         """One reproduction under its own entity ``reproductions/<n>``.

@@ -15,6 +15,9 @@ Made on export from the recording's Foxglove JSON MCAP (one source of truth), wi
                                                                     LINE_LIST rings and frames
     /canal/reproductions             nav_msgs/msg/Path              each reproduction (with its
                                                                     orientations when it has them)
+    /canal/scene                     visualization_msgs/msg/MarkerArray  the skill's obstacles
+                                                                    (DELETEALL, then SPHERE, CUBE,
+                                                                    CYLINDER markers) per change
 
 Robot names that are not valid ROS name tokens have their other characters replaced by ``_``.
 The Canal-specific JSON topics (tracker state, model info, reproduction results) have no ROS
@@ -38,6 +41,7 @@ _IDENTITY_Q = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 _ZERO = {"x": 0.0, "y": 0.0, "z": 0.0}
 _TOKEN = re.compile(r"[^A-Za-z0-9_]")
 TRIANGLE_LIST, LINE_LIST, ADD = 11, 5, 0
+CUBE, SPHERE, CYLINDER, DELETEALL = 1, 2, 3, 3
 
 
 def ros_name(part: str) -> str:
@@ -103,6 +107,33 @@ def _mesh_markers(stamp: dict[str, int], entities: list[dict[str, Any]]) -> dict
     return {"markers": markers}
 
 
+def _shape(stamp: dict[str, int], frame_id: str, ns: str, marker_id: int, kind: int,
+           prim: dict[str, Any]) -> dict[str, Any]:
+    """A SPHERE, CUBE or CYLINDER marker from a Foxglove primitive (same pose, size, colour)."""
+    marker = _marker(stamp, frame_id, ns, kind, [], [], prim["color"])
+    marker["id"] = marker_id
+    marker["pose"] = _pose(prim["pose"]["position"], prim["pose"]["orientation"])
+    marker["scale"] = {k: float(prim["size"][k]) for k in "xyz"}
+    return marker
+
+
+def _scene_markers(msg: dict[str, Any]) -> dict[str, Any]:
+    """The scene's SceneUpdate as a MarkerArray: DELETEALL first (the scene replaces the
+    previous one), then one marker per sphere, cube and cylinder of each obstacle."""
+    entities = msg.get("entities", [])
+    stamp = entities[0]["timestamp"] if entities else (
+        msg["deletions"][0]["timestamp"] if msg.get("deletions") else {"sec": 0, "nsec": 0})
+    clear = _marker(stamp, "canal", "canal/scene", SPHERE, [], [], {"r": 0, "g": 0, "b": 0, "a": 0})
+    clear["action"] = DELETEALL
+    markers = [clear]
+    for ent in entities:
+        for name, kind in (("spheres", SPHERE), ("cubes", CUBE), ("cylinders", CYLINDER)):
+            for prim in ent.get(name, []):
+                markers.append(_shape(ent["timestamp"], ent["frame_id"], ent["id"],
+                                      len(markers), kind, prim))
+    return {"markers": markers}
+
+
 def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
     """(topic, ROS type, message dict, log time) of the Foxglove recording, in log order."""
     poses_at: dict[int, list[dict[str, float]]] = {}
@@ -160,6 +191,8 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
                                      ent["lines"][0]["points"]), t)
                 yield ("/canal/model/mesh", "visualization_msgs/msg/MarkerArray",
                        _mesh_markers(stamp, entities), t)
+            elif topic == "/canal/scene":
+                yield "/canal/scene", "visualization_msgs/msg/MarkerArray", _scene_markers(msg), t
             elif topic == "/canal/reproductions":
                 for ent in msg.get("entities", []):
                     if ent.get("lines"):

@@ -22,10 +22,11 @@ from .events import (
     ModelRef,
     Reconcile,
     ReproductionMade,
+    SceneChanged,
     concat_rows,
     reproduction_view,
 )
-from .geometry import model_geometry, points3d
+from .geometry import model_geometry, obstacle_shapes, points3d
 from .layout import SkillDir
 from .mcap_log import McapSegment, merge_mcap
 from .rerun_log import RerunSegment, cli_env, merge_rrd
@@ -117,6 +118,13 @@ class SegmentWriter(RecorderQueue):
             self._write(event.skill, event.t_ns, lambda r: r.reproduction(event.t_ns, rep),
                         lambda m: m.reproduction(event.t_ns, rep), ledger=f"p {number}")
             state.n_reproductions = max(state.n_reproductions, number)
+        elif isinstance(event, SceneChanged):
+            if not self._owner(event.skill, None):
+                return
+            shapes = obstacle_shapes(event.obstacles, event.dim)
+            self._write(event.skill, event.t_ns,
+                        lambda r: r.scene(event.t_ns, event.version, shapes),
+                        lambda m: m.scene(event.t_ns, event.version, shapes))
 
     def _wipe(self, skill: str) -> None:
         """Drop the skill's open segment and delete its files."""
