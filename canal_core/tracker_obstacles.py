@@ -77,6 +77,12 @@ class SceneTables:
         Sections none of whose lanes is clear within the horizon: the scene closes the canal
         ahead of them, and a stream there is ``blocked`` (it moves on to the last free
         section and holds).
+    usable : array of bool, shape (N, G)
+        Candidates clear by :data:`LIVE_MARGIN` steps.
+    lane_penalty : array, shape (N, G)
+        What a candidate on a blocked lane adds to its cost (0 on a clear lane, or where no
+        lane of its section is clear): it is taken only when no clear lane is in reach, the
+        one nearest a clear lane first.
     """
 
     scene: Scene
@@ -89,6 +95,8 @@ class SceneTables:
     horizon: int
     lane_gap: FloatArray
     closed_ahead: NDArray[np.bool_]
+    usable: NDArray[np.bool_]
+    lane_penalty: FloatArray
 
 
 def scene_tables(geometry: TrackerGeometry, scene: Scene, step: float, version: int = 0) -> SceneTables:
@@ -132,8 +140,10 @@ def scene_tables(geometry: TrackerGeometry, scene: Scene, step: float, version: 
         d2 = np.where(clear_lane[mixed[lo : lo + 32], None, :], d2, np.inf)
         gap[mixed[lo : lo + 32]] = np.sqrt(np.maximum(d2.min(axis=2), 0.0))
     closed_ahead = ~clear_lane.any(axis=1)
+    usable = free >= LIVE_MARGIN * step
+    penalty = np.where(~clear_lane & np.isfinite(gap), 1e6 * step**2 + 1e3 * np.where(np.isfinite(gap), gap, 0.0) ** 2, 0.0)
     return SceneTables(scene, int(version), cand, free, closed, float(step), lane, horizon, gap,
-                       closed_ahead)
+                       closed_ahead, usable, penalty)
 
 
 def avoided_targets(
@@ -199,15 +209,14 @@ def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: float
     """Targets one step (at most) out of the deepest obstacle, along its outward normal."""
     deepest = free_each.argmin(axis=1)
     depth = -free_each[np.arange(p.shape[0]), deepest]
-    # The normal by central differences of that obstacle's distance (exact shapes, tiny h).
+    # The normal by central differences of that obstacle's distance (exact shapes, tiny h),
+    # every row and axis in one evaluation.
+    r, d = p.shape
     h = 1e-7 * (1.0 + np.abs(p).max(axis=1))
-    grad = np.zeros_like(p)
-    for axis in range(p.shape[1]):
-        e = np.zeros(p.shape[1])
-        e[axis] = 1.0
-        hi = obstacle_free_distances(p + h[:, None] * e, scene)[np.arange(p.shape[0]), deepest]
-        lo = obstacle_free_distances(p - h[:, None] * e, scene)[np.arange(p.shape[0]), deepest]
-        grad[:, axis] = (hi - lo) / (2.0 * h)
+    steps = np.concatenate([np.eye(d), -np.eye(d)])  # (2D, D)
+    probes = (p[:, None, :] + h[:, None, None] * steps[None, :, :]).reshape(-1, d)
+    dist = obstacle_free_distances(probes, scene).reshape(r, 2 * d, -1)[np.arange(r), :, deepest]
+    grad = (dist[:, :d] - dist[:, d:]) / (2.0 * h[:, None])
     norm = np.sqrt((grad**2).sum(axis=1))
     flat = norm <= 1e-12  # at a sphere's centre: any way out
     grad[flat] = 0.0
@@ -235,31 +244,30 @@ def _detoured(
     depth = int(np.max(target_section - section, initial=0)) + 1
     out = p.copy()
     status = np.full(r, BLOCKED, dtype=np.int8)
-    found = np.zeros(r, dtype=bool)
-    for tier in range(depth):  # a handful of tiers (the lookahead + 1), each all rows at once
-        sec = np.clip(target_section - tier, np.minimum(section, target_section), n - 1)
-        cand = tables.candidates[sec]  # (R, G, D)
+    left = np.arange(r)
+    for tier in range(depth):  # a handful of tiers (the lookahead + 1), on the rows left
+        ts = target_section[left]
+        sec = np.clip(ts - tier, np.minimum(section[left], ts), n - 1)
+        cand = tables.candidates[sec]  # (L, G, D)
+        pl = p[left]
+        dist2 = ((cand - pl[:, None, :]) ** 2).sum(axis=2)
         free = tables.free[sec]
-        dist = np.sqrt(((cand - p[:, None, :]) ** 2).sum(axis=2))
-        ok = (free >= LIVE_MARGIN * step) & (fp[:, None] + free >= dist) & (dist <= reach[:, None])
-        ok &= ~found[:, None]
+        reach_l = np.minimum(fp[left, None] + free, reach[left, None])
+        ok = tables.usable[sec] & (dist2 <= reach_l * reach_l)
         if tier == 0:
             ok &= ~tables.closed[sec][:, None]
         # Nearest the tracker's target, among lanes clear ahead first.
-        blocked_lane = tables.lane_free[sec] < LIVE_MARGIN * step
-        gap = tables.lane_gap[sec]
-        # No clear lane at all (the canal is closed ahead): every clear point is as good.
-        detour = np.where(blocked_lane & np.isfinite(gap), 1e6 * step**2 + 1e3 * gap**2, 0.0)
-        cost = ((cand - t[:, None, :]) ** 2).sum(axis=2) + detour
-        cost = np.where(ok, cost, np.inf)
+        cost = ((cand - t[left, None, :]) ** 2).sum(axis=2) + tables.lane_penalty[sec]
+        cost[~ok] = np.inf
         best = cost.argmin(axis=1)
-        hit = np.isfinite(cost[np.arange(r), best])
-        out[hit] = cand[np.flatnonzero(hit), best[hit]]
+        hit = np.isfinite(cost[np.arange(left.size), best])
+        rows = left[hit]
+        out[rows] = cand[np.flatnonzero(hit), best[hit]]
         # Holding back in an earlier section is still a detour while the target section is
         # open (the robot swerves first); it is blocked only before a closed one.
-        status[hit] = np.where(tables.closed_ahead[target_section[hit]], BLOCKED, DETOUR)
-        found |= hit
-        if found.all():
+        status[rows] = np.where(tables.closed_ahead[target_section[rows]], BLOCKED, DETOUR)
+        left = left[~hit]
+        if not left.size:
             break
     return out, status
 
