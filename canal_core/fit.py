@@ -9,7 +9,7 @@ inside (:mod:`canal_core.enclosing`); it returns a :class:`~canal_core.model.Can
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from .alignment import (
     resampled_demonstrations,
     spline_parameter,
 )
+from .clocks import TIMINGS, TimingChoice, alignment_parameters, chosen_clock
 from .cross_sections import fitted_sections, floored_sections, scaled_sections, section_kind
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
@@ -31,7 +32,12 @@ from .orientation import OrientationModel, fitted_orientations
 from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples_many
 from .reproduce import section_basis
 from .timing import section_times
-from .validation import FloatArray, check_demonstration_orientations, check_demonstrations
+from .validation import (
+    FloatArray,
+    check_choice,
+    check_demonstration_orientations,
+    check_demonstrations,
+)
 
 
 def end_depths(
@@ -61,6 +67,7 @@ def fit(
     frame_smoothing: float = FitOptions.frame_smoothing,
     orientations: Any = None,
     by_time: bool | None = None,
+    timing: str = "auto",
 ) -> Canal:
     """Fit a canal surface to demonstrations (Alg. 1, ENCODING DEMONSTRATIONS).
 
@@ -73,7 +80,7 @@ def fit(
         :func:`canal_core.preprocess.prepared_demonstration` (repeats, rounding-level steps,
         glitches, still ends, equal or isolated out-of-order stamps). They give the canal its
         speed profile (``section_times``, :mod:`canal_core.timing`) and, unless ``by_time``
-        is False, its alignment (by time where given, else by arc length).
+        is False, its alignment (see ``timing``).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
     alignment : {"spline", "dtw"}
@@ -85,8 +92,13 @@ def fit(
         (0.02 by default; 0 = the paper's frames of the raw directrix). See
         :func:`canal_core.frames.smoothed_curve`.
     by_time : bool, optional
-        Align by the time stamps (default when they are given) or, when False, by arc
-        length while still keeping the speed profile.
+        True: ``timing="time"``; False: ``timing="arc"`` (the speed profile is kept either
+        way); None: ``timing`` decides.
+    timing : {"auto", "time", "index", "arc", "time+arc", "index+arc"}
+        The clock the demonstrations are aligned by (:func:`canal_core.clocks.chosen_clock`):
+        "auto" takes their time stamps, or without stamps their sample index when the
+        logger's rate was steady, blended with arc length, when their rhythm is consistent
+        by it; else arc length. The canal's ``clock`` says which was used.
     still_tolerance : float
         Head and tail samples within this fraction of the path length of the first/last
         sample are trimmed (see :mod:`canal_core.preprocess`).
@@ -109,6 +121,9 @@ def fit(
         Every demonstration identical, or a directrix of zero length.
     """
     options = fit_options(cross_section, frames, alignment, directrix, n_samples, frame_smoothing)
+    asked = cast(TimingChoice, check_choice(timing, TIMINGS, "timing"))
+    if by_time is not None:
+        asked = "time" if by_time else "arc"
     demos_, times_, dim = check_demonstrations(demos, timestamps)
     quats_ = None if orientations is None else check_demonstration_orientations(orientations, demos_)
     min_demos = section_kind(options.cross_section).min_demos
@@ -128,8 +143,8 @@ def fit(
     )
     positions = [p.positions for p in prepared]
     stamped = [p.timestamps for p in prepared]
-    align_by_time = by_time is None or bool(by_time)
-    times: list[FloatArray | None] = stamped if align_by_time else [None] * len(stamped)
+    clock = chosen_clock(positions, stamped, asked)
+    times = alignment_parameters(positions, stamped, clock)
 
     if options.alignment == "dtw":
         aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
@@ -181,7 +196,8 @@ def fit(
         orientation = _fitted_orientation(prepared, times, quats_, options)
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
-        section_times=section_times(positions, stamped, options.n_samples, align_by_time),
+        section_times=section_times(positions, stamped, options.n_samples, times),
+        clock=clock,
         envelope_margin=float(enclosure.scale.max() - 1.0),
         directrix=centres,
         tangents=tangents,

@@ -6,10 +6,11 @@ added after version 1 shipped are optional on reading (older models default them
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from .clocks import CLOCKS, Clock
 from .corrections import AppliedCorrection
 from .cross_sections import CrossSections, section_kind, section_kinds
 from .errors import ModelFormatError
@@ -47,6 +48,7 @@ def canal_dict(canal: Canal) -> dict[str, Any]:
         "envelope_margin": canal.envelope_margin,
         "parent": canal.parent,
         "corrections": [c.to_dict() for c in canal.corrections],
+        "clock": canal.clock,
     }
 
 
@@ -114,11 +116,20 @@ def canal_fields(data: dict[str, Any]) -> dict[str, Any]:
             corrections=tuple(
                 AppliedCorrection.from_dict(c, n, dim) for c in data.get("corrections") or ()
             ),
+            # Absent in models written before the clock was chosen per fit.
+            clock=_clock(data.get("clock", "arc")),
         )
     except ModelFormatError:
         raise
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ModelFormatError(f"malformed canal model: {exc!r}") from exc
+
+
+def _clock(value: Any) -> Clock:
+    if value not in CLOCKS:
+        raise ModelFormatError(f"expected clock among {', '.join(map(repr, CLOCKS))}, got {value!r}",
+                               field="clock")
+    return cast(Clock, value)
 
 
 def _optional_times(values: Any, n: int) -> FloatArray | None:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import reproduction
+from .clocks import Clock
 from .corrections import (
     AppliedCorrection,
     canal_digest,
@@ -35,7 +36,6 @@ from .orientation import OrientationModel
 from .reproduce import (
     CONTAINS_TOLERANCE,
     END_DECAY,
-    ENTRY_FRACTION,
     Location,
     located_inside,
     located_points,
@@ -80,6 +80,9 @@ class Canal:
         refined from by a correction; None for a canal fitted from demonstrations.
     corrections : tuple of AppliedCorrection
         Every correction applied since the fit, in order, with the sections each changed.
+    clock : {"time", "index", "arc", "time+arc", "index+arc"}
+        What the demonstrations were aligned by: their time stamps, their sample index (a
+        steady logger without stamps), arc length, or a blend (:mod:`canal_core.clocks`).
     """
 
     directrix: FloatArray
@@ -98,6 +101,7 @@ class Canal:
     parent: str | None = None
     #: Every correction applied since the fit, in order (:mod:`canal_core.corrections`).
     corrections: tuple[AppliedCorrection, ...] = ()
+    clock: Clock = "arc"
 
     # -- one-line summaries (the dataclass repr would print every array) ---------------
     def _summary_numbers(self) -> tuple[float, float, float]:
@@ -236,7 +240,7 @@ class Canal:
         goal: Any = None,
         duration: Any = None,
         *,
-        entry: float = ENTRY_FRACTION,
+        entry: float | None = None,
         end_decay: float = END_DECAY,
         persistence: str = "learned",
         obstacles: Any = None,
@@ -265,9 +269,13 @@ class Canal:
         duration : float, optional
             Seconds; the times are stretched to end there (constant speed along the path
             when the model has no speed profile).
-        entry, end_decay : float
-            Fractions of the canal's length (0 and 0 with ``persistence="constant"``: the
-            paper's constant, clamped ratio).
+        entry : float or None
+            None (default): a start outside enters the canal over the length in which the
+            demonstrations' own start offsets half faded (:mod:`canal_core.entry`); a
+            fraction of the canal's length: the entry blend over that length.
+        end_decay : float
+            Fraction of the canal's length (``entry=0, end_decay=0`` with
+            ``persistence="constant"``: the paper's constant, clamped ratio).
         persistence : {"learned", "constant"}
             How much of the start's ratio is kept along the canal before the end decay:
             what the demonstrations themselves kept of their start offsets, section by
@@ -310,6 +318,7 @@ class Canal:
             orientation=self.orientation,
             section_times=self.section_times,
             envelope_margin=self.envelope_margin,
+            clock=self.clock,
         )
 
     def reproduce(self, start: Any) -> FloatArray:

@@ -25,6 +25,7 @@ import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
 from .crossings import crosses_plane
+from .entry import inside_stays_inside
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Relative slack on eta when preferring a section that holds a point (rounding only).
@@ -32,8 +33,9 @@ INSIDE_TOLERANCE = 1e-9
 #: A start not held by any section is placed on the earliest pair whose eta is within this
 #: factor of its smallest eta anywhere (see start_locations).
 START_ETA_FACTOR = 2.0
-#: Entry blend of a start outside the canal, as a fraction of the canal's length (path_ratios):
-#: 20 of 200 sections.
+#: The entry blend of a start outside the canal, as a fraction of the canal's length
+#: (path_ratios): 20 of 200 sections. A reproduction learns its own by default
+#: (:func:`canal_core.entry.entry_fraction`); this is its fallback.
 ENTRY_FRACTION = 0.1
 #: The ratio rule's offset fades out over this last fraction of the canal's length, or over
 #: all that is left after the start when less (path_ratios). 1.0: the whole motion, with a
@@ -368,7 +370,9 @@ def path_ratios(
     min(``end_decay`` x length, what is left after the start), s_d = s_end - L_out (the end
     decay: the offset fades into the last sections, so the reproduction lands on the
     directrix's end, the mean of the demonstrated goals, whether the canal narrows there or
-    not). ``entry = end_decay = 0`` is the paper's constant ratio (clamped to 1).
+    not). ``entry = end_decay = 0`` is the paper's constant ratio (clamped to 1). A path that
+    has entered stays inside (:func:`canal_core.entry.inside_stays_inside`); the entry length
+    a reproduction uses by default is learned (:func:`canal_core.entry.entry_fraction`).
 
     Parameters
     ----------
@@ -377,8 +381,10 @@ def path_ratios(
     arclength : array, shape (K,)
         Arc length of the directrix at the remaining sections.
     start_arclength : float
-    entry, end_decay : float
-        Fractions of the canal's length.
+    entry : float
+        L_in as a fraction of the canal's length.
+    end_decay : float
+        Fraction of the canal's length.
     persistence : array, shape (K,), optional
         Share f_k in [0, 1] of the start's ratio kept on each section before the end decay
         (:func:`learned_persistence`): eta is replaced by eta f_k above (and an outside start
@@ -404,6 +410,8 @@ def path_ratios(
         ratios = ratios * (1.0 - smootherstep((arclength - (total - tail)) / tail))
     elif end_decay > 0.0 and ratios.size:
         ratios[-1] = 0.0
+    if eta > 1.0:
+        ratios = inside_stays_inside(ratios)
     return np.asarray(ratios, dtype=np.float64)
 
 

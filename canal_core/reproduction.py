@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .entry import entry_fraction
 from .errors import OutsideCanalError
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
@@ -82,6 +83,10 @@ class Reproduction:
     start_clearance : float or None
         With obstacles: the start's distance to the nearest one minus its clearance
         (negative: the start is inside it; the path leaves it first).
+    entry_index : int
+        Index in ``positions`` of the first point inside the canal: every later point of
+        the ratio rule's path is inside too (0 for a start inside; for a start outside,
+        where the learned entry or the entry blend brought the path in).
     """
 
     positions: FloatArray
@@ -98,6 +103,7 @@ class Reproduction:
     blocked: Blocked | None = None
     detoured: BoolArray | None = None
     start_clearance: float | None = None
+    entry_index: int = 0
 
 
 def reproduce(
@@ -108,7 +114,7 @@ def reproduce(
     goal: Any = None,
     duration: Any = None,
     *,
-    entry: float = ENTRY_FRACTION,
+    entry: float | None = None,
     end_decay: float = END_DECAY,
     persistence: str = "learned",
     obstacles: Any = None,
@@ -137,9 +143,14 @@ def reproduce(
     duration : float, optional
         Seconds; the times are stretched to end there (constant speed along the path
         when the model has no speed profile).
-    entry, end_decay : float
-        Fractions of the canal's length (0 and 0 with ``persistence="constant"``: the
-        paper's constant, clamped ratio).
+    entry : float or None
+        None (default): a start outside enters the canal over the length in which the
+        demonstrations' own start offsets half faded (:mod:`canal_core.entry`); a fraction
+        of the canal's length: the entry blend over that length (0 clamps the ratio to 1 at
+        once).
+    end_decay : float
+        Fraction of the canal's length (``entry=0, end_decay=0`` with
+        ``persistence="constant"``: the paper's constant, clamped ratio).
     persistence : {"learned", "constant"}
         How much of the start's ratio is kept along the canal before the end decay:
         what the demonstrations themselves kept of their start offsets, section by
@@ -155,7 +166,7 @@ def reproduce(
     scene = None if obstacles is None else scene_from_list(obstacles, canal.dim)
     check_choice(outside, OUTSIDE_RULES, "outside")
     quat = None if start_orientation is None else check_quaternion(start_orientation)
-    entry = check_fraction(entry, "entry", maximum=1.0)
+    entry = None if entry is None else check_fraction(entry, "entry", maximum=1.0)
     end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
     check_choice(persistence, PERSISTENCES, "persistence")
     seconds = None if duration is None else check_positive(duration, "duration")
@@ -186,6 +197,9 @@ def reproduce(
         if kept is not None:
             # At most the start's own ratio: an inside start stays inside by construction.
             share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
+    if entry is None:
+        entry = entry_fraction(canal.arclength[first:], s0, share,
+                               np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
     ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
     positions = np.vstack([point, path])
@@ -222,4 +236,5 @@ def reproduce(
         blocked=blocked,
         detoured=detoured,
         start_clearance=start_clearance,
+        entry_index=0 if inside else 1 + int(np.argmax(np.append(ratios <= 1.0 + CONTAINS_TOLERANCE, True))),
     )

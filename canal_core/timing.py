@@ -25,7 +25,8 @@ from .validation import FloatArray
 
 
 def section_times(
-    demos: list[FloatArray], timestamps: list[FloatArray | None], n_samples: int, by_time: bool
+    demos: list[FloatArray], timestamps: list[FloatArray | None], n_samples: int,
+    parameters: list[FloatArray | None],
 ) -> FloatArray | None:
     """Mean time from the start at which the demonstrations reach each section, shape (N,).
 
@@ -36,8 +37,9 @@ def section_times(
     timestamps : list of (array, shape (T_j,)) or None
     n_samples : int
         N.
-    by_time : bool
-        Whether the demonstrations were aligned by time (else by arc length).
+    parameters : list of (array, shape (T_j,)) or None
+        What each demonstration was aligned by (:func:`canal_core.clocks.alignment_parameters`;
+        None: arc length).
 
     Returns
     -------
@@ -46,10 +48,10 @@ def section_times(
     """
     u = np.linspace(0.0, 1.0, n_samples)
     rows = []
-    for positions, times in zip(demos, timestamps, strict=True):
+    for positions, times, parameter in zip(demos, timestamps, parameters, strict=True):
         if times is None:
             continue
-        phase = spline_parameter(positions, times if by_time else None)
+        phase = spline_parameter(positions, parameter)
         rows.append(np.interp(u, phase, times - times[0]))
     if not rows:
         return None

@@ -109,7 +109,10 @@ def _spline_knots(coords: FloatArray) -> tuple[FloatArray, FloatArray]:
     # radius 0 over whole arcs of 200 sections of 1,000 with 6 noisy demos). Fixed knots
     # every 2 pi / SPLINE_GUIDES radians on the same hull polygon keep it on the hull there.
     guides = np.broadcast_to(np.arange(SPLINE_GUIDES) * (TWO_PI / SPLINE_GUIDES), (coords.shape[0], SPLINE_GUIDES))
-    theta = np.concatenate([np.mod(np.arctan2(coords[:, :, 1], coords[:, :, 0]), TWO_PI), guides], axis=1)
+    theta = np.mod(np.arctan2(coords[:, :, 1], coords[:, :, 0]), TWO_PI)
+    # A demo a rounding error below angle 0 lands at 2 pi: the same knot as the guide at 0,
+    # and a zero-length wrap-around interval (NaN slopes). It is merged with 0 below.
+    theta = np.concatenate([np.where(theta > TWO_PI - 1e-6, theta - TWO_PI, theta), guides], axis=1)
     k = theta.shape[1]
     order = np.argsort(theta, axis=1)
     theta = np.take_along_axis(theta, order, axis=1)

@@ -24,7 +24,7 @@ def demos() -> list[np.ndarray]:
 
 @pytest.fixture(scope="module")
 def canal(demos: list[np.ndarray]) -> canal_core.Canal:
-    return canal_core.fit(demos, n_samples=200)
+    return canal_core.fit(demos, n_samples=200, timing="arc")  # plane numbers below are on arc length
 
 
 def include_path(canal: canal_core.Canal, first: int = 80, last: int = 110, bulge: float = 0.12) -> np.ndarray:

@@ -30,9 +30,12 @@ def test_leave_one_out(name: str, kind: str) -> None:
         # Reproductions always end at the canal's end; LASA demos all end at the origin.
         assert np.linalg.norm(path[-1]) < 2.0  # mm; the shapes span ~40-50 mm
         # Reproduced points sit on their sections, also where the sweep folds at tight turns:
-        # all of them once an outside start has entered (the entry blend is 10 % of the length).
+        # all of them once an outside start has entered (inside stays inside).
+        assert result.entry_index < path.shape[0] // 2
+        assert canal.contains(path[max(result.entry_index, 1):]).all()
+        blended = canal.reproduce_detailed(demos[held][0], entry=0.1)
         entered = np.flatnonzero(canal.arclength >= canal.arclength[result.section_index + 1] + 0.1 * canal.arclength[-1])
-        assert canal.contains(path[1:][max(entered[0] - result.section_index - 1, 0):]).all()
+        assert canal.contains(blended.positions[1:][max(entered[0] - result.section_index - 1, 0):]).all()
         assert canal.contains(canal.reproduce_detailed(demos[held][0], entry=0.0).positions[1:]).all()
         # The reproduction follows the held-out demo's shape: mean distance well below the
         # shape's size.

@@ -81,11 +81,17 @@ def test_start_outside_is_projected_or_raises() -> None:
     result = canal.reproduce_detailed(start)
     assert not result.inside and result.projected and result.eta == 1.0
     np.testing.assert_array_equal(result.positions[0], start)
-    # The path enters the canal over the entry blend (10 % of the length), then stays inside.
+    # The path enters the canal by the time the demonstrations have half converged (the canal
+    # half as wide as at the start), then stays inside.
     eta = canal.locate(result.positions).eta
     assert np.all(np.diff(eta[:12]) <= 1e-9)
+    half = int(np.argmax(canal.radii <= 0.5 * canal.radii[0]))
+    assert 0 < result.entry_index <= half + 2
+    assert canal.contains(result.positions[result.entry_index:]).all()
+    # A fixed entry blend (10 % of the length) enters after that length.
+    blended = canal.reproduce_detailed(start, entry=0.1)
     entered = int(np.argmax(canal.arclength[1:] >= canal.arclength[1] + 0.1 * canal.arclength[-1]))
-    assert canal.contains(result.positions[1 + entered:]).all()
+    assert canal.contains(blended.positions[1 + entered:]).all()
     assert eta[1] > 1.5  # the first step does not jump onto the wall
     # entry=0 is the paper's clamp: on the boundary at once.
     assert canal.contains(canal.reproduce_detailed(start, entry=0.0).positions[1:]).all()

@@ -212,7 +212,7 @@ def box_kind() -> Iterator[SectionKind]:
 def test_a_kind_registered_in_a_test_fits_reproduces_meshes_tracks_and_round_trips(box_kind: SectionKind) -> None:
     demos = helix_demos()
     assert "box" in section_kinds(3) and "box" in canal_core.section_kinds()
-    canal = canal_core.fit(demos, cross_section="box", n_samples=120)
+    canal = canal_core.fit(demos, cross_section="box", n_samples=120, timing="arc")
     assert canal.section_kind == "box" and canal.sections.params["half"].shape == (120, 2)
     assert_points_inside(canal)
     assert canal.contains(np.vstack(demos)).all()
@@ -275,3 +275,15 @@ def test_a_kind_name_cannot_be_taken_twice() -> None:
     with pytest.raises(canal_core.InvalidInputError, match="already registered"):
         register_section_kind(clash)
     assert canal_core.fit(helix_demos(), n_samples=40).sections.spec.isotropic
+
+
+def test_a_spline_section_with_a_demo_a_rounding_error_below_angle_zero_is_finite() -> None:
+    # Four demos on the axes, one at angle -7e-18 (what mod 2 pi turns into 2 pi): the
+    # wrap-around interval had zero length and every boundary distance was NaN.
+    coords = np.array([[[0.2, -6.9e-18], [-6.9e-18, -0.2], [-0.2, -6.9e-18], [-6.9e-18, 0.2]]])
+    from canal_core.cross_sections import boundary_distance, fitted_sections
+
+    sections = fitted_sections(coords, "spline")
+    angles = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    reach = boundary_distance(sections, np.zeros(16, np.int64), np.column_stack([np.cos(angles), np.sin(angles)]))
+    assert np.isfinite(reach).all() and (reach > 0.1).all()

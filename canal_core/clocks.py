@@ -1,0 +1,152 @@
+"""Which clock aligns the demonstrations: their time stamps, their sample index, or arc length.
+
+Sample i of the directrix is the mean of every demonstration at the same phase u_i of a clock.
+Aligning by *time* pairs the points the demonstrators reached after the same share of their
+motion; aligning by *arc length* pairs the points after the same share of their path. Time is
+the better pairing when the demonstrators kept one rhythm (a pause or a slow part at the same
+place each time), arc length when their speed profiles differ (one hurries early, the next
+late): then equal times are different places.
+
+Timing test (consistent rhythm). For each demonstration j (cleaned), tau_j(u) is the share of
+its duration elapsed when it has covered the share u of its path. The demonstrations keep one
+rhythm when, on average over u in [0, 1],
+
+    sigma_tau = mean_u std_j tau_j(u)  <=  TIMING_SPREAD                          (T1)
+
+(0.06: a tenth of the motion is 2.4 sigma). Measured on leave-one-out folds (BENCHMARKS.md): the
+RAIL tasks, UR5e and LASA have sigma_tau 0.02-0.05 and follow held-out demos closer aligned
+by time; the generated logs, whose speed profiles are warped by up to a quarter, have 0.08 and
+follow them closer by arc length.
+
+Without time stamps the sample index is a clock only when the logger's rate was steady. For a
+smooth motion sampled at a steady rate, consecutive steps have nearly equal lengths; a logger
+that drops or bunches samples makes them jump. The index is taken as a clock when
+
+    median_i |log(l_{i+1} / l_i)|  <=  STEADY_JITTER                              (T2)
+
+over the steps l_i longer than 5 % of the median step (starts and stops, where speed goes to
+zero, say nothing), for every demonstration (0.45: steady logs, raw or resampled, measure
+0.03-0.31 here, the same logs with a random two thirds of the rows dropped 0.6-0.7). An index
+clock aligns, but it is not seconds: a model aligned by it has no section times, and its
+reproductions no duration, unless one is asked for.
+
+Blended clock (the default when the rhythm is consistent). Measured leave-one-out (BENCHMARKS.md)
+pure time beats arc length on some tasks (RAIL pressing and pushing, UR5e) and loses on others
+(RAIL reaching and writing) with the same sigma_tau; the mean of the two shares,
+
+    phi_j = (tau_j + s_j) / 2                                                     (B1)
+
+(tau_j: the share of the duration, or of the samples, elapsed; s_j: the share of the path
+covered; both rise from 0 to 1, so phi_j does) beat both on the sum over those tasks. "auto"
+therefore aligns by ``time+arc`` (stamped) or ``index+arc`` (a steady logger) when (T1) holds.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, cast, get_args
+
+import numpy as np
+
+from .alignment import normalised_arc_length
+from .validation import FloatArray
+
+#: The clocks a fit may align by: the demos' time stamps, their sample index, arc length, or
+#: the mean of the time (or index) share and the arc-length share (B1).
+Clock = Literal["time", "index", "arc", "time+arc", "index+arc"]
+CLOCKS: tuple[Clock, ...] = get_args(Clock)
+#: What a fit may be asked for: one of the clocks, or "auto" (the tests below).
+TimingChoice = Literal["auto", "time", "index", "arc", "time+arc", "index+arc"]
+TIMINGS: tuple[TimingChoice, ...] = get_args(TimingChoice)
+#: (T1): largest mean spread of the demonstrations' elapsed-time share at equal path share.
+TIMING_SPREAD = 0.06
+#: (T2): largest median |log| ratio of consecutive step lengths of a steady logger.
+STEADY_JITTER = 0.45
+#: Steps shorter than this share of the median step are not judged by (T2).
+MOVING_STEP = 0.05
+#: Phases at which (T1) compares the demonstrations.
+PHASES = 101
+
+
+def step_jitter(positions: FloatArray) -> float:
+    """median |log(l_{i+1} / l_i)| over consecutive moving steps of a demo (T, D) (T2)."""
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    moving = steps > MOVING_STEP * float(np.median(steps[steps > 0.0])) if np.any(steps > 0.0) else steps > 0.0
+    pair = moving[:-1] & moving[1:]
+    if not np.any(pair):
+        return float("inf")
+    return float(np.median(np.abs(np.log(steps[1:][pair] / steps[:-1][pair]))))
+
+
+def steady_index_clock(demos: list[FloatArray]) -> bool:
+    """Whether every demo's sample index is a fair clock (T2)."""
+    return all(step_jitter(d) <= STEADY_JITTER for d in demos)
+
+
+def timing_spread(demos: list[FloatArray], clocks: list[FloatArray]) -> float:
+    """sigma_tau of (T1): mean over path shares of the spread of elapsed-time shares.
+
+    Parameters
+    ----------
+    demos : list of arrays, each shape (T_j, D)
+    clocks : list of arrays, each shape (T_j,)
+        Increasing clock readings per sample (time stamps, or the index).
+    """
+    u = np.linspace(0.0, 1.0, PHASES)
+    rows = []
+    for positions, clock in zip(demos, clocks, strict=True):
+        share = (clock - clock[0]) / max(float(clock[-1] - clock[0]), 1e-300)
+        rows.append(np.interp(u, normalised_arc_length(positions), share))
+    return float(np.mean(np.std(rows, axis=0)))
+
+
+def chosen_clock(
+    demos: list[FloatArray], timestamps: list[FloatArray | None], timing: TimingChoice = "auto"
+) -> Clock:
+    """The clock a fit aligns by.
+
+    A clock with "time" needs every demo stamped (else arc length); one with "index" is
+    taken as asked when no demo is stamped (stamped demos have a better clock: "time");
+    "arc" always. "auto" takes the time stamps when every demo has them, else the index when
+    no demo has them and every logger was steady (T2), and keeps that clock, blended with arc
+    length (B1), only when the demonstrations' rhythm is consistent by it (T1); otherwise arc
+    length.
+    """
+    stamped = all(t is not None for t in timestamps)
+    if timing == "time":
+        return "time" if stamped else "arc"
+    if timing in ("index", "index+arc"):
+        return cast(Clock, timing.replace("index", "time")) if stamped else cast(Clock, timing)
+    if timing == "time+arc":
+        return "time+arc" if stamped else "arc"
+    if timing != "auto":
+        return cast(Clock, timing)
+    if stamped:
+        clocks = [np.asarray(t, dtype=np.float64) for t in timestamps if t is not None]
+        candidate: Clock = "time+arc"
+    elif all(t is None for t in timestamps) and steady_index_clock(demos):
+        clocks = [np.arange(d.shape[0], dtype=np.float64) for d in demos]
+        candidate = "index+arc"
+    else:
+        return "arc"
+    return candidate if timing_spread(demos, clocks) <= TIMING_SPREAD else "arc"
+
+
+def alignment_parameters(
+    demos: list[FloatArray], timestamps: list[FloatArray | None], clock: Clock
+) -> list[FloatArray | None]:
+    """Per demo, the increasing parameter its spline is aligned by (None: arc length).
+
+    Time stamps for "time", the sample index for "index", (B1) for the blends.
+    """
+    if clock == "arc":
+        return [None] * len(demos)
+    out: list[FloatArray | None] = []
+    for positions, stamps in zip(demos, timestamps, strict=True):
+        reading = (np.arange(positions.shape[0], dtype=np.float64) if clock.startswith("index")
+                   else np.asarray(stamps, dtype=np.float64))
+        if not clock.endswith("+arc"):
+            out.append(reading)
+            continue
+        share = (reading - reading[0]) / max(float(reading[-1] - reading[0]), 1e-300)
+        out.append(0.5 * (share + normalised_arc_length(positions)))
+    return out

@@ -1,0 +1,76 @@
+"""Entering the canal from a start outside it, the way the demonstrations' own starts converge.
+
+A demonstration by the next person usually starts outside the canal of the others (the canal
+is the envelope of what was shown; the next start is a new sample). The paper assumes a start
+inside. The entry blend of :func:`canal_core.reproduce.path_ratios` takes an outside start
+(ratio eta > 1) to the wall over an entry length L_in,
+
+    eta_k = min(eta f_k, 1 + (eta - 1) (1 - S((s_k - s_0) / L_in)))               (E1)
+
+(f_k: the learned persistence, S: smootherstep). A fixed L_in (a tenth of the canal) enters
+at the same pace whatever the demonstrations did. The learned entry length is where the
+demonstrations' own start offsets have half faded, from the start's section on:
+
+    L_in = s_k* - s_0,   k* = the first section with f_k <= 1/2 or R_k(u) <= R_0(u) / 2   (E2)
+
+in units of the canal's width (f_k, the demonstrations' ratios regressed on their start
+ratios) or in absolute terms (R_k(u), the boundary distance along the start's direction u:
+a canal that narrows is demonstrations converging). When neither happens (demonstrations
+that keep their offsets in a canal that keeps its width) the fixed blend is used. Once the
+path is inside it stays inside, as the live tracker's rules assume:
+
+    eta_k <- min(eta_k, 1)   for every k >= the first k with eta_k <= 1                 (E3)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .validation import FloatArray
+
+#: (E2): the share of the start offset left where the demonstrations' offsets count as faded.
+HALF_FADED = 0.5
+
+
+def inside_stays_inside(ratios: FloatArray) -> FloatArray:
+    """Ratios (K,) with every one after the first ratio <= 1 clamped to at most 1 (E3)."""
+    entered = np.flatnonzero(ratios <= 1.0)
+    if entered.size == 0 or entered[0] == ratios.size - 1:
+        return ratios
+    out = np.array(ratios, dtype=np.float64)
+    out[entered[0]:] = np.minimum(out[entered[0]:], 1.0)
+    return out
+
+
+def entry_fraction(
+    arclength: FloatArray,
+    start_arclength: float,
+    persistence: FloatArray | None,
+    reach: FloatArray,
+    fallback: float,
+) -> float:
+    """L_in of (E2) as a fraction of the canal's length.
+
+    Parameters
+    ----------
+    arclength : array, shape (K,)
+        Arc length of the directrix at the remaining sections (the last is the canal's length).
+    start_arclength : float
+        s_0.
+    persistence : array, shape (K,), or None
+        f_k on those sections (None: the demonstrations do not spread along u).
+    reach : array, shape (K + 1,)
+        R_k(u) on the start's section and the remaining ones.
+    fallback : float
+        The fraction used when the demonstrations' offsets do not fade.
+    """
+    total = float(arclength[-1]) if arclength.size else 0.0
+    if total <= 0.0 or arclength.size == 0:
+        return fallback
+    faded = reach[1:] <= HALF_FADED * reach[0]
+    if persistence is not None:
+        faded = faded | (persistence <= HALF_FADED)
+    hit = np.flatnonzero(faded)
+    if hit.size == 0:
+        return fallback
+    return float(max(arclength[hit[0]] - start_arclength, 0.0)) / total

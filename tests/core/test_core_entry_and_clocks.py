@@ -1,0 +1,129 @@
+"""Starts outside the canal (the learned entry) and the clock a fit aligns by."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import canal_core
+from canal_core.clocks import (
+    STEADY_JITTER,
+    chosen_clock,
+    steady_index_clock,
+    step_jitter,
+    timing_spread,
+)
+from canal_core.entry import entry_fraction, inside_stays_inside
+
+
+def converging_demos(n_demos: int = 6, n: int = 120) -> list[np.ndarray]:
+    """Reaches along x whose start offsets (in y) fade out linearly over the first 60 % of the
+    motion (a small spread in z, unrelated to the start offsets, keeps the canal open)."""
+    s = np.linspace(0.0, 1.0, n)
+    fade = np.clip(1.0 - s / 0.6, 0.0, 1.0)
+    offsets = np.linspace(-0.1, 0.1, n_demos)
+    return [np.column_stack([s, o * fade, 0.2 * s**2 + 0.003 * np.cos(2.5 * k)]) for k, o in enumerate(offsets)]
+
+
+def test_inside_stays_inside_clamps_after_the_first_ratio_inside() -> None:
+    ratios = np.array([3.0, 1.5, 0.9, 1.2, 0.5, 1.1])
+    assert inside_stays_inside(ratios).tolist() == [3.0, 1.5, 0.9, 1.0, 0.5, 1.0]
+    assert inside_stays_inside(np.array([2.0, 1.5])).tolist() == [2.0, 1.5]
+
+
+def test_the_entry_length_is_where_the_demonstrations_offsets_half_faded() -> None:
+    s = np.linspace(0.0, 1.0, 11)
+    reach = np.ones(12)
+    assert entry_fraction(s, 0.0, None, reach, 0.1) == 0.1  # nothing fades: the fixed blend
+    kept = np.clip(1.2 - s, 0.0, 1.0)  # half faded at s = 0.7
+    assert entry_fraction(s, 0.0, kept, reach, 0.1) == pytest.approx(0.7)
+    narrowing = np.concatenate([[1.0], np.clip(1.0 - 2 * s, 0.1, 1.0)])  # half as wide at s = 0.3
+    assert entry_fraction(s, 0.0, None, narrowing, 0.1) == pytest.approx(0.3)
+
+
+def test_an_outside_start_enters_where_the_demonstrations_converge_and_stays_in() -> None:
+    demos = converging_demos()
+    canal = canal_core.fit(demos, n_samples=100)
+    start = np.array([0.0, 0.25, 0.0])  # 2.5x the widest demo's offset
+    learned = canal.reproduce_detailed(start)
+    blended = canal.reproduce_detailed(start, entry=0.1)
+    assert not learned.inside and learned.projected
+    # The demos' offsets have half faded at 30 %: the path enters there, not after the fixed
+    # tenth, and stays inside.
+    inside = canal.contains(learned.positions)
+    assert 0.2 * 100 < learned.entry_index <= 0.35 * 100
+    assert inside[learned.entry_index:].all()
+    assert blended.entry_index <= 0.12 * 100
+    # It follows a demo started at the same offset (0.25 fade(s) in y) closer than the blend.
+    s = learned.positions[:, 0]
+    expected = 0.25 * np.clip(1.0 - s / 0.6, 0.0, 1.0)
+    head = slice(0, learned.entry_index)
+    assert np.abs(learned.positions[head, 1] - expected[head]).mean() < np.abs(
+        blended.positions[head, 1] - expected[head]).mean()
+
+
+def test_an_inside_start_is_unchanged_by_the_learned_entry() -> None:
+    canal = canal_core.fit(converging_demos(), n_samples=100)
+    start = np.array([0.0, 0.05, 0.0])
+    a = canal.reproduce_detailed(start)
+    b = canal.reproduce_detailed(start, entry=0.1)
+    assert a.inside
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert canal.contains(a.positions).all()
+
+
+def test_step_jitter_tells_a_steady_logger_from_one_that_drops_rows() -> None:
+    t = np.linspace(0.0, 1.0, 400)
+    steady = np.column_stack([np.sin(2 * t), t**2, np.zeros_like(t)])
+    rows = np.sort(np.random.default_rng(0).choice(400, 140, replace=False))
+    assert step_jitter(steady) < 0.1
+    assert step_jitter(steady[rows]) > STEADY_JITTER
+    assert steady_index_clock([steady, steady * 1.1])
+    assert not steady_index_clock([steady, steady[rows]])
+
+
+def test_the_clock_follows_the_rhythm_of_the_demonstrations() -> None:
+    u = np.linspace(0.0, 1.0, 300)
+    path = np.column_stack([u, np.sin(np.pi * u), np.zeros_like(u)])
+    same = [0.5 - 0.5 * np.cos(np.pi * u)] * 3  # one speed profile, three times
+    warped = [u, u**1.6, 1.0 - (1.0 - u) ** 1.6]  # early fast / late fast
+    stamps = [2.0 * u] * 3
+    same_demos = [np.column_stack([np.interp(p, u, path[:, i]) for i in range(3)]) + 0.01 * k
+                  for k, p in enumerate(same)]
+    warped_demos = [np.column_stack([np.interp(p, u, path[:, i]) for i in range(3)]) + 0.01 * k
+                    for k, p in enumerate(warped)]
+    assert timing_spread(same_demos, stamps) < 0.01
+    assert timing_spread(warped_demos, stamps) > 0.06
+    assert chosen_clock(same_demos, stamps) == "time+arc"
+    assert chosen_clock(warped_demos, stamps) == "arc"
+    assert chosen_clock(same_demos, [None] * 3) == "index+arc"
+    assert chosen_clock(warped_demos, [None] * 3) == "arc"
+    assert chosen_clock(same_demos, [None] * 3, "index") == "index"
+    assert chosen_clock(same_demos, stamps, "index") == "time"
+    assert chosen_clock(same_demos, [None] * 3, "arc") == "arc"
+    assert chosen_clock(same_demos, [None] * 3, "time") == "arc"  # nothing stamped
+    assert chosen_clock(warped_demos, stamps, "time") == "time"
+
+
+@pytest.mark.parametrize(("timestamps", "clock", "timed"), [(None, "index+arc", False), ("stamps", "time+arc", True)])
+def test_the_fit_says_which_clock_it_used_and_an_untimed_model_has_no_seconds(timestamps, clock, timed) -> None:
+    demos = converging_demos(n=150)
+    stamps = [np.linspace(0.0, 3.0, 150)] * len(demos) if timestamps else None
+    canal = canal_core.fit(demos, stamps, n_samples=60)
+    assert canal.clock == clock
+    assert (canal.section_times is not None) == timed
+    assert (canal.reproduce_detailed(demos[0][0]).times is not None) == timed
+    again = canal_core.Canal.from_dict(canal.to_dict())
+    assert again.clock == clock
+    assert canal_core.fit(demos, stamps, n_samples=60, timing="arc").clock == "arc"
+    assert canal_core.fit(demos, stamps, n_samples=60, by_time=False).clock == "arc"
+    assert canal_core.fit(demos, stamps, n_samples=60, by_time=True).clock == ("time" if timed else "arc")
+
+
+def test_a_model_with_an_unknown_clock_is_refused() -> None:
+    data = canal_core.fit(converging_demos(), n_samples=30).to_dict()
+    data["clock"] = "sundial"
+    with pytest.raises(canal_core.ModelFormatError, match="clock"):
+        canal_core.Canal.from_dict(data)
+    with pytest.raises(canal_core.InvalidInputError, match="timing"):
+        canal_core.fit(converging_demos(), n_samples=30, timing="sundial")
