@@ -65,10 +65,15 @@ from scipy.cluster.hierarchy import fcluster, linkage  # noqa: E402
 import canal_core  # noqa: E402
 from canal_core import metrics  # noqa: E402
 
-try:
-    from bench.common import summary_row, timed, write_section, write_summary
-except ImportError:  # run as a file: bench/ is sys.path[0]
-    from common import summary_row, timed, write_section, write_summary
+if __package__:
+    from bench.common import (  # python -m bench.quality
+        summary_row,
+        timed,
+        write_section,
+        write_summary,
+    )
+else:
+    from common import summary_row, timed, write_section, write_summary  # python bench/quality.py
 
 N = 200
 STILL = 0.001  # m (mm on LASA, whose unit is mm: 1e-3 of it is far below its steps)
