@@ -29,13 +29,19 @@ def test_rrd_export_verifies_and_holds_every_entity(
     # The removal is a recursive clear of the demo, not a silent omission.
     assert rows[("/demos/1", "Clear:is_recursive")] == 1
     assert rows[("/demos/2", "Clear:is_recursive")] == 0
-    for entity, component in [("/model/mesh", "Mesh3D:vertex_positions"),
-                              ("/model/mesh", "Mesh3D:vertex_normals"),
-                              ("/model/mesh", "Mesh3D:vertex_colors"),
-                              ("/model/directrix", "LineStrips3D:strips"),
-                              ("/model/rings", "LineStrips3D:strips"),
-                              ("/model/frames", "Arrows3D:vectors")]:
-        assert rows[(entity, component)] == logged["versions"], entity
+    for v in range(1, logged["versions"] + 1):  # every model version its own entity
+        for entity, component in [(f"/model/v{v}/mesh", "Mesh3D:vertex_positions"),
+                                  (f"/model/v{v}/mesh", "Mesh3D:vertex_normals"),
+                                  (f"/model/v{v}/mesh", "Mesh3D:vertex_colors"),
+                                  (f"/model/v{v}/mesh", "Mesh3D:albedo_factor"),
+                                  (f"/model/v{v}/directrix", "LineStrips3D:strips"),
+                                  (f"/model/v{v}/rings", "LineStrips3D:strips"),
+                                  (f"/model/v{v}/radius", "BarChart:values"),
+                                  (f"/frames/v{v}", "Arrows3D:vectors")]:
+            assert rows[(entity, component)] == 1, entity
+    # a new version clears the one before it from its time on
+    assert rows[("/model/v1", "Clear:is_recursive")] == 1
+    assert rows[(f"/model/v{logged['versions']}", "Clear:is_recursive")] == 0
     for v in (1, 2):
         assert rows[(f"/radius/v{v}", "Scalars:scalars")] == canal3.n_sections
     assert rows[("/reproductions/1/path", "LineStrips3D:strips")] == 1
@@ -72,7 +78,7 @@ def test_two_skills_are_two_recordings(recorder: Recorder, demos3: list[np.ndarr
     wipe = rrd_rows(recorder.export_rrd("wipe"), rerun_env)
     assert wipe[("/demos/7/path", "LineStrips3D:strips")] == 1
     assert wipe[("/demos/1/path", "LineStrips3D:strips")] == 0
-    assert wipe[("/model/mesh", "Mesh3D:vertex_positions")] == 0
+    assert wipe[("/model/v1/mesh", "Mesh3D:vertex_positions")] == 0
 
 
 def test_deleting_a_skill_deletes_its_recording(tmp_path: Path, demos3: list[np.ndarray],
@@ -84,7 +90,7 @@ def test_deleting_a_skill_deletes_its_recording(tmp_path: Path, demos3: list[np.
         assert (tmp_path / "rec" / "pour").is_dir()
         rec.skill_deleted("pour")
         rows = rrd_rows(rec.export_rrd("pour"), rerun_env)  # a new, empty recording
-        assert rows[("/model/mesh", "Mesh3D:vertex_positions")] == 0
+        assert rows[("/model/v1/mesh", "Mesh3D:vertex_positions")] == 0
         assert not (tmp_path / "rec" / "pour").exists()
     finally:
         rec.close()
@@ -124,7 +130,7 @@ def test_a_2d_skill_is_drawn_in_2d(recorder: Recorder, canal2: Any,
     recorder.reproduction("plane", 1, canal2.reproduce_detailed(demo[0]))
     rows = rrd_rows(recorder.export_rrd("plane"), rerun_env)
     assert rows[("/demos/1/path", "LineStrips2D:strips")] == 1
-    assert rows[("/model/directrix", "LineStrips2D:strips")] == 1
+    assert rows[("/model/v1/directrix", "LineStrips2D:strips")] == 1
     assert rows[("/reproductions/1/path", "LineStrips2D:strips")] == 1
     assert rows[("/demos/1/path", "LineStrips3D:strips")] == 0
     assert rows[("/", "ViewCoordinates:xyz")] == 0  # 3-D axes mean nothing in a 2-D view

@@ -6,12 +6,13 @@ Entities and timelines::
     demos/<id>/info         AnyValues          wall_time   demo_id, label, n_samples
     demos/<id>/position     Scalars            sample (+ demo_time when timestamps were given)
     demos/<id>              Clear(recursive)   wall_time   on removal
-    model/directrix         LineStrips3D       wall_time, model_version
-    model/mesh              Mesh3D             wall_time, model_version (normals, radius colours)
-    model/rings             LineStrips3D       wall_time, model_version
-    model/frames            Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
-    model/info              AnyValues          wall_time, model_version
-    model/radius            BarChart           wall_time, model_version (radius per section index)
+    model/v<k>/directrix    LineStrips3D       wall_time, model_version (model version k)
+    model/v<k>/mesh         Mesh3D             wall_time, model_version (normals, radius colours)
+    model/v<k>/rings        LineStrips3D       wall_time, model_version
+    model/v<k>/info         AnyValues          wall_time, model_version
+    model/v<k>/radius       BarChart           wall_time, model_version (radius per section index)
+    model/v<k-1>            Clear(recursive)   wall_time   when version k arrives
+    frames/v<k>             Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
     radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
     reproductions/<n>/path  LineStrips3D       wall_time, model_version (n-th reproduction)
     reproductions/<n>/start Points3D           wall_time, model_version
@@ -120,7 +121,7 @@ def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
     """
     # Entity filters match whole subtrees (``/**``), not ``*`` inside a path; the plots'
     # scalars and the info values under these trees are not drawn by a spatial view.
-    contents = ["+ /**", "- /model/frames", "- /model/radius", "- /radius/**"]
+    contents = ["+ /**", "- /frames/**", "- /radius/**"]
     if dim == 2:
         spatial: rrb.View = rrb.Spatial2DView(name="Canal", origin="/", contents=contents)
     else:
@@ -136,7 +137,7 @@ def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
             spatial,
             rrb.Vertical(
                 rrb.BarChartView(name="Radius per section (latest canal, section index)",
-                                 origin="/model/radius"),
+                                 origin="/model"),
                 rrb.Tabs(
                     rrb.TimeSeriesView(name="Reproductions: eta, inside",
                                        origin="/reproductions"),
@@ -277,28 +278,36 @@ class RerunSegment:
         self.rec.log(f"demos/{demo_id}", rr.Clear(recursive=True))
 
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
-        """Directrix, mesh, rings, frames and radius profile of one model version."""
+        """Directrix, mesh, rings, frames and radius profile of one model version, under its
+        own entity ``model/v<version>``; the previous version is cleared from this time on
+        (scrub back to see it, or toggle it in the viewer)."""
         self._at(t_ns, geo.version)
-        self.rec.log("model/directrix", self._strips([geo.directrix], colors=[_DIRECTRIX_COLOR]))
+        base = f"model/v{geo.version}"
+        if geo.version > 1:
+            self.rec.log(f"model/v{geo.version - 1}", rr.Clear(recursive=True))
+            self.rec.log(f"frames/v{geo.version - 1}", rr.Clear(recursive=True))
+        self.rec.log(f"{base}/directrix", self._strips([geo.directrix],
+                                                       colors=[_DIRECTRIX_COLOR]))
         if self.dim == 2:
             # A 2-D canal is a strip: its two boundaries (vertices 2i and 2i+1 per section).
             strip = geo.vertices.reshape(-1, 2, 3)
-            self.rec.log("model/mesh", self._strips([strip[:, 0], strip[:, 1]],
-                                                    colors=[_RING_COLOR]))
+            self.rec.log(f"{base}/mesh", self._strips([strip[:, 0], strip[:, 1]],
+                                                      colors=[_RING_COLOR]))
         else:
-            self.rec.log("model/mesh", rr.Mesh3D(
+            self.rec.log(f"{base}/mesh", rr.Mesh3D(
                 vertex_positions=geo.vertices, triangle_indices=geo.faces,
                 vertex_normals=geo.vertex_normals,
                 vertex_colors=geo.vertex_colors.astype(np.float32),
                 albedo_factor=[255, 255, 255, round(255 * CANAL_ALPHA)]))
-        self.rec.log("model/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
+        self.rec.log(f"{base}/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
         n_axes = geo.frame_vectors.shape[1]
-        self.rec.log("model/frames", self._arrows(
+        self.rec.log(f"frames/v{geo.version}", self._arrows(
             np.repeat(geo.frame_origins, n_axes, axis=0), geo.frame_vectors.reshape(-1, 3),
             np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
-        self.rec.log("model/info", rr.AnyValues(version=geo.version, n_sections=geo.n_sections))
-        self.rec.log("model/radius", rr.BarChart(geo.radii, color=_RADIUS_COLOR,
-                                                 abscissa=np.arange(geo.n_sections)))
+        self.rec.log(f"{base}/info", rr.AnyValues(version=geo.version,
+                                                  n_sections=geo.n_sections))
+        self.rec.log(f"{base}/radius", rr.BarChart(geo.radii, color=_RADIUS_COLOR,
+                                                   abscissa=np.arange(geo.n_sections)))
         radius = f"radius/v{geo.version}"
         self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
         self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
