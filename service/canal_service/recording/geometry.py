@@ -24,6 +24,9 @@ _RAMP = np.array([
     [0.369, 0.789, 0.383, 1.0],
     [0.993, 0.906, 0.144, 1.0],
 ])
+#: How opaque the canal's surface is drawn in both logs: see-through, so what lies inside it
+#: (demonstrations, directrix, reproductions, live poses) stays visible.
+CANAL_ALPHA = 0.3
 #: About this many rings and frames are drawn along the canal, whatever its sample count.
 TARGET_MARKS = 20
 MESH_ANGLES = 32

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from ..adapters.mcap_writer import pair_writer
 from . import foxglove as fx
 from .events import LiveRows, ReproductionView
-from .geometry import ModelGeometry, ObstacleShape
+from .geometry import CANAL_ALPHA, ModelGeometry, ObstacleShape
 
 CHUNK_SIZE = 1024 * 1024
 LIBRARY = "canal-recorder"
@@ -126,9 +126,11 @@ class McapSegment:
         axis_colors = np.repeat(np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1)), 2, axis=0)
         # Rings as one LINE_LIST: consecutive ring points pair up into segments.
         ring_segments = np.stack([geo.rings[:, :-1], geo.rings[:, 1:]], axis=2).reshape(-1, 3)
+        see_through = geo.vertex_colors.copy()
+        see_through[:, 3] = CANAL_ALPHA
         entities = [
             fx.entity(t_ns, "canal/mesh", metadata=meta, triangle_lists=[
-                fx.triangles(geo.vertices, geo.faces, geo.vertex_colors)]),
+                fx.triangles(geo.vertices, geo.faces, see_through)]),
             fx.entity(t_ns, "canal/directrix", metadata=meta,
                       lines=[fx.line(geo.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
             fx.entity(t_ns, "canal/rings", metadata=meta, lines=[

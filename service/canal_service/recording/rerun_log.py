@@ -50,7 +50,7 @@ import rerun.blueprint as rrb
 
 from ..adapters.rerun_chunks import send_live
 from .events import LiveRows, ReproductionView
-from .geometry import FloatArray, ModelGeometry, ObstacleShape
+from .geometry import CANAL_ALPHA, FloatArray, ModelGeometry, ObstacleShape
 
 APP_ID = "canal"
 _DEMO_COLOR = (90, 140, 240, 255)
@@ -63,9 +63,6 @@ _RADIUS_COLOR = (200, 160, 60, 255)
 _OBSTACLE_COLOR = (200, 40, 40, 160)
 
 
-#: The canal's surface is drawn see-through, so what lies inside it (demonstrations,
-#: directrix, reproductions, live poses) stays visible; its rings mark the sections.
-CANAL_ALPHA = 0.3
 #: Where the eye sits, as a direction from the canal's centre in (right, forward, up) terms:
 #: in front, to the side and above, so a curve in a horizontal plane is seen in full.
 _EYE_DIRECTION = np.array([0.45, -1.0, 0.75])
