@@ -27,6 +27,7 @@ import zenoh
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
+from canal_protocol.credentials import insert_credentials
 
 _ENC_JSON = zenoh.Encoding.APPLICATION_JSON
 _ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
@@ -41,9 +42,12 @@ class LiveError(RuntimeError):
 
 
 def client_config(endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
-                  zenoh_config: str | Path | None = None) -> zenoh.Config:
+                  zenoh_config: str | Path | None = None,
+                  token: str | None = None) -> zenoh.Config:
     """A peer config connecting to ``endpoint`` with multicast scouting off, or the user's
-    Zenoh JSON5 file unchanged."""
+    Zenoh JSON5 file unchanged. ``token``: the service's bearer token, which a service
+    started with ``--token`` requires on its live path too (as Zenoh credentials,
+    :mod:`canal_protocol.credentials`; not used with a config file, which says its own)."""
     if zenoh_config is not None:
         return zenoh.Config.from_file(str(zenoh_config))
     endpoints = [endpoint] if isinstance(endpoint, str) else list(endpoint)
@@ -52,7 +56,16 @@ def client_config(endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", "[]")
     config.insert_json5("connect/endpoints", orjson.dumps(endpoints).decode())
+    if token:
+        insert_credentials(config, token)
     return config
+
+
+def _matching(publisher: Any) -> bool:
+    """Whether a subscriber matches ``publisher``. zenoh-python answers a MatchingStatus
+    object, always true itself, whose ``matching`` says (its stub says bool)."""
+    status = publisher.matching_status
+    return bool(getattr(status, "matching", status))
 
 
 def _reply_body(reply: Any) -> tuple[bool, Any]:
@@ -99,6 +112,8 @@ class PoseStreamer:
         Use this session instead of opening one (it is not closed by :meth:`close`).
     connect_timeout : float
         How long to wait for the bridge's pose subscriber to be reachable.
+    token : str, optional
+        The service's bearer token, when it has one (see :func:`client_config`).
     """
 
     def __init__(self, skill: str, robot: str = "robot", *,
@@ -106,14 +121,16 @@ class PoseStreamer:
                  zenoh_config: str | Path | None = None, prefix: str = "canal",
                  encoding: str = "binary",
                  on_target: Callable[[wire.Target], None] | None = None,
-                 session: Any = None, connect_timeout: float = 5.0) -> None:
+                 session: Any = None, connect_timeout: float = 5.0,
+                 token: str | None = None) -> None:
         if encoding not in ("binary", "json"):
             raise ValueError(f"expected encoding 'binary' or 'json', got {encoding!r}")
         self.keys = keyspace.keys(skill, robot, prefix)
         self.encoding = encoding
         self.on_target = on_target
         self._own_session = session is None
-        self.session = zenoh.open(client_config(endpoint, zenoh_config)) if session is None \
+        self.session = zenoh.open(client_config(endpoint, zenoh_config, token)) \
+            if session is None \
             else session
         self._cond = threading.Condition()
         self._latest: wire.Target | None = None
@@ -129,7 +146,7 @@ class PoseStreamer:
                 self.keys.pose, encoding=_ENC_JSON if encoding == "json" else _ENC_BINARY,
                 express=False, congestion_control=zenoh.CongestionControl.BLOCK)
             deadline = time.monotonic() + connect_timeout
-            while not self._pub.matching_status:
+            while not _matching(self._pub):
                 if time.monotonic() > deadline:
                     raise LiveError(f"no Canal bridge subscribes to {self.keys.pose} "
                                     f"(waited {connect_timeout} s)")

@@ -131,7 +131,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
             endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
             zenoh_config: str | Path | None = None, prefix: str = "canal",
             encoding: str = "binary", seed: int | None = None,
-            session: Any = None) -> SimResult:
+            session: Any = None, token: str | None = None) -> SimResult:
     """Run one simulated robot on ``skill`` until Canal says done or ``timeout_s`` passes.
 
     ``gain`` defaults to ``0.5 * rate_hz`` (1/s) for the first-order lag and to
@@ -147,7 +147,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
     rng = np.random.default_rng(seed)
     pending = [(when, np.asarray(offset, dtype=np.float64)) for when, offset in pushes]
     with PoseStreamer(skill, robot, endpoint=endpoint, zenoh_config=zenoh_config,
-                      prefix=prefix, encoding=encoding, session=session) as ps:
+                      prefix=prefix, encoding=encoding, session=session, token=token) as ps:
         model = ps.model() if start is None else None
         x = random_interior_start(model, rng) if model is not None else np.asarray(
             start, dtype=np.float64)

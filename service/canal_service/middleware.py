@@ -164,11 +164,17 @@ class BearerAuth:
         self.open_paths = open_paths
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["path"] in self.open_paths:
+        if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         given = next((v for k, v in scope["headers"] if k == b"authorization"), b"")
-        if not hmac.compare_digest(given, self.expected):
+        authorized = hmac.compare_digest(given, self.expected)
+        if scope["path"] in self.open_paths:
+            # an open path answers everyone, and says less to who has no token
+            scope.setdefault("state", {})["authorized"] = authorized
+            await self.app(scope, receive, send)
+            return
+        if not authorized:
             await _send_json(
                 send, 401,
                 error_body("unauthorized", "missing or wrong bearer token", "Authorization"),

@@ -146,7 +146,8 @@ def sim(
             scene = c.set_scene(skill, obstacles)
         out.print(f"scene of {escape(skill)} set (version {scene.version}, "
                   f"{len(scene.obstacles)} obstacles)")
-    kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed}
+    kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed,
+                              "token": opts.token}
     for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
                        ("lag", lag.value if lag else None), ("gain", gain),
                        ("timeout_s", timeout),

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import orjson
 import zenoh
 
+from canal_protocol.credentials import insert_credentials, users_file_text
 from canal_protocol.keys import shard_of
 
 #: From this many shards on, ``shard_subscribe="auto"`` subscribes by key (see BridgeOptions).
@@ -39,6 +41,12 @@ class BridgeOptions:
     notice arrives; 0: a model is loaded at its skill's first pose. ``preload_keep_s``: how
     long such a model stays after it was loaded or its skill's last stream went away (the
     housekeeper re-checks its version every ``refresh_s`` meanwhile).
+
+    ``token``: the service's bearer token. Unless ``zenoh_open``, it closes the live path
+    too: the session built here admits only Zenoh sessions that present the token's
+    credentials (:mod:`canal_protocol.credentials`; the users file is written to
+    ``users_file``), and a ``config_file`` that leaves the path open is refused
+    (:class:`LivePathOpenError`).
     """
 
     prefix: str = "canal"
@@ -59,6 +67,14 @@ class BridgeOptions:
     record_interval_s: float = 0.1
     preload_max: int = 64
     preload_keep_s: float = 600.0
+    token: str | None = field(default=None, repr=False)
+    zenoh_open: bool = False
+    users_file: Path | None = None
+
+    @property
+    def closed_by_token(self) -> bool:
+        """Whether the token closes the live path (a token, and not ``zenoh_open``)."""
+        return bool(self.token) and not self.zenoh_open
 
     def subscribes_by_key(self) -> bool:
         """Whether this bridge subscribes only to its own robots' pose keys."""
@@ -83,22 +99,60 @@ class BridgeOptions:
             preload_keep_s=settings.zenoh_preload_keep_s,
             record_hz=float(settings.recordings_live_hz) if settings.recordings_enabled
             else None,
+            token=None if settings.token is None else settings.token.get_secret_value(),
+            zenoh_open=settings.zenoh_open,
+            users_file=Path(settings.data_dir) / USERS_FILE,
         )
         values.update(overrides)
         return cls(**values)
 
 
+class LivePathOpenError(ValueError):
+    """The service has a token but its Zenoh config file leaves the live path open."""
+
+
 def zenoh_config(options: BridgeOptions) -> zenoh.Config:
     """The session config: the user's file unchanged, else peer mode on the given endpoints
-    with multicast scouting off."""
+    with multicast scouting off, closed by the token's credentials when there is one (see
+    :class:`BridgeOptions`)."""
     if options.config_file is not None:
-        return zenoh.Config.from_file(str(options.config_file))
+        config = zenoh.Config.from_file(str(options.config_file))
+        if options.closed_by_token and access_of(config)["access"] == "open":
+            raise LivePathOpenError(
+                f"the service has a token but {options.config_file} leaves the live path open "
+                "to anyone who reaches its port (no user/password, no mutual TLS): add "
+                "authentication to it (docker/zenoh/canal-secure.json5), or pass --zenoh-open "
+                "(CANAL_ZENOH_OPEN=true) to leave it open on purpose")
+        return config
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", orjson.dumps(list(options.listen)).decode())
     config.insert_json5("connect/endpoints", orjson.dumps(list(options.connect)).decode())
+    if options.closed_by_token:
+        assert options.token is not None and options.users_file is not None
+        insert_credentials(config, options.token,
+                           str(written_users_file(options.users_file, options.token)))
     return config
+
+
+#: The users file a token-closed live path admits (in the data folder, mode 0600).
+USERS_FILE = "zenoh-users.txt"
+
+
+def written_users_file(path: Path, token: str) -> Path:
+    """``path`` holding the token's Zenoh users dictionary, readable by this user only
+    (written whole under a temporary name, then renamed: bridges start side by side)."""
+    text = users_file_text(token).encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.write(fd, text)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+    return path
 
 
 def access_of(config: zenoh.Config) -> dict[str, Any]:
@@ -133,4 +187,5 @@ def per_mode(endpoints: Any, mode: Any) -> list[str]:
     return [str(e) for e in endpoints] if isinstance(endpoints, list) else []
 
 
-__all__ = ["BridgeOptions", "access_of", "config_value", "per_mode", "shard_of", "zenoh_config"]
+__all__ = ["USERS_FILE", "BridgeOptions", "LivePathOpenError", "access_of", "config_value",
+           "per_mode", "shard_of", "written_users_file", "zenoh_config"]

@@ -106,8 +106,13 @@ class BridgeProcesses:
         else:
             listen = [f"tcp/127.0.0.1:{_free_loopback_port()}"]
             connect = [first_endpoint, *s.zenoh_connect]
-        return {"CANAL_ZENOH_LISTEN": orjson.dumps(listen).decode(),
-                "CANAL_ZENOH_CONNECT": orjson.dumps(connect).decode()}
+        env = {"CANAL_ZENOH_LISTEN": orjson.dumps(listen).decode(),
+               "CANAL_ZENOH_CONNECT": orjson.dumps(connect).decode(),
+               "CANAL_ZENOH_OPEN": "true" if s.zenoh_open else "false"}
+        # the token closes the bridges' live path too; in the environment, not on the
+        # command line that every user of the machine can list
+        env["CANAL_TOKEN"] = "" if s.token is None else s.token.get_secret_value()
+        return env
 
     def start(self) -> bool:
         """Start the bridges and wait until each is ready; False (state "down") if one fails."""

@@ -109,6 +109,12 @@ class Settings(BaseSettings):
     zenoh_config: Annotated[Path | None, Flag(metavar="FILE")] = Field(
         None, description="A standard Zenoh JSON5 config file, used unchanged (TLS, ACL, routers)."
     )
+    zenoh_open: Annotated[bool, Flag("--zenoh-open")] = Field(
+        False, description="With a token: leave the live path open to anyone who reaches its "
+        "port, on purpose. Without this, a token closes the live path too (Zenoh "
+        "user/password derived from the token; robots pass the token), and a zenoh_config "
+        "that leaves it open keeps the bridge from starting."
+    )
     zenoh_prefix: str = Field("canal", min_length=1, description="First chunk of every key.")
     zenoh_queue_capacity: int = Field(4096, ge=16, description="Pose channel capacity (samples).")
     zenoh_coalesce_backlog: int = Field(

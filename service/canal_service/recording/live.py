@@ -35,6 +35,7 @@ import zenoh
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
+from canal_protocol.credentials import insert_credentials
 
 from .. import record_batches
 from .events import LiveRows, live_rows
@@ -56,12 +57,17 @@ class LiveOptions:
     config_file: Path | None = None
     capacity: int = 4096  # batches waiting in the channel
     interval_s: float = 0.2  # the bridges send every 0.1 s; the writer flushes every 1 s
+    #: the service's token when it closes the live path (the session presents it)
+    token: str | None = field(default=None, repr=False)
 
     @classmethod
     def from_settings(cls, settings: Any) -> LiveOptions:
         """The bridge's Zenoh settings (``CANAL_ZENOH_*``)."""
+        token = None if settings.token is None or settings.zenoh_open \
+            else settings.token.get_secret_value()
         return cls(prefix=settings.zenoh_prefix, listen=tuple(settings.zenoh_listen),
-                   connect=tuple(settings.zenoh_connect), config_file=settings.zenoh_config)
+                   connect=tuple(settings.zenoh_connect), config_file=settings.zenoh_config,
+                   token=token)
 
 
 def _local(endpoint: str) -> str:
@@ -97,6 +103,8 @@ def zenoh_config(options: LiveOptions) -> zenoh.Config:
         config.insert_json5("listen/endpoints", "[]")
         endpoints = list(dict.fromkeys([*options.connect, *(_local(e) for e in options.listen)]))
         config.insert_json5("connect/endpoints", orjson.dumps(endpoints).decode())
+        if options.token:  # the bridge admits only the token's credentials
+            insert_credentials(config, options.token)
     # The bridge may start after us: retry soon and often rather than Zenoh's 1 s -> 4 s.
     config.insert_json5("connect/retry", '{"period_init_ms": 100, "period_max_ms": 1000, '
                                          '"period_increase_factor": 2}')

@@ -1,0 +1,45 @@
+"""The live path's credentials when the service has a bearer token: one key for every door.
+
+With ``--token``, the service closes its Zenoh endpoints with Zenoh's user/password
+authentication: the user is :data:`LIVE_USER` and the password is derived from the token
+(:func:`live_password`), so a robot that holds the token reaches the live path, and a
+session without it is refused at connection (it can neither read a model, capture a demo,
+nor get targets). The password is derived, not the token itself, so the users file handed to
+Zenoh never holds the REST token.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+
+import orjson
+
+#: The Zenoh user name of every session that holds the service's token.
+LIVE_USER = "canal"
+_LABEL = b"canal live path usrpwd v1"
+
+
+def live_password(token: str) -> str:
+    """The Zenoh password that goes with the bearer ``token``: HMAC-SHA256 keyed by the token
+    over a fixed label, hex."""
+    return hmac.new(token.encode(), _LABEL, hashlib.sha256).hexdigest()
+
+
+def users_file_text(token: str) -> str:
+    """The Zenoh users dictionary (``user:password`` lines) that admits the token's holder."""
+    return f"{LIVE_USER}:{live_password(token)}\n"
+
+
+def insert_credentials(config: object, token: str, users_file: str | None = None) -> None:
+    """Make a ``zenoh.Config`` present the token's credentials when it connects and, with
+    ``users_file`` (a file holding :func:`users_file_text`), admit only them when it is
+    connected to."""
+    insert = config.insert_json5  # type: ignore[attr-defined]
+    insert("transport/auth/usrpwd/user", orjson.dumps(LIVE_USER).decode())
+    insert("transport/auth/usrpwd/password", orjson.dumps(live_password(token)).decode())
+    if users_file is not None:
+        insert("transport/auth/usrpwd/dictionary_file", orjson.dumps(users_file).decode())
+
+
+__all__ = ["LIVE_USER", "insert_credentials", "live_password", "users_file_text"]
