@@ -9,6 +9,7 @@ from typing import Any
 from .messages import (
     KIND_POSE,
     KIND_TARGET,
+    MAX_COORDINATE,
     MAX_DIM,
     POSE_ORIENTATION,
     POSE_RESTART,
@@ -27,6 +28,7 @@ from .messages import (
     Target,
     WireError,
     all_finite,
+    check_pose_numbers,
     plain_pose,
 )
 
@@ -110,8 +112,9 @@ def decode_pose(data: bytes) -> Pose:
     # a finite sum means finite numbers; one that overflows takes the check one by one
     if not _isfinite(sum(values[5:])) and not all_finite(values[5:]):
         raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
-    if not flags:
+    if not flags and -MAX_COORDINATE <= min(position) and max(position) <= MAX_COORDINATE:
         return plain_pose(seq, position)
+    check_pose_numbers(position, orientation, t)
     return Pose(seq, position, orientation, t, bool(flags & POSE_RESTART))  # type: ignore[arg-type]
 
 

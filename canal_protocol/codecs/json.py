@@ -8,6 +8,7 @@ from typing import Any
 import orjson
 
 from .messages import (
+    MAX_COORDINATE,
     MAX_DIM,
     SEQ_MAX,
     VERSION,
@@ -15,6 +16,7 @@ from .messages import (
     Target,
     WireError,
     all_finite,
+    check_pose_numbers,
     plain_pose,
 )
 
@@ -64,7 +66,9 @@ def decode_pose_json(data: bytes) -> Pose:
                 if type(v) is not float:
                     break
             else:
-                if _isfinite(sum(position)):
+                # a finite sum: finite coordinates, then their magnitude
+                if _isfinite(sum(position)) and -MAX_COORDINATE <= min(position) \
+                        and max(position) <= MAX_COORDINATE:
                     return plain_pose(seq, tuple(position))
     return _checked_pose_json(body)
 
@@ -92,8 +96,13 @@ def _checked_pose_json(body: Any) -> Pose:
     if not all_finite(position) or (orientation is not None and not all_finite(orientation)) or (
             t is not None and not _isfinite(t)):
         raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
-    return Pose(seq, position, orientation, None if t is None else float(t),
-                bool(body.get("restart", False)))
+    check_pose_numbers(position, orientation, t)
+    restart = body.get("restart")
+    if restart is None:  # absent or null, as every optional field
+        restart = False
+    elif type(restart) is not bool:
+        raise WireError("bad_payload", f"expected 'restart' as true or false, got {restart!r}")
+    return Pose(seq, position, orientation, None if t is None else float(t), restart)
 
 
 def target_json(answer: Target) -> bytes:

@@ -106,6 +106,34 @@ class Target:
 
 _isfinite = math.isfinite
 
+#: Largest absolute coordinate of a live pose: the canal computes with squares and products
+#: of coordinates, which must stay far from float64 overflow (canal_core.preprocess's bound
+#: on every demonstration; a test keeps the two equal).
+MAX_COORDINATE = 1e15
+#: Largest absolute pose time, seconds (~3,000 years: epoch seconds fit, nanoseconds not).
+MAX_TIME = 1e11
+#: Largest | |q| - 1 | of a pose's orientation (canal_core.validation's, what REST accepts).
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+def check_pose_numbers(position: Any, orientation: Any, t: Any) -> None:
+    """WireError (``bad_payload``, naming the field, what was expected and what came) unless
+    every coordinate of ``position`` is within :data:`MAX_COORDINATE`, ``orientation`` (or
+    None) is a unit quaternion within :data:`QUATERNION_NORM_TOLERANCE` and ``t`` (or None)
+    within :data:`MAX_TIME`. The numbers are already known to be finite."""
+    if not (-MAX_COORDINATE <= min(position) and max(position) <= MAX_COORDINATE):
+        i = next(i for i, v in enumerate(position) if not abs(v) <= MAX_COORDINATE)
+        raise WireError("bad_payload", f"expected position coordinates within "
+                        f"+-{MAX_COORDINATE:g}, got {position[i]:.6g} at position[{i}]")
+    if orientation is not None:
+        norm = math.hypot(*orientation)
+        if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:
+            raise WireError("bad_payload", "expected orientation as a unit quaternion [qx, qy, "
+                            f"qz, qw] (norm 1 +- {QUATERNION_NORM_TOLERANCE:g}), got norm "
+                            f"{norm:.6g}")
+    if t is not None and not abs(t) <= MAX_TIME:
+        raise WireError("bad_payload", f"expected t within +-{MAX_TIME:g} s, got {t:.6g}")
+
 
 def all_finite(values: Any) -> bool:
     """Whether every number of ``values`` is finite."""

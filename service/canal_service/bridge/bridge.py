@@ -518,6 +518,10 @@ class Bridge:
             except (ValueError, orjson.JSONDecodeError) as exc:
                 _reply_error(query, "bad_payload", f"expected a JSON object: {exc}")
                 return
+            refused = demo_body_error(body, parts[3])
+            if refused is not None:
+                _reply_error(query, "bad_payload", refused[1], refused[0])
+                return
             entry = self.models.entry(skill)
             if entry.status == "unknown_skill":
                 _reply_error(query, "not_found", entry.message or "unknown skill", "skill")
@@ -594,6 +598,31 @@ class Bridge:
                 self.models.refresh(live_skills)
             except Exception:  # one bad pass must not end every later refresh
                 log.exception("bridge housekeeping failed")
+
+
+#: The fields of a demo/start and a demo/stop body, with the check each value must pass
+#: (absent or null: the default) and what it is expected to be.
+_DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
+    "start": {
+        "from_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
+        "label": (lambda v: type(v) is str and len(v) <= 256 and "\x00" not in v,
+                  "a text of at most 256 characters"),
+    },
+    "stop": {
+        "last_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
+    },
+}
+
+
+def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None:
+    """(field, message) of the first field of a demo/``action`` body whose value is not what
+    it must be, else None. Fields the action does not know are left alone."""
+    for name, (valid, expected) in _DEMO_FIELDS[action].items():
+        value = body.get(name)
+        if value is not None and not valid(value):
+            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
+            return name, f"expected {name} as {expected}, got {shown}"
+    return None
 
 
 def _reply_error(query: Any, key: str, message: str, field: str | None = None) -> None:
