@@ -7,7 +7,7 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from .messages import Pose, WireError, all_finite, check_pose_numbers
+from .messages import Pose, WireError, all_finite
 
 _CDR_HEAD = {0x00: ">", 0x01: "<"}  # encapsulation id (second byte): CDR_BE, CDR_LE
 _CDR_MAX_FRAME = 4096
@@ -48,7 +48,6 @@ def decode_pose_cdr(data: bytes, seq: int = 0) -> tuple[Pose, RosStamp]:
                         f"got {len(body) - (at + 56)} bytes too many")
     if not all_finite(values):
         raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
-    check_pose_numbers(values[:3], values[3:], None)
     pose = Pose(seq, values[:3], values[3:], sec + nanosec * 1e-9)  # type: ignore[arg-type]
     return pose, RosStamp(sec, nanosec, frame_id, order == "<")
 

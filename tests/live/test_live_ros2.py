@@ -137,9 +137,15 @@ def test_cdr_errors_go_to_the_status_key_as_json(live):
             bad.put(b"\x00\x01\x00\x00" + b"\xff" * 8)  # frame_id length beyond the data
             nan = pose_stamped([float("nan"), 0.2, 0.3])
             bad.put(nan)
-            statuses = bad.wait("statuses", 3)
+            # numbers out of range, as in every encoding: named in the message
+            bad.put(pose_stamped([0.1, 0.2, 0.3], (0.0, 0.0, 0.0, 0.0)))
+            bad.put(pose_stamped([1e308, 0.2, 0.3]))
+            statuses = bad.wait("statuses", 5)
             assert [s["status"] for s in statuses] == ["bad_payload", "bad_payload",
-                                                       "non_finite"]
+                                                       "non_finite", "bad_payload",
+                                                       "bad_payload"]
+            assert "orientation" in statuses[3]["message"]
+            assert "position" in statuses[4]["message"]
             assert unknown.targets == [] and bad.targets == []
         finally:
             unknown.close()

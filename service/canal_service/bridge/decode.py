@@ -8,6 +8,7 @@ import time
 from typing import Any
 
 from canal_protocol import wire
+from canal_protocol.codecs.messages import check_pose_numbers
 
 from .answers import Answers
 from .models import ModelEntry
@@ -99,6 +100,9 @@ class Decoder(Answers):
                 pose, ros = wire.decode_pose_as(fmt, data, st.cdr_seq)
                 if ros is not None:
                     st.cdr_seq += 1
+                    # a PoseStamped's numbers, checked as the other codecs check theirs (the
+                    # codec itself also reads uploads, whose checks are the REST API's)
+                    check_pose_numbers(pose.position, pose.orientation, None)
         except wire.WireError as exc:
             if answer:
                 self.error(st, None, exc.key, exc.message, fmt)
