@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import zenoh
 from canal_client.live import PoseStreamer
+from live_helpers import wait_until
 
 from canal_protocol import wire
 
@@ -84,6 +85,8 @@ def test_answers_use_the_pose_encoding(live):
             (str(s.encoding), s.payload.to_bytes())))
         ps.send_raw(b'{"seq": 5}', json=True)
         _wait_status(ps)
+        # the two subscribers hear the answer on Zenoh's threads in no set order
+        wait_until(lambda: got, 2.0)
         sub.undeclare()
     assert got, "no answer on the target key"
     encoding, body = got[0]
