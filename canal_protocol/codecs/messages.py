@@ -132,7 +132,8 @@ def check_pose_numbers(position: Any, orientation: Any, t: Any) -> None:
                             f"qz, qw] (norm 1 +- {QUATERNION_NORM_TOLERANCE:g}), got norm "
                             f"{norm:.6g}")
     if t is not None and not abs(t) <= MAX_TIME:
-        raise WireError("bad_payload", f"expected t within +-{MAX_TIME:g} s, got {t:.6g}")
+        raise WireError("bad_payload", f"expected t in seconds, within +-{MAX_TIME:g}, got "
+                        f"{t:.6g} (a live pose's t is in seconds, not nanoseconds)")
 
 
 def all_finite(values: Any) -> bool:

@@ -119,3 +119,12 @@ def test_an_open_config_file_with_a_token_keeps_the_bridge_down(tmp_path: Path) 
         bridge = client.get("/healthz").json()["bridge"]
         assert bridge["status"] == "down"
         assert "--zenoh-open" in bridge["detail"] and "open" in bridge["detail"]
+
+
+def test_the_startup_line_says_how_the_live_path_is_closed() -> None:
+    from canal_service.core.cli import endpoints_line, settings_from_args
+
+    assert endpoints_line(settings_from_args(["--token", "t"])).endswith(
+        "live path closed by the token")
+    assert endpoints_line(settings_from_args(["--token", "t", "--zenoh-open"])).endswith(
+        "live path OPEN to anyone (--zenoh-open)")

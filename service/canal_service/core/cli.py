@@ -161,4 +161,7 @@ def endpoints_line(settings: Settings) -> str:
         if settings.zenoh_connect:
             where += f"; connects to {', '.join(settings.zenoh_connect)}"
         zenoh = f"Zenoh {where} (prefix {settings.zenoh_prefix})"
+    if settings.token is not None and settings.zenoh_enabled:
+        zenoh += ", live path OPEN to anyone (--zenoh-open)" if settings.zenoh_open else \
+            ", live path closed by the token"
     return f"canal service: {rest}, {zenoh}"
