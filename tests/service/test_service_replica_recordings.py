@@ -34,8 +34,11 @@ LIFT = 5.0  # the re-created skill's demos: the same arcs, 5 up in z
 def two_replicas(postgres_server: PostgresServer, tmp_path: Path
                  ) -> Iterator[tuple[httpx.Client, httpx.Client]]:
     url = postgres_server.new_database()
-    one = Settings(data_dir=tmp_path / "one", database_url=url, zenoh_enabled=False)
-    two = Settings(data_dir=tmp_path / "two", database_url=url, zenoh_enabled=False)
+    # the database keeps a skill's newest 2 reproductions for the recordings
+    one = Settings(data_dir=tmp_path / "one", database_url=url, zenoh_enabled=False,
+                   recordings_reproductions_kept=2)
+    two = Settings(data_dir=tmp_path / "two", database_url=url, zenoh_enabled=False,
+                   recordings_reproductions_kept=2)
     with LiveServer(create_app(one)) as a, LiveServer(create_app(two)) as b, \
             httpx.Client(base_url=a.url, timeout=WAIT_S) as http_a, \
             httpx.Client(base_url=b.url, timeout=WAIT_S) as http_b:
@@ -84,8 +87,11 @@ def mcap_content(http: httpx.Client, skill: str) -> dict[str, Any]:
                     meta = {kv["key"]: kv["value"] for kv in entity["metadata"]}
                     end_z = float(entity["lines"][0]["points"][-1]["z"])
                     models[int(meta["version"])] = (message.log_time, round(end_z, 6))
-        elif channel.topic == "/canal/reproduction_result":
-            reproductions[int(data["number"])] = message.log_time
+        elif channel.topic == "/canal/reproductions":
+            for entity in data["entities"]:
+                reproductions[int(entity["id"].split("/")[1])] = message.log_time
+            for deletion in data.get("deletions", []):
+                reproductions.pop(int(deletion["id"].split("/")[1]), None)
     return {"demos": demos, "models": models, "reproductions": reproductions}
 
 
@@ -159,13 +165,13 @@ def test_every_replica_answers_the_same_recording(
     assert r.headers["canal-recording-per-replica"] == "live"
     assert set(first["demos"]) == set(ids[1:])
     assert set(first["models"]) == {1, 2}
-    assert set(first["reproductions"]) == {1, 2, 3}
+    assert set(first["reproductions"]) == {2, 3}  # the newest 2: the first one is cleared
     # the same things at the same log times (the database's), whichever replica served them
     assert first == second
     assert rrd_entities(one, "pour", tmp_path) >= {f"demos/{i}" for i in ids[1:]} | {
-        f"reproductions/{n}" for n in (1, 2, 3)}
-    # the demo deleted before replica two first wrote the skill is in replica one's history
-    # only (logged, then cleared); everything the database holds is in both
-    deleted = {f"demos/{ids[0]}"}
+        f"reproductions/{n}" for n in (2, 3)}
+    # the demo and the reproduction deleted before replica two first wrote the skill are in
+    # replica one's history only (logged, then cleared); what the database holds is in both
+    deleted = {f"demos/{ids[0]}", "reproductions/1"}
     assert (rrd_entities(one, "pour", tmp_path) - deleted
             == rrd_entities(two, "pour", tmp_path) - deleted)

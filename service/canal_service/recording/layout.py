@@ -90,7 +90,8 @@ class SkillDir:
     @property
     def ledger_path(self) -> Path:
         """Lines ``d <id>`` (demo logged), ``x <id>`` (demo removed), ``m <version>``,
-        ``p <n>`` (n-th reproduction), appended only once their data is flushed."""
+        ``p <n>`` (n-th reproduction), ``y <n>`` (reproduction n cleared, no longer kept),
+        appended only once their data is flushed."""
         return self.path / "ledger"
 
     def ledger(self) -> Ledger:
@@ -117,6 +118,8 @@ class SkillDir:
             elif kind == "p":
                 repro = max(repro, n)
                 numbers.add(n)
+            elif kind == "y":
+                numbers.discard(n)
         return Ledger(demos, models, repro, numbers)
 
     @property

@@ -116,6 +116,11 @@ class McapSegment:
         self._write("/canal/demos", "foxglove.SceneUpdate", t_ns,
                     fx.scene_update(deletions=[(t_ns, f"demo/{demo_id}")]))
 
+    def reproduction_removed(self, t_ns: int, number: int) -> None:
+        """Delete the reproduction/<n> entity (no longer kept)."""
+        self._write("/canal/reproductions", "foxglove.SceneUpdate", t_ns,
+                    fx.scene_update(deletions=[(t_ns, f"reproduction/{number}")]))
+
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Mesh, directrix, rings and frames of one model version (replacing the previous)."""
         meta = {"version": geo.version, "n_sections": geo.n_sections}

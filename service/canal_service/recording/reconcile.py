@@ -36,8 +36,8 @@ class Reconciler(SegmentWriter):
     def rebuild(self, skill: str, timeout_s: float | None = None) -> dict[str, Any]:
         """Regenerate the skill's recording from the database; what was logged.
 
-        Live samples and reproductions are not in the database: a rebuilt recording holds
-        the demonstrations (deleted ones gone) and every model version.
+        Live samples are not in the database: a rebuilt recording holds the demonstrations
+        (deleted ones gone), every model version and the reproductions the database keeps.
         """
         if not self.enabled or self._closed:
             raise RuntimeError("recording is disabled")
@@ -112,8 +112,16 @@ class Reconciler(SegmentWriter):
         numbers = sorted(inventory.reproductions - logged_numbers)
         for p in self.source.reproductions(skill, numbers) if numbers else []:
             self._log(ReproductionMade(p.t_ns or now, skill, p.version, p, p.number))
+        # No longer kept (the database keeps the newest recordings_reproductions_kept):
+        # cleared, as every replica that logged them does, so the recordings agree.
+        for number in sorted(logged_numbers - inventory.reproductions):
+            self._clear_reproduction(skill, now, number)
         return {"demos": len(missing), "models": len(versions), "removed": len(stale),
                 "reproductions": len(numbers)}
+
+    def _clear_reproduction(self, skill: str, t_ns: int, number: int) -> None:
+        self._write(skill, t_ns, lambda r: r.reproduction_removed(t_ns, number),
+                    lambda m: m.reproduction_removed(t_ns, number), ledger=f"y {number}")
 
     def _sync(self, skill: str) -> None:
         """Bring the skill's files to what the database holds now (an export's first step):

@@ -274,6 +274,11 @@ class RerunSegment:
         self._at(t_ns)
         self.rec.log(f"demos/{demo_id}", rr.Clear(recursive=True))
 
+    def reproduction_removed(self, t_ns: int, number: int) -> None:
+        """Clear reproduction ``number`` from this time on (no longer kept)."""
+        self._at(t_ns)
+        self.rec.log(f"reproductions/{number}", rr.Clear(recursive=True))
+
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Directrix, mesh, rings, frames and radius profile of one model version, under its
         own entity ``model/v<version>``; the previous version is cleared from this time on

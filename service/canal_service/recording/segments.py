@@ -197,6 +197,8 @@ class SegmentWriter(RecorderQueue):
                 state.models.add(int(value))
             elif kind == "p":
                 state.reproductions.add(int(value))
+            elif kind == "y":
+                state.reproductions.discard(int(value))
 
     def _open(self, skill: str, t_ns: int) -> SkillState:
         state = self._state(skill)
@@ -326,6 +328,8 @@ class SegmentWriter(RecorderQueue):
                 state.models.discard(int(value))
             elif kind == "p":
                 state.reproductions.discard(int(value))
+            elif kind == "y":
+                state.reproductions.add(int(value))  # not cleared for sure: again next time
         state.pending_ledger = []
         if reconcile and lost and self.source is not None:
             # Not in the ledger, so the database fills them in again at the next reconcile.
