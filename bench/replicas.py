@@ -192,7 +192,8 @@ def main() -> int:
             rows.append((label, ms_a, ms_b))
 
         both(f"first export on A ({n_demos} demos and 1 model written by B)")
-        both("no change since the last export")
+        for _ in range(rounds):
+            both("no change since the last export")
         extra = n_demos
         for _ in range(rounds):
             r = b.post(f"/skills/{skill}/demonstrations", content=demo(extra), headers=headers)

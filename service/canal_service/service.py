@@ -627,8 +627,15 @@ class CanalService:
                 self._record("reproduction", partial(_tell_reproduction, name, ref.version,
                                                      result))
             return
-        kept = repo.insert_reproductions(self.db, ref.skill_id, ref.skill_created_at,
-                                         ref.version, results, self.reproductions_kept)
+        try:
+            kept = repo.insert_reproductions(self.db, ref.skill_id, ref.skill_created_at,
+                                             ref.version, results, self.reproductions_kept)
+        except Exception:
+            # The answer is computed and right; only its place in the recordings is lost
+            # (a busy or unreachable database), so the request does not fail for it.
+            log.exception("could not keep %d reproduction(s) of %r for the recordings",
+                          len(results), name)
+            return
         instance = repo.skill_instance(ref.skill_id, ref.skill_created_at)
         for result, stored in zip(results, kept, strict=False):
             self._record("reproduction", partial(
