@@ -218,6 +218,7 @@ def main() -> int:
         with replica(url, "--no-zenoh", "--recordings-reproductions-kept", "0") as url_c, \
                 httpx.Client(base_url=url_c, timeout=600) as c:
             stored, unstored = reproduction_latencies(b, c, skill, rounds)
+        compute_ms, keep_ms = keeping_in_process(url, skill, 50 if args.quick else 200)
 
 
     print(__doc__.splitlines()[0])
@@ -246,8 +247,13 @@ def main() -> int:
              f"ms; on C (`--recordings-reproductions-kept 0`): "
              f"{statistics.median(unstored):.1f} ms "
              f"({statistics.median(stored) / statistics.median(unstored):.2f}x).")
-    lines += ["", repro]
-    print("\n" + repro)
+    in_process = (f"In one process on the same database (median of the calls the service "
+                  f"makes): computing a reproduction {compute_ms:.2f} ms, keeping it "
+                  f"(`insert_reproductions`: one INSERT ... SELECT in a transaction of its "
+                  f"own on a pooled connection) {keep_ms:.2f} ms "
+                  f"({keep_ms / compute_ms:.2f}x the computation).")
+    lines += ["", repro, "", in_process]
+    print("\n" + repro + "\n" + in_process)
     first = medians[labels[0]]
     upload = medians["after 1 upload on B"]
     summary: list[dict[str, Any]] = [
@@ -261,6 +267,34 @@ def main() -> int:
         write_block("\n".join(lines), START, END, HEADING)
         print("wrote BENCHMARKS.md")
     return 0
+
+
+def keeping_in_process(url: str, skill: str, n: int) -> tuple[float, float]:
+    """Median milliseconds of computing a reproduction and of keeping it, as the service
+    calls both (``canal_core`` and ``repository.insert_reproductions``), alternated."""
+    from canal_service.storage import Database
+    from canal_service.storage import repository as repo
+
+    import canal_core
+
+    db = Database(url)
+    try:
+        ref = repo.model_ref_by_name(db, skill, None)
+        with db.read() as s:
+            canal = canal_core.Canal.from_dict(repo.get_model(s, ref.model_id).canal)
+        compute, keep = [], []
+        for k in range(n):
+            t0 = time.perf_counter()
+            result = canal.reproduce_detailed(np.array([1.0, 0.0, 0.0005 * (k % 50)]))
+            t1 = time.perf_counter()
+            repo.insert_reproductions(db, ref.skill_id, ref.skill_created_at, ref.version,
+                                      [result], 1000)
+            t2 = time.perf_counter()
+            compute.append((t1 - t0) * 1e3)
+            keep.append((t2 - t1) * 1e3)
+        return statistics.median(compute), statistics.median(keep)
+    finally:
+        db.dispose()
 
 
 def reproduction_latencies(stores: httpx.Client, plain: httpx.Client, skill: str,

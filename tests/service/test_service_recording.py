@@ -58,6 +58,7 @@ def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> 
                       json={"positions": demo_positions(j).tolist()}).json()["id"]
                for j in range(3)]
         assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+        assert c.post("/skills/pour/reproductions", json={"start": [0, 0, 0]}).status_code == 200
         assert c.delete(f"/skills/pour/demonstrations/{ids[0]}").status_code == 204
         assert c.get("/skills/pour/recording.mcap").status_code == 200  # written out
         # The recording is lost (a disk swap, a deleted folder): rebuild it from the database.
@@ -65,8 +66,9 @@ def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> 
         r = CliRunner().invoke(app, ["--url", server.url, "--json", "recordings", "rebuild",
                                      "pour"])
         assert r.exit_code == 0, r.output
+        # the reproduction is kept in the database (SQLite here), so it comes back too
         assert json.loads(r.output) == {"skill": "pour", "demos": 2, "models": 1, "removed": 0,
-                                       "reproductions": 0}
+                                       "reproductions": 1}
         mcap = c.get("/skills/pour/recording.mcap").content
         assert c.post("/skills/nope/recording/rebuild").status_code == 404
         ros2 = tmp_path / "pour-ros2.mcap"

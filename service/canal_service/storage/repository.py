@@ -425,6 +425,10 @@ def skill_instances(session: Session, name: str | None = None) -> dict[str, str]
     return {str(n): skill_instance(i, c) for n, i, c in session.execute(query)}
 
 
+#: Attempts at a reproduction's number when replicas take the same one at once.
+_NUMBER_RETRIES = 5
+
+
 @dataclass(frozen=True)
 class KeptReproduction:
     """A stored reproduction's number and creation time."""
@@ -433,50 +437,78 @@ class KeptReproduction:
     created_at: datetime
 
 
+_R = StoredReproduction
+# One statement per reproduction, built once: the row is numbered one past the skill's last
+# (a correlated subquery) and inserted only while the skill is the instance the reproduction
+# was computed for (its id *and* creation time); no row back means it is gone.
+_INSERT_REPRODUCTION = insert(_R).from_select(
+    ["skill_id", "number", "model_version", "n_points", "dim", "positions", "start", "times",
+     "orientations", "inside", "projected", "eta", "section_index", "created_at"],
+    select(
+        Skill.id,
+        select(func.coalesce(func.max(_R.number), 0) + 1).where(_R.skill_id == Skill.id)
+        .scalar_subquery(),
+        *(bindparam(name, type_=_R.__table__.c[name].type) for name in (
+            "model_version", "n_points", "dim", "positions", "start", "times", "orientations",
+            "inside", "projected", "eta", "section_index", "created_at")),
+    ).where(Skill.id == bindparam("skill_id"),
+            Skill.created_at == bindparam("skill_created_at", type_=Skill.created_at.type)),
+).returning(_R.number)
+_PRUNE_REPRODUCTIONS = delete(_R).where(_R.skill_id == bindparam("skill_id"),
+                                        _R.number <= bindparam("oldest_dropped"))
+
+
 def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime, version: int,
                          results: Sequence[Any], keep: int) -> list[KeptReproduction]:
     """Store ``results`` (``canal_core.Reproduction``) for the skill's recording, numbered on
-    from the skill's last one, and delete those ``keep`` or more behind the newest.
+    from the skill's last one; the skill keeps its newest ``keep`` (older ones are deleted
+    every ``min(32, keep // 2)`` numbers, so up to that many more are kept meanwhile).
 
     Nothing is stored when the skill is gone or is another instance than the one the
-    reproduction was computed for (deleted and created again meanwhile). Numbers are taken
-    under the skill row's lock, as model versions are: replicas do not collide.
+    reproduction was computed for (deleted and created again meanwhile). Two replicas that
+    take the same number at once collide on ``uq_reproductions_skill_number``; the loser
+    tries again, as fits do.
     """
-    with db.write_connection() as session:  # Core only: no ORM session on this path
-        row = session.execute(select(Skill.id, Skill.created_at).where(Skill.id == skill_id)
-                              .with_for_update(key_share=True)).first()
-        if row is None or (skill_instance(row[0], row[1])
-                           != skill_instance(skill_id, skill_created_at)):
-            return []
-        last = session.scalar(select(func.max(StoredReproduction.number))
-                              .where(StoredReproduction.skill_id == skill_id))
-        first = int(last or 0) + 1
-        now = utcnow()
-        values = []
-        for k, result in enumerate(results):
-            positions = np.asarray(result.positions, dtype=np.float64)
-            times = getattr(result, "times", None)
-            quats = getattr(result, "orientations", None)
-            values.append({
-                "skill_id": skill_id, "number": first + k, "model_version": int(version),
-                "n_points": int(positions.shape[0]), "dim": int(positions.shape[1]),
-                "positions": arrays.pack(positions),
-                "start": arrays.pack(np.asarray(result.start, dtype=np.float64)),
-                "times": None if times is None else arrays.pack(np.asarray(times, np.float64)),
-                "orientations": None if quats is None else arrays.pack(
-                    np.asarray(quats, dtype=np.float64)),
-                "inside": bool(result.inside), "projected": bool(result.projected),
-                "eta": float(result.eta), "section_index": int(result.section_index),
-                "created_at": now,
-            })
-        if values:
-            session.execute(insert(StoredReproduction), values)
-        newest = first + len(values) - 1
-        if keep > 0 and newest - keep >= 1:
-            session.execute(delete(StoredReproduction).where(
-                StoredReproduction.skill_id == skill_id,
-                StoredReproduction.number <= newest - keep))
-        return [KeptReproduction(first + k, now) for k in range(len(values))]
+    now = utcnow()
+    rows = []
+    for result in results:
+        positions = np.asarray(result.positions, dtype=np.float64)
+        times = getattr(result, "times", None)
+        quats = getattr(result, "orientations", None)
+        rows.append({
+            "skill_id": skill_id, "skill_created_at": skill_created_at,
+            "model_version": int(version),
+            "n_points": int(positions.shape[0]), "dim": int(positions.shape[1]),
+            "positions": arrays.pack(positions),
+            "start": arrays.pack(np.asarray(result.start, dtype=np.float64)),
+            "times": None if times is None else arrays.pack(np.asarray(times, np.float64)),
+            "orientations": None if quats is None else arrays.pack(
+                np.asarray(quats, dtype=np.float64)),
+            "inside": bool(result.inside), "projected": bool(result.projected),
+            "eta": float(result.eta), "section_index": int(result.section_index),
+            "created_at": now,
+        })
+    step = max(1, min(32, keep // 2))
+    clash: IntegrityError | None = None
+    for _attempt in range(_NUMBER_RETRIES):
+        try:
+            numbers: list[int] = []
+            with db.write_connection() as connection:  # Core only: no ORM session here
+                for values in rows:
+                    number = connection.execute(_INSERT_REPRODUCTION, values).scalar()
+                    if number is None:
+                        return []  # the skill is gone (or is another instance now)
+                    numbers.append(int(number))
+                if keep > 0 and numbers and any(n > keep and n % step == 0 for n in numbers):
+                    connection.execute(_PRUNE_REPRODUCTIONS, {
+                        "skill_id": skill_id, "oldest_dropped": numbers[-1] - keep})
+            return [KeptReproduction(n, now) for n in numbers]
+        except IntegrityError as exc:
+            clash = exc
+    assert clash is not None
+    raise clash
+
+
 # ---- scenes ------------------------------------------------------------------------------------
 
 
