@@ -57,6 +57,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.lib.stride_tricks import as_strided
 
+from .bounds import MAX_COORDINATE
 from .errors import InvalidInputError
 from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
 
@@ -64,8 +65,6 @@ from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
 STILL_TOLERANCE = 1e-3
 #: Fraction of the path length below which two consecutive samples are the same sample.
 NEAR_DUPLICATE_TOLERANCE = 1e-6
-#: Largest absolute coordinate accepted (squares must not overflow anywhere in the fit).
-MAX_COORDINATE = 1e15
 #: Smallest motion accepted, as a fraction of the largest absolute coordinate.
 MIN_RELATIVE_MOTION = 1e-9
 #: Fraction of the duration below which two timestamps are the same instant.

@@ -230,7 +230,8 @@ def check_quaternions(
             field=field,
         )
     check_finite(array, field)
-    norms = np.linalg.norm(array, axis=1)
+    with np.errstate(over="ignore"):  # a norm beyond float64 is Inf, refused below
+        norms = np.linalg.norm(array, axis=1)
     bad = np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE
     if bad.any():
         i = int(np.argmax(bad))
@@ -250,7 +251,8 @@ def check_quaternion(value: Any, field: str = "start_orientation") -> FloatArray
             f"expected {field} of shape (4,) as qx, qy, qz, qw, got {array.shape}", field=field
         )
     check_finite(array[None, :], field)
-    norm = float(np.linalg.norm(array))
+    with np.errstate(over="ignore"):  # a norm beyond float64 is Inf, refused below
+        norm = float(np.linalg.norm(array))
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidInputError(
             f"expected {field} as a unit quaternion (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "

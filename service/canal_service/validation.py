@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from canal_core import bounds
 from canal_core.errors import CanalError
 from canal_core.preprocess import prepared_demonstration
 from canal_core.validation import check_quaternions
@@ -138,6 +139,7 @@ def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> Floa
             f"is in seconds)",
             field="timestamps",
         )
+    _core_checked(bounds.check_times, times, "timestamps")
     return times
 
 
@@ -192,3 +194,60 @@ def check_demonstration(
     quats = None if orientations is None else check_orientations(orientations, n)
     check_fittable(checked, times)
     return DemoArrays(checked, times, quats)
+
+
+def _core_checked(check: Any, value: Any, field: str) -> Any:
+    """``check(value, field)`` from :mod:`canal_core.bounds`, its refusal as :class:`InvalidInput`."""
+    try:
+        return check(value, field)
+    except CanalError as exc:
+        raise InvalidInput(exc.message, field=exc.field or field) from exc
+
+
+@dataclass(frozen=True)
+class ReproductionInputs:
+    """A reproduction request's numbers, checked against the canal (:mod:`canal_core.bounds`)."""
+
+    starts: list[FloatArray]
+    goal: FloatArray | None
+    duration: float | None
+
+
+def check_reproduction_inputs(
+    directrix: FloatArray, radii: FloatArray, starts: Sequence[Any], fields: Sequence[str],
+    goal: Any, duration: Any,
+) -> ReproductionInputs:
+    """Every number of a reproduction request, checked in one place before any is computed.
+
+    Starts and the goal must have the canal's dimension and lie within
+    :data:`canal_core.bounds.MAX_REACH` canal sizes of its centre; the duration must be
+    within [:data:`~canal_core.bounds.MIN_DURATION`, :data:`~canal_core.bounds.MAX_DURATION`].
+    """
+    dim = directrix.shape[1]
+    centre, size = bounds.canal_extent(directrix, radii)
+
+    def point(value: Any, field: str) -> FloatArray:
+        if len(value) != dim:
+            raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(value)}",
+                               field=field)
+        return _core_checked(lambda v, f: bounds.check_reach(v, centre, size, f), value, field)
+
+    checked = [point(start, field) for start, field in zip(starts, fields, strict=True)]
+    goal_ = None if goal is None else point(goal, "goal")
+    duration_ = None if duration is None else _core_checked(bounds.check_duration, duration,
+                                                           "duration")
+    return ReproductionInputs(checked, goal_, duration_)
+
+
+def check_finite_answer(arrays: dict[str, Any], inputs: str) -> None:
+    """The last guard: refuse (422) an answer holding NaN or Inf, which JSON would send as null.
+
+    ``inputs`` names the request fields the answer was computed from.
+    """
+    bad = bounds.first_non_finite(arrays)
+    if bad is not None:
+        raise InvalidInput(
+            f"expected an answer of finite numbers, got non-finite {bad} from these {inputs}: "
+            "they are beyond what the canal can compute with",
+            field=inputs.split(", ")[0],
+        )

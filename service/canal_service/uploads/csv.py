@@ -27,6 +27,8 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
     budget = budget or Budget(UploadLimits())
     if b"\x00" in data:
         raise BadUpload("CSV must be text; found NUL bytes", field="file")
+    if b"\n" not in data and b"\r" in data:
+        data = data.replace(b"\r", b"\n")  # classic Mac line ends (CR only)
     start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a BOM from spreadsheet exports
     lines = _lines(data, start)
     first = next(lines, None)
@@ -49,6 +51,12 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
         if next(lines, None) is None:
             raise BadUpload("the CSV file has a header but no data rows", field="file")
     width = len(cells)
+    if header is None and width not in (dim, dim + 1):
+        # Before any array is made: numpy sizes its table by rows x columns, so a wide
+        # line would choose the server's allocation.
+        raise InvalidInput(
+            f"expected {dim} columns (positions) or {dim + 1} (t then positions) for a {dim}-D "
+            f"skill, got {width} on line {first_number + 1}", field=f"file:line {first_number + 1}")
     columns = None if header is None else _csv_columns(header, dim)
     # Only the columns named are read when the file has others (a ROS export's frame_id
     # text, sequence numbers): they are neither parsed nor required to be numbers.
@@ -57,9 +65,12 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
         usecols = columns.used
     stream = io.BytesIO(data)  # shares the bytes, no copy
     stream.seek(start)
+    # numpy reserves max_rows rows up front: never more than the body has lines, so the
+    # table costs memory in proportion to the bytes received.
+    max_rows = min(budget.limits.max_points + 1, data.count(b"\n") + 1)
     try:
         table = np.loadtxt(stream, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
-                           quotechar='"', skiprows=skip, max_rows=budget.limits.max_points + 1,
+                           quotechar='"', skiprows=skip, max_rows=max_rows,
                            encoding="utf-8", usecols=usecols)
     except UnicodeDecodeError as exc:
         raise BadUpload(f"CSV must be UTF-8 text ({exc.reason})", field="file") from exc
