@@ -172,10 +172,19 @@ def fit(
         crossings[end, beyond] = aligned[beyond, end] - offset[beyond, None] * tangents[end]
     basis = section_basis(normals, binormals)
     coords = in_plane_coordinates(crossings, centres, basis)
-    if not np.any(np.abs(coords) > 1e-12 * arclength[-1]):
+    resolution = 1e-12 * arclength[-1]
+    if not np.any(np.abs(coords) > resolution):
+        apart = float(np.abs(coords).max())
+        if apart <= 1e-14 * max(float(arclength[-1]), float(np.abs(centres).max())):  # rounding
+            raise DegenerateCanalError(
+                "every demonstration is identical: the canal has zero radius everywhere",
+                field="demos")
+        # Not identical: their differences are lost in the rounding of coordinates this large.
         raise DegenerateCanalError(
-            "every demonstration is identical: the canal has zero radius everywhere", field="demos"
-        )
+            f"the demonstrations are at most {apart:.3g} apart across the canal, below its "
+            f"resolution of {resolution:.3g} (1e-12 of the directrix length {arclength[-1]:.3g}): "
+            "at this scale they cannot be told apart; rescale the units, or demonstrate "
+            "the variation", field="demos")
     size = float(np.abs(coords).max())
     sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.

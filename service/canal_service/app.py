@@ -20,6 +20,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from . import __version__
 from .core.config import Settings
 from .errors import install_error_handlers
+from .fitting import FitRunner
 from .lanes import Lane
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, JsonNewline, RequestMetrics
@@ -86,7 +87,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     try:
         service = CanalService(db, metrics, cache_size=settings.model_cache_size,
                                recorder=recorder, fit_listeners=FitListeners(),
-                               reproductions_kept=settings.recordings_reproductions_kept)
+                               reproductions_kept=settings.recordings_reproductions_kept,
+                               fits=FitRunner(settings.fit_max_seconds))
         bridge = make_bridge(settings, service)
     except BaseException:
         # No lifespan will run to close what was opened: close it here.

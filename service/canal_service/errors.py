@@ -73,6 +73,14 @@ class TooSlow(ServiceError):
     """An upload that needs more server time to parse than one upload may take."""
 
 
+class FitTooSlow(ServiceError):
+    """A fit estimated to need, or found needing, more server time than one fit may take."""
+
+
+class FitCancelled(ServiceError):
+    """A fit stopped before its end: its skill was deleted, or its client went away."""
+
+
 class NotFound(ServiceError):
     """Something the request names does not exist (base of the specific kinds below)."""
 
@@ -171,6 +179,8 @@ HTTP_STATUS: Mapping[type[Exception], tuple[int, str]] = {
     UnsupportedMediaType: (415, "unsupported_media_type"),
     TooLarge: (413, "payload_too_large"),
     TooSlow: (422, "upload_too_slow"),
+    FitTooSlow: (422, "fit_too_slow"),
+    FitCancelled: (409, "conflict"),
     NotFound: (404, "not_found"),
     Conflict: (409, "conflict"),
     # 404, not 503: the resource does not exist here, and retrying will not make it appear.
@@ -184,6 +194,7 @@ HTTP_STATUS: Mapping[type[Exception], tuple[int, str]] = {
 }
 
 _HTTP_TYPES = {
+    400: "bad_request",
     401: "unauthorized",
     404: "not_found",
     405: "method_not_allowed",
@@ -253,6 +264,20 @@ def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
                       details)
 
 
+def _unparsable_body(cause: BaseException) -> str:
+    """What was wrong with a JSON body the parser could not read (FastAPI says only "There
+    was an error parsing the body")."""
+    if isinstance(cause, UnicodeDecodeError):
+        got = f"bytes that are not UTF-8 ({cause.reason} at byte {cause.start})"
+    elif isinstance(cause, RecursionError):
+        got = "arrays or objects nested too deep to parse"
+    elif isinstance(cause, ValueError) and "digits" in str(cause):
+        got = "an integer with too many digits to parse"
+    else:
+        got = f"{type(cause).__name__}: {str(cause)[:200]}"
+    return f"expected a JSON body in UTF-8, got {got}"
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Register the handlers; after this no expected error leaves as HTML or a 500."""
 
@@ -273,10 +298,13 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
-        field = "body" if exc.status_code == 413 else None
+        field = "body" if exc.status_code in (400, 413) else None
         if exc.status_code == 401:
             field = "Authorization"
-        body = error_body(_HTTP_TYPES.get(exc.status_code, "http_error"), str(exc.detail), field)
+        message = str(exc.detail)
+        if exc.status_code == 400 and exc.__cause__ is not None:
+            message = _unparsable_body(exc.__cause__)
+        body = error_body(_HTTP_TYPES.get(exc.status_code, "http_error"), message, field)
         return JSONResponse(body, exc.status_code, headers=getattr(exc, "headers", None))
 
     @app.exception_handler(IntegrityError)

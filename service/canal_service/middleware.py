@@ -13,6 +13,7 @@ import logging
 import time
 from typing import Any
 
+from starlette.requests import ClientDisconnect
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from .errors import PayloadTooLarge, error_body
@@ -95,6 +96,10 @@ class CatchUnexpected:
 
         try:
             await self.app(scope, receive, tracking_send)
+        except ClientDisconnect:
+            # Not a fault of the service: the client left before its request was read.
+            # Nobody is listening for an answer.
+            log.info("client went away during %s %s", scope.get("method"), scope.get("path"))
         except Exception as exc:
             log.exception("unhandled error on %s %s", scope.get("method"), scope.get("path"),
                           exc_info=exc)

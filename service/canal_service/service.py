@@ -38,10 +38,16 @@ from .errors import (
     RecordingFailed,
     VersionConflict,
 )
+from .fitting import FitJob, FitRunner
 from .metrics import Metrics
 from .storage import Database, Demonstration, ModelVersion, Skill, arrays
 from .storage import repository as repo
-from .validation import DemoArrays, check_demonstration
+from .validation import (
+    DemoArrays,
+    check_demonstration,
+    check_finite_answer,
+    check_reproduction_inputs,
+)
 
 log = logging.getLogger("canal_service")
 
@@ -228,12 +234,16 @@ class CanalService:
     reproductions_kept : int
         With a recorder, reproductions are stored for the recordings, this many per skill
         (the newest); 0 stores none.
+    fits : FitRunner, optional
+        Runs fits in worker processes within their server-time cap (120 s if None).
     """
 
     def __init__(self, db: Database, metrics: Metrics, *, cache_size: int = 64,
                  recorder: RecorderLike | None = None,
                  fit_listeners: FitListeners | None = None,
-                 reproductions_kept: int = 1000) -> None:
+                 reproductions_kept: int = 1000,
+                 fits: FitRunner | None = None) -> None:
+        self.fits = fits if fits is not None else FitRunner(120.0)
         self.db = db
         self.reproductions_kept = int(reproductions_kept)
         self.metrics = metrics
@@ -280,6 +290,7 @@ class CanalService:
         """Delete a skill with its demonstrations and models."""
         with self.db.write() as s:
             repo.delete_skill(s, name)
+        self.fits.cancel_skill(name)
         self._record("skill_deleted", lambda r: r.skill_deleted(name))
 
     @staticmethod
@@ -379,8 +390,13 @@ class CanalService:
 
     # ---- fitting ----------------------------------------------------------------------------
 
-    def fit(self, name: str, body: schemas.FitRequest) -> schemas.ModelSummary:
-        """Fit a new model version from the skill's demonstrations (or the chosen ones)."""
+    def fit(self, name: str, body: schemas.FitRequest,
+            cancel: threading.Event | None = None) -> schemas.ModelSummary:
+        """Fit a new model version from the skill's demonstrations (or the chosen ones).
+
+        The fit runs in a worker process within ``CANAL_FIT_MAX_SECONDS``; it stops when
+        ``cancel`` is set (the client left) or the skill is deleted meanwhile.
+        """
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
@@ -406,10 +422,10 @@ class CanalService:
         # Orientation is learned only when every demo has it: a mean over some demos would
         # not be the skill's.
         orientations = quats if body.orientation and all(q is not None for q in quats) else None
+        job = FitJob(positions, stamped, bool(body.by_time), orientations, options)
         started = time.perf_counter()
         try:
-            canal = canal_core.fit(positions, timestamps=stamped, by_time=bool(body.by_time),
-                                   orientations=orientations, **options)
+            canal = self.fits.run(name, job, cancel)
         except canal_core.CanalError as exc:
             raise _fit_rejected(exc, demo_ids) from exc
         seconds = time.perf_counter() - started
@@ -559,13 +575,8 @@ class CanalService:
         else:
             assert body.starts is not None
             starts, fields = body.starts, [f"starts[{i}]" for i in range(len(body.starts))]
-        for start, field in zip(starts, fields, strict=True):
-            if len(start) != dim:
-                raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(start)}",
-                                   field=field)
-        if body.goal is not None and len(body.goal) != dim:
-            raise InvalidInput(f"expected {dim} coordinates for a {dim}-D skill, got {len(body.goal)}",
-                               field="goal")
+        inputs = check_reproduction_inputs(canal.directrix, canal.radii, starts, fields,
+                                           body.goal, body.duration)
         notes = []
         if canal.section_times is None and body.duration is not None:
             # Without a duration the answer's null times say it all; with one, the pacing
@@ -575,23 +586,26 @@ class CanalService:
         if start_orientation is not None and not canal.has_orientation:
             notes.append("model has no orientation: start_orientation ignored")
             start_orientation = None
-        goal = None if body.goal is None else np.asarray(body.goal, dtype=np.float64)
         scene_version, scene = self.scene_of(name, dim)
         if body.obstacles:
             sent = canal_core.obstacles.scene_from_list([o.as_dict() for o in body.obstacles], dim)
             scene = sent if scene is None else canal_core.obstacles.merged_scene(scene, sent)
         results = []
-        for start, field in zip(starts, fields, strict=True):
+        for start, field in zip(inputs.starts, fields, strict=True):
             try:
-                result = canal.reproduce_detailed(np.asarray(start, dtype=np.float64),
-                                                  outside=body.outside, goal=goal,
-                                                  duration=body.duration,
+                result = canal.reproduce_detailed(start, outside=body.outside, goal=inputs.goal,
+                                                  duration=inputs.duration,
                                                   start_orientation=start_orientation,
                                                   obstacles=scene)
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field
                 raise CanalRejected(exc, exc.message, field=at) from exc
+            used = ", ".join([field] + [k for k in ("goal", "duration", "start_orientation")
+                                        if getattr(body, k) is not None])
+            check_finite_answer({"positions": result.positions, "times": result.times,
+                                 "velocities": result.velocities,
+                                 "orientations": result.orientations, "eta": result.eta}, used)
             results.append(result)
         self._keep_reproductions(name, ref, results)
         outs = []

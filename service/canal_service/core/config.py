@@ -85,6 +85,10 @@ class Settings(BaseSettings):
     upload_max_seconds: float = Field(
         DEFAULT_UPLOAD_MAX_SECONDS, gt=0,
         description="Server time one file upload may take to parse (413 above).")
+    fit_max_seconds: float = Field(
+        120.0, gt=0,
+        description="Server time one fit may take: a fit estimated to need more is refused at "
+                    "once, one running longer is stopped (422 fit_too_slow).")
     upload_workers: Annotated[int, Flag(metavar="N")] = Field(
         2, ge=1, le=64,
         description="Threads that run uploads (parse, checks, preparation, insert), apart from "

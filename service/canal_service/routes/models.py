@@ -2,31 +2,51 @@
 
 from __future__ import annotations
 
+import asyncio
+import threading
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Body, Query, Response, status
+from fastapi import APIRouter, Body, Depends, Query, Request, Response, status
 from fastapi.concurrency import run_in_threadpool
 
 from canal_protocol.schemas import ErrorResponse, FitRequest, ModelOut, ModelSummary, Page
 
 from ..deps import Limit, Offset, ServiceDep, SkillName, VersionRef, parse_version
+from ..errors import InvalidInput
 from ..mesh import MESH_MEDIA_TYPES, export_mesh
 
 router = APIRouter(prefix="/skills/{name}", tags=["models"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (404, 409, 422)
 }
+#: How often a running fit looks whether its client is still there.
+_DISCONNECT_POLL_SECONDS = 0.25
+
+
+async def _not_null(request: Request) -> None:
+    # No body means every default; a JSON null is not "no body" but a client bug.
+    if (await request.body()).strip() == b"null":
+        raise InvalidInput("expected a JSON object of fit options (or no body), got null",
+                           field="body")
 
 
 @router.post("/fit", status_code=status.HTTP_201_CREATED, response_model=ModelSummary,
-             responses=_ERRORS)
-def fit(name: SkillName, service: ServiceDep,
-        body: Annotated[FitRequest | None, Body()] = None) -> ModelSummary:
+             responses=_ERRORS, dependencies=[Depends(_not_null)])
+async def fit(name: SkillName, service: ServiceDep, request: Request,
+              body: Annotated[FitRequest | None, Body()] = None) -> ModelSummary:
     """Fit a new model version from the skill's demonstrations (all, or ``demo_ids``).
 
-    Runs in a worker thread, so a long fit does not hold up other requests.
+    Runs in a worker process (waited for on a worker thread, so a long fit does not hold
+    up other requests), within ``CANAL_FIT_MAX_SECONDS``; stopped when the client leaves.
     """
-    return service.fit(name, body or FitRequest())
+    cancel = threading.Event()
+    work = asyncio.ensure_future(run_in_threadpool(service.fit, name, body or FitRequest(),
+                                                   cancel))
+    while not work.done():
+        await asyncio.wait({work}, timeout=_DISCONNECT_POLL_SECONDS)
+        if not work.done() and await request.is_disconnected():
+            cancel.set()  # the worker process is killed; nobody waits for the answer
+    return work.result()
 
 
 @router.get("/models", response_model=Page[ModelSummary], responses=_ERRORS)

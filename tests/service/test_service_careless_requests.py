@@ -1,0 +1,113 @@
+"""Careless and hostile request bodies over real HTTP: each gets a 4xx whose ``type`` is in the
+README's error table, says what was expected, and stores nothing."""
+
+from __future__ import annotations
+
+import logging
+import re
+import socket
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from canal_service import errors
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from service_helpers import LiveServer, demo_positions
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def readme_error_types() -> dict[str, int]:
+    """``type`` word -> status, from the README's error table (rows ``| 4xx | `a`, `b` | ...``)."""
+    table: dict[str, int] = {}
+    for line in (ROOT / "README.md").read_text().splitlines():
+        match = re.match(r"^\| (\d{3}) \| ([^|]+)\|", line)
+        if match:
+            for word in re.findall(r"`([a-z_]+)`", match.group(2)):
+                table[word] = int(match.group(1))
+    return table
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer]:
+    data = Path(tmp_path_factory.mktemp("careless")) / "data"
+    settings = Settings(data_dir=data, recordings_enabled=False, zenoh_enabled=False)
+    with LiveServer(create_app(settings)) as live, httpx.Client(base_url=live.url) as http:
+        assert http.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        for j in range(3):
+            r = http.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+            assert r.status_code == 201
+        yield live
+
+
+@pytest.fixture
+def http(server: LiveServer) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=server.url, timeout=60) as client:
+        yield client
+
+
+def test_every_4xx_type_the_service_answers_is_in_the_readme_error_table() -> None:
+    table = readme_error_types()
+    answered = {kind: status for status, kind in errors.HTTP_STATUS.values() if status < 500}
+    answered |= {kind: status for status, kind in errors._HTTP_TYPES.items() if status < 500}
+    answered["invalid_input"] = 422  # request validation
+    missing = {kind: status for kind, status in answered.items() if table.get(kind) != status}
+    assert not missing, f"not in the README's error table with that status: {missing}"
+
+
+def test_fit_with_a_null_body_is_refused_and_fits_nothing(http: httpx.Client) -> None:
+    r = http.post("/skills/pour/fit", content=b"null", headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["field"] == "body"
+    assert "null" in r.json()["error"]["message"]
+    assert http.get("/skills/pour").json()["n_models"] == 0
+
+
+@pytest.mark.parametrize(("body", "said"), [
+    (b'{"start": [0, 0, \xff]}', "UTF-8"),
+    (b"[" * 100_000 + b"]" * 100_000, "nested too deep"),
+    (b'{"start": [' + b"9" * 5000 + b", 0, 0]}", "too many digits"),
+])
+def test_a_json_body_that_cannot_be_parsed_gets_a_type_from_the_error_table(
+        http: httpx.Client, body: bytes, said: str) -> None:
+    r = http.post("/skills/pour/reproductions", content=body,
+                  headers={"content-type": "application/json"})
+    assert 400 <= r.status_code < 500, r.text
+    error = r.json()["error"]
+    assert readme_error_types().get(error["type"]) == r.status_code, error
+    assert error["field"] == "body"
+    assert said in error["message"]
+
+
+def test_a_client_that_leaves_mid_upload_is_not_an_unhandled_error(
+        server: LiveServer, caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO, logger="canal_service")
+    with socket.create_connection(("127.0.0.1", server.port)) as sock:
+        sock.sendall(b"POST /skills/pour/demonstrations HTTP/1.1\r\nHost: x\r\n"
+                     b"Content-Type: text/csv\r\nContent-Length: 100000\r\n\r\nx,y,z\n0,0,0\n")
+        time.sleep(0.3)
+    deadline = time.monotonic() + 10
+    while not any("went away" in r.getMessage() for r in caplog.records):
+        assert time.monotonic() < deadline, [r.getMessage() for r in caplog.records]
+        time.sleep(0.05)
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+
+
+def test_demonstrations_below_the_canals_resolution_are_not_called_identical(
+        http: httpx.Client) -> None:
+    assert http.post("/skills", json={"name": "far", "dim": 3}).status_code == 201
+    t = np.linspace(0.0, 1e14, 50)
+    for j in range(3):
+        line = np.column_stack([t, np.full(50, 0.1 * j), np.zeros(50)])
+        r = http.post("/skills/far/demonstrations", json={"positions": line.tolist()})
+        assert r.status_code == 201, r.text
+    r = http.post("/skills/far/fit", json={})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert "identical" not in error["message"]
+    assert "cannot be told apart" in error["message"] and "resolution" in error["message"]
+    assert http.get("/skills/far").json()["n_models"] == 0
