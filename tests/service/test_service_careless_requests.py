@@ -102,7 +102,7 @@ def test_demonstrations_below_the_canals_resolution_are_not_called_identical(
     assert http.post("/skills", json={"name": "far", "dim": 3}).status_code == 201
     t = np.linspace(0.0, 1e14, 50)
     for j in range(3):
-        line = np.column_stack([t, np.full(50, 0.1 * j), np.zeros(50)])
+        line = np.column_stack([t, np.full(50, 10.0 * j), np.zeros(50)])
         r = http.post("/skills/far/demonstrations", json={"positions": line.tolist()})
         assert r.status_code == 201, r.text
     r = http.post("/skills/far/fit", json={})
