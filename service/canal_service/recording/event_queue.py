@@ -85,6 +85,8 @@ class RecorderQueue:
         # Each skill's instance in the database, read at most once per pass of the writer.
         self._current: dict[str, str | None] = {}
         self.dropped_events = 0
+        #: Events recorded without a part the logs cannot hold (named in a warning)
+        self.incomplete = 0
         self.dropped_live = 0
         # CPU seconds the writer thread spent on its work (not waiting): what the recorder
         # costs the process, whatever else runs in it (the upload benchmark reads it).

@@ -136,6 +136,12 @@ class ReproductionView:
     number: int = 0  # the skill's n-th reproduction: its own entity in both logs
     orientations: FloatArray | None = None  # (M, 4) unit [qx, qy, qz, qw], when the model has them
     times: FloatArray | None = None  # (M,) seconds from the start, when the model has them
+    #: What the reproduction had that the logs cannot hold in full (left out, and counted)
+    incomplete: tuple[str, ...] = ()
+
+
+#: Longest time span a log can hold: both logs keep times as int64 nanoseconds.
+MAX_RECORDABLE_SECONDS = (2**63 - 1) / 1e9 / 2
 
 
 def _optional(result: Any, name: str, cols: int | None) -> FloatArray | None:
@@ -150,13 +156,30 @@ def _optional(result: Any, name: str, cols: int | None) -> FloatArray | None:
 
 
 def reproduction_view(version: int, result: Any, number: int = 0) -> ReproductionView:
-    """The 3-D view of a ``canal_core.Reproduction`` (orientations and times when present)."""
+    """The 3-D view of a ``canal_core.Reproduction`` (orientations and times when present).
+
+    Orientations or times the logs cannot hold (not finite, not one per position, times
+    beyond :data:`MAX_RECORDABLE_SECONDS` of int64 nanoseconds) are left out whole, never
+    half-written, and named in ``incomplete`` for the recorder to count.
+    """
+    orientations = _optional(result, "orientations", 4)
+    times = _optional(result, "times", None)
+    incomplete = []
+    if orientations is not None and not np.isfinite(orientations).all():
+        orientations = None
+    if orientations is None and getattr(result, "orientations", None) is not None:
+        incomplete.append("orientations")
+    if times is not None and not (np.isfinite(times).all() and float(np.abs(
+            times - times[0]).max(initial=0.0)) <= MAX_RECORDABLE_SECONDS):
+        times = None
+    if times is None and getattr(result, "times", None) is not None:
+        incomplete.append("times")
     return ReproductionView(
         version=int(version), positions=points3d(result.positions), start=points3d(result.start),
         inside=bool(result.inside), eta=float(result.eta),
         section_index=int(result.section_index), projected=bool(result.projected),
-        number=int(number), orientations=_optional(result, "orientations", 4),
-        times=_optional(result, "times", None),
+        number=int(number), orientations=orientations, times=times,
+        incomplete=tuple(incomplete),
     )
 
 

@@ -105,6 +105,7 @@ class Recorder(Exporter, Reconciler):
                 None if self.enabled else "recording disabled"),
             "queued": len(self._events) + 2 * self._live_queued,
             "dropped": self.dropped_events + self.dropped_live,
+            "incomplete": self.incomplete,
             "decimated": self.decimated_live,
             "live_written": self.written_live,
             "reconciled": dict(self.reconciled),

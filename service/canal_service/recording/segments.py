@@ -115,6 +115,10 @@ class SegmentWriter(RecorderQueue):
             if number in state.reproductions:
                 return  # reconciled from the database before its own event came
             rep = reproduction_view(event.version, event.result, number)
+            if rep.incomplete:
+                self.incomplete += 1
+                log.warning("recording of %s reproduction %d leaves out its %s: beyond what "
+                            "the logs can hold", event.skill, number, ", ".join(rep.incomplete))
             self._write(event.skill, event.t_ns, lambda r: r.reproduction(event.t_ns, rep),
                         lambda m: m.reproduction(event.t_ns, rep), ledger=f"p {number}")
             state.n_reproductions = max(state.n_reproductions, number)
