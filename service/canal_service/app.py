@@ -22,6 +22,7 @@ from .core.config import Settings
 from .errors import install_error_handlers
 from .fitting import FitRunner
 from .lanes import Lane
+from .memory import MemoryReleaser, ReleaseMemoryWhenIdle
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, JsonNewline, RequestMetrics
 from .routes import api_router, docs, health, view
@@ -99,15 +100,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     health_check = ServiceHealth(db, recorder, bridge)
     # Uploads run on a lane of their own, not on AnyIO's shared pool (see lanes.py).
     upload_lane = Lane("upload", settings.upload_workers)
+    releaser = MemoryReleaser(settings.memory_trim_idle_s)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         if bridge is not None:
             # A bridge that cannot start (port taken) leaves the REST API up; /healthz says so.
             await run_in_threadpool(bridge.start)
+        releaser.start()
         try:
             yield
         finally:
+            releaser.close()
             if bridge is not None:
                 await run_in_threadpool(bridge.close)
             await run_in_threadpool(upload_lane.close)
@@ -131,6 +135,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = metrics
     app.state.bridge = bridge
     app.state.upload_lane = upload_lane
+    app.state.memory = releaser
     app.state.upload_limits = UploadLimits(
         max_points=settings.upload_max_points,
         max_decompressed_bytes=settings.upload_max_decompressed_bytes,
@@ -154,6 +159,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         _declare_bearer(app)
     app.add_middleware(CatchUnexpected)
     app.add_middleware(JsonNewline)  # outside the error net: its 500s end in a newline too
+    app.add_middleware(ReleaseMemoryWhenIdle, releaser=releaser)
     app.add_middleware(RequestMetrics, metrics=metrics)
     return app
 

@@ -89,6 +89,10 @@ class Settings(BaseSettings):
         120.0, gt=0,
         description="Server time one fit may take: a fit estimated to need more is refused at "
                     "once, one running longer is stopped (422 fit_too_slow).")
+    memory_trim_idle_s: float = Field(
+        1.0, ge=0,
+        description="Seconds without a request after which freed memory is handed back to "
+                    "the OS (glibc malloc_trim); 0 keeps it in the process.")
     upload_workers: Annotated[int, Flag(metavar="N")] = Field(
         2, ge=1, le=64,
         description="Threads that run uploads (parse, checks, preparation, insert), apart from "
