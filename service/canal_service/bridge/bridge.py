@@ -72,6 +72,7 @@ from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
 from ..errors import ServiceError, error_type
+from ..memory import release_memory
 from ..record_batches import encode_record_batch
 from ..service import CanalService
 from ..validation import check_demonstration
@@ -594,7 +595,13 @@ class Bridge:
         period = max(self.options.refresh_s, 0.05)
         while not self._stop.wait(period):
             try:
+                before = len(self.path.streams)
                 live_skills = self.path.forget_idle(time.monotonic())
+                expired, left = before - len(self.path.streams), len(self.path.streams)
+                if expired and (not left or expired >= TRIM_AFTER_EXPIRED):
+                    # Thousands of streams gone leave their memory in the heaps: hand it
+                    # back, but not under a busy path (a trim holds the allocator briefly).
+                    release_memory()
                 self.models.refresh(live_skills)
             except Exception:  # one bad pass must not end every later refresh
                 log.exception("bridge housekeeping failed")
@@ -623,6 +630,10 @@ def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None
             shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
             return name, f"expected {name} as {expected}, got {shown}"
     return None
+
+
+#: Streams expired in one housekeeping pass that call for handing memory back while others run.
+TRIM_AFTER_EXPIRED = 256
 
 
 def _reply_error(query: Any, key: str, message: str, field: str | None = None) -> None:
