@@ -43,6 +43,8 @@ FloatArray = npt.NDArray[np.float64]
 #: ``bench/fit_bound.py`` measures the real rates beside these.
 SECONDS_PER_DTW_CELL = 5e-7
 SECONDS_PER_SAMPLE_SECTION = 2e-9
+#: What a fit imports beyond canal_core, loaded once by the forkserver.
+FIT_IMPORTS = ("scipy.interpolate", "scipy.linalg", "scipy.ndimage", "scipy.spatial.transform")
 #: How often the waiting thread looks at the clock and the cancel events.
 POLL_SECONDS = 0.05
 
@@ -107,7 +109,8 @@ def _context() -> Any:
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["__main__", "canal_core"])
+    # canal_core imports scipy where a fit needs it: loaded here once, not in every worker.
+    ctx.set_forkserver_preload(["__main__", "canal_core", *FIT_IMPORTS])
     return ctx
 
 

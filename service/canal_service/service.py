@@ -429,6 +429,9 @@ class CanalService:
         except canal_core.CanalError as exc:
             raise _fit_rejected(exc, demo_ids) from exc
         seconds = time.perf_counter() - started
+        check_finite_answer({"directrix": canal.directrix, "radii": canal.radii,
+                             "tangents": canal.tangents, "arclength": canal.arclength},
+                            "demonstrations")
         serialized = canal.to_dict()
         used_options = {**canal.options.to_dict(), "by_time": bool(body.by_time) and stamped is not None,
                         "orientation": bool(canal.has_orientation)}

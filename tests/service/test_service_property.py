@@ -4,6 +4,7 @@ One fitted skill is shared; examples are few so the module takes seconds."""
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -153,3 +154,28 @@ def test_query_numbers_answer_4xx_or_finite(http: httpx.Client, offset: int, lim
         assert_4xx_or_finite(http.get(path, params={"offset": offset, "limit": limit}))
     assert_4xx_or_finite(http.get("/skills/pour/models/latest/mesh",
                                   params={"format": "json", "n_angles": n_angles}))
+
+
+@given(rows=st.lists(point(4), min_size=4, max_size=6))
+@EXAMPLES
+def test_file_uploads_are_stored_finite_or_refused(http: httpx.Client,
+                                                   rows: list[list[float]]) -> None:
+    table = np.asarray(rows, dtype=np.float64)  # t then x, y, z
+    buffer = io.BytesIO()
+    np.save(buffer, table)
+    csv = "\n".join(",".join(repr(v) for v in row) for row in rows).encode()
+    for body, kind in ((buffer.getvalue(), "application/x-npy"), (csv, "text/csv")):
+        r = http.post("/skills/scratch/demonstrations", content=body,
+                      headers={"content-type": kind})
+        created = assert_4xx_or_finite(r)
+        if created is not None:
+            demo = http.get(f"/skills/scratch/demonstrations/{created['id']}")
+            assert_4xx_or_finite(demo, ("positions",))
+            assert http.delete(f"/skills/scratch/demonstrations/{created['id']}").status_code == 204
+
+
+@given(number=st.integers(min_value=-2**70, max_value=2**70))
+@EXAMPLES
+def test_path_numbers_answer_4xx_or_finite(http: httpx.Client, number: int) -> None:
+    for path in (f"/skills/pour/demonstrations/{number}", f"/skills/pour/models/{number}"):
+        assert_4xx_or_finite(http.get(path))
