@@ -52,10 +52,11 @@ def resident_bytes() -> int:
         return 0
 
 
-def release_memory() -> bool:
-    """Collect garbage cycles and hand freed heap pages back to the OS; whether glibc's
-    ``malloc_trim`` ran (False where the libc has none)."""
-    gc.collect()
+def release_memory(collect: bool = True) -> bool:
+    """Collect garbage cycles (unless ``collect`` is False) and hand freed heap pages back to
+    the OS; whether glibc's ``malloc_trim`` ran (False where the libc has none)."""
+    if collect:
+        gc.collect()
     if _TRIM is None:
         return False
     _TRIM(0)

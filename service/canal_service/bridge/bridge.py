@@ -593,15 +593,18 @@ class Bridge:
 
     def _housekeep(self) -> None:
         period = max(self.options.refresh_s, 0.05)
+        expired = 0  # streams expired since memory was last handed back
         while not self._stop.wait(period):
             try:
                 before = len(self.path.streams)
                 live_skills = self.path.forget_idle(time.monotonic())
-                expired, left = before - len(self.path.streams), len(self.path.streams)
-                if expired and (not left or expired >= TRIM_AFTER_EXPIRED):
+                expired += max(before - len(self.path.streams), 0)
+                if expired >= TRIM_AFTER_EXPIRED:
                     # Thousands of streams gone leave their memory in the heaps: hand it
-                    # back, but not under a busy path (a trim holds the allocator briefly).
-                    release_memory()
+                    # back (malloc_trim only: a garbage collection here would stall the
+                    # housekeeper for a busy process's whole heap).
+                    release_memory(collect=False)
+                    expired = 0
                 self.models.refresh(live_skills)
             except Exception:  # one bad pass must not end every later refresh
                 log.exception("bridge housekeeping failed")
@@ -632,7 +635,7 @@ def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None
     return None
 
 
-#: Streams expired in one housekeeping pass that call for handing memory back while others run.
+#: Streams expired since the last trim that call for handing their memory back.
 TRIM_AFTER_EXPIRED = 256
 
 
