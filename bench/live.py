@@ -741,7 +741,7 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                     stepped = [pp.step(jobs) for jobs in rounds_]
                     t3 = clock()
                     for groups in stepped:
-                        for entry, jobs, rows_ in groups:
+                        for entry, jobs, rows_, _obstacles in groups:
                             d = entry.dim
                             for (st, pose, _f, _r), row in zip(jobs, rows_, strict=True):
                                 if fmt == "json":
@@ -756,8 +756,8 @@ def pose_path_stages(path: np.ndarray, data: Path, n_batch: int = 16, rounds: in
                                         entry.version, pose.orientation, None, st.coalesced)
                     t4 = clock()
                     for groups in stepped:
-                        for entry, jobs, targets in groups:
-                            pp.answer_all(entry, jobs, targets)
+                        for entry, jobs, targets, obstacles in groups:
+                            pp.answer_all(entry, jobs, targets, obstacles)
                     t5 = clock()
                     for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4),
                                        strict=True):

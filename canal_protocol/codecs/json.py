@@ -21,6 +21,7 @@ from .messages import (
 )
 
 _isfinite = math.isfinite
+_hypot = math.hypot
 
 
 def encode_pose_json(seq: int, position: Any, orientation: Any = None, t: float | None = None,
@@ -66,9 +67,9 @@ def decode_pose_json(data: bytes) -> Pose:
                 if type(v) is not float:
                     break
             else:
-                # a finite sum: finite coordinates, then their magnitude
-                if _isfinite(sum(position)) and -MAX_COORDINATE <= min(position) \
-                        and max(position) <= MAX_COORDINATE:
+                # a norm within the bound: finite coordinates within it (NaN and
+                # infinity give NaN or infinity; the full checks say which)
+                if _hypot(*position) <= MAX_COORDINATE:
                     return plain_pose(seq, tuple(position))
     return _checked_pose_json(body)
 

@@ -85,6 +85,8 @@ def test_binary_and_cdr_poses_out_of_range_are_refused(position, orientation, t,
 
 
 def test_poses_at_the_bounds_are_taken() -> None:
+    # a norm beyond the bound with every coordinate within it: taken (by the full checks)
+    assert wire.decode_pose(wire.encode_pose(1, [1e15, -1e15, 1e15])).position[1] == -1e15
     for data in (_json(position=[1e15, -1e15, 0.0], t=1e11, restart=True),
                  _json(orientation=[0.0, 0.0, 0.0, 1.0009], restart=None),
                  wire.encode_pose_json(4, [0.1, 0.2, 0.3], (0.0, 0.6, 0.0, 0.8), -1e11)):

@@ -38,6 +38,8 @@ JSON_POSES = [
     b'{"seq": 3, "position": [0.1, 0.2], "extra": 1}',
     b'{"seq": 3, "pos": [0.1, 0.2]}',
     b'{"seq": 3, "position": [1e999, 0.2]}',
+    b'{"seq": 3, "position": [1e15, 1e15, -1e15]}',
+    b'{"seq": 3, "position": [1e15, 1.0000001e15, 0.0]}',
     b'{"seq": 3, "position": [NaN, 0.2]}',
     b'[3, [0.1, 0.2]]',
     b'"pose"',
