@@ -12,6 +12,8 @@ through the public ``add_message``. :func:`status` says which path runs (``/heal
 from __future__ import annotations
 
 import functools
+import importlib
+import importlib.util
 import io
 import struct
 from collections.abc import Callable
@@ -31,13 +33,11 @@ from numpy.typing import NDArray
 TESTED = ("1.6.",)
 INSTALLED = version("mcap")
 
-_chunk_builder: type[Any] | None
-try:  # a private module: absent in a future mcap means the public path
-    from mcap._chunk_builder import ChunkBuilder as _found
-
-    _chunk_builder = _found
-except ImportError:  # pragma: no cover - depends on the installed mcap
-    _chunk_builder = None
+# A private module: one a future mcap may not have means the public path (looked up, not
+# imported blindly, so its absence is an answer rather than an error).
+_chunk_builder: type[Any] | None = None
+if importlib.util.find_spec("mcap._chunk_builder") is not None:
+    _chunk_builder = getattr(importlib.import_module("mcap._chunk_builder"), "ChunkBuilder", None)
 
 #: A Message record's head: opcode, record length, channel id, sequence, log and publish time.
 _MESSAGE = struct.Struct("<BQHIQQ")

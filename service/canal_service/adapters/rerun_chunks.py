@@ -15,6 +15,8 @@ or with ``fast=False``, the rows go through the public ``rr.send_columns``.
 from __future__ import annotations
 
 import functools
+import importlib
+import importlib.util
 from importlib.metadata import version
 from typing import TYPE_CHECKING, Any
 
@@ -31,12 +33,12 @@ INSTALLED = version("rerun-sdk")
 POSE_COLOR = (220, 40, 160, 255)
 TARGET_COLOR = (40, 200, 220, 255)
 
-try:  # the native module: gone or changed in a future rerun-sdk means the public path
-    import rerun_bindings as _bindings
-
-    _send_arrow_chunk: Any = getattr(_bindings, "send_arrow_chunk", None)
-except ImportError:  # pragma: no cover - depends on the installed rerun-sdk
-    _send_arrow_chunk = None
+# The native module: gone or changed in a future rerun-sdk means the public path (looked up,
+# not imported blindly).
+_send_arrow_chunk: Any = None
+if importlib.util.find_spec("rerun_bindings") is not None:
+    _send_arrow_chunk = getattr(importlib.import_module("rerun_bindings"), "send_arrow_chunk",
+                                None)
 
 
 def native_path() -> bool:
