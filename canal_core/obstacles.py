@@ -58,7 +58,7 @@ DEVIATION_WEIGHT = 1.0
 SMOOTHNESS_WEIGHT = 25.0
 #: A detour to one side shifts the ratio rule's points along one of this many in-plane
 #: directions, by at most this many levels (as fine as a step's sideways room allows).
-SHIFT_DIRECTIONS = 16
+SHIFT_DIRECTIONS = 32
 SHIFT_LEVELS = 128
 #: Iterations of the segment march against boxes (:func:`segment_free_distances`); a segment
 #: still unresolved after them counts as touching (conservative).
@@ -820,7 +820,8 @@ def _window_path(
     reach = 2.0 * float(radius[:end].max())
     h = max(min(0.5 * sideways, reach / 16.0), reach / SHIFT_LEVELS)
     levels = int(min(SHIFT_LEVELS, np.ceil(reach / h) + 1))
-    for angle in _shift_angles(basis.shape[1]):
+    inward = -np.einsum("wd,wkd->k", nom - centres[sec[:end]], basis[sec[:end]])
+    for angle in _shift_angles(basis.shape[1], inward):
         cand, inside = _shift_candidates(nom, sec[:end], centres, basis, sections, angle, h, levels)
         cfree = free_distances(cand.reshape(-1, d), scene).reshape(cand.shape[:2])
         cfree[~inside] = -1e300  # unusable (finite: inf + -inf would be NaN)
@@ -847,11 +848,14 @@ def _window_path(
     return furthest.rows, Blocked(int(first + hi), "unreachable", tuple(int(x) for x in taking))
 
 
-def _shift_angles(in_plane: int) -> list[FloatArray]:
-    """Unit in-plane directions a detour may shift along."""
+def _shift_angles(in_plane: int, inward: FloatArray) -> list[FloatArray]:
+    """Unit in-plane directions a detour may shift along: :data:`SHIFT_DIRECTIONS` of them,
+    evenly spread from ``inward`` (the way back toward the directrix from the ratio rule's
+    points, which ride the boundary after a start outside the canal; any when zero)."""
     if in_plane == 1:
         return [np.array([1.0]), np.array([-1.0])]
-    angles = np.linspace(0.0, 2.0 * np.pi, SHIFT_DIRECTIONS, endpoint=False)
+    base = float(np.arctan2(inward[1], inward[0])) if np.any(inward != 0.0) else 0.0
+    angles = base + np.linspace(0.0, 2.0 * np.pi, SHIFT_DIRECTIONS, endpoint=False)
     return [np.array([np.cos(a), np.sin(a)]) for a in angles]
 
 

@@ -235,3 +235,27 @@ def test_2d_discs_and_boxes(rng: np.random.Generator) -> None:
     with pytest.raises(InvalidInputError) as info:
         canal.reproduce_detailed(start, obstacles=[{"kind": "sphere", "center": [2, 0, 0], "radius": 1}])
     assert info.value.field == "obstacles[0].kind"
+
+
+def test_a_start_outside_a_narrowing_canal_still_goes_around_a_sphere() -> None:
+    """Generated raw logs of the paper's Task I (the canal narrows to a centimetre), a start
+    outside it (the path rides the boundary) and a sphere where it narrows: the detour is found
+    (it was reported unreachable with too few shift directions)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from raw_logs import raw_demo_set
+
+    from canal_core.preprocess import cleaned_demonstration
+
+    logs = raw_demo_set("task1", 0)
+    demos = [cleaned_demonstration(g.positions[g.genuine], g.timestamps[g.genuine]) for g in logs]
+    train = demos[:2] + demos[3:]
+    canal = canal_core.fit([p for p, _ in train], [t for _, t in train], n_samples=200)
+    ball = {"kind": "sphere", "center": [0.4476926748531478, -0.0061539347237186525, 0.19548483740446815],
+            "radius": 0.026299519212005913}
+    rep = canal.reproduce_detailed(demos[2][0][0], obstacles=[ball])
+    assert rep.projected and rep.blocked is None
+    p = rep.positions
+    assert segment_free_distances(p[:-1], p[1:], scene_from_list([ball], 3)).min() >= 0.0
