@@ -205,3 +205,21 @@ def test_the_rule_s_constants_are_what_the_docs_say() -> None:
     page = (Path(__file__).parents[2] / "docs" / "live.md").read_text()
     for name, value in (("MAX_ADVANCE", MAX_ADVANCE), ("FAR_ETA", FAR_ETA), ("SUSTAIN", SUSTAIN)):
         assert f"`{name}` = {value:g}" in page
+
+
+@pytest.mark.parametrize("path", ["scalar", "bank"])
+@pytest.mark.parametrize("glitch", ["beyond the end", "far off", "ahead inside", "beside"])
+def test_a_glitch_changes_nothing_on_ellipse_sections(path: str, glitch: str) -> None:
+    """Sections whose reach depends on the direction (the held answer looks its reach up
+    along the kept plan): the same rule."""
+    x = np.linspace(0.0, 1.0, 120)
+    demos = [np.column_stack([x, 0.08 * np.cos(a) + 0 * x, 0.04 * np.sin(a) + 0 * x])
+             for a in np.linspace(0.0, 2 * np.pi, 8, endpoint=False)]
+    canal = canal_core.fit(demos, n_samples=60, cross_section="ellipse")
+    clean, glitched = stream(canal, path), stream(canal, path)
+    x0, before = walk(canal, clean, 8, 12)
+    walk(canal, glitched, 8, 12)
+    with np.errstate(all="ignore"):
+        a = glitched(glitches(canal)[glitch])
+    assert not a.inside and a.section_index <= before.section_index + 1
+    same_answer(glitched(x0), clean(x0))
