@@ -23,12 +23,9 @@ import httpx
 import numpy as np
 
 if __package__:
-    from bench.common import summary_row, write_block, write_summary
+    from bench.common import summary_row, write_section, write_summary
 else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
-    from common import summary_row, write_block, write_summary
-
-START, END = "<!-- memory-table:start -->", "<!-- memory-table:end -->"
-HEADING = "## Memory (`python bench/memory.py`)"
+    from common import summary_row, write_section, write_summary
 
 MiB = 2**20
 
@@ -131,8 +128,6 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a smaller burst")
     parser.add_argument("--idle", type=float, default=5.0, help="seconds idle before reading")
-    parser.add_argument("--write", action="store_true",
-                        help="write the table into BENCHMARKS.md even with --quick")
     args = parser.parse_args(argv)
     n_demos, n_points, batches = (5, 2000, 2) if args.quick else (20, 20000, 6)
     kept = measure(0.0, args.idle, n_demos, n_points, batches)
@@ -158,8 +153,7 @@ def main(argv: list[str] | None = None) -> int:
               "in the service."]
     table = "\n".join(lines)
     print(table)
-    if not args.quick or args.write:
-        write_block(table, START, END, HEADING)
+    write_section(table)
     write_summary("memory", [
         summary_row("REST RSS idle after a burst", trimmed["idle"], "MiB",
                     peer_name="same burst, memory kept (trim off)", peer_value=kept["idle"]),

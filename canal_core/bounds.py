@@ -8,6 +8,7 @@ The bounds, and why:
 
 * **Coordinates**: ``|x| <= MAX_COORDINATE`` (1e15, the preparation stage's limit on
   demonstrations): squares and products of coordinates must stay far from float64 overflow.
+  Obstacles' points and lengths (centre, ends, radius, half extents, clearance) too.
 * **Reach**: a start or goal lies within ``MAX_REACH`` (1e6) canal sizes of the canal's
   centre, the size being the diagonal of the box around the directrix widened by its largest
   radius. Further out, the canal's own geometry vanishes in the rounding of the point's
@@ -71,9 +72,29 @@ def check_coordinates(values: Any, field: str, limit: float = MAX_COORDINATE) ->
         return array
     where = field if array.ndim < 2 else f"{field}[{at // array.shape[-1]}]"
     raise InvalidInputError(
-        f"expected coordinates within +-{limit:g}, got {float(array.ravel()[at]):.6g}",
+        f"expected {where} within +-{limit:g}, got {float(array.ravel()[at]):.6g}",
         field=where,
     )
+
+
+#: The numbers of an obstacle (points and lengths, in the skill's units).
+OBSTACLE_NUMBERS = ("center", "a", "b", "radius", "half_extents", "clearance")
+
+
+def check_obstacle_numbers(obstacle: Any, field: str) -> None:
+    """Refuse an obstacle (its JSON form) whose points or lengths exceed ``MAX_COORDINATE``,
+    naming ``field.key``; its shape and kind are :mod:`canal_core.obstacles`' to check."""
+    if not isinstance(obstacle, dict):
+        return
+    for key in OBSTACLE_NUMBERS:
+        value = obstacle.get(key)
+        if value is not None:
+            try:
+                check_coordinates(value, f"{field}.{key}")
+            except (TypeError, ValueError) as exc:
+                if isinstance(exc, InvalidInputError):
+                    raise
+                return  # not numbers: obstacles.py says so with its own message
 
 
 def canal_extent(directrix: FloatArray, radii: FloatArray) -> tuple[FloatArray, float]:

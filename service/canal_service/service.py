@@ -46,6 +46,7 @@ from .validation import (
     DemoArrays,
     check_demonstration,
     check_finite_answer,
+    check_obstacles,
     check_reproduction_inputs,
 )
 
@@ -591,7 +592,9 @@ class CanalService:
             start_orientation = None
         scene_version, scene = self.scene_of(name, dim)
         if body.obstacles:
-            sent = canal_core.obstacles.scene_from_list([o.as_dict() for o in body.obstacles], dim)
+            sent_list = [o.as_dict() for o in body.obstacles]
+            check_obstacles(sent_list)
+            sent = canal_core.obstacles.scene_from_list(sent_list, dim)
             scene = sent if scene is None else canal_core.obstacles.merged_scene(scene, sent)
         results = []
         for start, field in zip(inputs.starts, fields, strict=True):
@@ -674,6 +677,7 @@ class CanalService:
     def put_scene(self, name: str, obstacles: Sequence[dict[str, Any]]) -> schemas.SceneOut:
         """Replace the skill's scene (checked against its dimension first: a malformed obstacle
         stores nothing); every listener (the live bridge) hears of the new version."""
+        check_obstacles(obstacles)
         with self.db.write() as s:
             skill = repo.get_skill(s, name)
             scene = canal_core.obstacles.scene_from_list(list(obstacles), skill.dim)

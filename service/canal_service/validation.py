@@ -251,3 +251,10 @@ def check_finite_answer(arrays: dict[str, Any], inputs: str) -> None:
             "they are beyond what the canal can compute with",
             field=inputs.split(", ")[0],
         )
+
+
+def check_obstacles(obstacles: Sequence[Any], field: str = "obstacles") -> None:
+    """Every obstacle's points and lengths within :data:`canal_core.bounds.MAX_COORDINATE`
+    (a scene put, or obstacles sent with a reproduction), before canal_core reads them."""
+    for i, obstacle in enumerate(obstacles):
+        _core_checked(bounds.check_obstacle_numbers, obstacle, f"{field}[{i}]")

@@ -139,3 +139,23 @@ def test_a_csv_with_cr_only_line_ends_is_read_row_by_row(http: httpx.Client) -> 
     assert r.json()["n_points"] == 8
     stored = http.get(f"/skills/classic-mac/demonstrations/{r.json()['id']}").json()
     np.testing.assert_allclose(stored["positions"], rows, atol=1e-6)
+
+
+@pytest.mark.parametrize(("obstacle", "field"), [
+    ({"kind": "sphere", "center": [1e308, 0, 0], "radius": 0.1}, "obstacles[0].center"),
+    ({"kind": "sphere", "center": [0.5, 0, 0], "radius": 1e300}, "obstacles[0].radius"),
+    ({"kind": "sphere", "center": [0.5, 0, 0], "radius": 0.01, "clearance": 1e308},
+     "obstacles[0].clearance"),
+    ({"kind": "box", "center": [0.5, 0, 0], "half_extents": [1e308, 1, 1]},
+     "obstacles[0].half_extents"),
+    ({"kind": "capsule", "a": [-1e308, 0, 0], "b": [1e308, 0, 0], "radius": 0.01},
+     "obstacles[0].a"),
+])
+def test_obstacles_beyond_the_coordinate_range_are_refused_and_not_stored(
+        http: httpx.Client, obstacle: dict[str, Any], field: str) -> None:
+    r = http.post("/skills/pour/reproductions", json={"start": [0, 0, 0], "obstacles": [obstacle]})
+    _refused(r, field)
+    before = http.get("/skills/pour/scene")
+    _refused(http.put("/skills/pour/scene", json={"obstacles": [obstacle]}), field)
+    after = http.get("/skills/pour/scene")
+    assert (after.status_code, after.json()) == (before.status_code, before.json())

@@ -85,14 +85,20 @@ def assert_4xx_or_finite(r: httpx.Response, numeric: tuple[str, ...] = ()) -> An
     return body
 
 
+SPHERE = st.fixed_dictionaries({"kind": st.just("sphere"), "center": point(3),
+                                 "radius": POSITIVE, "clearance": st.just(0.0) | POSITIVE})
+
+
 @given(start=point(3), goal=st.none() | point(3), duration=st.none() | POSITIVE,
-       orientation=st.none() | st.lists(NUMBER, min_size=4, max_size=4))
+       orientation=st.none() | st.lists(NUMBER, min_size=4, max_size=4),
+       obstacles=st.none() | st.lists(SPHERE, min_size=1, max_size=2))
 @EXAMPLES
 def test_reproductions_answer_4xx_or_finite_numbers(
         http: httpx.Client, start: list[float], goal: list[float] | None,
-        duration: float | None, orientation: list[float] | None) -> None:
+        duration: float | None, orientation: list[float] | None,
+        obstacles: list[dict[str, Any]] | None) -> None:
     body: dict[str, Any] = {"start": start, "goal": goal, "duration": duration,
-                            "start_orientation": orientation}
+                            "start_orientation": orientation, "obstacles": obstacles}
     r = http.post("/skills/pour/reproductions", json={k: v for k, v in body.items() if v is not None})
     assert_4xx_or_finite(r, ("positions", "times", "velocities", "orientations", "eta"))
 
