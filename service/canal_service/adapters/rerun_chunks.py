@@ -47,7 +47,6 @@ def native_path() -> bool:
 
 
 @functools.cache
-@functools.cache
 def _components(archetype: str) -> dict[str, tuple[Any, pa.DataType]]:
     """``{field: (component descriptor, Arrow type of one value)}`` of a live archetype."""
     one3, color = np.zeros((1, 3)), np.array([[0, 0, 0, 255]])
