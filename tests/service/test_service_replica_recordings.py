@@ -9,8 +9,10 @@ reproductions. Both are read back with mcap's reader and Rerun's own CLI.
 
 from __future__ import annotations
 
+import contextlib
 import io
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -30,19 +32,26 @@ WAIT_S = 120.0
 LIFT = 5.0  # the re-created skill's demos: the same arcs, 5 up in z
 
 
-@pytest.fixture
-def two_replicas(postgres_server: PostgresServer, tmp_path: Path
-                 ) -> Iterator[tuple[httpx.Client, httpx.Client]]:
-    url = postgres_server.new_database()
-    # the database keeps a skill's newest 2 reproductions for the recordings
+@contextlib.contextmanager
+def serve_two(url: str, tmp_path: Path, kept: int
+              ) -> Iterator[tuple[httpx.Client, httpx.Client]]:
+    """Two replicas on the database at ``url``, each with its own data folder; the database
+    keeps a skill's newest ``kept`` reproductions for the recordings."""
     one = Settings(data_dir=tmp_path / "one", database_url=url, zenoh_enabled=False,
-                   recordings_reproductions_kept=2)
+                   recordings_reproductions_kept=kept)
     two = Settings(data_dir=tmp_path / "two", database_url=url, zenoh_enabled=False,
-                   recordings_reproductions_kept=2)
+                   recordings_reproductions_kept=kept)
     with LiveServer(create_app(one)) as a, LiveServer(create_app(two)) as b, \
             httpx.Client(base_url=a.url, timeout=WAIT_S) as http_a, \
             httpx.Client(base_url=b.url, timeout=WAIT_S) as http_b:
         yield http_a, http_b
+
+
+@pytest.fixture
+def two_replicas(postgres_server: PostgresServer, tmp_path: Path
+                 ) -> Iterator[tuple[httpx.Client, httpx.Client]]:
+    with serve_two(postgres_server.new_database(), tmp_path, kept=2) as replicas:
+        yield replicas
 
 
 def upload(http: httpx.Client, skill: str, demos: list[np.ndarray]) -> list[int]:
@@ -175,3 +184,22 @@ def test_every_replica_answers_the_same_recording(
     deleted = {f"demos/{ids[0]}", "reproductions/1"}
     assert (rrd_entities(one, "pour", tmp_path) - deleted
             == rrd_entities(two, "pour", tmp_path) - deleted)
+
+
+def test_reproductions_served_at_once_by_both_replicas_are_all_kept(
+        postgres_server: PostgresServer, tmp_path: Path) -> None:
+    """Both replicas number a skill's reproductions at once: each gets its own number (a
+    collision is taken again under the skill's lock), and both recordings hold them all."""
+    with serve_two(postgres_server.new_database(), tmp_path, kept=1000) as (one, two):
+        assert one.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        upload(one, "pour", [demo_positions(j) for j in range(3)])
+        assert fit(two, "pour") == 1
+
+        def burst(http: httpx.Client) -> None:
+            for k in range(6):
+                reproduce(http, "pour", [0.0, 0.001 * k, 0.0])
+
+        with ThreadPoolExecutor(4) as pool:
+            list(pool.map(burst, [one, two, one, two]))
+        for http in (one, two):
+            assert set(mcap_content(http, "pour")["reproductions"]) == set(range(1, 25))

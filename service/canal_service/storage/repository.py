@@ -426,7 +426,7 @@ def skill_instances(session: Session, name: str | None = None) -> dict[str, str]
 
 
 #: Attempts at a reproduction's number when replicas take the same one at once.
-_NUMBER_RETRIES = 5
+_NUMBER_RETRIES = 8
 
 
 @dataclass(frozen=True)
@@ -454,6 +454,9 @@ _INSERT_REPRODUCTION = insert(_R).from_select(
     ).where(Skill.id == bindparam("skill_id"),
             Skill.created_at == bindparam("skill_created_at", type_=Skill.created_at.type)),
 ).returning(_R.number)
+# FOR NO KEY UPDATE, as a fit's version takes it: uploads (a key-share lock) keep flowing.
+_LOCK_SKILL = select(Skill.id).where(Skill.id == bindparam("skill_id")).with_for_update(
+    key_share=True)
 _PRUNE_REPRODUCTIONS = delete(_R).where(_R.skill_id == bindparam("skill_id"),
                                         _R.number <= bindparam("oldest_dropped"))
 
@@ -467,7 +470,8 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
     Nothing is stored when the skill is gone or is another instance than the one the
     reproduction was computed for (deleted and created again meanwhile). Two replicas that
     take the same number at once collide on ``uq_reproductions_skill_number``; the loser
-    tries again, as fits do.
+    tries again holding the skill row's lock (as fits take theirs), so the numbers of those
+    that collided are taken one at a time.
     """
     now = utcnow()
     rows = []
@@ -490,10 +494,12 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
         })
     step = max(1, min(32, keep // 2))
     clash: IntegrityError | None = None
-    for _attempt in range(_NUMBER_RETRIES):
+    for attempt in range(_NUMBER_RETRIES):
         try:
             numbers: list[int] = []
             with db.write_connection() as connection:  # Core only: no ORM session here
+                if attempt > 0 and not db.is_sqlite:  # SQLite's writers never collide
+                    connection.execute(_LOCK_SKILL, {"skill_id": skill_id})
                 for values in rows:
                     number = connection.execute(_INSERT_REPRODUCTION, values).scalar()
                     if number is None:
