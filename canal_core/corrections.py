@@ -53,13 +53,14 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
 from .errors import InvalidInputError, ModelFormatError
 from .frames import double_reflection_matrices, smoothed_curve
+from .options import CORRECTION_KINDS, MAX_CORRECTION_SAMPLES, MIN_CORRECTION_SAMPLES, CorrectionKind
 from .reproduce import located_points, section_basis, smootherstep
 from .validation import (
     BoolArray,
@@ -75,13 +76,8 @@ from .validation import (
 if TYPE_CHECKING:
     from .model import Canal
 
-CorrectionKind = Literal["include", "exclude"]
-CORRECTION_KINDS: tuple[CorrectionKind, ...] = get_args(CorrectionKind)
-#: Fewest samples a correction may have, and fewest sections it must cross.
-MIN_CORRECTION_SAMPLES = 4
+#: Fewest sections a correction must cross.
 MIN_SPAN_SECTIONS = 2
-#: Most samples one correction may have (a few seconds of a 1 kHz stream).
-MAX_CORRECTION_SAMPLES = 20_000
 #: A crossing farther than this many section radii from the directrix is not over the canal.
 REACH = 3.0
 #: An exclude correction must leave at least this fraction of a section's width.
@@ -695,6 +691,7 @@ __all__ = [
     "BLEND_FRACTION",
     "CORRECTION_KINDS",
     "INCLUDE_MARGIN",
+    "MAX_CORRECTION_SAMPLES",
     "MIN_BLEND",
     "MIN_CORRECTION_SAMPLES",
     "MIN_SPAN_SECTIONS",

@@ -34,6 +34,12 @@ OUTSIDE_RULES: tuple[OutsideRule, ...] = get_args(OutsideRule)
 MIN_SAMPLES = 2
 MAX_SAMPLES = 5_000
 MAX_FRAME_SMOOTHING = 0.25
+#: Corrections (:mod:`canal_core.corrections`): their kinds, and how many samples one has.
+CorrectionKind = Literal["include", "exclude"]
+CORRECTION_KINDS: tuple[CorrectionKind, ...] = get_args(CorrectionKind)
+MIN_CORRECTION_SAMPLES = 4
+#: A few seconds of a 1 kHz stream.
+MAX_CORRECTION_SAMPLES = 20_000
 
 
 @dataclass(frozen=True)

@@ -16,15 +16,19 @@ from canal_core import options as _core
 
 __all__ = [
     "ALIGNMENTS",
+    "CORRECTION_KINDS",
     "CROSS_SECTIONS",
     "DEFAULTS",
     "DIRECTRICES",
     "FRAMES",
+    "MAX_CORRECTION_SAMPLES",
     "MAX_FRAME_SMOOTHING",
     "MAX_SAMPLES",
+    "MIN_CORRECTION_SAMPLES",
     "MIN_SAMPLES",
     "OUTSIDE_RULES",
     "Alignment",
+    "CorrectionKind",
     "CrossSection",
     "Directrix",
     "FrameKind",
@@ -50,6 +54,11 @@ FrameKind = _core.FrameKind
 Alignment = _core.AlignmentKind
 Directrix = _core.DirectrixKind
 OutsideRule = _core.OutsideRule
+#: Corrections: the kinds a person may send and the sizes canal_core accepts.
+CorrectionKind = _core.CorrectionKind
+CORRECTION_KINDS = _core.CORRECTION_KINDS
+MIN_CORRECTION_SAMPLES = _core.MIN_CORRECTION_SAMPLES
+MAX_CORRECTION_SAMPLES = _core.MAX_CORRECTION_SAMPLES
 #: The recordings a skill has: Rerun (.rrd) and MCAP.
 RecordingKind = Literal["rrd", "mcap"]
 if TYPE_CHECKING:

@@ -14,7 +14,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model
 from canal_core import obstacles as canal_obstacles
 
 from . import options
-from .options import Alignment, CrossSection, Directrix, FrameKind, OutsideRule
+from .options import Alignment, CorrectionKind, CrossSection, Directrix, FrameKind, OutsideRule
 
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 MAX_BATCH_STARTS = 1000
@@ -249,6 +249,12 @@ class FitRequest(_In):
     demo_ids: list[Id] | None = Field(
         None, max_length=10000, description="Fit only these demonstrations (default: all)."
     )
+    keep_corrections: bool = Field(
+        True,
+        description="Re-apply the skill's corrections (those of its latest model version) "
+                    "to the new canal: the fit is stored, then a version with the corrections "
+                    "(whose parent is the fit) becomes the latest. False: the plain fit is the "
+                    "latest and the corrections are left behind.")
     orientation: bool = Field(
         True,
         description="Learn the orientation along the canal when every demonstration has "
@@ -271,6 +277,65 @@ class ModelSummary(BaseModel):
     has_orientation: bool = Field(
         False, description="Whether the model learned orientation (every demo had "
                            "orientations): reproductions then answer one quaternion per position.")
+    parent_version: int | None = Field(
+        None, description="The version this one was refined from by a correction (or, after "
+                          "a refit that kept the corrections, the plain fit); null for a fit.")
+    corrections: list[int] = Field(
+        default_factory=list,
+        description="Ids of the corrections applied to this version since its fit, in order.")
+    notes: list[str] = Field(
+        default_factory=list,
+        description="What the service did that the request could not tell (e.g. a correction "
+                    "that no longer applies after a refit).")
+
+
+# ---- corrections ------------------------------------------------------------------------------
+
+
+class CorrectionIn(_In):
+    """A person's correction of a skill's canal: a short path over part of it and its kind."""
+
+    kind: CorrectionKind = Field(
+        description="include: this path is right too (the canal grows locally to hold it); "
+                    "exclude: the robot was pushed away from where it went (the canal narrows "
+                    "on that side, keeping the distance the person showed).")
+    samples: list[list[Coordinate]] = Field(
+        max_length=options.MAX_CORRECTION_SAMPLES,
+        description=f"(M, D) rows of x, y[, z] along the canal, M >= "
+                    f"{options.MIN_CORRECTION_SAMPLES}; D is the skill's dimension.",
+        examples=[[[0.1, 0.02, 0.0], [0.2, 0.03, 0.0], [0.3, 0.03, 0.0], [0.4, 0.02, 0.0]]])
+    timestamps: list[Coordinate] | None = Field(
+        None, description="(M,) seconds, optional; kept with the correction.")
+    orientations: list[list[Coordinate]] | None = Field(
+        None, description="(M, 4) unit quaternions, optional; kept with the correction.")
+    model: Literal["latest"] | Id = Field(
+        "latest", description="The model version corrected; the result is always the new latest.")
+    weight: float = Field(
+        1.0, gt=0.0, le=1000.0,
+        description="How much an include counts against one demonstration (exclude ignores it).")
+    label: str = Field("", max_length=200, pattern=NO_NUL)
+
+
+class CorrectionOut(BaseModel):
+    """A stored correction."""
+
+    id: int
+    kind: str
+    label: str
+    weight: float
+    n_points: int
+    base_version: int = Field(description="The model version it was first applied to.")
+    model_version: int = Field(description="The model version it made.")
+    first_section: int
+    last_section: int
+    created_at: UtcDatetime
+    undone: bool = Field(description="Undone corrections stay listed; no later version has them.")
+
+
+class CorrectedModel(ModelSummary):
+    """The model version a correction (or an undo) made, and the correction."""
+
+    correction: CorrectionOut
 
 
 class Frames(BaseModel):

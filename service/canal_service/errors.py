@@ -97,6 +97,10 @@ class ModelVersionNotFound(NotFound):
     """The skill has models, but not the version asked for (or it was deleted meanwhile)."""
 
 
+class CorrectionNotFound(NotFound):
+    """The skill has no correction of that id."""
+
+
 class Conflict(ServiceError):
     """The request clashes with stored state (base of the specific kinds below)."""
 
@@ -124,6 +128,10 @@ class NotEnoughDemonstrations(Conflict):
 
 class VersionConflict(Conflict):
     """Concurrent fits kept taking the model version number this fit tried to store."""
+
+
+class CorrectionNotInLatest(Conflict):
+    """An undo of a correction the latest model version does not have."""
 
 
 class RecordingFailed(Conflict):

@@ -77,6 +77,12 @@ class Metrics:
         self.fits = Counter("canal_fits_total", "Models fitted", registry=r)
         self.fit_seconds = Histogram("canal_fit_duration_seconds", "canal_core.fit wall time",
                                      buckets=_LATENCY_BUCKETS, registry=r)
+        self.corrections = Counter("canal_corrections_total",
+                                   "Corrections applied (each made a model version), by kind",
+                                   ["kind"], registry=r)
+        self.corrections_undone = Counter("canal_corrections_undone_total",
+                                          "Corrections undone (each made a model version)",
+                                          registry=r)
         self.reproductions = Counter("canal_reproductions_total", "Reproductions computed",
                                      ["inside"], registry=r)
         # live bridge (canal_service.bridge)

@@ -15,6 +15,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
@@ -25,12 +26,15 @@ import numpy.typing as npt
 from sqlalchemy.exc import IntegrityError
 
 import canal_core
+from canal_core.corrections import Correction as Correction_
+from canal_core.corrections import checked_correction, corrected_canal
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
 
 from . import __version__, uploads
 from .errors import (
     CanalRejected,
+    CorrectionNotInLatest,
     Disabled,
     InvalidInput,
     ModelVersionNotFound,
@@ -40,7 +44,7 @@ from .errors import (
 )
 from .fitting import FitJob, FitRunner
 from .metrics import Metrics
-from .storage import Database, Demonstration, ModelVersion, Skill, arrays
+from .storage import Correction, Database, Demonstration, ModelVersion, Skill, arrays
 from .storage import repository as repo
 from .validation import (
     DemoArrays,
@@ -402,6 +406,7 @@ class CanalService:
             skill = repo.get_skill(s, name)
             rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
             loaded = [(r.id, *_demo_arrays(r)) for r in rows]
+            kept = self._latest_corrections(s, skill) if body.keep_corrections else []
         if body.demo_ids is not None:
             missing = sorted(set(body.demo_ids) - {d[0] for d in loaded})
             if missing:
@@ -416,7 +421,7 @@ class CanalService:
         demo_ids = [d[0] for d in loaded]
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
-        options = body.model_dump(exclude={"demo_ids", "by_time", "orientation"})
+        options = body.model_dump(exclude={"demo_ids", "by_time", "orientation", "keep_corrections"})
         # Time stamps always give the model its speed profile; they align only when by_time.
         stamped = times if any(t is not None for t in times) else None
         quats = [d[3] for d in loaded]
@@ -445,12 +450,21 @@ class CanalService:
         stored_ns = None if created is None else repo.created_ns(created)
         self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
                                                               t_ns=stored_ns, instance=instance))
-        self.fit_listeners.notify(name, version, canal)
-        return model[1]
+        if not kept:
+            self.fit_listeners.notify(name, version, canal)
+            return model[1]
+        # The skill's corrections, re-applied to the new canal (a version of its own, whose
+        # parent is the plain fit); one that no longer applies is left behind and said so.
+        refined, applied, notes = self._reapplied(canal, kept)
+        lineage = StoredLineage(version, version, [c.id for c in applied])
+        return self._store_refined(name, used_options, demo_ids, refined, lineage, notes)
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                     serialized: dict[str, Any], seconds: float, canal: canal_core.Canal
+                     serialized: dict[str, Any], seconds: float, canal: canal_core.Canal,
+                     lineage: StoredLineage | None = None,
                      ) -> tuple[CacheKey, schemas.ModelSummary, str]:
+        """Store a new model version (with its lineage and, in the same transaction, what
+        ``lineage.in_transaction`` writes: a new correction, an undone mark)."""
         # Versions are max + 1 under a unique constraint: two replicas fitting at once both
         # try the same number, one wins, the other retries with the next.
         clash: IntegrityError | None = None
@@ -461,8 +475,15 @@ class CanalService:
                     version = repo.next_model_version(s, skill)
                     row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
                                          int(canal.n_sections), str(canal.section_kind))
+                    found = repo.Lineage(None, version, [])
+                    if lineage is not None:
+                        ids = list(lineage.correction_ids)
+                        if lineage.in_transaction is not None:
+                            ids = lineage.in_transaction(s, skill, version, ids)
+                        found = repo.Lineage(lineage.parent_version, lineage.fit_version, ids)
+                        repo.add_lineage(s, row, lineage.parent_version, lineage.fit_version, ids)
                     return (model_cache_key(row.id, skill.created_at),
-                            self._model_summary(row, skill.dim, len(demo_ids)),
+                            self._model_summary(row, skill.dim, found, len(demo_ids)),
                             repo.skill_instance(skill.id, skill.created_at))
             except IntegrityError as exc:
                 clash = exc
@@ -471,9 +492,10 @@ class CanalService:
             "row; fit again", field="version") from clash
 
     @staticmethod
-    def _model_summary(row: ModelVersion, dim: int, n_demos: int | None = None
-                       ) -> schemas.ModelSummary:
+    def _model_summary(row: ModelVersion, dim: int, lineage: repo.Lineage,
+                       n_demos: int | None = None) -> schemas.ModelSummary:
         return schemas.ModelSummary(
+            parent_version=lineage.parent_version, corrections=list(lineage.correction_ids),
             version=row.version, created_at=row.created_at, demo_ids=list(row.demo_ids),
             options=dict(row.options), dim=dim,
             n_demos=len(row.demo_ids) if n_demos is None else n_demos,
@@ -486,7 +508,8 @@ class CanalService:
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             rows, total = repo.list_models(s, skill, offset, limit)
-            items = [self._model_summary(r, skill.dim) for r in rows]
+            found = repo.lineages(s, rows)
+            items = [self._model_summary(r, skill.dim, found[r.id]) for r in rows]
         return schemas.Page[schemas.ModelSummary](items=items, total=total, offset=offset,
                                                    limit=limit)
 
@@ -540,12 +563,13 @@ class CanalService:
             skill = repo.get_skill(s, name)
             row = repo.get_model(s, repo.require_model_ref(s, skill, version)[0])
             dim, skill_created_at = skill.dim, skill.created_at
+            lineage = repo.lineages(s, [row])[row.id]
         key = model_cache_key(row.id, skill_created_at)
         canal = self.cache.get(key)
         if canal is None:
             canal = canal_core.Canal.from_dict(row.canal)
             self.cache.put(key, canal)
-        summary = self._model_summary(row, dim)
+        summary = self._model_summary(row, dim, lineage)
         data = row.canal
         sections = data.get("sections") if isinstance(data, dict) else None
         return schemas.ModelOut(
@@ -565,6 +589,124 @@ class CanalService:
         """The canal's surface mesh from canal_core."""
         canal, _row, _version, _dim = self.load_canal(name, version)
         return canal.mesh(n_angles=n_angles, caps=caps, envelope=envelope)
+
+    # ---- corrections ------------------------------------------------------------------------
+
+    def _latest_corrections(self, s: Any, skill: Skill) -> list[StoredCorrection]:
+        """The corrections of the skill's latest model version, in the order applied."""
+        ref = repo.model_ref(s, skill, None)
+        if ref is None:
+            return []
+        row = repo.get_model(s, ref[0])
+        ids = repo.lineages(s, [row])[row.id].correction_ids
+        return [StoredCorrection.of(r) for r in repo.get_corrections(s, skill, ids)]
+
+    @staticmethod
+    def _reapplied(canal: canal_core.Canal, kept: Sequence[StoredCorrection]
+                   ) -> tuple[canal_core.Canal, list[StoredCorrection], list[str]]:
+        """``canal`` with each correction re-applied in turn; those that fail are skipped."""
+        applied, notes = [], []
+        for stored in kept:
+            try:
+                canal = corrected_canal(canal, stored.correction)
+            except canal_core.CanalError as exc:
+                notes.append(f"correction {stored.id} no longer applies and was left out: "
+                             f"{exc.message}")
+                continue
+            applied.append(stored)
+        return canal, applied, notes
+
+    def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],
+                       canal: canal_core.Canal, lineage: StoredLineage, notes: list[str]
+                       ) -> schemas.ModelSummary:
+        """Store a refined canal as the new latest version and tell whoever listens."""
+        serialized = canal.to_dict()
+        key, summary, instance = self._store_model(name, options, demo_ids, serialized, 0.0,
+                                                   canal, lineage)
+        self.cache.put(key, canal)
+        version = summary.version
+        created = summary.created_at
+        stored_ns = None if created is None else repo.created_ns(created)
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
+                                                              t_ns=stored_ns, instance=instance))
+        self.fit_listeners.notify(name, version, canal)
+        summary.notes = notes
+        return summary
+
+    def correct(self, name: str, body: schemas.CorrectionIn) -> schemas.CorrectedModel:
+        """Refine a model version (the latest by default) by a person's correction; the
+        result is the new latest version. Nothing is stored when canal_core refuses it."""
+        version = None if body.model == "latest" else int(body.model)
+        canal, _row, base_version, dim = self.load_canal(name, version)
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
+            lineage = repo.lineages(s, [base])[base.id]
+            options, demo_ids = dict(base.options), list(base.demo_ids)
+        try:
+            correction = checked_correction(body.kind, body.samples, dim, body.weight, body.label,
+                                            body.timestamps, body.orientations)
+            refined = corrected_canal(canal, correction)
+        except canal_core.CanalError as exc:
+            raise CanalRejected(exc, exc.message, field=exc.field) from exc
+        applied = refined.corrections[-1]
+        made: list[Correction] = []
+
+        def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
+            row = repo.insert_correction(
+                s, skill, correction.kind, correction.label, correction.weight, correction.samples,
+                correction.timestamps, correction.orientations, base_version, version,
+                applied.first, applied.last)
+            made.append(row)
+            return [*ids, row.id]
+
+        summary = self._store_refined(
+            name, options, demo_ids, refined,
+            StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store), [])
+        self.metrics.corrections.labels(correction.kind).inc()
+        row = made[-1]
+        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(row))
+
+    def list_corrections(self, name: str, offset: int, limit: int
+                         ) -> schemas.Page[schemas.CorrectionOut]:
+        """A page of the skill's corrections, oldest first (undone ones say so)."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            rows, total = repo.list_corrections(s, skill, offset, limit)
+            items = [_correction_out(r) for r in rows]
+        return schemas.Page[schemas.CorrectionOut](items=items, total=total, offset=offset,
+                                                    limit=limit)
+
+    def undo_correction(self, name: str, correction_id: int) -> schemas.CorrectedModel:
+        """A new latest version without one correction: the others re-applied to the fit."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            target = repo.get_corrections(s, skill, [correction_id])[0]
+            ref = repo.require_model_ref(s, skill, None)
+            latest = repo.get_model(s, ref[0])
+            lineage = repo.lineages(s, [latest])[latest.id]
+            if correction_id not in lineage.correction_ids:
+                raise CorrectionNotInLatest(
+                    f"correction {correction_id} is not part of the latest model version "
+                    f"{latest.version} of skill {name!r} (undone already, or left behind by a "
+                    "refit)", field="id")
+            rest = [StoredCorrection.of(r) for r in repo.get_corrections(
+                s, skill, [i for i in lineage.correction_ids if i != correction_id])]
+            options, demo_ids = dict(latest.options), list(latest.demo_ids)
+            latest_version = latest.version
+        base, _row, _v, _dim = self.load_canal(name, lineage.fit_version)
+        refined, applied, notes = self._reapplied(base, rest)
+
+        def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
+            repo.get_corrections(s, skill, [correction_id])[0].undone = True
+            return ids
+
+        summary = self._store_refined(
+            name, options, demo_ids, refined,
+            StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark), notes)
+        self.metrics.corrections_undone.inc()
+        target.undone = True
+        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(target))
 
     # ---- reproductions ----------------------------------------------------------------------
 
@@ -784,6 +926,43 @@ class ServiceHealth:
                 status = "degraded"
         return schemas.HealthOut(status=status, database=database, recorder=recorder,
                                  bridge=bridge, version=__version__)
+
+
+@dataclass(frozen=True)
+class StoredCorrection:
+    """A stored correction as canal_core takes it."""
+
+    id: int
+    correction: Correction_
+
+    @classmethod
+    def of(cls, row: Correction) -> StoredCorrection:
+        samples = arrays.unpack(row.samples, row.n_points, row.dim)
+        times = None if row.timestamps is None else arrays.unpack(row.timestamps, row.n_points)
+        quats = None if row.orientations is None else arrays.unpack(row.orientations, row.n_points, 4)
+        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats))
+
+
+InTransaction = Callable[[Any, Skill, int, list[int]], list[int]]
+
+
+@dataclass(frozen=True)
+class StoredLineage:
+    """The lineage a new version is stored with; ``in_transaction(session, skill, version,
+    ids)`` writes what must commit with it and answers the version's correction ids."""
+
+    parent_version: int
+    fit_version: int
+    correction_ids: list[int]
+    in_transaction: InTransaction | None = None
+
+
+def _correction_out(row: Correction) -> schemas.CorrectionOut:
+    return schemas.CorrectionOut(
+        id=row.id, kind=row.kind, label=row.label, weight=row.weight, n_points=row.n_points,
+        base_version=row.base_version, model_version=row.model_version,
+        first_section=row.first_section, last_section=row.last_section,
+        created_at=row.created_at, undone=bool(row.undone))
 
 
 def _tell_reproduction(skill: str, version: int, result: canal_core.Reproduction,

@@ -1,7 +1,16 @@
 """Persistence: tables, the database handle and repository functions."""
 
 from .db import Database
-from .models import Base, Demonstration, ModelVersion, SceneRow, Skill, StoredReproduction
+from .models import (
+    Base,
+    Correction,
+    Demonstration,
+    ModelLineage,
+    ModelVersion,
+    SceneRow,
+    Skill,
+    StoredReproduction,
+)
 
-__all__ = ["Base", "Database", "Demonstration", "ModelVersion", "SceneRow", "Skill",
-           "StoredReproduction"]
+__all__ = ["Base", "Correction", "Database", "Demonstration", "ModelLineage", "ModelVersion",
+           "SceneRow", "Skill", "StoredReproduction"]

@@ -137,3 +137,51 @@ class SceneRow(Base):
     version: Mapped[int] = mapped_column(Integer, nullable=False)
     obstacles: Mapped[list[dict[str, Any]]] = mapped_column(JSON, nullable=False)
     updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class ModelLineage(Base):
+    """Where a refined model version came from; a plain fit has no row.
+
+    A table of its own rather than columns of ``models``: those would sit after the canal
+    column, and SQLite walks a canal's overflow pages to read what follows it.
+    """
+
+    __tablename__ = "model_lineage"
+
+    model_id: Mapped[int] = mapped_column(
+        ForeignKey("models.id", ondelete="CASCADE"), primary_key=True
+    )
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), index=True, nullable=False
+    )
+    #: The version this one was refined from (by a correction, an undo or a refit).
+    parent_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    #: The plain fit the corrections were applied to.
+    fit_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    #: The corrections applied to that fit, in order.
+    correction_ids: Mapped[list[int]] = mapped_column(JSON, nullable=False)
+
+
+class Correction(Base):
+    """A person's correction of a skill's canal: its path (packed float64) and its kind."""
+
+    __tablename__ = "corrections"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    skill_id: Mapped[int] = mapped_column(
+        ForeignKey("skills.id", ondelete="CASCADE"), index=True, nullable=False
+    )
+    kind: Mapped[str] = mapped_column(String(16), nullable=False)
+    label: Mapped[str] = mapped_column(String(256), nullable=False, default="")
+    weight: Mapped[float] = mapped_column(Float, nullable=False, default=1.0)
+    n_points: Mapped[int] = mapped_column(Integer, nullable=False)
+    dim: Mapped[int] = mapped_column(Integer, nullable=False)
+    samples: Mapped[bytes] = mapped_column(LargeBinary, nullable=False)
+    timestamps: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    orientations: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    base_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    model_version: Mapped[int] = mapped_column(Integer, nullable=False)
+    first_section: Mapped[int] = mapped_column(Integer, nullable=False)
+    last_section: Mapped[int] = mapped_column(Integer, nullable=False)
+    undone: Mapped[bool] = mapped_column(Boolean, nullable=False, default=False)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

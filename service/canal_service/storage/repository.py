@@ -18,6 +18,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, defer
 
 from ..errors import (
+    CorrectionNotFound,
     DemoNotFound,
     InvalidInput,
     ModelVersionNotFound,
@@ -27,7 +28,16 @@ from ..errors import (
 )
 from . import arrays
 from .db import Database
-from .models import Demonstration, ModelVersion, SceneRow, Skill, StoredReproduction, utcnow
+from .models import (
+    Correction,
+    Demonstration,
+    ModelLineage,
+    ModelVersion,
+    SceneRow,
+    Skill,
+    StoredReproduction,
+    utcnow,
+)
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,8 @@ def delete_skill(session: Session, name: str) -> None:
     skill = get_skill(session, name)
     # Explicit deletes too, so the cascade does not depend on the backend's FK enforcement.
     session.execute(delete(Demonstration).where(Demonstration.skill_id == skill.id))
+    session.execute(delete(ModelLineage).where(ModelLineage.skill_id == skill.id))
+    session.execute(delete(Correction).where(Correction.skill_id == skill.id))
     session.execute(delete(ModelVersion).where(ModelVersion.skill_id == skill.id))
     session.execute(delete(StoredReproduction).where(StoredReproduction.skill_id == skill.id))
     session.execute(delete(SceneRow).where(SceneRow.skill_id == skill.id))
@@ -535,3 +547,82 @@ def put_scene(session: Session, skill: Skill, obstacles: list[dict[str, Any]]) -
         row.updated_at = utcnow()
     session.flush()
     return row
+
+
+# ---- corrections and lineage -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Lineage:
+    """Where a model version came from: None / its own version / [] for a plain fit."""
+
+    parent_version: int | None
+    fit_version: int
+    correction_ids: list[int]
+
+
+def add_lineage(session: Session, model: ModelVersion, parent_version: int, fit_version: int,
+                correction_ids: list[int]) -> None:
+    """Record that ``model`` was refined from ``parent_version`` (of the fit ``fit_version``)."""
+    session.add(ModelLineage(model_id=model.id, skill_id=model.skill_id,
+                             parent_version=parent_version, fit_version=fit_version,
+                             correction_ids=list(correction_ids)))
+    session.flush()
+
+
+def lineages(session: Session, models: Sequence[ModelVersion]) -> dict[int, Lineage]:
+    """The lineage of each model row, by row id (a plain fit's from its own version)."""
+    found = {
+        row.model_id: row for row in session.scalars(
+            select(ModelLineage).where(ModelLineage.model_id.in_([m.id for m in models])))
+    }
+    out = {}
+    for m in models:
+        row = found.get(m.id)
+        out[m.id] = (Lineage(None, m.version, []) if row is None else
+                     Lineage(row.parent_version, row.fit_version, list(row.correction_ids)))
+    return out
+
+
+def insert_correction(session: Session, skill: Skill, kind: str, label: str, weight: float,
+                      samples: arrays.FloatArray, timestamps: arrays.FloatArray | None,
+                      orientations: arrays.FloatArray | None, base_version: int,
+                      model_version: int, first_section: int, last_section: int) -> Correction:
+    """Store a correction (flushes, so its id is known)."""
+    row = Correction(
+        skill_id=skill.id, kind=kind, label=label, weight=weight, n_points=int(samples.shape[0]),
+        dim=int(samples.shape[1]), samples=arrays.pack(samples),
+        timestamps=None if timestamps is None else arrays.pack(timestamps),
+        orientations=None if orientations is None else arrays.pack(orientations),
+        base_version=base_version, model_version=model_version, first_section=first_section,
+        last_section=last_section, undone=False,
+    )
+    session.add(row)
+    session.flush()
+    return row
+
+
+def list_corrections(session: Session, skill: Skill, offset: int, limit: int
+                     ) -> tuple[list[Correction], int]:
+    """A page of the skill's corrections, oldest first, and the total."""
+    total = session.scalar(
+        select(func.count()).select_from(Correction).where(Correction.skill_id == skill.id)
+    ) or 0
+    rows = session.scalars(
+        select(Correction).where(Correction.skill_id == skill.id)
+        .order_by(Correction.id).offset(offset).limit(limit)
+    ).all()
+    return list(rows), total
+
+
+def get_corrections(session: Session, skill: Skill, ids: Sequence[int]) -> list[Correction]:
+    """The skill's corrections with these ids, in the order of ``ids``
+    (:class:`CorrectionNotFound` for the first missing)."""
+    rows = {
+        r.id: r for r in session.scalars(
+            select(Correction).where(Correction.skill_id == skill.id, Correction.id.in_(list(ids))))
+    }
+    for i in ids:
+        if i not in rows:
+            raise CorrectionNotFound(f"skill {skill.name!r} has no correction {i}", field="id")
+    return [rows[i] for i in ids]

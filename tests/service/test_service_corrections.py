@@ -1,0 +1,150 @@
+"""Corrections over real HTTP: each one (and each undo) is a model version with its lineage."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+import pytest
+from canal_testing import LiveServer
+from service_helpers import demo_positions
+
+import canal_core
+
+
+@pytest.fixture
+def http(live_server: LiveServer) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=live_server.url, timeout=60) as client:
+        assert client.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        for j in range(5):
+            r = client.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+            assert r.status_code == 201, r.text
+        assert client.post("/skills/pour/fit", json={"n_samples": 80}).status_code == 201
+        yield client
+
+
+def served_canal(http: httpx.Client, version: str = "latest") -> canal_core.Canal:
+    r = http.get(f"/skills/pour/models/{version}", params={"serialized": True})
+    assert r.status_code == 200, r.text
+    return canal_core.Canal.from_dict(r.json()["serialized"])
+
+
+def wider_path(canal: canal_core.Canal, first: int = 30, last: int = 50) -> list[list[float]]:
+    idx = np.arange(first, last + 1)
+    side = canal.radii[idx, None] * (1.2 + 0.5 * np.sin(np.linspace(0.0, np.pi, idx.size)))[:, None]
+    return (canal.directrix[idx] + side * canal.normals[idx]).tolist()
+
+
+def pushed_path(canal: canal_core.Canal, depth: float = 0.7) -> list[list[float]]:
+    """The canal's own run from near its +normal wall, pushed towards -normal mid-way."""
+    start = canal.directrix[10] + 0.8 * canal.radii[10] * canal.normals[10]
+    run = canal.reproduce(start)
+    k = np.arange(run.shape[0])
+    sec = np.clip(10 + k, 0, canal.n_sections - 1)
+    bump = np.exp(-0.5 * ((k - 30) / 6.0) ** 2)
+    return (run - (depth * canal.radii[sec] * bump)[:, None] * canal.normals[sec]).tolist()
+
+
+def test_a_correction_is_a_new_model_version_with_its_parent(http: httpx.Client) -> None:
+    fitted = served_canal(http)
+    r = http.post("/skills/pour/corrections",
+                  json={"kind": "include", "samples": wider_path(fitted), "weight": 2.0, "label": "wider"})
+    assert r.status_code == 201, r.text
+    body = r.json()
+    assert body["version"] == 2 and body["parent_version"] == 1
+    correction = body["correction"]
+    assert body["corrections"] == [correction["id"]]
+    assert correction["kind"] == "include" and correction["label"] == "wider" and not correction["undone"]
+    assert correction["base_version"] == 1 and correction["model_version"] == 2
+    refined = served_canal(http)
+    assert refined.parent == fitted.digest
+    assert refined.contains(np.array(wider_path(fitted))).all()
+    # Reproductions use the refined canal; the fit is still there.
+    rep = http.post("/skills/pour/reproductions", json={"start": wider_path(fitted)[0]}).json()
+    assert rep["model_version"] == 2
+    models = http.get("/skills/pour/models").json()["items"]
+    assert [(m["version"], m["parent_version"], m["corrections"]) for m in models] == [
+        (2, 1, [correction["id"]]), (1, None, [])]
+    listed = http.get("/skills/pour/corrections").json()
+    assert listed["total"] == 1 and listed["items"][0]["id"] == correction["id"]
+    metrics = http.get("/metrics").text
+    assert 'canal_corrections_total{kind="include"} 1.0' in metrics
+
+
+def test_undo_makes_a_version_without_the_correction(http: httpx.Client) -> None:
+    fitted = served_canal(http)
+    first = http.post("/skills/pour/corrections", json={"kind": "include", "samples": wider_path(fitted)}).json()
+    second = http.post("/skills/pour/corrections", json={"kind": "exclude", "samples": pushed_path(fitted)})
+    assert second.status_code == 201, second.text
+    ids = [first["correction"]["id"], second.json()["correction"]["id"]]
+    assert second.json()["corrections"] == ids and second.json()["parent_version"] == 2
+    r = http.delete(f"/skills/pour/corrections/{ids[0]}")
+    assert r.status_code == 200, r.text
+    undone = r.json()
+    assert undone["version"] == 4 and undone["parent_version"] == 3 and undone["corrections"] == [ids[1]]
+    assert undone["correction"]["undone"]
+    # The same canal as the exclude applied to the fit alone.
+    only_exclude = fitted.corrected("exclude", pushed_path(fitted))
+    assert np.array_equal(served_canal(http).directrix, only_exclude.directrix)
+    again = http.delete(f"/skills/pour/corrections/{ids[0]}")
+    assert again.status_code == 409 and again.json()["error"]["field"] == "id"
+    assert http.delete("/skills/pour/corrections/999").status_code == 404
+    listed = http.get("/skills/pour/corrections").json()["items"]
+    assert [c["undone"] for c in listed] == [True, False]
+
+
+def test_a_refit_keeps_the_corrections_unless_asked_not_to(http: httpx.Client) -> None:
+    fitted = served_canal(http)
+    made = http.post("/skills/pour/corrections", json={"kind": "include", "samples": wider_path(fitted)}).json()
+    r = http.post("/skills/pour/fit", json={"n_samples": 80})
+    assert r.status_code == 201, r.text
+    kept = r.json()
+    assert kept["version"] == 4 and kept["parent_version"] == 3 and kept["corrections"] == [made["correction"]["id"]]
+    assert served_canal(http, "3").corrections == ()
+    assert served_canal(http).contains(np.array(wider_path(fitted))).all()
+    plain = http.post("/skills/pour/fit", json={"n_samples": 80, "keep_corrections": False}).json()
+    assert plain["version"] == 5 and plain["parent_version"] is None and plain["corrections"] == []
+    # Left behind: the next refit has nothing to keep.
+    assert http.post("/skills/pour/fit", json={"n_samples": 80}).json()["corrections"] == []
+
+
+def test_a_correction_of_an_older_version_becomes_the_latest(http: httpx.Client) -> None:
+    fitted = served_canal(http)
+    http.post("/skills/pour/corrections", json={"kind": "include", "samples": wider_path(fitted)})
+    r = http.post("/skills/pour/corrections",
+                  json={"kind": "exclude", "samples": pushed_path(fitted), "model": 1})
+    assert r.status_code == 201, r.text
+    assert r.json()["version"] == 3 and r.json()["parent_version"] == 1 and len(r.json()["corrections"]) == 1
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"samples": [[0.0, 0.0]] * 10}, "samples"),  # a 2-D path for a 3-D skill
+        ({"samples": [[0.0, 0.0, 0.0]] * 3}, "samples"),  # too short
+        ({"samples": [[5.0 + 0.01 * i, 5.0, 5.0] for i in range(10)]}, "samples"),  # outside every section
+        ({"kind": "sideways"}, "kind"),
+        ({"weight": 0}, "weight"),
+        ({"model": 7}, "model"),
+    ],
+)
+def test_bad_corrections_are_refused_naming_the_field_and_store_nothing(
+    http: httpx.Client, change: dict[str, object], field: str
+) -> None:
+    fitted = served_canal(http)
+    body = {"kind": "include", "samples": wider_path(fitted), **change}
+    r = http.post("/skills/pour/corrections", json=body)
+    assert r.status_code in (404, 422), r.text
+    assert field in (r.json()["error"]["field"] or ""), r.json()
+    assert http.get("/skills/pour/corrections").json()["total"] == 0
+    assert http.get("/skills/pour/models").json()["total"] == 1
+
+
+def test_a_correction_that_would_close_the_canal_is_refused(http: httpx.Client) -> None:
+    fitted = served_canal(http)
+    r = http.post("/skills/pour/corrections", json={"kind": "exclude", "samples": pushed_path(fitted, depth=2.5)})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"] == "kind" and "close the canal" in error["message"]
+    assert http.get("/skills/pour/models").json()["total"] == 1
