@@ -60,7 +60,12 @@ import numpy as np
 from .cross_sections import CrossSections, boundary_distance
 from .errors import InvalidInputError, ModelFormatError
 from .frames import double_reflection_matrices, smoothed_curve
-from .options import CORRECTION_KINDS, MAX_CORRECTION_SAMPLES, MIN_CORRECTION_SAMPLES, CorrectionKind
+from .options import (
+    CORRECTION_KINDS,
+    MAX_CORRECTION_SAMPLES,
+    MIN_CORRECTION_SAMPLES,
+    CorrectionKind,
+)
 from .reproduce import located_points, section_basis, smootherstep
 from .validation import (
     BoolArray,
@@ -84,7 +89,7 @@ REACH = 3.0
 MIN_WIDTH_FRACTION = 0.1
 #: An exclude reaches a section where the push moved the path at least this fraction of
 #: the section's radius away from the plan.
-PUSH_THRESHOLD = 0.02
+PUSH_THRESHOLD = 0.1
 #: Blend on each side of the span: this fraction of the sections, at least MIN_BLEND.
 BLEND_FRACTION = 0.03
 MIN_BLEND = 3
@@ -119,6 +124,9 @@ class Correction:
         Kept with the correction; the geometry does not use them.
     orientations : array, shape (M, 4), or None
         Kept with the correction; the geometry does not use them.
+    plan : array, shape (P, D), or None
+        Exclude: the path the robot was on before the push (a live tracker's constant
+        ratio, say); the canal's own reproduction from the first sample when None.
     """
 
     kind: str
@@ -127,6 +135,7 @@ class Correction:
     label: str = ""
     timestamps: FloatArray | None = None
     orientations: FloatArray | None = None
+    plan: FloatArray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -136,6 +145,7 @@ class Correction:
             "label": self.label,
             "timestamps": None if self.timestamps is None else self.timestamps.tolist(),
             "orientations": None if self.orientations is None else self.orientations.tolist(),
+            "plan": None if self.plan is None else self.plan.tolist(),
         }
 
 
@@ -196,6 +206,7 @@ class AppliedCorrection:
                 label=str(data.get("label", "")),
                 timestamps=_optional_array(data.get("timestamps")),
                 orientations=_optional_array(data.get("orientations")),
+                plan=None if data.get("plan") is None else np.asarray(data["plan"], dtype=np.float64).reshape(-1, dim),
             )
             first, last, lo, hi = (int(data[k]) for k in ("first", "last", "lo", "hi"))
             if not 0 <= lo <= first <= last <= hi < n_sections:
@@ -247,6 +258,7 @@ def checked_correction(
     label: Any = "",
     timestamps: Any = None,
     orientations: Any = None,
+    plan: Any = None,
 ) -> Correction:
     """A validated :class:`Correction` for a ``dim``-D canal; raises :class:`InvalidInputError`.
 
@@ -259,6 +271,8 @@ def checked_correction(
         > 0.
     timestamps : array_like, shape (M,), optional
     orientations : array_like, shape (M, 4), optional
+    plan : array_like, shape (P, D), optional
+        Exclude: the path the robot was on before the push.
     """
     check_choice(kind, CORRECTION_KINDS, "kind")
     points = check_positions(samples, "samples", dim)
@@ -270,7 +284,8 @@ def checked_correction(
         raise InvalidInputError(f"expected label as text of at most 200 characters, got {label!r:.60}", field="label")
     times = None if timestamps is None else check_timestamps(timestamps, points.shape[0], "timestamps")
     quats = None if orientations is None else check_quaternions(orientations, points.shape[0], "orientations")
-    return Correction(str(kind), points, check_positive(weight, "weight"), label, times, quats)
+    path = None if plan is None else check_positions(plan, "plan", dim)
+    return Correction(str(kind), points, check_positive(weight, "weight"), label, times, quats, path)
 
 
 # -- geometry ----------------------------------------------------------------------------
@@ -606,6 +621,7 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
         moved, lo, hi = locally_moved(canal, first, last, shift, None, blend, held)
         applied = AppliedCorrection(correction, first, last, lo, hi)
     else:
+        plan = correction.plan if plan is None else plan
         if plan is None:
             p_crossed, p_coords = planned_coords(canal, samples, reach)
         else:
@@ -683,7 +699,7 @@ def correction_from_dict(data: dict[str, Any], dim: int) -> Correction:
     """A checked :class:`Correction` from its JSON form (the REST body, a stored row)."""
     return checked_correction(
         data.get("kind"), data.get("samples"), dim, data.get("weight", 1.0), data.get("label", ""),
-        data.get("timestamps"), data.get("orientations"),
+        data.get("timestamps"), data.get("orientations"), data.get("plan"),
     )
 
 

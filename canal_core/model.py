@@ -227,9 +227,9 @@ class Canal:
             ``samples`` malformed, too short or outside every section; ``kind`` unknown or
             an exclude that would close the canal.
         """
-        correction = checked_correction(kind, samples, self.dim, weight, label, timestamps, orientations)
-        path = None if plan is None else check_points(plan, self.dim, "plan")
-        return corrected_canal(self, correction, path)
+        correction = checked_correction(kind, samples, self.dim, weight, label, timestamps,
+                                        orientations, plan)
+        return corrected_canal(self, correction)
 
 
     def reproduce_detailed(

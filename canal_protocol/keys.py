@@ -14,6 +14,10 @@ chunks (no ``/``, ``*``, ``$``, ``?``, ``#``, and no leading ``@``)::
     {prefix}/{skill}/scene/updated         bridge -> bridges: a scene landed ({"version": v})
     {prefix}/{skill}/{robot}/demo/start    queryable: begin capturing this stream's poses
     {prefix}/{skill}/{robot}/demo/stop     queryable: store them as a new demonstration
+    {prefix}/{skill}/{robot}/correction/start  queryable: begin capturing a correction's poses
+    {prefix}/{skill}/{robot}/correction/stop   queryable: apply them as a correction (a new model)
+    {prefix}/{skill}/{robot}/steer         robot/person -> Canal   put, a 2-D input (u, v)
+    {prefix}/{skill}/{robot}/steer/keep    queryable: keep the last steered run as an include
     {prefix}/@recorder/live/{bridge}       bridge -> recorder   put, the batches to record
 
 The recorder key starts with the *verbatim* chunk ``@recorder``: Zenoh matches such a chunk
@@ -44,6 +48,10 @@ SCENE = "scene"
 SCENE_UPDATED = "scene/updated"
 DEMO_START = "demo/start"
 DEMO_STOP = "demo/stop"
+CORRECTION_START = "correction/start"
+CORRECTION_STOP = "correction/stop"
+STEER = "steer"
+STEER_KEEP = "steer/keep"
 RECORDER = "@recorder/live"
 
 _BAD_CHUNK = frozenset("/*$?#")
@@ -161,6 +169,22 @@ class Keys:
     def demo_stop(self) -> str:
         return f"{self.base}/{DEMO_STOP}"
 
+    @property
+    def correction_start(self) -> str:
+        return f"{self.base}/{CORRECTION_START}"
+
+    @property
+    def correction_stop(self) -> str:
+        return f"{self.base}/{CORRECTION_STOP}"
+
+    @property
+    def steer(self) -> str:
+        return f"{self.base}/{STEER}"
+
+    @property
+    def steer_keep(self) -> str:
+        return f"{self.base}/{STEER_KEEP}"
+
 
 def keys(skill: str, robot: str = "robot", prefix: str = "canal") -> Keys:
     """The key expressions for ``skill`` and ``robot`` under ``prefix``."""
@@ -210,6 +234,11 @@ def scene_updated_key(skill: str, prefix: str = "canal") -> str:
 def scene_wildcard(prefix: str = "canal") -> str:
     """Every skill's scene puts and scene notices (``{prefix}/*/scene/**``)."""
     return f"{prefix.rstrip('/')}/*/{SCENE}/**"
+
+
+def steer_wildcard(prefix: str = "canal") -> str:
+    """Every stream's steering inputs."""
+    return f"{prefix.rstrip('/')}/*/*/{STEER}"
 
 
 def everything(prefix: str = "canal") -> str:
@@ -265,6 +294,7 @@ __all__ = [
     "RECORDER", "SHARD_ALPHABET", "Keys", "bridge_of_batch", "check_chunk", "everything",
     "head", "is_plain_chunk", "keys", "model_key", "model_updated_key",
     "model_updated_wildcard", "pose_wildcard", "query_of", "recorder_key",
-    "recorder_wildcard", "shard_of", "shard_pose_keys", "skill_of_update", "stream_keys",
+    "recorder_wildcard", "shard_of", "shard_pose_keys", "skill_of_update", "steer_wildcard",
+    "stream_keys",
     "stream_of", "target_wildcard",
 ]

@@ -308,6 +308,10 @@ class CorrectionIn(_In):
         None, description="(M,) seconds, optional; kept with the correction.")
     orientations: list[list[Coordinate]] | None = Field(
         None, description="(M, 4) unit quaternions, optional; kept with the correction.")
+    plan: list[list[Coordinate]] | None = Field(
+        None, max_length=options.MAX_CORRECTION_SAMPLES,
+        description="exclude only, optional: (P, D) the path the robot was on before the push "
+                    "(default: the model's reproduction from the first sample).")
     model: Literal["latest"] | Id = Field(
         "latest", description="The model version corrected; the result is always the new latest.")
     weight: float = Field(

@@ -29,6 +29,7 @@ from .messages import (
     Target,
     WireError,
 )
+from .steer import decode_steer, encode_steer, encode_steer_cdr, encode_steer_json
 
 __all__ = [
     "BINARY_ENCODING",
@@ -46,12 +47,16 @@ __all__ = [
     "decode_pose_by_encoding",
     "decode_pose_cdr",
     "decode_pose_json",
+    "decode_steer",
     "decode_target",
     "decode_target_by_encoding",
     "decode_target_json",
     "encode_pose",
     "encode_pose_json",
     "encode_pose_stamped_cdr",
+    "encode_steer",
+    "encode_steer_cdr",
+    "encode_steer_json",
     "encode_target",
     "pack_target",
     "pack_target_json",

@@ -25,8 +25,8 @@ from typing import Any
 import orjson
 import zenoh
 
+from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
-from canal_protocol import wire
 from canal_protocol.credentials import insert_credentials
 
 _ENC_JSON = zenoh.Encoding.APPLICATION_JSON
@@ -247,6 +247,44 @@ class PoseStreamer:
         return query_json(self.session, self.keys.demo_stop,  # type: ignore[no-any-return]
                           {"last_seq": self._seq - 1}, timeout)
 
+    # ---- corrections and steering -----------------------------------------------------------
+
+    def start_correction(self, kind: str = "exclude", *, weight: float = 1.0,
+                         label: str | None = None, timeout: float = 5.0) -> dict[str, Any]:
+        """Begin capturing this stream's poses as a correction of ``kind`` ("include": this
+        path is right too; "exclude": the robot is being pushed away from where it went),
+        from the next :meth:`send` on."""
+        return query_json(self.session, self.keys.correction_start,  # type: ignore[no-any-return]
+                          {"kind": kind, "weight": weight, "from_seq": self._seq,
+                           "label": label}, timeout)
+
+    def stop_correction(self, timeout: float = 10.0) -> dict[str, Any]:
+        """Apply the captured poses as a correction: the reply is the new model version (the
+        REST answer of ``POST /skills/{name}/corrections``); every bridge serves it soon
+        after, and streams in flight switch at the section they reached."""
+        return query_json(self.session, self.keys.correction_stop,  # type: ignore[no-any-return]
+                          {"last_seq": self._seq - 1}, timeout)
+
+    def steer(self, u: float, v: float) -> None:
+        """A person's 2-D input, u (left +) and v (up +) in [-1, 1]: the plan moves across
+        the section while the canal carries the robot along. Send it at the input device's
+        rate; with no input for half a second the stream is back on the plain ratio rule."""
+        pub = getattr(self, "_steer_pub", None)
+        if pub is None:
+            pub = self._steer_pub = self.session.declare_publisher(
+                self.keys.steer, encoding=_ENC_JSON if self.encoding == "json" else _ENC_BINARY)
+        if self.encoding == "json":
+            pub.put(codecs.encode_steer_json(u, v))
+        else:
+            pub.put(codecs.encode_steer(u, v, self._seq))
+
+    def keep_steered(self, label: str | None = None, weight: float = 1.0,
+                     timeout: float = 10.0) -> dict[str, Any]:
+        """Keep the last steered run (or the one in progress) as an include correction: the
+        reply is the new model version."""
+        return query_json(self.session, self.keys.steer_keep,  # type: ignore[no-any-return]
+                          {"label": label, "weight": weight}, timeout)
+
     # ---- lifecycle --------------------------------------------------------------------------
 
     def close(self) -> None:
@@ -256,7 +294,7 @@ class PoseStreamer:
         self._closed = True
         with self._cond:
             self._cond.notify_all()
-        for name in ("_sub", "_pub"):
+        for name in ("_sub", "_pub", "_steer_pub"):
             entity = getattr(self, name, None)
             if entity is not None:
                 try:

@@ -56,6 +56,9 @@ from canal_protocol.options import (
     RecordingKind,
 )
 from canal_protocol.schemas import (
+    CorrectedModel,
+    CorrectionIn,
+    CorrectionOut,
     DemonstrationIn,
     FitRequest,
     Page,
@@ -176,6 +179,11 @@ REPRODUCE_MANY = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRe
 GET_SCENE = Endpoint("GET", "/skills/{name}/scene", response=SceneOut)
 PUT_SCENE = Endpoint("PUT", "/skills/{name}/scene", SceneIn, SceneOut)
 DELETE_SCENE = Endpoint("DELETE", "/skills/{name}/scene", status=204)
+CORRECT = Endpoint("POST", "/skills/{name}/corrections", CorrectionIn, CorrectedModel, status=201)
+LIST_CORRECTIONS = Endpoint("GET", "/skills/{name}/corrections", response=Page[CorrectionOut],
+                            query=_PAGED)
+UNDO_CORRECTION = Endpoint("DELETE", "/skills/{name}/corrections/{correction_id}",
+                           response=CorrectedModel)
 RECORDING_RRD = Endpoint("GET", "/skills/{name}/recording.rrd")
 RECORDING_MCAP = Endpoint("GET", "/skills/{name}/recording.mcap", query=("profile",))
 REBUILD_RECORDING = Endpoint("POST", "/skills/{name}/recording/rebuild")
@@ -426,15 +434,40 @@ def _fit(skill: str, *, cross_section: CrossSection | None = None,
          frames: FrameKind | None = None, alignment: Alignment | None = None,
          directrix: Directrix | None = None, n_samples: int | None = None,
          frame_smoothing: float | None = None, by_time: bool | None = None,
-         demo_ids: Iterable[int] | None = None, orientation: bool | None = None
-         ) -> _Steps[ModelSummary]:
+         demo_ids: Iterable[int] | None = None, orientation: bool | None = None,
+         keep_corrections: bool | None = None) -> _Steps[ModelSummary]:
     """Fit a new model version; options left ``None`` take the service's defaults, which
-    are canal_core's (:class:`canal_protocol.schemas.FitRequest` lists them)."""
+    are canal_core's (:class:`canal_protocol.schemas.FitRequest` lists them). The skill's
+    corrections are re-applied to the new canal unless ``keep_corrections=False``."""
     return (yield _request(FIT, name=skill, body={
         "cross_section": cross_section, "frames": frames, "alignment": alignment,
         "directrix": directrix, "n_samples": n_samples, "frame_smoothing": frame_smoothing,
         "by_time": by_time, "demo_ids": None if demo_ids is None else [int(i) for i in demo_ids],
-        "orientation": orientation}))
+        "orientation": orientation, "keep_corrections": keep_corrections}))
+
+
+def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"] = "include", *,
+             model: Version = "latest", weight: float = 1.0, label: str = "",
+             timestamps: ArrayLike | None = None) -> _Steps[CorrectedModel]:
+    """Refine the skill's canal by a correction, a path (M, D) over part of it: ``include``
+    (this path is right too: the canal grows locally to hold it, the centre moves towards it
+    by ``weight`` demonstrations) or ``exclude`` (the robot was pushed away from where it
+    went: the canal narrows on that side). Answers the new latest model version with the
+    stored correction (its ``id`` undoes it)."""
+    return (yield _request(CORRECT, name=skill, body={
+        "kind": kind, "samples": _rows(samples, "samples"), "model": _model_ref(model),
+        "weight": float(weight), "label": label,
+        "timestamps": None if timestamps is None else _vector(timestamps)}))
+
+
+def _list_corrections(skill: str) -> _Steps[list[CorrectionOut]]:
+    """The skill's corrections, oldest first (undone ones say so)."""
+    return (yield from _all_pages(LIST_CORRECTIONS, name=skill))
+
+
+def _undo_correction(skill: str, id: int) -> _Steps[CorrectedModel]:
+    """A new latest model version without correction ``id`` (the others re-applied)."""
+    return (yield _request(UNDO_CORRECTION, name=skill, correction_id=int(id)))
 
 
 def _list_models(skill: str) -> _Steps[list[ModelSummary]]:
@@ -606,6 +639,9 @@ class _Operations:
     get_scene = _operation(_get_scene)
     set_scene = _operation(_set_scene)
     clear_scene = _operation(_clear_scene)
+    correct = _operation(_correct)
+    list_corrections = _operation(_list_corrections)
+    undo_correction = _operation(_undo_correction)
     download_recording = _operation(_download_recording)
     rebuild_recording = _operation(_rebuild_recording)
 

@@ -114,3 +114,6 @@ class Metrics:
                                       "recorded + decimated", registry=r)
         self.live_model_switches = Counter("canal_live_model_switches_total",
                                            "Streams moved to a newer model version", registry=r)
+        self.live_steers = Counter("canal_live_steer_inputs_total",
+                                   "Steering inputs the bridges held for their streams",
+                                   registry=r)

@@ -645,7 +645,7 @@ class CanalService:
             options, demo_ids = dict(base.options), list(base.demo_ids)
         try:
             correction = checked_correction(body.kind, body.samples, dim, body.weight, body.label,
-                                            body.timestamps, body.orientations)
+                                            body.timestamps, body.orientations, body.plan)
             refined = corrected_canal(canal, correction)
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
@@ -655,8 +655,8 @@ class CanalService:
         def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
             row = repo.insert_correction(
                 s, skill, correction.kind, correction.label, correction.weight, correction.samples,
-                correction.timestamps, correction.orientations, base_version, version,
-                applied.first, applied.last)
+                correction.timestamps, correction.orientations, correction.plan, base_version,
+                version, applied.first, applied.last)
             made.append(row)
             return [*ids, row.id]
 
@@ -940,7 +940,9 @@ class StoredCorrection:
         samples = arrays.unpack(row.samples, row.n_points, row.dim)
         times = None if row.timestamps is None else arrays.unpack(row.timestamps, row.n_points)
         quats = None if row.orientations is None else arrays.unpack(row.orientations, row.n_points, 4)
-        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats))
+        plan = None if row.plan is None else arrays.unpack(row.plan, len(row.plan) // (8 * row.dim),
+                                                           row.dim)
+        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats, plan))
 
 
 InTransaction = Callable[[Any, Skill, int, list[int]], list[int]]

@@ -63,13 +63,17 @@ import threading
 import time
 from typing import Any
 
+import numpy as np
 import orjson
 import zenoh
+from pydantic import ValidationError
 
 import canal_core
+from canal_core.options import CORRECTION_KINDS
 from canal_core.tracker_kernel import compile_step_rows, numba_available
+from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
-from canal_protocol import wire
+from canal_protocol.schemas import CorrectionIn
 
 from ..errors import ServiceError, error_type
 from ..memory import release_memory
@@ -89,6 +93,9 @@ _BEHIND_S = 1.0
 #: service's recorder connects with retries, possibly after the first robots).
 RECORDER_WAIT_S = 10.0
 SWITCH_INTERVAL_S = 0.0005
+#: The per-stream queries: (chunk, chunk) after {prefix}/{skill}/{robot}/.
+_STREAM_QUERIES = frozenset({("demo", "start"), ("demo", "stop"), ("correction", "start"),
+                             ("correction", "stop"), ("steer", "keep")})
 
 
 class Bridge:
@@ -120,6 +127,7 @@ class Bridge:
         self._queryable: Any = None
         self._updates: Any = None
         self._scenes: Any = None
+        self._steers: Any = None
         self._published: dict[str, int] = {}
         self._metrics = m
         self._m_streams = m.live_streams
@@ -176,6 +184,8 @@ class Bridge:
         # bank before the worker's next drain (no queue behind a backlog of poses).
         self._scenes = s.declare_subscriber(keyspace.scene_wildcard(self.prefix),
                                             zenoh.handlers.Callback(self._hear_scene))
+        self._steers = s.declare_subscriber(keyspace.steer_wildcard(self.prefix),
+                                            zenoh.handlers.FifoChannel(1024))
         self.service.fit_listeners.append(self._on_fit)
         self.service.scene_listeners.append(self._on_scene)
         self.path.loads = queue.SimpleQueue()
@@ -183,6 +193,7 @@ class Bridge:
             ("worker", self.path.work, (recv, try_recv)), ("loader", self.path.load_parked, ()),
             ("control", self._control, ()), ("housekeeper", self._housekeep, ()),
             ("metrics", self._flush_loop, ()), ("updates", self._hear_updates, ()),
+            ("steer", self._hear_steers, ()),
             ("preload", self._preload, ()), ("compile", self._compile_tracker, ())]
         if self.options.record_hz is not None:
             # Blocking, not dropping: a batch is the only copy of what it carries.
@@ -263,7 +274,8 @@ class Bridge:
             self.service.scene_listeners.remove(self._on_scene)
         except ValueError:
             pass
-        for entity in (*self._subscribers, self._queryable, self._updates, self._scenes):
+        for entity in (*self._subscribers, self._queryable, self._updates, self._scenes,
+                       self._steers):
             try:
                 entity.undeclare()  # unblocks recv() in the worker / control thread
             except Exception:
@@ -328,6 +340,7 @@ class Bridge:
         m.live_targets.inc(now["targets"] - before["targets"])
         m.live_coalesced.inc(now["coalesced"] - before["coalesced"])
         m.live_model_switches.inc(now["switches"] - before["switches"])
+        m.live_steers.inc(now["steers"] - before["steers"])
         m.live_recorded.inc(now["recorded"] - before["recorded"])
         m.live_decimated.inc(now["decimated"] - before["decimated"])
         for key, n in now["errors"].items():
@@ -479,6 +492,49 @@ class Bridge:
             except Exception:
                 log.exception("model update notice failed")
 
+    # ---- steering (off the pose path) ----------------------------------------------------------
+
+    def _hear_steers(self) -> None:
+        recv = self._steers.handler.recv
+        while True:
+            try:
+                sample = recv()
+            except Exception:
+                return
+            try:
+                self.steer_input(str(sample.key_expr), str(sample.encoding),
+                                 sample.payload.to_bytes())
+            except Exception:
+                log.exception("steering input failed")
+
+    def steer_input(self, key: str, encoding: str, data: bytes) -> bool:
+        """Hold a steering input for the stream of ``key`` (``.../{robot}/steer``); the
+        worker applies it at the stream's next poses. False when it is not this bridge's or
+        cannot be read (a steering input has no answer: a bad one is logged and dropped)."""
+        stream = keyspace.stream_of(key, self.prefix, keyspace.STEER)
+        if stream is None:
+            return False
+        skill, robot = stream
+        shards = self.options.shards
+        if shards > 1 and shard_of(skill, robot, shards) != self.options.shard:
+            return False
+        try:
+            u, v = codecs.decode_steer(encoding, data)
+        except wire.WireError as exc:
+            log.warning("steering input on %s refused: %s", key, exc.message)
+            return False
+        st = self.path.stream(keyspace.stream_keys(skill, robot, self.prefix).pose, skill, robot)
+        now = time.monotonic()
+        if st.steer is None:
+            st.steer_at = now
+            with st.lock:  # the steered run is kept (steer/keep) unless a capture runs
+                if st.capture is None:
+                    st.capture, st.capture_from = [], st.last_seq + 1
+                    st.capture_kind, st.capture_label = "steer", None
+        st.steer = (u, v, now)
+        self.counts.steers += 1
+        return True
+
     # ---- queryables ---------------------------------------------------------------------------
 
     def _control(self) -> None:
@@ -507,7 +563,7 @@ class Bridge:
         if len(parts) == 2 and parts[1] == keyspace.MODEL:
             if self.options.shard == 0:  # one answer, not one per bridge
                 self._answer_model(query, parts[0])
-        elif len(parts) == 4 and parts[2] == "demo" and parts[3] in ("start", "stop"):
+        elif len(parts) == 4 and (parts[2], parts[3]) in _STREAM_QUERIES:
             skill, robot = parts[0], parts[1]
             if shards > 1 and shard_of(skill, robot, shards) != self.options.shard:
                 return
@@ -529,10 +585,17 @@ class Bridge:
                 return
             stream = self.path.stream(keyspace.stream_keys(skill, robot, self.prefix).pose,
                                       skill, robot)
-            if parts[3] == "start":
+            what = (parts[2], parts[3])
+            if what == ("demo", "start"):
                 self._demo_start(query, stream, body)
-            else:
+            elif what == ("demo", "stop"):
                 self._demo_stop(query, stream, body)
+            elif what == ("correction", "start"):
+                self._correction_start(query, stream, body)
+            elif what == ("correction", "stop"):
+                self._correction_stop(query, stream, body)
+            else:
+                self._steer_keep(query, stream, body)
         # anything else under the prefix is not ours to answer
 
     def _answer_model(self, query: Any, skill: str) -> None:
@@ -545,37 +608,126 @@ class Bridge:
                     encoding=ENC_JSON)
 
     def _demo_start(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        self._capture_start(query, st, body, None)
+
+    def _capture_start(self, query: Any, st: Stream, body: dict[str, Any],
+                       kind: str | None, weight: float = 1.0) -> None:
         from_seq = body.get("from_seq")
         label = body.get("label")
         with st.lock:
+            if st.capture is not None and st.capture_kind not in (kind, "steer"):
+                busy = "a demonstration" if st.capture_kind is None else "a correction"
+                _reply_error(query, "conflict", f"{busy} is being captured on this stream; "
+                             "stop it first", "correction" if kind is None else "demo")
+                return
             st.capture = []
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
             st.capture_label = label if isinstance(label, str) else None
+            st.capture_kind, st.capture_weight = kind, weight
         query.reply(query.key_expr, orjson.dumps({"capturing": True,
                                                   "from_seq": st.capture_from}),
                     encoding=ENC_JSON)
 
-    def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+    def _capture_stop(self, query: Any, st: Stream, body: dict[str, Any],
+                      kinds: tuple[str | None, ...], what: str) -> list[Any] | None:
+        """The captured poses (up to ``last_seq``), or None after answering the error."""
         last_seq = body.get("last_seq")
         if isinstance(last_seq, int):  # wait for the worker to see the last pose sent
             deadline = time.monotonic() + _STOP_WAIT_S
             while st.last_seq < last_seq and time.monotonic() < deadline:
                 time.sleep(0.001)
         with st.lock:
-            poses, st.capture = st.capture, None
-            label = st.capture_label
+            poses = st.capture if st.capture_kind in kinds else None
+            if poses is not None:
+                st.capture, st.capture_kind = None, None
         if poses is None:
-            _reply_error(query, "conflict", "no demonstration is being captured on this stream",
-                         "demo")
-            return
+            _reply_error(query, "conflict", f"no {what} is being captured on this stream",
+                         what.split()[0])
+            return None
         if isinstance(last_seq, int):
             poses = [p for p in poses if p.seq <= last_seq]
+        return poses
+
+    def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        label = st.capture_label
+        poses = self._capture_stop(query, st, body, (None,), "demonstration")
+        if poses is None:
+            return
         try:
             created = self._store_demo(st.skill, poses, label)
         except ServiceError as exc:
             _reply_error(query, error_type(exc), exc.message, exc.field)
             return
         query.reply(query.key_expr, orjson.dumps(created), encoding=ENC_JSON)
+
+    def _correction_start(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        kind = body.get("kind")
+        if kind not in CORRECTION_KINDS:
+            _reply_error(query, "invalid_input", "expected kind "
+                         f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {kind!r}", "kind")
+            return
+        weight = body.get("weight", 1.0)
+        if isinstance(weight, bool) or not isinstance(weight, int | float) or not weight > 0:
+            _reply_error(query, "invalid_input", f"expected weight > 0, got {weight!r}", "weight")
+            return
+        self._capture_start(query, st, body, str(kind), float(weight))
+
+    def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        kind, weight, label = st.capture_kind, st.capture_weight, st.capture_label
+        poses = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
+        if poses is None:
+            return
+        self._store_correction(query, st, str(kind), poses, weight, label)
+
+    def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        """Keep the stream's last steered run (or the one in progress) as an include."""
+        with st.lock:
+            if st.capture_kind == "steer":
+                poses, st.capture, st.capture_kind, st.steer = st.capture, None, None, None
+            else:
+                poses, st.steered = st.steered, None
+        if not poses:
+            _reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
+            return
+        label = body.get("label")
+        weight = body.get("weight", 1.0)
+        self._store_correction(query, st, "include", poses,
+                               float(weight) if isinstance(weight, int | float) else 1.0,
+                               label if isinstance(label, str) else "steered")
+
+    def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
+                          weight: float, label: str | None) -> None:
+        times = [p.t for p in poses]
+        try:
+            body = CorrectionIn.model_validate({
+                "kind": kind, "samples": [list(p.position) for p in poses],
+                "timestamps": times if poses and all(t is not None for t in times) else None,
+                "weight": weight, "label": label or "",
+                "plan": self._live_plan(st.skill, poses) if kind == "exclude" else None})
+            made = self.service.correct(st.skill, body)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            _reply_error(query, "invalid_input", str(first.get("msg")),
+                         ".".join(str(x) for x in first.get("loc", ())))
+            return
+        except ServiceError as exc:
+            _reply_error(query, error_type(exc), exc.message, exc.field)
+            return
+        query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
+
+    def _live_plan(self, skill: str, poses: list[Any]) -> list[list[float]] | None:
+        """What the robot was on before the push: the live tracker keeps its ratio from the
+        first captured pose on (the paper's constant ratio, no end decay)."""
+        entry = self.models.entry(skill)
+        if entry.status != "ok" or not poses or len(poses[0].position) != entry.dim:
+            return None
+        try:
+            plan = entry.canal.reproduce_detailed(
+                np.array(poses[0].position, dtype=np.float64), persistence="constant",
+                entry=0.0, end_decay=0.0)
+        except Exception:  # a start no section brackets: the service's default plan
+            return None
+        return plan.positions.tolist()  # type: ignore[no-any-return]
 
     def _store_demo(self, skill: str, poses: list[Any], label: str | None) -> dict[str, Any]:
         dim = self.service.skill_dim(skill)

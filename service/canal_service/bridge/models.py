@@ -50,6 +50,8 @@ class ModelEntry:
     #: when it was installed or last seen with live streams (``time.monotonic``): an entry
     #: without streams is kept ``preload_keep_s`` after that
     used: float = 0.0
+    #: the steering axes of every section (canal_core.steering), built at the first steer
+    steer_axes: Any = None
 
 
 def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:

@@ -1,11 +1,17 @@
 """The pose path's step: every job's tracker stepped, one
 :class:`~canal_core.tracker_bank.TrackerBank` pass per model; a stream (re)seeded at the
-section its robot is at on a new stream, a restart or a model switch."""
+section its robot is at on a new stream or a restart, at the section and plan it had on a
+model switch; a steered stream's plan moved by its person's input."""
 
 from __future__ import annotations
 
+import math
+import time
+from typing import Any
+
 import numpy as np
 
+from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
 from canal_core.tracker import start_section
 from canal_protocol import wire
 
@@ -14,6 +20,8 @@ from .models import ModelEntry
 from .streams import Job, Stream, release_slot
 
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
+#: Longest time step a steering input is applied over (a stream that paused does not jump).
+STEER_MAX_DT = 0.05
 
 
 class Stepper(Answers):
@@ -62,7 +70,9 @@ class Stepper(Answers):
                                f"got {len(position)}", fmt)
                     continue
             if st.bank is not entry.bank or st.version != entry.version or pose.restart:
-                self._seed(st, entry, position)
+                self._seed(st, entry, position, pose.restart)
+            if st.steer is not None:
+                self._steer(st, entry)
             group_jobs.append(job)
             slots.append(st.slot)
             positions.append(position)
@@ -80,16 +90,33 @@ class Stepper(Answers):
                         None if status is None else status.tolist()))
         return out
 
-    def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...]) -> None:
+    def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...],
+              restart: bool = False) -> None:
         """The stream's slot in the entry's bank, started at the section the robot is
-        located at (a new stream, a restart, a model switch)."""
-        if st.bank is not None and st.version != entry.version:
+        located at (a new stream, a restart); on a model switch (a fit, a correction) at
+        the section it had reached, with its plan, so a stream in flight is not re-located."""
+        carried: tuple[int, float, Any, int] | None = None
+        old = st.bank
+        if old is not None and st.version != entry.version:
             self.counts.switches += 1
+            if not restart:
+                carried = (int(old.index[st.slot]), float(old.eta[st.slot]),
+                           old.direction[st.slot].copy(), old.geometry.centres.shape[0])
         bank = entry.bank
         assert bank is not None
         if st.bank is not bank:
             release_slot(st)
             st.bank, st.slot = bank, bank.add()
+        st.version = entry.version
+        if carried is not None:
+            index, eta, direction, n_old = carried
+            n = bank.geometry.centres.shape[0]
+            if n == n_old:  # the same sections (a correction): the plan carries over too
+                bank.reset(st.slot, index)
+                bank.eta[st.slot], bank.direction[st.slot] = eta, direction
+            else:  # another fit: the same share of the canal
+                bank.reset(st.slot, round(index * (n - 1) / max(n_old - 1, 1)))
+            return
         point = np.array(position, dtype=np.float64)
         try:
             located = int(entry.canal.reproduce_detailed(point).section_index)
@@ -98,4 +125,28 @@ class Stepper(Answers):
             bank.reset(st.slot, start_section(bank.geometry, point, located))
         except Exception:  # a start no section brackets: from the first one
             bank.reset(st.slot, 0)
-        st.version = entry.version
+
+    def _steer(self, st: Stream, entry: ModelEntry) -> None:
+        """Move the stream's plan by its steering input (canal_core.steering, S1); with no
+        input for STEER_TIMEOUT_S the stream is back on the plain ratio rule."""
+        steer = st.steer
+        assert steer is not None and st.bank is not None
+        now = time.monotonic()
+        u, v, heard = steer
+        if now - heard > STEER_TIMEOUT_S:
+            st.steer = None
+            with st.lock:
+                if st.capture_kind == "steer":
+                    st.steered, st.capture, st.capture_kind = st.capture, None, None
+            return
+        bank, slot = st.bank, st.slot
+        dt = min(max(now - st.steer_at, 0.0), STEER_MAX_DT)
+        st.steer_at = now
+        eta = float(bank.eta[slot])
+        if math.isnan(eta):  # no plan yet (the first pose of a stream): steer from the next
+            return
+        if entry.steer_axes is None:
+            entry.steer_axes = steering_axes(entry.canal.tangents, entry.canal.basis)
+        index = min(int(bank.index[slot]) + bank.lookahead, entry.steer_axes.shape[0] - 1)
+        bank.eta[slot], bank.direction[slot] = steered_plan(
+            eta, bank.direction[slot], entry.steer_axes[index], u, v, dt)

@@ -59,6 +59,15 @@ class Stream:
     capture: list[wire.Pose] | None = None
     capture_from: int = 0
     capture_label: str | None = None
+    #: None: the capture is a demonstration; "include" / "exclude": a correction; "steer":
+    #: the poses of a steered run (kept in ``steered`` when the steering ends)
+    capture_kind: str | None = None
+    capture_weight: float = 1.0
+    #: the last steering input (u, v, time.monotonic() it arrived), None when not steered
+    steer: tuple[float, float, float] | None = None
+    steer_at: float = 0.0
+    #: the poses of the last steered run (for ``steer/keep``)
+    steered: list[wire.Pose] | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
     closed: bool = False
     # the recording: count deltas since the last batch, the rows kept, the rate limit
@@ -83,6 +92,7 @@ class Counts:
         "parked",
         "poses",
         "recorded",
+        "steers",
         "step_bounds",
         "step_buckets",
         "step_sum",
@@ -98,6 +108,7 @@ class Counts:
         self.coalesced = 0
         self.errors: dict[str, int] = dict.fromkeys(ERROR_KEYS, 0)
         self.switches = 0
+        self.steers = 0  # steering inputs held for their streams (steering thread)
         self.drains = 0  # drains handled (poses / drains: the mean drain size)
         #: the step histogram's upper bounds (the last one +inf) and per-bucket pose counts:
         #: the worker adds to them, the metrics thread hands the deltas to Prometheus
@@ -115,7 +126,7 @@ class Counts:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
                 "errors": dict(self.errors), "switches": self.switches, "drains": self.drains,
                 "recorded": self.recorded, "decimated": self.decimated + self.unknown,
-                "parked": self.parked}
+                "parked": self.parked, "steers": self.steers}
 
 
 

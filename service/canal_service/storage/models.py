@@ -179,6 +179,8 @@ class Correction(Base):
     samples: Mapped[bytes] = mapped_column(LargeBinary, nullable=False)
     timestamps: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
     orientations: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
+    #: exclude: the path the robot was on before the push, (P, dim) packed, when given
+    plan: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
     base_version: Mapped[int] = mapped_column(Integer, nullable=False)
     model_version: Mapped[int] = mapped_column(Integer, nullable=False)
     first_section: Mapped[int] = mapped_column(Integer, nullable=False)

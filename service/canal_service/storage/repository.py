@@ -586,7 +586,8 @@ def lineages(session: Session, models: Sequence[ModelVersion]) -> dict[int, Line
 
 def insert_correction(session: Session, skill: Skill, kind: str, label: str, weight: float,
                       samples: arrays.FloatArray, timestamps: arrays.FloatArray | None,
-                      orientations: arrays.FloatArray | None, base_version: int,
+                      orientations: arrays.FloatArray | None, plan: arrays.FloatArray | None,
+                      base_version: int,
                       model_version: int, first_section: int, last_section: int) -> Correction:
     """Store a correction (flushes, so its id is known)."""
     row = Correction(
@@ -594,7 +595,7 @@ def insert_correction(session: Session, skill: Skill, kind: str, label: str, wei
         dim=int(samples.shape[1]), samples=arrays.pack(samples),
         timestamps=None if timestamps is None else arrays.pack(timestamps),
         orientations=None if orientations is None else arrays.pack(orientations),
-        base_version=base_version, model_version=model_version, first_section=first_section,
+        plan=None if plan is None else arrays.pack(plan), base_version=base_version, model_version=model_version, first_section=first_section,
         last_section=last_section, undone=False,
     )
     session.add(row)

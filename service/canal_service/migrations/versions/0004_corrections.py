@@ -31,6 +31,7 @@ def upgrade() -> None:
         sa.Column("samples", sa.LargeBinary(), nullable=False),
         sa.Column("timestamps", sa.LargeBinary(), nullable=True),
         sa.Column("orientations", sa.LargeBinary(), nullable=True),
+        sa.Column("plan", sa.LargeBinary(), nullable=True),
         sa.Column("base_version", sa.Integer(), nullable=False),
         sa.Column("model_version", sa.Integer(), nullable=False),
         sa.Column("first_section", sa.Integer(), nullable=False),

@@ -1,0 +1,162 @@
+"""Corrections and steering over a real Zenoh session: a person pushes or steers, the canal learns."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+from canal_client.live import LiveError, PoseStreamer
+from live_helpers import make_skill, wait_until
+
+import canal_core
+from canal_core.steering import STEER_TIMEOUT_S, steering_axes
+from canal_protocol import wire
+
+pytestmark = pytest.mark.timeout(90)
+
+
+def canal_of(live: Any, skill: str) -> canal_core.Canal:
+    body = live.client.get(f"/skills/{skill}/models/latest", params={"serialized": True}).json()
+    return canal_core.Canal.from_dict(body["serialized"])
+
+
+class Robot:
+    """An ideal robot on its own stream: it moves to each target it gets, at ``rate_hz``,
+    and keeps every answer (to check that each pose is answered once, in order)."""
+
+    def __init__(self, live: Any, skill: str, name: str, encoding: str = "binary") -> None:
+        self.answers: list[wire.Target] = []
+        self.ps = PoseStreamer(skill, name, endpoint=live.endpoint, encoding=encoding,
+                               on_target=self.answers.append)
+        self.sent = 0
+
+    def run(self, start: np.ndarray, rate_hz: float, steps: int,
+            held: np.ndarray | None = None, during: Any = None) -> np.ndarray:
+        """Send ``steps`` poses; the position follows the latest target, or, where a person
+        holds the arm, is ``held[k]`` (rows of NaN: not held)."""
+        position = np.array(start, dtype=np.float64)
+        path = []
+        period = 1.0 / rate_hz
+        next_at = time.perf_counter()
+        for k in range(steps):
+            if during is not None:
+                during(k)
+            self.ps.send(position.tolist())
+            self.sent += 1
+            path.append(position.copy())
+            next_at += period
+            time.sleep(max(next_at - time.perf_counter(), 0.0))
+            latest = self.ps.latest()
+            if latest is not None and latest.target is not None:
+                position = np.array(latest.target)
+            if held is not None and k + 1 < len(held) and not np.isnan(held[k + 1, 0]):
+                position = held[k + 1].copy()
+        return np.array(path)
+
+    def all_answered_in_order(self, timeout: float = 5.0) -> bool:
+        wait_until(lambda: len(self.answers) >= self.sent, timeout)
+        seqs = [a.seq for a in self.answers]
+        return seqs == list(range(self.sent))
+
+    def close(self) -> None:
+        self.ps.close()
+
+
+@pytest.fixture(scope="module")
+def corrected_skill(live: Any) -> str:
+    make_skill(live.client, "press", 3)
+    return "press"
+
+
+def test_a_push_captured_live_becomes_an_exclude_and_streams_switch_in_place(
+    live: Any, corrected_skill: str
+) -> None:
+    skill = corrected_skill
+    canal = canal_of(live, skill)
+    n = canal.n_sections
+    before = live.client.get(f"/skills/{skill}/models/latest").json()["version"]
+    pusher, other = Robot(live, skill, "pushed"), Robot(live, skill, "bystander", "json")
+    try:
+        # The bystander runs through the whole correction at 500 Hz.
+        other_start = canal.directrix[2] - 0.3 * canal.radii[2] * canal.normals[2]
+        bystander = threading.Thread(target=other.run, args=(other_start, 500.0, 700))
+        bystander.start()
+        # A person guides the arm along its own run and pushes it off the +normal wall
+        # mid-way, by up to 40 % of the canal's radius.
+        start = canal.directrix[5] + 0.8 * canal.radii[5] * canal.normals[5]
+        run = canal.reproduce_detailed(start, persistence="constant", entry=0.0, end_decay=0.0).positions
+        k = np.arange(run.shape[0])
+        sec = np.clip(5 + k, 0, n - 1)
+        bump = 0.4 * canal.radii[sec] * np.exp(-0.5 * ((k - 40) / 8.0) ** 2)
+        held = run - bump[:, None] * canal.normals[sec]
+        pusher.ps.start_correction("exclude", label="keep off the wall")
+        pusher.run(start, 200.0, len(held), held)
+        made = pusher.ps.stop_correction()
+        bystander.join(30)
+        assert made["version"] == before + 1 and made["parent_version"] == before
+        assert made["correction"]["kind"] == "exclude" and made["corrections"] == [made["correction"]["id"]]
+        assert other.all_answered_in_order() and pusher.all_answered_in_order()
+        # The bystander switched to the new version at the section it had reached.
+        versions = [a.model_version for a in other.answers]
+        switched = [i for i in range(1, len(versions)) if versions[i] != versions[i - 1]]
+        if switched:  # it may have finished before the new version landed
+            i = switched[0]
+            assert versions[i] == made["version"]
+            sections = [a.section for a in other.answers]
+            assert sections[i] >= sections[i - 1] - 1
+        assert live.metric("canal_corrections_total", 'kind="exclude"') >= 1
+        # The pusher's next run from the same start keeps off the side it was pushed from.
+        refined = canal_of(live, skill)
+        assert refined.corrections and refined.corrections[-1].correction.kind == "exclude"
+    finally:
+        pusher.close()
+        other.close()
+
+
+def test_live_correction_errors_name_the_field(live: Any, corrected_skill: str) -> None:
+    with PoseStreamer(corrected_skill, "careless", endpoint=live.endpoint) as ps:
+        with pytest.raises(LiveError, match="kind"):
+            ps.start_correction("sideways")
+        with pytest.raises(LiveError, match="no correction"):
+            ps.stop_correction()
+        ps.start_correction("include")
+        ps.send([50.0, 50.0, 50.0])
+        ps.send([51.0, 50.0, 50.0])
+        with pytest.raises(LiveError, match="samples"):
+            ps.stop_correction()  # too short, and far from the canal
+
+
+def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
+    make_skill(live.client, "steer3", 3)
+    canal = canal_of(live, "steer3")
+    axes = steering_axes(canal.tangents, canal.basis)
+    robot = Robot(live, "steer3", "joy")
+    try:
+        start = canal.directrix[3].copy()
+
+        def stick(k: int) -> None:
+            if k % 10 == 0 and k < 250:
+                robot.ps.steer(1.0, 0.0)
+
+        path = robot.run(start, 250.0, 400, during=stick)
+        assert robot.all_answered_in_order()
+        targets = np.array([a.target for a in robot.answers if a.target is not None])
+        assert canal.contains(targets).all()  # a steered target never leaves the canal
+        # Where it steered, the plan went to the left (+u) side, as far as the tracker allows.
+        loc = canal.locate(path[150:250])
+        u_world = np.einsum("mk,mkd->md", axes[loc.index, 0], canal.basis[loc.index])
+        offsets = path[150:250] - canal.directrix[loc.index]
+        assert (np.einsum("md,md->m", offsets, u_world) > 0.3 * canal.radii[loc.index]).mean() > 0.9
+        assert live.metric("canal_live_steer_inputs_total") >= 20
+        time.sleep(STEER_TIMEOUT_S)
+        kept = robot.ps.keep_steered(label="wider on the left")
+        assert kept["correction"]["kind"] == "include" and kept["correction"]["label"] == "wider on the left"
+        refined = canal_of(live, "steer3")
+        assert refined.contains(path[10:250]).mean() > 0.99
+        with pytest.raises(LiveError, match="no steered run"):
+            robot.ps.keep_steered()
+    finally:
+        robot.close()
