@@ -7,6 +7,12 @@ moves toward the target with a first-order lag (``x += min(gain * dt, 1) * (targ
 or a critically damped PD lag (``a = gain * (target - x) - 2 * sqrt(gain) * v``). A push
 displaces the robot instantly by an offset, at a time (seconds since start, a number) or at a
 progress (a string like ``"50%"``). It stops when Canal says ``done`` or after ``timeout_s``.
+
+``keep_out=(centre, radius)``: a simulated person who knows of a keep-out sphere the canal
+does not. When the robot comes within ``KEEP_OUT_APPROACH`` radii of it, the person starts a
+correction (``correction/start``, exclude); while the robot is inside the sphere they hold
+it on its surface; once it is past (or done), ``correction/stop`` turns the pushed run into
+an exclude correction, and the next runs keep out of the sphere on their own.
 """
 
 from __future__ import annotations
@@ -22,9 +28,11 @@ import numpy as np
 
 from canal_protocol import wire
 
-from .live import PoseStreamer
+from .live import LiveError, PoseStreamer
 
 Push = tuple[float | str, Sequence[float]]
+#: The simulated person starts a correction this many radii from the keep-out centre.
+KEEP_OUT_APPROACH = 1.5
 
 
 @dataclass
@@ -61,6 +69,53 @@ class SimResult:
     pushes_pending: list[tuple[float | str, list[float]]] = field(default_factory=list)
     seed: int | None = None
     pushes: list[PushRecord] = field(default_factory=list)  # the ones applied, in order
+    #: keep-out runs: steps the person held the robot out of the sphere, the model versions
+    #: their corrections made, and why a correction was refused (when one was)
+    held: int = 0
+    corrections: list[int] = field(default_factory=list)
+    refused: list[str] = field(default_factory=list)
+
+
+class _Person:
+    """The simulated person of ``run_sim(keep_out=...)``."""
+
+    def __init__(self, ps: PoseStreamer, centre: Sequence[float], radius: float) -> None:
+        self.ps = ps
+        self.centre = np.asarray(centre, dtype=np.float64)
+        self.radius = float(radius)
+        self.capturing = False
+        self.pushed = False
+        self.held = 0
+        self.versions: list[int] = []
+        self.refused: list[str] = []
+
+    def act(self, x: np.ndarray) -> np.ndarray:
+        """The position after the person's hand: on the sphere's surface when inside it."""
+        away = x - self.centre
+        distance = float(np.linalg.norm(away))
+        if not self.capturing and distance < KEEP_OUT_APPROACH * self.radius:
+            self.ps.start_correction("exclude", label="keep-out")
+            self.capturing, self.pushed = True, False
+        if distance < self.radius:
+            self.held += 1
+            self.pushed = True
+            direction = away / distance if distance > 0.0 else np.eye(x.shape[0])[-1]
+            return np.asarray(self.centre + 1.01 * self.radius * direction)
+        if self.capturing and self.pushed and distance > KEEP_OUT_APPROACH * self.radius:
+            self.finish()
+        return x
+
+    def finish(self) -> None:
+        """Stop the capture: an exclude correction when the robot was pushed."""
+        if not self.capturing:
+            return
+        self.capturing = False
+        try:
+            made = self.ps.stop_correction()
+            self.versions.append(int(made["version"]))
+        except LiveError as exc:
+            if self.pushed:
+                self.refused.append(str(exc))
 
 
 def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
@@ -131,7 +186,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
             endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
             zenoh_config: str | Path | None = None, prefix: str = "canal",
             encoding: str = "binary", seed: int | None = None,
-            session: Any = None, token: str | None = None) -> SimResult:
+            session: Any = None, token: str | None = None,
+            keep_out: tuple[Sequence[float], float] | None = None) -> SimResult:
     """Run one simulated robot on ``skill`` until Canal says done or ``timeout_s`` passes.
 
     ``gain`` defaults to ``0.5 * rate_hz`` (1/s) for the first-order lag and to
@@ -152,6 +208,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
         x = random_interior_start(model, rng) if model is not None else np.asarray(
             start, dtype=np.float64)
         x0 = x.copy()
+        person = None if keep_out is None else _Person(ps, keep_out[0], keep_out[1])
         v = np.zeros_like(x)
         positions: list[np.ndarray] = []
         targets: list[wire.Target] = []
@@ -177,6 +234,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                     pushes_done += 1
                     applied.append(PushRecord(when, [float(v) for v in offset], elapsed,
                                               progress))
+            if person is not None:
+                x = person.act(x)
             seq = ps.send(x.tolist(), t=elapsed, restart=not positions)
             positions.append(x.copy())
             got = ps.wait_for(seq, wait)
@@ -212,6 +271,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
             else:
                 next_tick = time.monotonic()
         duration = time.monotonic() - t0
+        if person is not None:
+            person.finish()
     left = [(when, [float(v) for v in offset]) for (when, _), (_, offset)
             in zip(pushes, pending, strict=True) if offset is not None]
     etas = [t.eta for t in targets if t.eta is not None]
@@ -233,6 +294,9 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
         pushes_pending=left,
         seed=seed,
         pushes=applied,
+        held=0 if person is None else person.held,
+        corrections=[] if person is None else person.versions,
+        refused=[] if person is None else person.refused,
     )
 
 

@@ -250,3 +250,22 @@ def test_only_the_service_and_an_operator_write_scenes(secure):
     scene = client.get("/skills/s/scene").json()
     assert scene["obstacles"][0]["radius"] == 0.01
     assert client.delete("/skills/s/scene").status_code == 204
+
+
+def test_a_robot_steers_and_corrects_on_its_own_keys_only(secure):
+    """arm1 may capture a correction and steer on its own stream; on arm2's keys the router
+    refuses both."""
+    from canal_client.live import LiveError
+
+    with PoseStreamer("s", "arm1", zenoh_config=_robot(secure, "arm1")) as arm1:
+        assert arm1.start_correction("include")["capturing"] is True
+        with pytest.raises(LiveError, match="samples"):
+            arm1.stop_correction()  # reached the bridge: refused for its content, not its key
+        arm1.steer(0.5, 0.0)
+        mine = zenoh.open(zenoh.Config.from_file(str(_robot(secure, "arm1"))))
+        try:
+            replies = list(mine.get("canal/s/arm2/correction/start", payload=b'{"kind": "include"}',
+                                    timeout=1.0))
+            assert [r for r in replies if r.ok is not None] == []
+        finally:
+            mine.close()

@@ -160,3 +160,22 @@ def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -
             robot.ps.keep_steered()
     finally:
         robot.close()
+
+
+def test_a_simulated_person_keeps_the_robot_out_of_a_hidden_sphere(live: Any) -> None:
+    from canal_client.sim import run_sim
+
+    make_skill(live.client, "sphere3", 3)
+    canal = canal_of(live, "sphere3")
+    i = canal.n_sections // 2
+    centre = canal.directrix[i] + 1.0 * canal.radii[i] * canal.normals[i]
+    radius = 0.6 * float(canal.radii[i])
+    start = canal.directrix[5] + 0.7 * canal.radii[5] * canal.normals[5]
+    first = run_sim("sphere3", robot="taught", start=start, rate_hz=200.0, timeout_s=20.0,
+                    endpoint=live.endpoint, keep_out=(centre, radius))
+    assert first.reached_end and first.held > 0, (first.statuses, first.refused)
+    assert len(first.corrections) == 1 and not first.refused
+    again = run_sim("sphere3", robot="taught", start=start, rate_hz=200.0, timeout_s=20.0,
+                    endpoint=live.endpoint, keep_out=(centre, radius))
+    assert again.reached_end and again.held == 0 and again.corrections == []
+    assert again.model_version == first.corrections[0]

@@ -19,7 +19,7 @@ from canal_protocol.schemas import FitRequest
 
 CORE_OPTIONS = {f.name for f in dataclasses.fields(core.FitOptions)}
 # What the service does around the fit, not how canal_core fits.
-SERVICE_ONLY = {"by_time", "demo_ids", "orientation"}
+SERVICE_ONLY = {"by_time", "demo_ids", "orientation", "keep_corrections"}
 
 
 def test_every_core_option_is_a_request_field_with_the_core_default() -> None:

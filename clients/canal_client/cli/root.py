@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import typer
 
-from . import demos, models, recordings, scenes, serve, simulation, skills
+from . import corrections, demos, models, recordings, scenes, serve, simulation, skills
 from .session import global_options
 
 HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
@@ -18,6 +18,8 @@ HELP = """Canal: learn robot skills from demonstrations with canal surfaces.
   canal fit SKILL [--cross-section ...]   fit a new model version
   canal reproduce SKILL --start x,y,z     a new trajectory (--out traj.csv)
   canal scene set|show|clear SKILL        obstacles every reproduction goes around
+  canal correct SKILL FILE --kind exclude refine the canal by a correction (a new version)
+  canal corrections list|undo SKILL       a skill's corrections; undo one
   canal export SKILL [--rrd F] [--mcap F] download the review recordings
   canal view SKILL [--web]                open the recording in the Rerun viewer
   canal recordings rebuild SKILL          regenerate the recordings from the database
@@ -38,11 +40,13 @@ app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options"
                               "help_option_names": []})(serve.serve)
 app.command()(models.fit)
 app.command()(models.reproduce)
+app.command()(corrections.correct)
 app.command()(recordings.export)
 app.command()(recordings.view)
 app.command()(simulation.sim)
 app.add_typer(skills.app, name="skill")
 app.add_typer(demos.app, name="demo")
+app.add_typer(corrections.app, name="corrections")
 app.add_typer(recordings.app, name="recordings")
 app.add_typer(scenes.app, name="scene")
 

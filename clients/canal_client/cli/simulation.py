@@ -16,7 +16,7 @@ from rich.markup import escape
 from canal_core.validation import FloatArray
 
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
-from .output import EXIT_REFUSED, error, out, print_json
+from .output import EXIT_REFUSED, err, error, out, print_json
 from .parsing import parse_obstacle, parse_point
 from .session import connected, fail_unreachable, health_document, options
 
@@ -77,7 +77,20 @@ def live_endpoint(health: dict[str, Any], url: str) -> tuple[list[str], str]:
 
 _SIM_SUMMARY = ("reached_end", "all_inside", "n_steps", "duration", "min_eta", "max_eta",
                 "model_version", "start", "missed", "pushes_done", "pushes", "pushes_pending",
-                "statuses", "seed")
+                "statuses", "seed", "held", "corrections", "refused")
+
+
+def parse_keep_out(text: str) -> tuple[FloatArray, float]:
+    """``x,y,z:r`` as (centre, radius > 0)."""
+    centre, sep, radius = text.rpartition(":")
+    try:
+        r = float(radius)
+    except ValueError:
+        r = float("nan")
+    if not sep or not (r > 0 and np.isfinite(r)):
+        raise typer.BadParameter(f"expected x,y,z:r with r > 0, got {text!r}",
+                                 param_hint="--keep-out")
+    return parse_point(centre, "--keep-out"), r
 
 
 def _eta(result: Any, which: str) -> float:
@@ -112,6 +125,10 @@ def sim(
         "--obstacle", help="sphere:x,y,z,r[,clearance] (also box:, capsule:, disc:; repeat): "
                            "set the skill's scene to these before the run (it stays set; "
                            "canal scene clear removes it).")] = None,
+    keep_out: Annotated[str | None, typer.Option(
+        "--keep-out", help="x,y,z:r a keep-out sphere the canal does not know: a simulated "
+        "person holds the robot out of it and sends the push as an exclude correction.")
+    ] = None,
 ) -> None:
     """Drive a simulated robot along the skill's canal over Zenoh. The Zenoh endpoint and
     key prefix come from the service at --url (its /healthz) unless --endpoint/--prefix or
@@ -121,6 +138,7 @@ def sim(
     pushes = [parse_push(p) for p in push or []]
     point = parse_point(start) if start is not None else None
     obstacles = [parse_obstacle(o) for o in obstacle or []]
+    sphere = None if keep_out is None else parse_keep_out(keep_out)
     if importlib.util.find_spec(ZENOH_MODULE) is None:
         error(f"canal sim talks to the service over Zenoh, which is not installed here: "
               f"{ZENOH_INSTALL}")
@@ -147,7 +165,7 @@ def sim(
         out.print(f"scene of {escape(skill)} set (version {scene.version}, "
                   f"{len(scene.obstacles)} obstacles)")
     kwargs: dict[str, Any] = {"prefix": prefix, "pushes": pushes, "seed": seed,
-                              "token": opts.token}
+                              "token": opts.token, "keep_out": sphere}
     for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
                        ("lag", lag.value if lag else None), ("gain", gain),
                        ("timeout_s", timeout),
@@ -183,5 +201,11 @@ def sim(
             out.print("obstacles: " + ", ".join(f"{v} {k}" for k, v in sorted(around.items())))
         for line in sim_module.describe_pending(result):
             out.print(escape(line))
+        if sphere is not None:
+            made = ", ".join(map(str, result.corrections)) or "none"
+            out.print(f"keep-out: held out of the sphere for {result.held} steps; "
+                      f"exclude corrections made model versions {made}")
+            for why in result.refused:
+                err.print(f"[yellow]note:[/yellow] correction refused: {escape(why)}")
     if not ok:
         raise typer.Exit(EXIT_REFUSED)

@@ -1,0 +1,47 @@
+"""``canal correct`` and ``canal corrections list|undo`` against a real service."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from canal_client import CanalClient
+from canal_live import LiveService, demo_positions
+from click.testing import Result
+
+import canal_core
+
+Run = Callable[..., Result]
+
+
+def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Callable[[str], str],
+                               tmp_path: Path) -> None:
+    name = unique_name("correct")
+    run("skill", "create", name)
+    for j in range(4):
+        np.save(tmp_path / f"d{j}.npy", demo_positions(j))
+    assert run("demo", "add", name, str(tmp_path)).exit_code == 0
+    assert run("fit", name, "--samples", "60").exit_code == 0
+    with CanalClient(service.url) as client:
+        canal: canal_core.Canal = client.get_canal(name)
+    idx = np.arange(20, 36)
+    wider = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    path = tmp_path / "wider.csv"
+    np.savetxt(path, wider, delimiter=",", header="x,y,z", comments="")
+    r = run("correct", name, str(path), "--kind", "include", "--label", "wider here")
+    assert r.exit_code == 0, r.output
+    assert "model version 2 (parent 1)" in r.stdout
+    rows = json.loads(run("--json", "corrections", "list", name).stdout)
+    assert [(c["kind"], c["label"], c["undone"]) for c in rows] == [("include", "wider here", False)]
+    r = run("corrections", "undo", name, str(rows[0]["id"]))
+    assert r.exit_code == 0 and "model version 3" in r.stdout, r.output
+    r = run("corrections", "undo", name, str(rows[0]["id"]))
+    assert r.exit_code == 1 and "not part of the latest" in r.stderr
+    far = tmp_path / "far.npy"
+    np.save(far, wider + 10.0)
+    r = run("correct", name, str(far), "--kind", "exclude")
+    assert r.exit_code == 1 and "outside every section" in r.stderr
+    assert run("correct", name, str(tmp_path / "missing.csv")).exit_code == 2
+
