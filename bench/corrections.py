@@ -1,6 +1,7 @@
 """Corrections: a teacher with a hidden intent, against adding each pushed run as a demo.
 
-Usage: ``python bench/corrections.py [--quick]`` (or ``python -m bench.corrections``).
+Usage: ``python bench/corrections.py [--quick]``; its section of BENCHMARKS.md:
+``python -m bench --only corrections --write``.
 
 For each demonstration set (the real UR5e demos of tests/data, and generated raw 3-D logs of
 tests/raw_logs.py), the canal is fitted and the teacher has an intent the demonstrations do
@@ -42,16 +43,14 @@ from canal_core.metrics import resampled_by_arc_length  # noqa: E402
 from canal_core.warping import dtw_distance  # noqa: E402
 
 if __package__:
-    from bench.common import summary_row, write_block, write_summary
+    from bench.common import summary_row, write_section, write_summary
 else:
-    from common import summary_row, write_block, write_summary
+    from common import summary_row, write_section, write_summary
 
 from raw_logs import raw_demo_set, ur5e_demos  # noqa: E402
 
 Demos = list[np.ndarray]
 TARGET = 0.95
-START, END = "<!-- corrections:start -->", "<!-- corrections:end -->"
-HEADING = "## Corrections (`python bench/corrections.py`)"
 
 
 @dataclass
@@ -260,8 +259,6 @@ def demo_sets(quick: bool) -> dict[str, Demos]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer runs and sets (smoke test)")
-    parser.add_argument("--write", action="store_true",
-                        help="write the section into BENCHMARKS.md even with --quick")
     args = parser.parse_args(argv)
     t_all = time.perf_counter()
     n_runs, n_fresh = (20, 40) if args.quick else (50, 100)
@@ -333,9 +330,7 @@ def main(argv: list[str] | None = None) -> int:
                     peer_name="before", peer_value=1e3 * b),
     ]
     write_summary("corrections", rows)
-    if args.write or not args.quick:
-        write_block("\n".join(lines), START, END, HEADING)
-        print("wrote BENCHMARKS.md")
+    write_section("\n".join(lines))
     return 0
 
 
