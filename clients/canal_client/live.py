@@ -245,7 +245,11 @@ class PoseStreamer:
     def stop_demo(self, timeout: float = 10.0) -> dict[str, Any]:
         """Store the captured poses as a new demonstration: ``{"id", "n_points", "checksum"}``."""
         return query_json(self.session, self.keys.demo_stop,  # type: ignore[no-any-return]
-                          {"last_seq": self._seq - 1}, timeout)
+                          self._last_seq(), timeout)
+
+    def _last_seq(self) -> dict[str, int]:
+        """The stop queries' body: the last seq sent (nothing when no pose was sent yet)."""
+        return {"last_seq": self._seq - 1} if self._seq > 0 else {}
 
     # ---- corrections and steering -----------------------------------------------------------
 
@@ -263,7 +267,7 @@ class PoseStreamer:
         REST answer of ``POST /skills/{name}/corrections``); every bridge serves it soon
         after, and streams in flight switch at the section they reached."""
         return query_json(self.session, self.keys.correction_stop,  # type: ignore[no-any-return]
-                          {"last_seq": self._seq - 1}, timeout)
+                          self._last_seq(), timeout)
 
     def steer(self, u: float, v: float) -> None:
         """A person's 2-D input, u (left +) and v (up +) in [-1, 1]: the plan moves across

@@ -762,7 +762,8 @@ class Bridge:
                 log.exception("bridge housekeeping failed")
 
 
-#: The fields of a demo/start and a demo/stop body, with the check each value must pass
+#: The fields of a demo/ or correction/ start and stop body and of a steer/keep body, with
+#: the check each value must pass
 #: (absent or null: the default) and what it is expected to be.
 _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
     "start": {
@@ -772,6 +773,12 @@ _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
     },
     "stop": {
         "last_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
+    },
+    # steer/keep
+    "keep": {
+        "label": (lambda v: type(v) is str and len(v) <= 200 and "\x00" not in v,
+                  "a text of at most 200 characters"),
+        "weight": (lambda v: type(v) in (int, float) and 0 < v <= 1000, "a number in (0, 1000]"),
     },
 }
 
