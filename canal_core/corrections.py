@@ -163,10 +163,11 @@ class AppliedCorrection:
     cut_points, cut_directions : arrays, shape (last - first + 1, D), or None
         Exclude only: a point on each section's cut and the unit direction of the excluded
         side (world coordinates; NaN rows where the push did not cut the section).
-    removed : dict or None
-        Exclude only: the parent's directrix, tangents, basis and section parameters over
-        lo - 1..hi + 1 (:func:`parent_rows`); what lay inside them and lies outside the corrected
-        canal was excluded by the person.
+    before : dict or None
+        The parent's directrix, tangents, basis and section parameters over lo - 1..hi + 1
+        (:func:`parent_rows`): the canal before the correction where it changed. For an
+        exclude, what lay inside them and lies outside the corrected canal was excluded by
+        the person.
     """
 
     correction: Correction
@@ -176,7 +177,7 @@ class AppliedCorrection:
     hi: int
     cut_points: FloatArray | None = None
     cut_directions: FloatArray | None = None
-    removed: dict[str, Any] | None = None
+    before: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -187,11 +188,11 @@ class AppliedCorrection:
             "hi": self.hi,
             "cut_points": None if self.cut_points is None else _nan_list(self.cut_points),
             "cut_directions": None if self.cut_directions is None else _nan_list(self.cut_directions),
-            "removed": None if self.removed is None else {
-                "directrix": self.removed["directrix"].tolist(),
-                "tangents": self.removed["tangents"].tolist(),
-                "basis": self.removed["basis"].tolist(),
-                "sections": {k: v.tolist() for k, v in self.removed["sections"].items()},
+            "before": None if self.before is None else {
+                "directrix": self.before["directrix"].tolist(),
+                "tangents": self.before["tangents"].tolist(),
+                "basis": self.before["basis"].tolist(),
+                "sections": {k: v.tolist() for k, v in self.before["sections"].items()},
             },
         }
 
@@ -220,15 +221,16 @@ class AppliedCorrection:
                     raise ModelFormatError(
                         f"expected cuts of shape ({last - first + 1}, {dim}), got {cut.shape}", field="corrections"
                     )
-            raw = data.get("removed")
-            removed: dict[str, Any] | None = None
+            raw = data.get("before")
+            before: dict[str, Any] | None = None
             if raw is not None:
                 rows = len(raw["directrix"])
-                removed = {k: np.asarray(raw[k], dtype=np.float64) for k in ("directrix", "tangents", "basis")}
-                removed["sections"] = {k: np.asarray(v, dtype=np.float64) for k, v in raw["sections"].items()}
-                if removed["directrix"].shape != (rows, dim) or removed["basis"].shape != (rows, dim - 1, dim):
-                    raise ModelFormatError(f"expected {rows} removed rows of dimension {dim}", field="corrections")
-            return cls(correction, first, last, lo, hi, cuts[0], cuts[1], removed)
+                before = {k: np.asarray(raw[k], dtype=np.float64) for k in ("directrix", "tangents", "basis")}
+                before["sections"] = {k: np.asarray(v, dtype=np.float64) for k, v in raw["sections"].items()}
+                if before["directrix"].shape != (rows, dim) or before["basis"].shape != (rows, dim - 1, dim):
+                    raise ModelFormatError(f"expected {rows} rows before the correction, of dimension {dim}",
+                                           field="corrections")
+            return cls(correction, first, last, lo, hi, cuts[0], cuts[1], before)
         except (ModelFormatError, InvalidInputError) as exc:
             raise ModelFormatError(f"malformed correction: {exc.message}", field="corrections") from exc
         except (KeyError, TypeError, ValueError) as exc:
@@ -575,7 +577,8 @@ def locally_moved(
 
 
 def parent_rows(canal: Canal, lo: int, hi: int) -> dict[str, Any]:
-    """The parent's geometry over lo..hi: what an exclude removed is measured against it."""
+    """The parent's geometry over lo..hi: the canal before a correction where it changed (what
+    an exclude removed is measured against it)."""
     return {
         "directrix": canal.directrix[lo : hi + 1].copy(),
         "tangents": canal.tangents[lo : hi + 1].copy(),
@@ -619,7 +622,8 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
         held = np.concatenate([held[:1]] * lead + [held] + [held[-1:]] * trail)
         shift = correction.weight / (canal.n_demos + correction.weight) * pushed
         moved, lo, hi = locally_moved(canal, first, last, shift, None, blend, held)
-        applied = AppliedCorrection(correction, first, last, lo, hi)
+        applied = AppliedCorrection(correction, first, last, lo, hi, before=parent_rows(
+            canal, max(lo - 1, 0), min(hi + 1, canal.n_sections - 1)))
     else:
         plan = correction.plan if plan is None else plan
         if plan is None:
@@ -650,7 +654,8 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
         cut_dirs = np.einsum("sk,skd->sd", d, basis)
         cut_points[~cut] = np.nan
         cut_dirs[~cut] = np.nan
-        applied = AppliedCorrection(correction, first, last, lo, hi, cut_points, cut_dirs, parent_rows(canal, max(lo - 1, 0), min(hi + 1, canal.n_sections - 1)))
+        applied = AppliedCorrection(correction, first, last, lo, hi, cut_points, cut_dirs, parent_rows(
+            canal, max(lo - 1, 0), min(hi + 1, canal.n_sections - 1)))
     return replace(moved, parent=canal_digest(canal), corrections=(*canal.corrections, applied))
 
 
@@ -689,8 +694,8 @@ def excluded_points(canal: Canal, points: FloatArray, inside: BoolArray | None =
     """
     out = np.zeros(points.shape[0], dtype=bool)
     for applied in canal.corrections:
-        rows = applied.removed
-        if rows is None:
+        rows = applied.before
+        if rows is None or applied.correction.kind != "exclude":
             continue
         sections = CrossSections(canal.sections.kind, rows["sections"])
         loc = located_points(points, rows["directrix"], rows["tangents"], rows["basis"], sections)

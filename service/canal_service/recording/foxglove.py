@@ -93,6 +93,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "canal.ModelInfo": _obj("canal.ModelInfo", timestamp=_TIME, version={"type": "integer"},
                             n_sections={"type": "integer"}, radii=_array({"type": "number"}),
                             arclength=_array({"type": "number"})),
+    "canal.CorrectionInfo": _obj(
+        "canal.CorrectionInfo", timestamp=_TIME, model_version={"type": "integer"},
+        kind={"type": "string"}, label={"type": "string"}, weight={"type": "number"},
+        first_section={"type": "integer"}, last_section={"type": "integer"},
+        corrections={"type": "integer"}, n_samples={"type": "integer"}),
     "canal.ReproductionResult": _obj(
         "canal.ReproductionResult", timestamp=_TIME, model_version={"type": "integer"},
         eta={"type": "number"}, inside={"type": "boolean"}, projected={"type": "boolean"},

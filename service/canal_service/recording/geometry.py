@@ -107,6 +107,8 @@ class ModelGeometry:
     rings: FloatArray
     frame_origins: FloatArray
     frame_vectors: FloatArray
+    #: the correction that made this version (a refined model), else None
+    correction: CorrectionGeometry | None = None
 
     @property
     def n_sections(self) -> int:
@@ -154,7 +156,71 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
         vertex_normals=np.ascontiguousarray(mesh.normals, dtype=np.float64),
         faces=np.ascontiguousarray(mesh.faces, dtype=np.uint32),
         vertex_colors=colors, rings=rings, frame_origins=centres, frame_vectors=axes * scale,
+        correction=correction_geometry(canal),
     )
+
+
+#: Most section rings drawn before and after a correction.
+CORRECTION_RINGS = 24
+
+
+@dataclass(frozen=True)
+class CorrectionGeometry:
+    """The correction that made a refined model version, as both logs draw it (3-D arrays).
+
+    ``samples`` (M, 3) the path the person showed; ``before`` and ``after`` (K, A + 1, 3) closed
+    section rings of the changed range, in the parent canal and in this one (2-D canals: the
+    two ends of each section's interval, (K, 2, 3)); ``first``/``last`` the corrected span.
+    """
+
+    number: int
+    kind: str
+    label: str
+    weight: float
+    first: int
+    last: int
+    samples: FloatArray
+    before: FloatArray
+    after: FloatArray
+
+
+def _section_rings(centres: FloatArray, basis: FloatArray, sections: Any, dim: int) -> FloatArray:
+    """Closed rings (3-D) or interval ends (2-D) of sections, as 3-D points (K, A, 3)."""
+    from canal_core.surface import ring_vertices
+
+    if dim == 3:
+        ring = ring_vertices(centres, basis, sections, MESH_ANGLES)
+        return np.concatenate([ring, ring[:, :1]], axis=1)
+    lower, upper = sections.params["lower"], sections.params["upper"]
+    normal = basis[:, 0, :]
+    ends = np.stack([centres + lower[:, None] * normal, centres + upper[:, None] * normal], axis=1)
+    return np.concatenate([ends, np.zeros((*ends.shape[:2], 1))], axis=2)
+
+
+def correction_geometry(canal: Any) -> CorrectionGeometry | None:
+    """The last correction of a refined canal with its changed range before and after."""
+    from canal_core.cross_sections import CrossSections
+
+    applied = canal.corrections[-1] if getattr(canal, "corrections", ()) else None
+    if applied is None or applied.before is None:
+        return None
+    before = applied.before
+    rows = before["directrix"].shape[0]
+    first_row = max(applied.lo - 1, 0)
+    pick = np.unique(np.linspace(0, rows - 1, min(rows, CORRECTION_RINGS)).astype(int))
+    dim = int(canal.dim)
+    old_sections = CrossSections(canal.sections.kind,
+                                 {k: v[pick] for k, v in before["sections"].items()})
+    old = _section_rings(before["directrix"][pick], before["basis"][pick], old_sections, dim)
+    index = first_row + pick
+    new_sections = CrossSections(canal.sections.kind,
+                                 {k: v[index] for k, v in canal.sections.params.items()})
+    new = _section_rings(canal.directrix[index], canal.basis[index], new_sections, dim)
+    c = applied.correction
+    return CorrectionGeometry(
+        number=len(canal.corrections), kind=str(c.kind), label=str(c.label), weight=float(c.weight),
+        first=int(applied.first), last=int(applied.last), samples=points3d(c.samples),
+        before=np.asarray(old, dtype=np.float64), after=np.asarray(new, dtype=np.float64))
 
 
 @dataclass(frozen=True)

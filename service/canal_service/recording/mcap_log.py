@@ -8,6 +8,10 @@ Topics (all JSON, see :mod:`.foxglove` for the schemas)::
     /canal/demo_poses/<id>     foxglove.PosesInFrame     a demo's poses (when it has orientations)
     /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames
     /canal/model_info          canal.ModelInfo           version, radii and arclength arrays
+    /canal/corrections         foxglove.SceneUpdate      correction/v<k>: the path of the
+                               correction that made version k, the changed sections before
+                               and after
+    /canal/correction_info     canal.CorrectionInfo      kind, label, weight, span
     /canal/reproductions       foxglove.SceneUpdate      reproduction/<n> line and start (one
                                                           entity per reproduction)
     /canal/reproduction_result canal.ReproductionResult  eta, inside, times, ...
@@ -42,7 +46,7 @@ from numpy.typing import NDArray
 from ..adapters.mcap_writer import pair_writer
 from . import foxglove as fx
 from .events import LiveRows, ReproductionView
-from .geometry import CANAL_ALPHA, ModelGeometry, ObstacleShape
+from .geometry import CANAL_ALPHA, CorrectionGeometry, ModelGeometry, ObstacleShape
 
 CHUNK_SIZE = 1024 * 1024
 LIBRARY = "canal-recorder"
@@ -148,6 +152,29 @@ class McapSegment:
         self._write("/canal/model_info", "canal.ModelInfo", t_ns, fx.plain(
             t_ns, version=geo.version, n_sections=geo.n_sections, radii=geo.radii,
             arclength=geo.arclength))
+        if geo.correction is not None:
+            self._correction(t_ns, geo.version, geo.correction)
+
+    def _correction(self, t_ns: int, version: int, cor: CorrectionGeometry) -> None:
+        """The correction that made model ``version`` as its own entity
+        ``correction/v<version>``: the path the person showed (a line strip) and the changed
+        sections before (grey) and after (a line list each), with its info message."""
+        color = _INSIDE_COLOR if cor.kind == "include" else _OUTSIDE_COLOR
+
+        def segments(rings: np.ndarray) -> np.ndarray:
+            return np.stack([rings[:, :-1], rings[:, 1:]], axis=2).reshape(-1, 3)
+
+        meta = {"model_version": version, "kind": cor.kind, "label": cor.label,
+                "first_section": cor.first, "last_section": cor.last}
+        ent = fx.entity(t_ns, f"correction/v{version}", metadata=meta, lines=[
+            fx.line(cor.samples, color, thickness=3.0),
+            fx.line(segments(cor.before), _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST),
+            fx.line(segments(cor.after), color, thickness=1.0, kind=fx.LINE_LIST)])
+        self._write("/canal/corrections", "foxglove.SceneUpdate", t_ns, fx.scene_update([ent]))
+        self._write("/canal/correction_info", "canal.CorrectionInfo", t_ns, fx.plain(
+            t_ns, model_version=version, kind=cor.kind, label=cor.label, weight=cor.weight,
+            first_section=cor.first, last_section=cor.last, corrections=cor.number,
+            n_samples=len(cor.samples)))
 
     def scene(self, t_ns: int, version: int, shapes: list[ObstacleShape]) -> None:
         """The skill's scene as one ``scene/<i>`` entity per obstacle (sphere, cube, or a

@@ -12,6 +12,11 @@ Entities and timelines::
     model/v<k>/info         AnyValues          wall_time, model_version
     model/v<k>/radius       BarChart           wall_time, model_version (radius per section index)
     model/v<k-1>            Clear(recursive)   wall_time   when version k arrives
+    corrections/v<k>/samples LineStrips3D      wall_time, model_version (the path of the
+                            correction that made version k: green include, orange exclude)
+    corrections/v<k>/before LineStrips3D       wall_time, model_version (the changed sections
+                            in the parent canal), corrections/v<k>/after (in version k),
+                            corrections/v<k>/info AnyValues (kind, label, weight, span)
     frames/v<k>             Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
     radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
     reproductions/<n>/path  LineStrips3D       wall_time, model_version (n-th reproduction)
@@ -50,7 +55,7 @@ import rerun.blueprint as rrb
 
 from ..adapters.rerun_chunks import send_live
 from .events import LiveRows, ReproductionView
-from .geometry import CANAL_ALPHA, FloatArray, ModelGeometry, ObstacleShape
+from .geometry import CANAL_ALPHA, CorrectionGeometry, FloatArray, ModelGeometry, ObstacleShape
 
 APP_ID = "canal"
 _DEMO_COLOR = (90, 140, 240, 255)
@@ -314,11 +319,26 @@ class RerunSegment:
         self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
         self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
             geo.n_sections))], columns=rr.Scalars.columns(scalars=geo.radii))
+        if geo.correction is not None:
+            self._correction(geo.version, geo.correction)
         if self.dim == 3:
             # The newest canal decides the framing: the default blueprint sent last wins.
             self.rec.send_blueprint(review_blueprint(self.dim, frame=geo.vertices,
                                                      coordinates=self.coordinates),
                                     make_active=True, make_default=True)
+
+    def _correction(self, version: int, cor: CorrectionGeometry) -> None:
+        """The correction that made model ``version``, under ``corrections/v<version>``: the
+        path the person showed, and the changed sections before (grey) and after."""
+        base = f"corrections/v{version}"
+        color = _INSIDE_COLOR if cor.kind == "include" else _OUTSIDE_COLOR
+        self.rec.log(f"{base}/samples", self._strips(
+            [cor.samples], colors=[color], labels=[f"{cor.kind} {cor.label}".strip()]))
+        self.rec.log(f"{base}/before", self._strips(list(cor.before), colors=[_RING_COLOR]))
+        self.rec.log(f"{base}/after", self._strips(list(cor.after), colors=[color]))
+        self.rec.log(f"{base}/info", rr.AnyValues(
+            kind=cor.kind, label=cor.label, weight=cor.weight, first_section=cor.first,
+            last_section=cor.last, corrections=cor.number))
 
     def scene(self, t_ns: int, version: int, shapes: list[ObstacleShape]) -> None:
         """The skill's scene, replacing the previous one: each obstacle its own entity

@@ -13,6 +13,9 @@ Made on export from the recording's Foxglove JSON MCAP (one source of truth), wi
     /canal/model/directrix           nav_msgs/msg/Path              per model version
     /canal/model/mesh                visualization_msgs/msg/MarkerArray  TRIANGLE_LIST canal surface,
                                                                     LINE_LIST rings and frames
+    /canal/corrections/samples       nav_msgs/msg/Path              the path of each correction
+    /canal/corrections/sections      visualization_msgs/msg/MarkerArray  LINE_LIST: the sections it
+                                                                    changed, before and after
     /canal/reproductions             nav_msgs/msg/Path              each reproduction (with its
                                                                     orientations when it has them)
     /canal/scene                     visualization_msgs/msg/MarkerArray  the skill's obstacles
@@ -193,6 +196,20 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
                        _mesh_markers(stamp, entities), t)
             elif topic == "/canal/scene":
                 yield "/canal/scene", "visualization_msgs/msg/MarkerArray", _scene_markers(msg), t
+            elif topic == "/canal/corrections":
+                entities = msg.get("entities", [])
+                for ent in entities:
+                    if ent.get("lines"):
+                        yield ("/canal/corrections/samples", "nav_msgs/msg/Path",
+                               _path(ent["timestamp"], ent["frame_id"],
+                                     ent["lines"][0]["points"]), t)
+                markers = [
+                    _marker(ent["timestamp"], ent.get("frame_id", "canal"), ent["id"], LINE_LIST,
+                            line["points"], line.get("colors") or [], line["color"], scale=0.002)
+                    for ent in entities for line in ent.get("lines", [])[1:]]
+                if markers:
+                    yield ("/canal/corrections/sections", "visualization_msgs/msg/MarkerArray",
+                           {"markers": markers}, t)
             elif topic == "/canal/reproductions":
                 for ent in msg.get("entities", []):
                     if ent.get("lines"):
