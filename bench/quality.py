@@ -236,6 +236,16 @@ def canal_method(**options: Any) -> tuple[Fit, Reproduce]:
     return fit, reproduce
 
 
+def routes_method(**options: Any) -> tuple[Fit, Reproduce]:
+    def fit(train: list[np.ndarray]) -> Any:
+        return canal_core.routes.fit_routes(train, n_samples=N, **options)
+
+    def reproduce(routes: Any, start: np.ndarray) -> np.ndarray:
+        return np.asarray(routes.reproduce_detailed(start)[1].positions)
+
+    return fit, reproduce
+
+
 GRID = np.linspace(0.0, 1.0, N)
 
 
@@ -286,6 +296,7 @@ PEERS: dict[str, tuple[Fit, Reproduce]] = {
 DEFAULT = "canal (defaults)"
 CANALS: dict[str, tuple[Fit, Reproduce]] = {
     DEFAULT: canal_method(),
+    "canal, routes": routes_method(),
     "canal, aligned by arc length": canal_method(timing="arc"),
     "canal, fixed 10 % entry": canal_method(entry=0.1),
     "canal, constant persistence": canal_method(persistence="constant"),

@@ -12,7 +12,7 @@ Surfaces". Quick use::
     canal_core.Canal.from_dict(canal.to_dict())
 """
 
-from . import datasets, metrics, obstacles
+from . import datasets, metrics, obstacles, routes
 from .cross_sections import CrossSections
 from .errors import (
     CanalError,
@@ -26,6 +26,7 @@ from .model import Canal
 from .options import FitOptions, fit_options
 from .orientation import OrientationModel
 from .reproduction import Reproduction
+from .routes import RouteChoice, Routes, fit_routes
 from .sections import SectionKind, register_section_kind, section_kind, section_kinds
 from .surface import Mesh
 from .tracker import Tracker, TrackerTarget
@@ -44,6 +45,8 @@ __all__ = [
     "OrientationModel",
     "OutsideCanalError",
     "Reproduction",
+    "RouteChoice",
+    "Routes",
     "SectionKind",
     "Tracker",
     "TrackerTarget",
@@ -51,9 +54,11 @@ __all__ = [
     "datasets",
     "fit",
     "fit_options",
+    "fit_routes",
     "metrics",
     "obstacles",
     "register_section_kind",
+    "routes",
     "section_kind",
     "section_kinds",
 ]

@@ -241,11 +241,13 @@ class FitRequest(_In):
         options.DEFAULTS.frame_smoothing, ge=0.0, le=options.MAX_FRAME_SMOOTHING,
         description="Frames are computed on the directrix smoothed by a Gaussian of this "
                     "fraction of n_samples; 0 = the paper's raw frames.")
-    by_time: bool = Field(
-        False,
-        description="Align demonstrations by their timestamps (when every one has them) "
-                    "instead of by arc length. Arc length is the default: on LASA "
-                    "leave-one-out it follows held-out demos closer (BENCHMARKS.md).")
+    by_time: bool | None = Field(
+        None,
+        description="true: align the demonstrations by their time stamps; false: by arc length; "
+                    "left out: by the fit's timing test (the time stamps, or a steady logger's "
+                    "sample index, blended with arc length when the demonstrations keep one "
+                    "rhythm, else arc length). The model's options say which clock was used "
+                    "(clock).")
     demo_ids: list[Id] | None = Field(
         None, max_length=10000, description="Fit only these demonstrations (default: all)."
     )

@@ -55,7 +55,8 @@ class FitJob:
 
     demos: list[FloatArray]
     timestamps: list[FloatArray | None] | None
-    by_time: bool
+    #: None: the fit's timing test chooses the clock.
+    by_time: bool | None
     orientations: list[FloatArray | None] | None
     options: dict[str, Any] = field(default_factory=dict)
 

@@ -422,13 +422,14 @@ class CanalService:
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
         options = body.model_dump(exclude={"demo_ids", "by_time", "orientation", "keep_corrections"})
-        # Time stamps always give the model its speed profile; they align only when by_time.
+        # Time stamps always give the model its speed profile; what aligns is by_time's or the
+        # fit's timing test's choice, answered as the model's clock.
         stamped = times if any(t is not None for t in times) else None
         quats = [d[3] for d in loaded]
         # Orientation is learned only when every demo has it: a mean over some demos would
         # not be the skill's.
         orientations = quats if body.orientation and all(q is not None for q in quats) else None
-        job = FitJob(positions, stamped, bool(body.by_time), orientations, options)
+        job = FitJob(positions, stamped, body.by_time, orientations, options)
         started = time.perf_counter()
         try:
             canal = self.fits.run(name, job, cancel)
@@ -439,8 +440,8 @@ class CanalService:
                              "tangents": canal.tangents, "arclength": canal.arclength},
                             "demonstrations")
         serialized = canal.to_dict()
-        used_options = {**canal.options.to_dict(), "by_time": bool(body.by_time) and stamped is not None,
-                        "orientation": bool(canal.has_orientation)}
+        used_options = {**canal.options.to_dict(), "by_time": canal.clock in ("time", "time+arc"),
+                        "clock": canal.clock, "orientation": bool(canal.has_orientation)}
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
         self.cache.put(model[0], canal)  # the next reproduction needs no decoding
         self.metrics.fits.inc()

@@ -92,10 +92,14 @@ def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> No
     assert m["demo_ids"] == ids[:2] and m["n_demos"] == 2 and m["section_kind"] == "mec"
     assert m["options"] == {"cross_section": "mec", "frames": "frenet", "alignment": "dtw",
                             "directrix": "mean", "n_samples": 30, "frame_smoothing": 0.0,
-                            "by_time": True, "orientation": False}
-    # By default demonstrations are aligned by arc length, even when they carry time stamps.
+                            "by_time": True, "clock": "time", "orientation": False}
+    # By default the fit's timing test chooses: these demos keep one rhythm (each at its own
+    # steady rate), so their time share is blended with their arc-length share; the answer
+    # says so. by_time=true aligns by time alone, by_time=false by arc length alone.
     default = client.post(f"/skills/{skill}/fit", json={"demo_ids": ids[:2], "n_samples": 30})
-    assert default.json()["options"]["by_time"] is False
+    assert default.json()["options"]["clock"] == "time+arc" and default.json()["options"]["by_time"] is True
+    by_arc = client.post(f"/skills/{skill}/fit", json={"demo_ids": ids[:2], "n_samples": 30, "by_time": False})
+    assert by_arc.json()["options"]["clock"] == "arc" and by_arc.json()["options"]["by_time"] is False
     timed = client.post(f"/skills/{skill}/fit",
                         json={"demo_ids": ids[:2], "n_samples": 30, "by_time": True})
     a = client.get(f"/skills/{skill}/models/{default.json()['version']}").json()["directrix"]

@@ -1,0 +1,227 @@
+"""Several routes: demonstrations that go different ways learn one canal per route.
+
+One mean directrix between two routes goes where no demonstration went (LASA's
+``Multi_Models_1..4``: measured leave-one-out, 6-12x the best peer's DTW). The demonstrations are
+clustered into routes first, and each route gets its own canal.
+
+Clustering. Each demonstration is resampled to ``ROUTE_SAMPLES`` points by arc length; the
+distance between two demonstrations is the mean distance between their points,
+
+    d_ij = (1 / M) sum_m |x_i(m) - x_j(m)|                                        (R1)
+
+Routes are the clusters of average linkage cut at ``ROUTE_SEPARATION`` times the demos' median
+path length L: two groups are separate routes when their demos are on average more than
+0.25 L apart. Measured on the sets of BENCHMARKS.md: every LASA shape, UR5e, the generated logs
+and the RAIL pressing, pushing and writing groups merge below 0.15 L; the LASA multi-route shapes
+split at 0.45-0.78 L, the RAIL reaching groups (two goals half a metre apart) at 0.34-0.48 L.
+A route needs two demonstrations (a canal is the envelope of several): a lone demonstration
+joins the route nearest to it. ``routes=1`` forces one route (one canal, as before).
+
+Choosing a route. A start is given to the route whose entry holds it: inside that route's
+canal, located in its first third. When exactly one route's entry holds it, that route; when
+none does, the route whose entry is nearest (the start's smallest distance to the first third
+of its directrix, over the route's radius there). When several hold it (routes that share their
+start and part later: the start cannot tell them apart), the canal of all the demonstrations is
+used and the answer says so (route None).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import InvalidInputError, ModelFormatError
+from .validation import FloatArray, IntArray, check_int, check_point
+
+#: Points per demonstration in the route distance (R1).
+ROUTE_SAMPLES = 50
+#: Routes are split where their demonstrations are on average this share of the median path
+#: length apart (average linkage of R1).
+ROUTE_SEPARATION = 0.25
+#: The share of a route's sections that makes its entry.
+ENTRY_SHARE = 1.0 / 3.0
+FORMAT = "canal-routes"
+FORMAT_VERSION = 1
+
+
+def _resampled(positions: FloatArray, m: int) -> FloatArray:
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    if s[-1] <= 0.0:
+        return np.repeat(positions[:1], m, axis=0)
+    keep = np.concatenate([[True], steps > 0.0])
+    grid = np.linspace(0.0, s[-1], m)
+    return np.column_stack([np.interp(grid, s[keep], positions[keep, d]) for d in range(positions.shape[1])])
+
+
+def route_distances(demos: list[FloatArray]) -> FloatArray:
+    """(R1) between every pair of demonstrations, over their median path length, shape (n, n)."""
+    paths = np.stack([_resampled(np.asarray(d, dtype=np.float64), ROUTE_SAMPLES) for d in demos])
+    lengths = [float(np.linalg.norm(np.diff(d, axis=0), axis=1).sum()) for d in demos]
+    scale = max(float(np.median(lengths)), 1e-300)
+    diff = paths[:, None, :, :] - paths[None, :, :, :]
+    return np.asarray(np.linalg.norm(diff, axis=3).mean(axis=2) / scale, dtype=np.float64)
+
+
+def route_labels(demos: list[FloatArray], routes: int | None = None,
+                 separation: float = ROUTE_SEPARATION) -> IntArray:
+    """Route 0, 1, ... of each demonstration (in order of first appearance), shape (n,):
+    average linkage of (R1) cut at ``separation``, or into ``routes`` clusters when given;
+    every route has two demos or more."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+    from scipy.spatial.distance import squareform
+
+    n = len(demos)
+    if routes is not None:
+        check_int(routes, 1, "routes", maximum=max(n // 2, 1))
+    if n < 4 or routes == 1:
+        return np.zeros(n, dtype=np.int64)
+    dist = route_distances(demos)
+    tree = linkage(squareform(dist, checks=False), "average")
+    if routes is None:
+        raw = fcluster(tree, separation, criterion="distance")
+    else:
+        raw = fcluster(tree, routes, criterion="maxclust")
+    labels = np.unique(raw, return_inverse=True)[1].astype(np.int64)
+    # A lone demonstration joins the route nearest to it (average distance).
+    while True:
+        counts = np.bincount(labels)
+        lone = np.flatnonzero(counts < 2)
+        if lone.size == 0 or counts.size == 1:
+            break
+        j = int(np.flatnonzero(labels == lone[0])[0])
+        others = [k for k in range(counts.size) if k != lone[0]]
+        nearest = min(others, key=lambda k: float(dist[j, labels == k].mean()))
+        labels[labels == lone[0]] = nearest
+        labels = np.unique(labels, return_inverse=True)[1].astype(np.int64)
+    # Route 0 is the first demonstration's, route 1 the next new one's, ...
+    _, first = np.unique(labels, return_index=True)
+    rank = np.argsort(np.argsort(first))
+    return np.asarray(rank[labels], dtype=np.int64)
+
+
+@dataclass(frozen=True, eq=False)
+class RouteChoice:
+    """Which canal a start follows: ``route`` (None: the canal of all demonstrations) and why."""
+
+    route: int | None
+    #: "entry" (one route's entry holds the start), "nearest" (none holds it), "shared"
+    #: (several hold it), "single" (one route only).
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class Routes:
+    """One canal per route, and the canal of all the demonstrations.
+
+    Attributes
+    ----------
+    canals : tuple of Canal
+        One per route, in route order.
+    pooled : Canal
+        Fitted on every demonstration (what a single-route fit gives).
+    labels : array of int, shape (n,)
+        The route of each demonstration, in the order given to :func:`fit_routes`.
+    """
+
+    canals: tuple[Any, ...]
+    pooled: Any
+    labels: IntArray
+
+    @property
+    def n_routes(self) -> int:
+        return len(self.canals)
+
+    def choose(self, start: Any) -> RouteChoice:
+        """The route a start follows (see the module docstring)."""
+        if self.n_routes == 1:
+            return RouteChoice(None, "single")
+        point = check_point(start, self.pooled.dim, "start")
+        held, gaps = [], []
+        for k, canal in enumerate(self.canals):
+            entry = max(int(np.ceil(ENTRY_SHARE * canal.n_sections)), 1)
+            loc = canal.locate(point[None, :])
+            if bool(canal.contains(point[None, :])[0]) and int(loc.index[0]) < entry:
+                held.append(k)
+            dist = np.linalg.norm(canal.directrix[:entry] - point, axis=1) / np.maximum(canal.radii[:entry], 1e-300)
+            gaps.append(float(dist.min()))
+        if len(held) == 1:
+            return RouteChoice(held[0], "entry")
+        if len(held) > 1:
+            return RouteChoice(None, "shared")
+        return RouteChoice(int(np.argmin(gaps)), "nearest")
+
+    def canal_for(self, choice: RouteChoice) -> Any:
+        return self.pooled if choice.route is None else self.canals[choice.route]
+
+    def reproduce_detailed(self, start: Any, **kwargs: Any) -> tuple[RouteChoice, Any]:
+        """(the route chosen, its :class:`~canal_core.reproduction.Reproduction`)."""
+        choice = self.choose(start)
+        return choice, self.canal_for(choice).reproduce_detailed(start, **kwargs)
+
+    def contains(self, points: Any) -> Any:
+        """Whether each point (M, D) is inside some route's canal (or the canal of all)."""
+        inside = np.asarray(self.pooled.contains(points))
+        for canal in self.canals:
+            inside = inside | np.asarray(canal.contains(points))
+        return inside
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict (format ``canal-routes`` version 1) of every canal's model."""
+        return {"format": FORMAT, "version": FORMAT_VERSION, "labels": self.labels.tolist(),
+                "routes": [c.to_dict() for c in self.canals], "pooled": self.pooled.to_dict()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Routes:
+        """Rebuild what :meth:`to_dict` wrote; raises :class:`ModelFormatError`."""
+        from .model import Canal
+
+        if data.get("format") != FORMAT or data.get("version") != FORMAT_VERSION:
+            raise ModelFormatError(f"expected format {FORMAT!r} version {FORMAT_VERSION}, got "
+                                   f"{data.get('format')!r} version {data.get('version')!r}", field="format")
+        try:
+            canals = tuple(Canal.from_dict(c) for c in data["routes"])
+            labels = np.asarray(data["labels"], dtype=np.int64)
+            pooled = Canal.from_dict(data["pooled"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFormatError(f"malformed routes model: {exc!r}") from exc
+        if not canals or labels.ndim != 1 or (labels.size and (labels.min() < 0 or labels.max() >= len(canals))):
+            raise ModelFormatError(f"expected route labels in 0..{len(canals) - 1}, got {labels.tolist()}",
+                                   field="labels")
+        return cls(canals, pooled, labels)
+
+
+def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
+               separation: float = ROUTE_SEPARATION, **options: Any) -> Routes:
+    """Cluster demonstrations into routes and fit one canal per route (and one of all).
+
+    Parameters
+    ----------
+    demos, timestamps
+        As :func:`canal_core.fit`.
+    routes : int, optional
+        Force this many routes (1: one canal, as :func:`canal_core.fit`).
+    separation : float
+        The cut of the clustering in shares of the median path length (R1).
+    **options
+        Passed to every :func:`canal_core.fit`.
+    """
+    from .fit import fit
+
+    if not isinstance(demos, (list, tuple)) or len(demos) < 2:
+        raise InvalidInputError("expected a list of at least 2 demonstrations", field="demos")
+    arrays = [np.asarray(d, dtype=np.float64) for d in demos]
+    pooled = fit(demos, timestamps, **options)
+    labels = route_labels(arrays, routes, separation)
+    if labels.max(initial=0) == 0:
+        return Routes((pooled,), pooled, labels)
+    stamps = [None] * len(arrays) if timestamps is None else list(timestamps)
+    canals = []
+    for k in range(int(labels.max()) + 1):
+        members = np.flatnonzero(labels == k)
+        member_stamps = [stamps[j] for j in members]
+        canals.append(fit([demos[j] for j in members],
+                          None if all(s is None for s in member_stamps) else member_stamps, **options))
+    return Routes(tuple(canals), pooled, labels)

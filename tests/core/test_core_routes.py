@@ -1,0 +1,72 @@
+"""Several routes: one canal per route, the route chosen by the start's entry."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import canal_core
+from canal_core.routes import route_labels
+
+
+def two_route_demos(n_each: int = 4, shared_start: bool = False) -> list[np.ndarray]:
+    """Reaches along x that pass above (+y) or below (-y) an obstacle at the middle; starts
+    apart by route (or all at one start)."""
+    s = np.linspace(0.0, 1.0, 120)
+    demos = []
+    for side in (1.0, -1.0):
+        for k in range(n_each):
+            start_y = 0.0 if shared_start else side * 0.15
+            y = start_y * (1 - s) + side * 0.4 * np.sin(np.pi * s) + 0.01 * (k - n_each / 2)
+            demos.append(np.column_stack([s, y, 0.02 * np.cos(3 * k) * np.sin(np.pi * s)]))
+    return demos
+
+
+def test_demonstrations_that_go_different_ways_are_two_routes_and_one_route_can_be_forced() -> None:
+    demos = two_route_demos()
+    labels = route_labels(demos)
+    assert labels.tolist() == [0] * 4 + [1] * 4
+    assert route_labels(demos, routes=1).tolist() == [0] * 8
+    # Demos of one route, spread by less than the separation, stay one route.
+    assert route_labels(demos[:4]).tolist() == [0] * 4
+    with pytest.raises(canal_core.InvalidInputError, match="routes"):
+        route_labels(demos, routes=5)
+
+
+def test_a_start_follows_the_route_whose_entry_holds_it_and_no_canal_between_them() -> None:
+    demos = two_route_demos()
+    routes = canal_core.fit_routes(demos, n_samples=60)
+    assert routes.n_routes == 2
+    for side, route in ((1.0, 0), (-1.0, 1)):
+        start = np.array([0.0, side * 0.15 + 0.005, 0.0])
+        choice, result = routes.reproduce_detailed(start)
+        assert choice.route == route and choice.reason == "entry"
+        mid = result.positions[result.positions.shape[0] // 2]
+        assert side * mid[1] > 0.3  # over its own route, not between the two (y near 0)
+        assert routes.canals[route].contains(result.positions[result.entry_index:]).all()
+    # A start beside both entries takes the nearest one.
+    assert routes.choose(np.array([0.0, -0.35, 0.0])).route == 1
+    # One canal of all the demos would pass between the routes.
+    pooled = canal_core.fit(demos, n_samples=60).reproduce_detailed(np.array([0.0, 0.155, 0.0]))
+    assert abs(pooled.positions[pooled.positions.shape[0] // 2][1]) < 0.3
+
+
+def test_routes_that_share_their_start_follow_the_canal_of_all_and_say_so() -> None:
+    routes = canal_core.fit_routes(two_route_demos(shared_start=True), n_samples=60)
+    assert routes.n_routes == 2
+    choice = routes.choose(np.array([0.0, 0.0, 0.0]))
+    assert choice.route is None and choice.reason == "shared"
+    assert routes.canal_for(choice) is routes.pooled
+
+
+def test_a_routes_model_round_trips_and_a_bad_one_is_refused() -> None:
+    routes = canal_core.fit_routes(two_route_demos(), n_samples=40)
+    data = json.loads(json.dumps(routes.to_dict()))
+    again = canal_core.Routes.from_dict(data)
+    assert again.labels.tolist() == routes.labels.tolist()
+    np.testing.assert_array_equal(again.canals[1].directrix, routes.canals[1].directrix)
+    data["labels"] = [0, 7]
+    with pytest.raises(canal_core.ModelFormatError, match="labels"):
+        canal_core.Routes.from_dict(data)
