@@ -148,9 +148,14 @@ def main(argv: list[str] | None = None) -> int:
                     ("default, `--no-recordings`", bare)):
         lines.append(f"| {name} | {m['before']:.0f} | {m['peak']:.0f} | {m['idle']:.0f} | "
                      f"{m['idle'] / m['peak']:.2f} |")
+    held = trimmed["idle"] - bare["idle"]
     lines += ["", f"The fit runs in a worker process that exits: the same `canal_core.fit` run "
               f"inside a process adds {fit_peak:.0f} MiB to its peak RSS, none of which stays "
-              "in the service."]
+              "in the service.",
+              "", f"Weak spot: with recordings on (the default), {held:.0f} MiB more stay after "
+              "the burst than without them (idle, trimmed, minus idle with `--no-recordings`): "
+              "memory the recording writers keep while the skill's segment is open, which "
+              "handing freed memory back does not reach."]
     table = "\n".join(lines)
     print(table)
     write_section(table)
