@@ -12,6 +12,8 @@ The request's thread waits for the answer and kills the child when
 The work itself stops: the process is gone, and so is every byte it allocated. Before
 starting, :func:`fit_cost_seconds` estimates the fit's time from its sizes; a fit estimated
 to need more than the cap is refused at once, naming the setting and what makes it cheaper.
+A fit estimated below :data:`IN_PROCESS_BELOW_SECONDS` (a few demonstrations of a few
+hundred samples) runs in the calling thread: starting a process would cost more than it.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ FloatArray = npt.NDArray[np.float64]
 #: ``bench/fit_bound.py`` measures the real rates beside these.
 SECONDS_PER_DTW_CELL = 5e-7
 SECONDS_PER_SAMPLE_SECTION = 2e-9
+#: Fits estimated below this run in the calling thread, not in a worker process.
+IN_PROCESS_BELOW_SECONDS = 0.01
 #: What a fit imports beyond canal_core, loaded once by the forkserver.
 FIT_IMPORTS = ("scipy.interpolate", "scipy.linalg", "scipy.ndimage", "scipy.spatial.transform")
 #: How often the waiting thread looks at the clock and the cancel events.
@@ -90,16 +94,23 @@ def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str) ->
     return cost
 
 
-def _work(conn: Connection, job: FitJob) -> None:
-    """The worker process: fit, send the canal (or canal_core's refusal) back, exit."""
+def _fitted(job: FitJob) -> tuple[Any, ...]:
+    """``canal_core.fit`` of ``job`` as a reply: ("ok", canal), ("refused", error class name,
+    message, field) or ("failed", what)."""
     try:
         canal = canal_core.fit(job.demos, timestamps=job.timestamps, by_time=job.by_time,
                                orientations=job.orientations, **job.options)
-        conn.send(("ok", canal))
     except canal_core.CanalError as exc:
-        conn.send(("refused", type(exc).__name__, exc.message, exc.field))
-    except BaseException as exc:  # sent back so the service logs it as its own error
-        conn.send(("failed", f"{type(exc).__name__}: {exc}"))
+        return ("refused", type(exc).__name__, exc.message, exc.field)
+    except Exception as exc:  # sent back so the service logs it as its own error
+        return ("failed", f"{type(exc).__name__}: {exc}")
+    return ("ok", canal)
+
+
+def _work(conn: Connection, job: FitJob) -> None:
+    """The worker process: fit, send the canal (or canal_core's refusal) back, exit."""
+    try:
+        conn.send(_fitted(job))
     finally:
         conn.close()
 
@@ -110,8 +121,10 @@ def _context() -> Any:
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return multiprocessing.get_context("spawn")
     ctx = multiprocessing.get_context("forkserver")
-    # canal_core imports scipy where a fit needs it: loaded here once, not in every worker.
-    ctx.set_forkserver_preload(["__main__", "canal_core", *FIT_IMPORTS])
+    # Everything a worker runs is loaded here once, not in every worker: this module (its
+    # package brings FastAPI and SQLAlchemy, ~1 s to import) and the scipy parts canal_core
+    # imports where a fit needs them.
+    ctx.set_forkserver_preload(["__main__", __name__, *FIT_IMPORTS])
     return ctx
 
 
@@ -164,7 +177,10 @@ class FitRunner:
         Raises :class:`FitTooSlow` (estimate or cap reached) or :class:`FitCancelled`
         (``cancel`` set, or the skill deleted): the worker is killed first.
         """
-        self.check_cost(job)
+        if self.check_cost(job) < IN_PROCESS_BELOW_SECONDS:
+            # Starting a process costs more than such a fit (10-500 ms on a loaded machine
+            # against a few ms): it runs here, far inside every bound.
+            return _canal_of(_fitted(job))
         event = threading.Event()  # set by cancel_skill
         with self._lock:
             self._running.setdefault(skill, set()).add(event)
