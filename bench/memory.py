@@ -132,6 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     n_demos, n_points, batches = (5, 2000, 2) if args.quick else (20, 20000, 6)
     kept = measure(0.0, args.idle, n_demos, n_points, batches)
     trimmed = measure(1.0, args.idle, n_demos, n_points, batches)
+    bare_kept = measure(0.0, args.idle, n_demos, n_points, batches, recordings=False)
     bare = measure(1.0, args.idle, n_demos, n_points, batches, recordings=False)
     fit_peak = fit_peak_mib(n_demos, n_points)
     lines = [
@@ -145,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for name, m in (("`CANAL_MEMORY_TRIM_IDLE_S=0` (freed memory kept: the yardstick)", kept),
                     ("default (handed back after 1 s idle)", trimmed),
-                    ("default, `--no-recordings`", bare)):
+                    ("`--no-recordings`, `CANAL_MEMORY_TRIM_IDLE_S=0` (yardstick)", bare_kept),
+                    ("`--no-recordings`, handed back after 1 s idle", bare)):
         lines.append(f"| {name} | {m['before']:.0f} | {m['peak']:.0f} | {m['idle']:.0f} | "
                      f"{m['idle'] / m['peak']:.2f} |")
     held = trimmed["idle"] - bare["idle"]
@@ -162,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     write_summary("memory", [
         summary_row("REST RSS idle after a burst", trimmed["idle"], "MiB",
                     peer_name="same burst, memory kept (trim off)", peer_value=kept["idle"]),
+        summary_row("REST RSS idle after a burst, --no-recordings", bare["idle"], "MiB",
+                    peer_name="same burst, memory kept (trim off)", peer_value=bare_kept["idle"]),
         summary_row("REST RSS peak in the burst", trimmed["peak"], "MiB",
                     peer_name="same burst, memory kept (trim off)", peer_value=kept["peak"]),
     ])
