@@ -50,6 +50,7 @@ def test_a_deleted_skills_files_are_collected_and_its_late_events_dropped(tmp_pa
         rec.reproduction("pour", 1, canal.reproduce_detailed(helix_demo(0)[0]), number=1,
                          instance=old)
         path = rec.export_mcap("pour")
+        assert rec.health()["stale"] == 2  # both dropped, and counted
     finally:
         rec.close()
         db.dispose()

@@ -85,6 +85,7 @@ class RecorderQueue:
         # Each skill's instance in the database, read at most once per pass of the writer.
         self._current: dict[str, str | None] = {}
         self.dropped_events = 0
+        self.stale_events = 0  # events about a skill instance that is gone: not written
         #: Events recorded without a part the logs cannot hold (named in a warning)
         self.incomplete = 0
         self.dropped_live = 0

@@ -89,7 +89,7 @@ class Reconciler(SegmentWriter):
         if inventory is None:
             return {"demos": 0, "models": 0, "removed": 0, "reproductions": 0}
         self._current[skill] = inventory.instance
-        if not self._owner(skill, inventory.instance):
+        if not self._owner(skill, inventory.instance, events=0):
             return {"demos": 0, "models": 0, "removed": 0, "reproductions": 0}
         db_demos, db_models = inventory.demos, inventory.models
         state = self._state(skill)

@@ -105,6 +105,8 @@ class Recorder(Exporter, Reconciler):
                 None if self.enabled else "recording disabled"),
             "queued": len(self._events) + 2 * self._live_queued,
             "dropped": self.dropped_events + self.dropped_live,
+            # events about a skill deleted since (maybe on another replica): not written
+            "stale": self.stale_events,
             "incomplete": self.incomplete,
             "decimated": self.decimated_live,
             "live_written": self.written_live,
@@ -234,7 +236,7 @@ class Recorder(Exporter, Reconciler):
         assert self.source is not None
         for skill, group in by_skill.items():
             try:
-                if not self._owner(skill, None):
+                if not self._owner(skill, None, events=len(group)):
                     continue  # the skill is gone
                 stored = {d.demo_id: d for d in self.source.demos(skill, [r.demo_id for r in group])}
                 logged = self._state(skill).demos

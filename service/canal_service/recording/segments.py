@@ -140,13 +140,14 @@ class SegmentWriter(RecorderQueue):
         self._dims.pop(skill, None)
         self._clear(skill)
 
-    def _owner(self, skill: str, instance: str | None) -> bool:
+    def _owner(self, skill: str, instance: str | None, events: int = 1) -> bool:
         """Whether an event of ``skill`` (computed for ``instance``, None when unknown) may
         be written: the skill's files then record the database's current instance.
 
         A name is not an identity: another replica may have deleted the skill and created
         it again. Files of another instance are deleted here, before anything new is
-        written, and an event computed for an instance that is gone is dropped.
+        written, and an event computed for an instance that is gone is dropped (``events``
+        of them are counted as stale).
         """
         if self.source is None:
             return True
@@ -157,6 +158,7 @@ class SegmentWriter(RecorderQueue):
             self._current[skill] = self.source.instance(skill)
         current = self._current[skill]
         if current is None or (instance is not None and instance != current):
+            self.stale_events += events
             return False
         if state.instance != current:
             if state.instance is not None:
@@ -234,7 +236,7 @@ class SegmentWriter(RecorderQueue):
             streams.setdefault((chunk.skill, chunk.robot), []).append(chunk)
         for (skill, robot), parts in streams.items():
             rows = concat_rows(parts)
-            if not self._owner(skill, None):
+            if not self._owner(skill, None, events=0):  # counted as dropped rows instead
                 with self._live_lock:
                     self.dropped_live += 2 * len(rows)
                     key = (skill, robot)
