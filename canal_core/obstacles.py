@@ -627,7 +627,11 @@ def avoided_path(
     if free[0] < 0.0:
         free[0] = np.inf  # a start inside an obstacle may leave it: only its next point counts
     steps = np.sqrt(((path[1:] - path[:-1]) ** 2).sum(axis=1))
-    clear = segments_keep_clearance(free[:-1], free[1:], steps)  # segment k: row k -> row k + 1
+    # The ratio rule's own segments by their exact distance (a long step far from every
+    # obstacle fails the Lipschitz test without coming near one); segment k: row k -> k + 1.
+    clear = segment_free_distances(path[:-1], path[1:], scene) >= 0.0
+    if start_free < 0.0:
+        clear[0] = free[1] >= 0.0
     if clear.all():
         return Avoidance(path, None, nothing, start_free)
     # Rows touched by an unclear segment (the start row is never moved).
@@ -687,6 +691,7 @@ def _chain(
     before: tuple[FloatArray, float],
     after: tuple[FloatArray, float] | None,
     limits: FloatArray,
+    exact: Any = None,
 ) -> _Chain:
     """The cheapest chain of clear candidates, one per row, between two fixed points.
 
@@ -706,6 +711,9 @@ def _chain(
     after : (point (D,), free distance) or None
     limits : array, shape (W + 1,)
         Longest step into each row, and into ``after``.
+    exact : callable (p (M, D), q (M, D)) -> free (M,), optional
+        The exact segment distance, for the steps from ``before`` and into ``after`` that the
+        Lipschitz test refuses (a long first or last step need not pass near an obstacle).
     """
     w, g, d = cand.shape
     dev = cand - nominal[:, None, :]
@@ -723,6 +731,11 @@ def _chain(
         length2 = (prev_pts**2).sum(axis=1)[:, None] + dev2[i][None, :] - 2.0 * (prev_pts @ rel[i].T)
         length = np.sqrt(np.maximum(length2, 0.0))
         ok = segments_keep_clearance(prev_free[:, None], cfree[i][None, :], length) & (length <= limits[i])
+        if i == 0 and exact is not None:
+            retry = np.flatnonzero(~ok[0] & (cfree[0] >= 0.0) & (length[0] <= limits[0]))
+            if retry.size:
+                ends = cand[0][retry]
+                ok[0, retry] = exact(np.broadcast_to(before[0], ends.shape), ends) >= 0.0
         prev_d2 = (prev_dev**2).sum(axis=1)
         change = (prev_d2[:, None] + dev2[i][None, :] - 2.0 * (prev_dev @ dev[i].T)) * (SMOOTHNESS_WEIGHT / scale2[i])
         total = np.where(ok, acc[:, None] + change, np.inf)
@@ -737,6 +750,11 @@ def _chain(
     if after is not None:
         length = np.sqrt(((cand[-1] - after[0][None, :]) ** 2).sum(axis=1))
         ok = segments_keep_clearance(cfree[-1], np.full(g, after[1]), length) & (length <= limits[-1])
+        if exact is not None:
+            retry = np.flatnonzero(~ok & (cfree[-1] >= 0.0) & (length <= limits[-1]))
+            if retry.size:
+                ends = cand[-1][retry]
+                ok[retry] = exact(ends, np.broadcast_to(after[0], ends.shape)) >= 0.0
         final = np.where(ok, acc + dev2[-1] * (SMOOTHNESS_WEIGHT / scale2[-1]), np.inf)
         if not np.isfinite(final).any():
             return _Chain(_backtracked(cand, back, int(np.argmin(acc))), False, float(np.min(acc)))
@@ -814,6 +832,10 @@ def _window_path(
         taking = np.flatnonzero((each[0] < 0.0).any(axis=0))
         return nominal[:0], Blocked(int(sec[0]), "closed", tuple(int(x) for x in taking))
     nom, sc, lim = nominal[:end], scale2[:end], np.concatenate([limits[:end], limits[end : end + 1]])
+
+    def exact(a: FloatArray, b: FloatArray) -> FloatArray:
+        return segment_free_distances(np.ascontiguousarray(a), np.ascontiguousarray(b), scene)
+
     chains: list[_Chain] = []
     # Shifts: as fine as a step's sideways room, out to the section's diameter.
     sideways = np.sqrt(max(largest_step**2 - float(np.median(steps[lo - 1 : hi + 1])) ** 2, 0.0))
@@ -825,12 +847,12 @@ def _window_path(
         cand, inside = _shift_candidates(nom, sec[:end], centres, basis, sections, angle, h, levels)
         cfree = free_distances(cand.reshape(-1, d), scene).reshape(cand.shape[:2])
         cfree[~inside] = -1e300  # unusable (finite: inf + -inf would be NaN)
-        chains.append(_chain(cand, cfree, nom, sc, before, after, lim))
+        chains.append(_chain(cand, cfree, nom, sc, before, after, lim, exact))
     done = [c for c in chains if c.complete]
     if not done:
         cand = np.concatenate([nom[:, None, :], grid[:end]], axis=1)
         cfree = np.concatenate([free[lo : lo + end, None], gfree[:end]], axis=1)
-        chains.append(_chain(cand, cfree, nom, sc, before, after, lim))
+        chains.append(_chain(cand, cfree, nom, sc, before, after, lim, exact))
         done = [c for c in chains if c.complete]
     if done:
         best = min(done, key=lambda c: c.cost)

@@ -259,3 +259,18 @@ def test_a_start_outside_a_narrowing_canal_still_goes_around_a_sphere() -> None:
     assert rep.projected and rep.blocked is None
     p = rep.positions
     assert segment_free_distances(p[:-1], p[1:], scene_from_list([ball], 3)).min() >= 0.0
+
+
+def test_a_long_step_that_passes_beside_an_obstacle_is_kept(tube: canal_core.Canal) -> None:
+    """A start placed on the last section from far away (a pressing motion starts where it
+    ends): one long step, beside a sphere but clear of it. The Lipschitz test alone refused it
+    and the reproduction was blocked at the last section with no obstacle there."""
+    from canal_core.obstacles import avoided_path
+
+    end = tube.directrix[-1]
+    start = end - np.array([1.0, 0.0, 0.0])
+    scene = scene_from_list([{"kind": "sphere", "center": (end - [0.5, -0.3, 0.0]).tolist(), "radius": 0.1}], 3)
+    result = avoided_path(start, end[None, :], tube.n_sections - 1, tube.directrix, tube.basis,
+                          tube.sections, scene, tube.largest_step)
+    assert result.blocked is None
+    np.testing.assert_array_equal(result.positions, np.vstack([start, end]))
