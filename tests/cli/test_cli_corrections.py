@@ -35,10 +35,14 @@ def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Call
     assert "model version 2 (parent 1)" in r.stdout
     rows = json.loads(run("--json", "corrections", "list", name).stdout)
     assert [(c["kind"], c["label"], c["undone"]) for c in rows] == [("include", "wider here", False)]
+    r = run("fit", name, "--samples", "60")
+    assert r.exit_code == 0 and "re-applied (version 4, parent 3)" in r.stdout, r.output
     r = run("corrections", "undo", name, str(rows[0]["id"]))
-    assert r.exit_code == 0 and "model version 3" in r.stdout, r.output
+    assert r.exit_code == 0 and "model version 5" in r.stdout, r.output
     r = run("corrections", "undo", name, str(rows[0]["id"]))
     assert r.exit_code == 1 and "not part of the latest" in r.stderr
+    r = run("--json", "fit", name, "--samples", "60", "--drop-corrections")
+    assert r.exit_code == 0 and json.loads(r.stdout)["corrections"] == [], r.output
     far = tmp_path / "far.npy"
     np.save(far, wider + 10.0)
     r = run("correct", name, str(far), "--kind", "exclude")

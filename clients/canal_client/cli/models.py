@@ -63,6 +63,9 @@ def fit(
         "--by-time", help="Align by the demos' time stamps instead of arc length.")] = False,
     demo: Annotated[list[int] | None, typer.Option(
         "--demo", help="Fit only these demonstration ids (repeat).")] = None,
+    drop_corrections: Annotated[bool, typer.Option(
+        "--drop-corrections", help="Leave the skill's corrections behind (by default they "
+        "are re-applied to the new canal, as a version of its own).")] = False,
 ) -> None:
     """Fit a new model version from the skill's demonstrations (service defaults otherwise)."""
     busy = (contextlib.nullcontext() if options(ctx).json
@@ -70,13 +73,19 @@ def fit(
     with connected(ctx) as c, busy:
         model = c.fit(skill, cross_section=cross_section, frames=frames, alignment=alignment,
                       directrix=directrix, n_samples=samples, frame_smoothing=frame_smoothing,
-                      by_time=by_time or None, demo_ids=demo or None)
+                      by_time=by_time or None, demo_ids=demo or None,
+                      keep_corrections=False if drop_corrections else None)
     if options(ctx).json:
         print_json(model)
         return
     out.print(f"fitted {escape(skill)}: version [bold]{model.version}[/bold], "
               f"{model.n_demos} demos, {model.n_sections} {model.section_kind} sections, "
               f"{model.fit_seconds:.3f} s")
+    if model.corrections:
+        out.print(f"corrections {', '.join(map(str, model.corrections))} re-applied (version "
+                  f"{model.version}, parent {model.parent_version})")
+    for note in model.notes:
+        out.print(f"note: {escape(note)}")
 
 
 def write_trajectory(path: Path, positions: FloatArray, payload: Any,
