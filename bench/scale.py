@@ -1,7 +1,7 @@
 """How canal_core's cost grows: fit time, peak memory, model size, reproduce and tracker time.
 
-Run: ``.venv/bin/python bench/scale.py`` (full, writes the tables into docs/scale.md between
-markers) or ``--quick`` (a subset, docs untouched unless ``--write``).
+Run: ``.venv/bin/python bench/scale.py`` (prints the tables) or ``--quick`` (a subset);
+``python -m bench --only scale --write`` puts them in BENCHMARKS.md's scale section.
 
 Curves, for circle and ellipse cross-sections, on noisy shifted 3-D helix demos:
 
@@ -33,9 +33,9 @@ import canal_core
 from canal_core import datasets
 
 if __package__:
-    from bench.common import ROOT, best_of, summary_row, write_block, write_summary
+    from bench.common import best_of, summary_row, write_section, write_summary
 else:  # run as a file (python bench/x.py): bench/ is sys.path[0]
-    from common import ROOT, best_of, summary_row, write_block, write_summary
+    from common import best_of, summary_row, write_section, write_summary
 
 KINDS = ("circle", "ellipse")
 DEMOS = (2, 5, 10, 20, 50, 100, 200)
@@ -44,9 +44,6 @@ POINTS = (100, 300, 1000, 3000, 10000)
 FINE_POINTS = (100, 300, 1000, 3000, 5000)
 QUICK_DEMOS = (2, 10, 50)
 QUICK_POINTS = (100, 1000)
-DOC = ROOT / "docs" / "scale.md"
-START, END = "<!-- scale-tables:start -->", "<!-- scale-tables:end -->"
-HEADING = "## Measured curves"
 
 
 def helix_demos(n: int, points: int, seed: int = 0) -> list[np.ndarray]:
@@ -130,8 +127,7 @@ def curve(label: str, xs, make, kinds=KINDS) -> tuple[str, dict]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--quick", action="store_true", help="a subset; docs/scale.md untouched")
-    parser.add_argument("--write", action="store_true", help="write docs/scale.md even with --quick")
+    parser.add_argument("--quick", action="store_true", help="a subset of the sizes")
     args = parser.parse_args(argv)
     demos_xs = QUICK_DEMOS if args.quick else DEMOS
     points_xs = QUICK_POINTS if args.quick else POINTS
@@ -162,9 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     rows.append(summary_row("model size (JSON), circle, N=200", r_points[("circle", t_max)]["model_kb"], "KB"))
     rows.append(summary_row("model size (JSON), ellipse, N=200", r_points[("ellipse", t_max)]["model_kb"], "KB"))
     write_summary("scale", rows)
-    if args.write or not args.quick:
-        write_block(head + "\n\n" + "\n\n".join(blocks), START, END, HEADING, DOC)
-        print(f"wrote {DOC}")
+    write_section("\n\n".join(blocks))
     return 0
 
 

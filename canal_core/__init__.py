@@ -31,7 +31,7 @@ from .sections import SectionKind, register_section_kind, section_kind, section_
 from .surface import Mesh
 from .tracker import Tracker, TrackerTarget
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "Canal",

@@ -74,7 +74,7 @@ def test_task_two_ellipse_is_tighter_and_contains_every_demo() -> None:
     assert_points_inside(ellipse)
     for demo in demos:
         # Demo samples between two sections are judged against the linear blend of the two
-        # sections; the chord error of that blend is below 1 % here (see README, "Weak spots").
+        # sections; the chord error of that blend is below 1 % here (docs/limitations.md).
         assert ellipse.contains(demo, tol=1e-2).all()
     # The directrix tilts away from the removed demo (the one at +z).
     assert ellipse.directrix[50, 2] < -0.01

@@ -1,5 +1,5 @@
 """Careless and hostile request bodies over real HTTP: each gets a 4xx whose ``type`` is in the
-README's error table, says what was expected, and stores nothing."""
+error table of docs/rest.md, says what was expected, and stores nothing."""
 
 from __future__ import annotations
 
@@ -22,9 +22,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def readme_error_types() -> dict[str, int]:
-    """``type`` word -> status, from the README's error table (rows ``| 4xx | `a`, `b` | ...``)."""
+    """``type`` word -> status, from the error table of docs/rest.md (rows ``| 4xx | `a`, `b` | ...``)."""
     table: dict[str, int] = {}
-    for line in (ROOT / "README.md").read_text().splitlines():
+    for line in (ROOT / "docs" / "rest.md").read_text().splitlines():
         match = re.match(r"^\| (\d{3}) \| ([^|]+)\|", line)
         if match:
             for word in re.findall(r"`([a-z_]+)`", match.group(2)):
@@ -56,7 +56,7 @@ def test_every_4xx_type_the_service_answers_is_in_the_readme_error_table() -> No
     answered |= {kind: status for status, kind in errors._HTTP_TYPES.items() if status < 500}
     answered["invalid_input"] = 422  # request validation
     missing = {kind: status for kind, status in answered.items() if table.get(kind) != status}
-    assert not missing, f"not in the README's error table with that status: {missing}"
+    assert not missing, f"not in the error table of docs/rest.md with that status: {missing}"
 
 
 def test_fit_with_a_null_body_is_refused_and_fits_nothing(http: httpx.Client) -> None:
