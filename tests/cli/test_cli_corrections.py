@@ -49,3 +49,14 @@ def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Call
     assert r.exit_code == 1 and "outside every section" in r.stderr
     assert run("correct", name, str(tmp_path / "missing.csv")).exit_code == 2
 
+
+
+def test_a_reproduction_file_is_a_correction_path(tmp_path: Path) -> None:
+    """`canal reproduce --out x.csv` writes t,x,y,z (and qx..qw): `canal correct` reads x,y,z."""
+    from canal_client.cli.corrections import read_path
+
+    path = tmp_path / "traj.csv"
+    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n0.5,4,5,6,0,0,0,1\n")
+    np.testing.assert_array_equal(read_path(path), [[1, 2, 3], [4, 5, 6]])
+    path.write_text("1,2,3\n4,5,6\n")  # no header: the numbers are the samples
+    np.testing.assert_array_equal(read_path(path), [[1, 2, 3], [4, 5, 6]])

@@ -21,7 +21,7 @@ app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=T
 
 def read_path(path: Path) -> FloatArray:
     """A correction's samples (M, D) from .npy, .json (rows, or {"samples": rows}) or .csv
-    (numbers, with or without a header line)."""
+    (numbers, with or without a header line; with x, y[, z] named, only those columns)."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
@@ -31,8 +31,12 @@ def read_path(path: Path) -> FloatArray:
             rows = body["samples"] if isinstance(body, dict) else body
         elif suffix in (".csv", ".txt"):
             text = path.read_text().splitlines()
-            skip = 1 if text and any(c.isalpha() for c in text[0]) else 0
-            rows = np.loadtxt(path, delimiter=",", skiprows=skip, ndmin=2)
+            header = ([c.strip().lower() for c in text[0].split(",")]
+                      if text and any(c.isalpha() for c in text[0]) else [])
+            rows = np.loadtxt(path, delimiter=",", skiprows=1 if header else 0, ndmin=2)
+            if "x" in header and "y" in header:
+                # named columns: a `canal reproduce --out` file has t first, qx..qw last
+                rows = rows[:, [header.index(a) for a in "xyz" if a in header]]
         else:
             raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="FILE")
         samples = np.asarray(rows, dtype=np.float64)
