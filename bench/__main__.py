@@ -130,7 +130,8 @@ def section_markdown(run: dict[str, Any], images: str) -> str:
     load0, load1 = run["load"]
     shared = max(load0, load1) > 0.75 * cpus
     parts = [
-        f"## {name}: {title(name)}",
+        f"## {name}",  # a short heading: links to BENCHMARKS.md#NAME stay valid
+        f"{title(name)}.",
         f"Regenerate: `python -m bench --only {name} --write{quick}`. This run: "
         f"{run['started']:%Y-%m-%d %H:%M} UTC, {run['seconds']:.0f} s, {cpus} CPUs, load "
         f"average {load0:.1f} at its start and {load1:.1f} at its end"
@@ -173,12 +174,11 @@ def replace_section(text: str, name: str, body: str) -> str:
 
 def with_index(text: str) -> str:
     """``text`` with its header and contents list rebuilt from the sections present."""
-    found = re.findall(r"<!-- bench:(\w[\w-]*):start -->\n## (.+)\n\nRegenerate: .*?This run: "
-                       r"(\d{4}-\d\d-\d\d \d\d:\d\d) UTC", text)
+    found = re.findall(r"<!-- bench:(\w[\w-]*):start -->\n## \1\n\n(.+)\n\nRegenerate: .*?"
+                       r"This run: (\d{4}-\d\d-\d\d \d\d:\d\d) UTC", text)
     lines = ["Contents (section, last run):", ""]
-    for _name, heading, when in found:
-        anchor = re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
-        lines.append(f"- [{heading}](#{anchor}) ({when} UTC)")
+    for name, what, when in found:
+        lines.append(f"- [{name}](#{name}): {what.rstrip('.')} ({when} UTC)")
     start, end = markers(INDEX)
     index = f"{start}\n{HEADER}\n" + "\n".join(lines) + f"\n{end}"
     if start in text and end in text:
