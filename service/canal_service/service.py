@@ -48,6 +48,7 @@ from .storage import Correction, Database, Demonstration, ModelVersion, Skill, a
 from .storage import repository as repo
 from .validation import (
     DemoArrays,
+    check_correction_inputs,
     check_demonstration,
     check_finite_answer,
     check_obstacles,
@@ -644,12 +645,16 @@ class CanalService:
             base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
             lineage = repo.lineages(s, [base])[base.id]
             options, demo_ids = dict(base.options), list(base.demo_ids)
+        check_correction_inputs(canal.directrix, canal.radii, body.samples, body.plan,
+                                body.timestamps)
         try:
             correction = checked_correction(body.kind, body.samples, dim, body.weight, body.label,
                                             body.timestamps, body.orientations, body.plan)
             refined = corrected_canal(canal, correction)
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
+        check_finite_answer({"directrix": refined.directrix, "radii": refined.radii},
+                            "samples, plan")
         applied = refined.corrections[-1]
         made: list[Correction] = []
 

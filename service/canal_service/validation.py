@@ -258,3 +258,19 @@ def check_obstacles(obstacles: Sequence[Any], field: str = "obstacles") -> None:
     (a scene put, or obstacles sent with a reproduction), before canal_core reads them."""
     for i, obstacle in enumerate(obstacles):
         _core_checked(bounds.check_obstacle_numbers, obstacle, f"{field}[{i}]")
+
+
+def check_correction_inputs(directrix: FloatArray, radii: FloatArray, samples: Any, plan: Any,
+                            timestamps: Any) -> None:
+    """A correction's paths (``samples``, ``plan``) within
+    :data:`canal_core.bounds.MAX_REACH` canal sizes of the canal and its times within
+    :data:`canal_core.bounds.MAX_TIME`, before canal_core reads them; each bad row named."""
+    centre, size = bounds.canal_extent(directrix, radii)
+    for field, rows in (("samples", samples), ("plan", plan)):
+        for i, row in enumerate(rows or ()):
+            if len(row) != centre.shape[0]:
+                continue  # the wrong width: canal_core names it
+            _core_checked(lambda v, f: bounds.check_reach(v, centre, size, f), row,
+                          f"{field}[{i}]")
+    if timestamps is not None:
+        _core_checked(bounds.check_times, timestamps, "timestamps")

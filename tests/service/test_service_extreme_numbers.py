@@ -159,3 +159,18 @@ def test_obstacles_beyond_the_coordinate_range_are_refused_and_not_stored(
     _refused(http.put("/skills/pour/scene", json={"obstacles": [obstacle]}), field)
     after = http.get("/skills/pour/scene")
     assert (after.status_code, after.json()) == (before.status_code, before.json())
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"samples": [[1e308, 0, 0]] + [[0.1 * k, 0.0, 0.0] for k in range(1, 8)]}, "samples[0]"),
+    ({"samples": [[0.1 * k, 0.0, 0.0] for k in range(8)],
+      "timestamps": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1e300]}, "timestamps[7]"),
+    ({"kind": "exclude", "samples": [[0.1 * k, 0.0, 0.0] for k in range(8)],
+      "plan": [[0.1 * k, -1e200, 0.0] for k in range(8)]}, "plan[0]"),
+])
+def test_a_correction_beyond_the_canals_reach_is_refused_and_not_stored(
+        http: httpx.Client, change: dict[str, Any], field: str) -> None:
+    before = http.get("/skills/pour").json()
+    r = http.post("/skills/pour/corrections", json={"kind": "include", **change})
+    _refused(r, field)
+    assert http.get("/skills/pour").json() == before
