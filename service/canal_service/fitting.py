@@ -70,7 +70,8 @@ class FitJob:
         return [int(d.shape[0]) for d in self.demos]
 
 
-def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str) -> float:
+def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str,
+                     seconds_per_dtw_cell: float = SECONDS_PER_DTW_CELL) -> float:
     """A low estimate of a fit's server time from its sizes.
 
     The two terms that dominate large fits: DTW fills a band of ``0.2 N`` cells per row of
@@ -86,11 +87,13 @@ def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str) ->
         N, the number of sections.
     alignment : str
         ``"dtw"`` or another alignment (no DTW table).
+    seconds_per_dtw_cell : float
+        The DTW rate assumed.
     """
     samples = float(sum(n_points))
     cost = SECONDS_PER_SAMPLE_SECTION * samples * n_samples
     if alignment == "dtw":
-        cost += SECONDS_PER_DTW_CELL * len(n_points) * 0.2 * float(n_samples) ** 2
+        cost += seconds_per_dtw_cell * len(n_points) * 0.2 * float(n_samples) ** 2
     return cost
 
 
@@ -139,6 +142,9 @@ class FitRunner:
 
     def __init__(self, max_seconds: float) -> None:
         self.max_seconds = max_seconds
+        #: The rate the estimate assumes for DTW (seconds per cell): the estimate is a lower
+        #: bound, and a fit it lets through is still stopped at the cap.
+        self.seconds_per_dtw_cell = SECONDS_PER_DTW_CELL
         self._ctx = _context()
         self._lock = threading.Lock()
         self._running: dict[str, set[threading.Event]] = {}
@@ -151,7 +157,8 @@ class FitRunner:
         """The estimated seconds of ``job``; :class:`FitTooSlow` when above the cap."""
         n_samples = int(job.options.get("n_samples", canal_core.FitOptions().n_samples))
         alignment = str(job.options.get("alignment", canal_core.FitOptions().alignment))
-        estimate = fit_cost_seconds(job.n_points, n_samples, alignment)
+        estimate = fit_cost_seconds(job.n_points, n_samples, alignment,
+                                    self.seconds_per_dtw_cell)
         if estimate > self.max_seconds:
             cheaper = "fewer n_samples" + (", alignment 'spline'" if alignment == "dtw" else "")
             raise FitTooSlow(
