@@ -31,6 +31,12 @@ def service_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
+def skill() -> str:
+    """The skill ``service_url`` holds."""
+    return SKILL
+
+
+@pytest.fixture(scope="module")
 def browser() -> Iterator[Chromium]:
     with Chromium() as chromium:
         yield chromium

@@ -13,7 +13,6 @@ from urllib.parse import urlsplit
 
 import numpy as np
 from chromium import Chromium, colour_share
-from conftest import SKILL
 
 #: Colours as the recorder logs them (recording/rerun_log.py) and Rerun draws them.
 DEMO_BLUE = (90, 140, 240)
@@ -62,9 +61,9 @@ REVIEW_MINIMUM = {"demos": 0.003, "reproduction": 0.0005, "canal rings": 0.003,
 
 
 def test_viewer_shows_the_canal_with_demos_and_reproduction_inside(
-        service_url: str, browser: Chromium, tmp_path: Path) -> None:
+        service_url: str, skill: str, browser: Chromium, tmp_path: Path) -> None:
     browser.requests.clear()
-    browser.open(f"{service_url}/skills/{SKILL}/view")
+    browser.open(f"{service_url}/skills/{skill}/view")
     deadline = time.monotonic() + VIEWER_TIMEOUT_S
     shot = tmp_path / "review.png"
     while True:
