@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
+import os
 import sys
 import time
 import types
@@ -109,7 +110,10 @@ def naive_fit(demos: list[np.ndarray], n_samples: int) -> tuple[list, list]:
 
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_REFERENCE = ROOT.parent / "shared" / "reference" / "canal_surface_algorithm.py"
+#: LFD_Canal_Surface_Pkg's algorithm file beside the repository (``shared/reference``), or
+#: where ``CANAL_REFERENCE`` says (a checkout elsewhere, a git worktree).
+DEFAULT_REFERENCE = Path(os.environ.get(
+    "CANAL_REFERENCE", ROOT.parent / "shared" / "reference" / "canal_surface_algorithm.py"))
 
 
 def load_reference(path: Path) -> types.ModuleType | None:
