@@ -11,8 +11,9 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal, cast, get_args
 
 from .cross_sections import KINDS_3D
+from .errors import InvalidInputError
 from .sections import section_kinds
-from .validation import check_choice, check_fraction, check_int
+from .validation import check_choice, check_fraction, check_int, check_positive
 
 FrameKind = Literal["rmf", "frenet"]
 AlignmentKind = Literal["spline", "dtw"]
@@ -40,6 +41,13 @@ CORRECTION_KINDS: tuple[CorrectionKind, ...] = get_args(CorrectionKind)
 MIN_CORRECTION_SAMPLES = 4
 #: A few seconds of a 1 kHz stream.
 MAX_CORRECTION_SAMPLES = 20_000
+#: Routes (:mod:`canal_core.routes`): ``routes`` forces a number of routes in [1, MAX_ROUTES]
+#: (each needs two demonstrations, so at most half of them); None clusters at
+#: ``route_separation``, a share of the median path length in (0, MAX_ROUTE_SEPARATION].
+MAX_ROUTES = 32
+#: Measured on the sets of BENCHMARKS.md (canal_core.routes says where they split).
+DEFAULT_ROUTE_SEPARATION = 0.25
+MAX_ROUTE_SEPARATION = 4.0
 
 
 @dataclass(frozen=True)
@@ -79,3 +87,15 @@ def fit_options(
         frame_smoothing=check_fraction(frame_smoothing, "frame_smoothing",
                                        maximum=MAX_FRAME_SMOOTHING),
     )
+
+
+def route_options(routes: int | None = None,
+                  route_separation: float = DEFAULT_ROUTE_SEPARATION) -> tuple[int | None, float]:
+    """Validated ``(routes, route_separation)``: how demonstrations are split into routes."""
+    if routes is not None:
+        routes = check_int(routes, 1, "routes", maximum=MAX_ROUTES)
+    separation = check_positive(route_separation, "route_separation")
+    if separation > MAX_ROUTE_SEPARATION:
+        raise InvalidInputError(f"expected route_separation in (0, {MAX_ROUTE_SEPARATION}], got "
+                                f"{separation}", field="route_separation")
+    return routes, separation

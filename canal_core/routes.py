@@ -33,17 +33,20 @@ from typing import Any
 import numpy as np
 
 from .errors import InvalidInputError, ModelFormatError
+from .options import DEFAULT_ROUTE_SEPARATION
 from .validation import FloatArray, IntArray, check_int, check_point
 
 #: Points per demonstration in the route distance (R1).
 ROUTE_SAMPLES = 50
 #: Routes are split where their demonstrations are on average this share of the median path
-#: length apart (average linkage of R1).
-ROUTE_SEPARATION = 0.25
+#: length apart (average linkage of R1); the fit option's default.
+ROUTE_SEPARATION = DEFAULT_ROUTE_SEPARATION
 #: The share of a route's sections that makes its entry.
 ENTRY_SHARE = 1.0 / 3.0
 FORMAT = "canal-routes"
 FORMAT_VERSION = 1
+#: Point pairs compared at once in (R1).
+_ROUTE_BLOCK = 2_000_000
 
 
 def _resampled(positions: FloatArray, m: int) -> FloatArray:
@@ -61,8 +64,20 @@ def route_distances(demos: list[FloatArray]) -> FloatArray:
     paths = np.stack([_resampled(np.asarray(d, dtype=np.float64), ROUTE_SAMPLES) for d in demos])
     lengths = [float(np.linalg.norm(np.diff(d, axis=0), axis=1).sum()) for d in demos]
     scale = max(float(np.median(lengths)), 1e-300)
-    diff = paths[:, None, :, :] - paths[None, :, :, :]
-    return np.asarray(np.linalg.norm(diff, axis=3).mean(axis=2) / scale, dtype=np.float64)
+    n = paths.shape[0]
+    dist = np.empty((n, n), dtype=np.float64)
+    # A block of rows at a time: the (n, n, M, D) difference of all pairs at once would need
+    # gigabytes for a thousand demonstrations.
+    rows = max(1, _ROUTE_BLOCK // max(n * ROUTE_SAMPLES, 1))
+    for i in range(0, n, rows):
+        diff = paths[i : i + rows, None, :, :] - paths[None, :, :, :]
+        dist[i : i + rows] = np.linalg.norm(diff, axis=3).mean(axis=2)
+    return np.asarray(dist / scale, dtype=np.float64)
+
+
+def route_work(n_demos: int) -> float:
+    """Point pairs (R1) compares for ``n_demos`` demonstrations (what clustering costs)."""
+    return float(n_demos) ** 2 * ROUTE_SAMPLES
 
 
 def route_labels(demos: list[FloatArray], routes: int | None = None,
@@ -193,8 +208,24 @@ class Routes:
         return cls(canals, pooled, labels)
 
 
+def single_route(canal: Any) -> Routes:
+    """A one-route :class:`Routes` of ``canal`` (what a single-canal model is as routes)."""
+    return Routes((canal,), canal, np.zeros(max(int(canal.n_demos), 0), dtype=np.int64))
+
+
+def routes_from_dict(data: dict[str, Any]) -> Routes:
+    """Either stored model format as :class:`Routes`: ``canal-routes``, or a single
+    ``canal-model`` as one route (:func:`single_route`)."""
+    from .model import Canal
+
+    if isinstance(data, dict) and data.get("format") == FORMAT:
+        return Routes.from_dict(data)
+    return single_route(Canal.from_dict(data))
+
+
 def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
-               separation: float = ROUTE_SEPARATION, **options: Any) -> Routes:
+               separation: float = ROUTE_SEPARATION, labels: Any = None,
+               **options: Any) -> Routes:
     """Cluster demonstrations into routes and fit one canal per route (and one of all).
 
     Parameters
@@ -205,8 +236,12 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
         Force this many routes (1: one canal, as :func:`canal_core.fit`).
     separation : float
         The cut of the clustering in shares of the median path length (R1).
+    labels : array of int, shape (n,), optional
+        The route of each demonstration, from :func:`route_labels` already (``routes`` and
+        ``separation`` are then not used).
     **options
-        Passed to every :func:`canal_core.fit`.
+        Passed to every :func:`canal_core.fit`; ``orientations`` (one per demonstration) is
+        split between the routes as the demonstrations are.
     """
     from .fit import fit
 
@@ -214,14 +249,23 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
         raise InvalidInputError("expected a list of at least 2 demonstrations", field="demos")
     arrays = [np.asarray(d, dtype=np.float64) for d in demos]
     pooled = fit(demos, timestamps, **options)
-    labels = route_labels(arrays, routes, separation)
+    if labels is None:
+        labels = route_labels(arrays, routes, separation)
+    else:
+        labels = np.asarray(labels, dtype=np.int64)
+        if labels.shape != (len(arrays),) or labels.min() < 0:
+            raise InvalidInputError(f"expected one route label >= 0 per demonstration ({len(arrays)}), "
+                                    f"got {labels.tolist()}", field="labels")
     if labels.max(initial=0) == 0:
         return Routes((pooled,), pooled, labels)
     stamps = [None] * len(arrays) if timestamps is None else list(timestamps)
+    quats = options.pop("orientations", None)
     canals = []
     for k in range(int(labels.max()) + 1):
         members = np.flatnonzero(labels == k)
         member_stamps = [stamps[j] for j in members]
         canals.append(fit([demos[j] for j in members],
-                          None if all(s is None for s in member_stamps) else member_stamps, **options))
+                          None if all(s is None for s in member_stamps) else member_stamps,
+                          orientations=None if quats is None else [quats[j] for j in members],
+                          **options))
     return Routes(tuple(canals), pooled, labels)

@@ -23,10 +23,13 @@ __all__ = [
     "FRAMES",
     "MAX_CORRECTION_SAMPLES",
     "MAX_FRAME_SMOOTHING",
+    "MAX_ROUTES",
+    "MAX_ROUTE_SEPARATION",
     "MAX_SAMPLES",
     "MIN_CORRECTION_SAMPLES",
     "MIN_SAMPLES",
     "OUTSIDE_RULES",
+    "ROUTE_SEPARATION",
     "Alignment",
     "CorrectionKind",
     "CrossSection",
@@ -47,6 +50,10 @@ MIN_SAMPLES = _core.MIN_SAMPLES
 #: The service accepts every N the core fits: one limit (docs/CONTRACTS.md says why 5,000).
 MAX_SAMPLES = _core.MAX_SAMPLES
 MAX_FRAME_SMOOTHING = _core.MAX_FRAME_SMOOTHING
+#: Routes: how many may be forced, and the clustering's cut (canal_core.options.route_options).
+MAX_ROUTES = _core.MAX_ROUTES
+ROUTE_SEPARATION = _core.DEFAULT_ROUTE_SEPARATION
+MAX_ROUTE_SEPARATION = _core.MAX_ROUTE_SEPARATION
 #: canal_core's defaults: what a request that leaves an option out gets.
 DEFAULTS = _core.FitOptions()
 

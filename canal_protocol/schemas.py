@@ -262,6 +262,16 @@ class FitRequest(_In):
         description="Learn the orientation along the canal when every demonstration has "
                     "orientations (false: positions only). The model's options say whether "
                     "it was learned.")
+    routes: int | None = Field(
+        None, ge=1, le=options.MAX_ROUTES,
+        description="Demonstrations that go clearly different ways are split into routes, one "
+                    "canal each (docs/routes.md). Left out: split where they are more than "
+                    "route_separation apart; 1: one canal of all, never split; N: exactly N "
+                    "routes (at most half the demonstrations).")
+    route_separation: float = Field(
+        options.ROUTE_SEPARATION, gt=0.0, le=options.MAX_ROUTE_SEPARATION,
+        description="Where routes split when 'routes' is left out: the demonstrations' mean "
+                    "distance, as a share of their median path length.")
 
 
 class ModelSummary(BaseModel):
@@ -289,6 +299,11 @@ class ModelSummary(BaseModel):
         default_factory=list,
         description="What the service did that the request could not tell (e.g. a correction "
                     "that no longer applies after a refit).")
+    routes: int = Field(
+        1, description="How many routes the model has: one canal each (1: a single canal).")
+    demo_routes: list[int] | None = Field(
+        None, description="The route (0, 1, ...) of each demonstration, in the order of "
+                          "demo_ids; null when the model has one route.")
 
 
 # ---- corrections ------------------------------------------------------------------------------
@@ -320,6 +335,10 @@ class CorrectionIn(_In):
         1.0, gt=0.0, le=1000.0,
         description="How much an include counts against one demonstration (exclude ignores it).")
     label: str = Field("", max_length=200, pattern=NO_NUL)
+    route: int | None = Field(
+        None, ge=0, le=options.MAX_ROUTES - 1,
+        description="A model of several routes: the route whose canal is corrected (null: every "
+                    "route's canal the samples pass through, and the canal of all).")
 
 
 class CorrectionOut(BaseModel):
@@ -336,6 +355,9 @@ class CorrectionOut(BaseModel):
     last_section: int
     created_at: UtcDatetime
     undone: bool = Field(description="Undone corrections stay listed; no later version has them.")
+    route: int | None = Field(
+        None, description="The route it corrects (null: every route it passes through, or the "
+                          "model has one route).")
 
 
 class CorrectedModel(ModelSummary):
@@ -352,6 +374,15 @@ class Frames(BaseModel):
     binormals: list[list[float]] | None
 
 
+class RouteCanal(BaseModel):
+    """One route's canal in a model of several routes."""
+
+    route: int
+    n_demos: int
+    directrix: list[list[float]]
+    radii: list[float]
+
+
 class ModelOut(ModelSummary):
     """A model version with its geometry."""
 
@@ -364,8 +395,13 @@ class ModelOut(ModelSummary):
         None, description="Cross-section parameters as serialised by canal_core."
     )
     serialized: dict[str, Any] | None = Field(
-        None, description="The full canal_core model (Canal.from_dict input), with ?serialized=true."
+        None, description="The full canal_core model, with ?serialized=true: Canal.from_dict "
+                          "input, or with several routes the 'canal-routes' dict "
+                          "(canal_core.routes.routes_from_dict reads both)."
     )
+    route_canals: list[RouteCanal] | None = Field(
+        None, description="With several routes, each route's canal (the fields above are the "
+                          "canal of all the demonstrations); null with one route.")
 
 
 # ---- reproductions ---------------------------------------------------------------------------
@@ -468,6 +504,10 @@ class ReproductionRequest(_In):
     obstacles: list[ObstacleIn] | None = Field(
         None, max_length=MAX_OBSTACLES,
         description="Obstacles for this reproduction, added to the skill's scene (not stored).")
+    route: int | None = Field(
+        None, ge=0, le=options.MAX_ROUTES - 1,
+        description="Follow this route's canal (0 .. routes-1 of the model); left out: the "
+                    "route whose entry holds the start (docs/routes.md).")
 
     @model_validator(mode="after")
     def _one_of_start_or_starts(self) -> ReproductionRequest:
@@ -506,6 +546,13 @@ class ReproductionOut(BaseModel):
         default_factory=list,
         description="What the service did that the request did not say, e.g. "
                     "'model has no orientation: start_orientation ignored'.")
+    route: int | None = Field(
+        None, description="The route followed (0, 1, ...); null: the model's one canal, or "
+                          "the canal of all the demonstrations (route_reason 'shared').")
+    route_reason: str | None = Field(
+        None, description="Why that route: 'single' (one route), 'entry' (its entry holds the "
+                          "start), 'nearest' (no entry holds it), 'shared' (several do), "
+                          "'forced' (the request's route).")
 
 
 class ReproductionBatchOut(BaseModel):

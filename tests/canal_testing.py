@@ -63,3 +63,25 @@ def arc_demo(j: int, n: int, dim: int = 3, seed: int = 0, spread: float = 0.02) 
         return np.column_stack([x, y])
     z = 0.1 * t + 0.5 * offset * np.cos(np.pi * t) + 0.002 * rng.standard_normal(n)
     return np.column_stack([x, y, z])
+
+
+#: The two routes of :func:`two_route_demo`: each one's start.
+ROUTE_STARTS = ((0.0, 0.15, 0.0), (0.0, -0.15, 0.0))
+
+
+def two_route_demo(j: int, n: int = 120, n_each: int = 4, dim: int = 3) -> np.ndarray:
+    """Demonstrations that go two clearly different ways: the first ``n_each`` from
+    ``ROUTE_STARTS[0]`` arc through +y, the next from ``ROUTE_STARTS[1]`` through -y (an
+    obstacle in the middle is passed on either side), both ending near (1, 0, 0)."""
+    route, k = divmod(j, n_each)
+    side = 1.0 if route == 0 else -1.0
+    s = np.linspace(0.0, 1.0, n)
+    y = ROUTE_STARTS[route][1] * (1 - s) + side * 0.4 * np.sin(np.pi * s) + 0.01 * (k - n_each / 2)
+    z = 0.02 * np.cos(3 * k) * np.sin(np.pi * s)
+    return np.column_stack([s, y, z][:dim])
+
+
+def path_distance(path: Any, demo: Any) -> float:
+    """The mean distance from each point of ``path`` to the nearest point of ``demo``."""
+    a, b = np.asarray(path, dtype=np.float64), np.asarray(demo, dtype=np.float64)
+    return float(np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2).min(axis=1).mean())

@@ -435,28 +435,35 @@ def _fit(skill: str, *, cross_section: CrossSection | None = None,
          directrix: Directrix | None = None, n_samples: int | None = None,
          frame_smoothing: float | None = None, by_time: bool | None = None,
          demo_ids: Iterable[int] | None = None, orientation: bool | None = None,
-         keep_corrections: bool | None = None) -> _Steps[ModelSummary]:
+         keep_corrections: bool | None = None, routes: int | None = None,
+         route_separation: float | None = None) -> _Steps[ModelSummary]:
     """Fit a new model version; options left ``None`` take the service's defaults, which
     are canal_core's (:class:`canal_protocol.schemas.FitRequest` lists them). The skill's
-    corrections are re-applied to the new canal unless ``keep_corrections=False``."""
+    corrections are re-applied to the new canal unless ``keep_corrections=False``.
+    Demonstrations that go clearly different ways become routes, one canal each
+    (``routes=1``: one canal of all; ``routes=N``: exactly N); the answer's ``routes`` and
+    ``demo_routes`` say how they were split."""
     return (yield _request(FIT, name=skill, body={
         "cross_section": cross_section, "frames": frames, "alignment": alignment,
         "directrix": directrix, "n_samples": n_samples, "frame_smoothing": frame_smoothing,
         "by_time": by_time, "demo_ids": None if demo_ids is None else [int(i) for i in demo_ids],
-        "orientation": orientation, "keep_corrections": keep_corrections}))
+        "orientation": orientation, "keep_corrections": keep_corrections, "routes": routes,
+        "route_separation": route_separation}))
 
 
 def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"] = "include", *,
              model: Version = "latest", weight: float = 1.0, label: str = "",
-             timestamps: ArrayLike | None = None) -> _Steps[CorrectedModel]:
+             timestamps: ArrayLike | None = None, route: int | None = None
+             ) -> _Steps[CorrectedModel]:
     """Refine the skill's canal by a correction, a path (M, D) over part of it: ``include``
     (this path is right too: the canal grows locally to hold it, the centre moves towards it
     by ``weight`` demonstrations) or ``exclude`` (the robot was pushed away from where it
     went: the canal narrows on that side). Answers the new latest model version with the
-    stored correction (its ``id`` undoes it)."""
+    stored correction (its ``id`` undoes it). A model of several routes: ``route`` names the
+    route corrected (None: every route the samples pass through)."""
     return (yield _request(CORRECT, name=skill, body={
         "kind": kind, "samples": _rows(samples, "samples"), "model": _model_ref(model),
-        "weight": float(weight), "label": label,
+        "weight": float(weight), "label": label, "route": route,
         "timestamps": None if timestamps is None else _vector(timestamps)}))
 
 
@@ -483,14 +490,23 @@ def _get_model(skill: str, version: Version = "latest", serialized: bool = False
 
 
 def _get_canal(skill: str, version: Version = "latest") -> _Steps[canal_core.Canal]:
-    """A model version as a local ``canal_core.Canal`` (reproduce, contains, tracker)."""
+    """A model version as a local ``canal_core.Canal`` (reproduce, contains, tracker); a
+    model of several routes answers its canal of all the demonstrations (:meth:`get_routes`
+    has every route's)."""
+    routes = yield from _get_routes(skill, version)
+    return routes.pooled
+
+
+def _get_routes(skill: str, version: Version = "latest") -> _Steps[canal_core.Routes]:
+    """A model version as a local ``canal_core.Routes`` (one route for a single canal):
+    ``choose(start)``, ``canal_for(choice)``, ``reproduce_detailed(start)``."""
     import canal_core
 
     model: Model = yield _request(GET_MODEL, name=skill, version=version,
                                   params={"serialized": "true"})
     if not isinstance(model.serialized, dict):
         raise CanalClientError("the service did not send the serialized model")
-    return canal_core.Canal.from_dict(model.serialized)
+    return canal_core.routes.routes_from_dict(model.serialized)
 
 
 def _mesh(skill: str, version: Version = "latest", format: str = "ply",
@@ -537,7 +553,8 @@ def _clear_scene(skill: str) -> _Steps[None]:
 def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
                outside: Outside = "project", goal: ArrayLike | None = None,
                duration: float | None = None, start_orientation: ArrayLike | None = None,
-               obstacles: Iterable[Any] | None = None) -> _Steps[Reproduction]:
+               obstacles: Iterable[Any] | None = None, route: int | None = None
+               ) -> _Steps[Reproduction]:
     """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
     (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
     (``outside="raise"``). ``goal`` (D,) deforms the canal to end there; ``duration``
@@ -545,25 +562,28 @@ def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
     the start pose's orientation, carried along when the model has orientation
     (``result.orientations``); a model without it ignores it and says so in
     ``result.notes``. ``obstacles`` are added to the skill's scene for this reproduction
-    (``result.blocked`` says where they close the canal)."""
+    (``result.blocked`` says where they close the canal). A model of several routes follows
+    the route whose entry holds the start (``result.route``, ``result.route_reason``), or
+    ``route`` when given."""
     return (yield _request(REPRODUCE, name=skill, body={
         "start": _point(start), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
         "start_orientation": _point(start_orientation, "start_orientation"),
-        "obstacles": _obstacles(obstacles)}))
+        "obstacles": _obstacles(obstacles), "route": route}))
 
 
 def _reproduce_many(skill: str, starts: ArrayLike, *, model: Version = "latest",
                     outside: Outside = "project", goal: ArrayLike | None = None,
                     duration: float | None = None, start_orientation: ArrayLike | None = None,
-                    obstacles: Iterable[Any] | None = None) -> _Steps[list[Reproduction]]:
+                    obstacles: Iterable[Any] | None = None, route: int | None = None
+                    ) -> _Steps[list[Reproduction]]:
     """Reproduce from each start (at most 1000) in one request, in order
-    (``start_orientation`` and ``obstacles`` are used for every start)."""
+    (``start_orientation``, ``obstacles`` and ``route`` are used for every start)."""
     batch: ReproductionBatch = yield _request(REPRODUCE_MANY, name=skill, body={
         "starts": _rows(starts, "starts"), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
         "start_orientation": _point(start_orientation, "start_orientation"),
-        "obstacles": _obstacles(obstacles)})
+        "obstacles": _obstacles(obstacles), "route": route})
     return batch.reproductions
 
 
@@ -633,6 +653,7 @@ class _Operations:
     list_models = _operation(_list_models)
     get_model = _operation(_get_model)
     get_canal = _operation(_get_canal)
+    get_routes = _operation(_get_routes)
     mesh = _operation(_mesh)
     reproduce = _operation(_reproduce)
     reproduce_many = _operation(_reproduce_many)

@@ -123,7 +123,7 @@ def random_interior_start(model: dict[str, Any], rng: np.random.Generator,
     """A random point well inside the canal, in its first ``max_fraction`` of sections."""
     import canal_core
 
-    canal = canal_core.Canal.from_dict(model["serialized"])
+    canal = canal_core.routes.routes_from_dict(model["serialized"]).pooled
     n = canal.n_sections
     normals = canal.normals
     assert normals is not None  # every fitted canal has its frames

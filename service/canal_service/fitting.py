@@ -14,6 +14,12 @@ starting, :func:`fit_cost_seconds` estimates the fit's time from its sizes; a fi
 to need more than the cap is refused at once, naming the setting and what makes it cheaper.
 A fit estimated below :data:`IN_PROCESS_BELOW_SECONDS` (a few demonstrations of a few
 hundred samples) runs in the calling thread: starting a process would cost more than it.
+
+Routes (:mod:`canal_core.routes`): the service clusters the demonstrations into routes
+before the job (:func:`route_labels`, bounded by :func:`route_cost_seconds`), so the job
+knows them and its estimate counts every fit it makes: the canal of all the demonstrations
+and, with several routes, one per route (about twice a single fit's work). The worker then
+answers a :class:`canal_core.Routes` instead of a canal.
 """
 
 from __future__ import annotations
@@ -45,6 +51,9 @@ FloatArray = npt.NDArray[np.float64]
 #: ``bench/fit_bound.py`` measures the real rates beside these.
 SECONDS_PER_DTW_CELL = 5e-7
 SECONDS_PER_SAMPLE_SECTION = 2e-9
+#: Seconds per point pair the route clustering compares (R1 of canal_core.routes), below
+#: its measured rate (about 1e-8 s per pair and coordinate on an idle core).
+SECONDS_PER_ROUTE_PAIR = 5e-9
 #: Fits estimated below this run in the calling thread, not in a worker process.
 IN_PROCESS_BELOW_SECONDS = 0.01
 #: What a fit imports beyond canal_core, loaded once by the forkserver.
@@ -63,6 +72,14 @@ class FitJob:
     by_time: bool | None
     orientations: list[FloatArray | None] | None
     options: dict[str, Any] = field(default_factory=dict)
+    #: The route of each demonstration (canal_core.routes.route_labels); None or all 0: one
+    #: canal, as a single fit.
+    labels: list[int] | None = None
+
+    @property
+    def n_routes(self) -> int:
+        """Routes the job fits (1: a single canal)."""
+        return 1 if not self.labels else max(self.labels) + 1
 
     @property
     def n_points(self) -> list[int]:
@@ -97,12 +114,23 @@ def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str,
     return cost
 
 
+def route_cost_seconds(n_demos: int, dim: int) -> float:
+    """A low estimate of the route clustering's time for ``n_demos`` demonstrations."""
+    return SECONDS_PER_ROUTE_PAIR * canal_core.routes.route_work(n_demos) * dim
+
+
 def _fitted(job: FitJob) -> tuple[Any, ...]:
-    """``canal_core.fit`` of ``job`` as a reply: ("ok", canal), ("refused", error class name,
-    message, field) or ("failed", what)."""
+    """``canal_core.fit`` of ``job`` as a reply: ("ok", canal or Routes), ("refused", error
+    class name, message, field) or ("failed", what)."""
     try:
-        canal = canal_core.fit(job.demos, timestamps=job.timestamps, by_time=job.by_time,
-                               orientations=job.orientations, **job.options)
+        canal: Any
+        if job.n_routes > 1:
+            canal = canal_core.fit_routes(job.demos, job.timestamps, labels=job.labels,
+                                          by_time=job.by_time, orientations=job.orientations,
+                                          **job.options)
+        else:
+            canal = canal_core.fit(job.demos, timestamps=job.timestamps, by_time=job.by_time,
+                                   orientations=job.orientations, **job.options)
     except canal_core.CanalError as exc:
         return ("refused", type(exc).__name__, exc.message, exc.field)
     except Exception as exc:  # sent back so the service logs it as its own error
@@ -159,14 +187,36 @@ class FitRunner:
         alignment = str(job.options.get("alignment", canal_core.FitOptions().alignment))
         estimate = fit_cost_seconds(job.n_points, n_samples, alignment,
                                     self.seconds_per_dtw_cell)
+        labels = job.labels or []
+        if job.n_routes > 1:
+            # One more fit per route, over that route's demonstrations.
+            points = job.n_points
+            for k in range(job.n_routes):
+                estimate += fit_cost_seconds([points[j] for j, r in enumerate(labels) if r == k],
+                                             n_samples, alignment, self.seconds_per_dtw_cell)
         if estimate > self.max_seconds:
             cheaper = "fewer n_samples" + (", alignment 'spline'" if alignment == "dtw" else "")
             raise FitTooSlow(
                 f"expected a fit within CANAL_FIT_MAX_SECONDS = {self.max_seconds:g} s of server "
                 f"time, got one estimated at {estimate:.3g} s at least ({len(job.demos)} "
                 f"demonstrations, {sum(job.n_points)} samples, n_samples {n_samples}, "
-                f"alignment {alignment!r}); ask for {cheaper} or fewer demonstrations",
+                f"alignment {alignment!r}" + (f", {job.n_routes} routes" if job.n_routes > 1
+                                              else "")
+                + f"); ask for {cheaper}" + (", routes 1" if job.n_routes > 1 else "")
+                + " or fewer demonstrations",
                 field="n_samples")
+        return estimate
+
+    def check_route_cost(self, n_demos: int, dim: int) -> float:
+        """The estimated seconds of clustering ``n_demos`` demonstrations into routes;
+        :class:`FitTooSlow` (naming ``routes``) when above the cap."""
+        estimate = route_cost_seconds(n_demos, dim)
+        if estimate > self.max_seconds:
+            raise FitTooSlow(
+                f"expected the route clustering within CANAL_FIT_MAX_SECONDS = "
+                f"{self.max_seconds:g} s of server time, got one estimated at {estimate:.3g} s "
+                f"at least ({n_demos} demonstrations); ask for routes 1 or fewer "
+                "demonstrations", field="routes")
         return estimate
 
     def cancel_skill(self, skill: str) -> int:
@@ -178,8 +228,9 @@ class FitRunner:
         return len(events)
 
     def run(self, skill: str, job: FitJob, cancel: threading.Event | None = None
-            ) -> canal_core.Canal:
-        """Fit ``job`` in a worker process; the canal, or canal_core's error re-raised.
+            ) -> canal_core.Canal | canal_core.Routes:
+        """Fit ``job`` in a worker process; the canal (:class:`canal_core.Routes` when the job
+        has several routes), or canal_core's error re-raised.
 
         Raises :class:`FitTooSlow` (estimate or cap reached) or :class:`FitCancelled`
         (``cancel`` set, or the skill deleted): the worker is killed first.
@@ -244,10 +295,10 @@ class FitRunner:
                                    f"{process.exitcode} before answering")
 
 
-def _canal_of(reply: Any) -> canal_core.Canal:
+def _canal_of(reply: Any) -> canal_core.Canal | canal_core.Routes:
     kind = reply[0]
     if kind == "ok":
-        canal: canal_core.Canal = reply[1]
+        canal: canal_core.Canal | canal_core.Routes = reply[1]
         return canal
     if kind == "refused":
         _kind, name, message, at = reply

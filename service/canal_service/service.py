@@ -28,6 +28,7 @@ from sqlalchemy.exc import IntegrityError
 import canal_core
 from canal_core.corrections import Correction as Correction_
 from canal_core.corrections import checked_correction, corrected_canal
+from canal_core.routes import RouteChoice, Routes, routes_from_dict, single_route
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
 
@@ -191,15 +192,16 @@ def model_cache_key(model_id: int, skill_created_at: datetime) -> CacheKey:
 
 
 class CanalCache:
-    """Decoded canals by :func:`model_cache_key`. A model row never changes, and a key names
-    one row for ever, so entries never go stale; they only age out (least recently used)."""
+    """Decoded models (as :class:`Routes`: one route for a single canal) by
+    :func:`model_cache_key`. A model row never changes, and a key names one row for ever, so
+    entries never go stale; they only age out (least recently used)."""
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._items: OrderedDict[CacheKey, canal_core.Canal] = OrderedDict()
+        self._items: OrderedDict[CacheKey, Routes] = OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, key: CacheKey) -> canal_core.Canal | None:
+    def get(self, key: CacheKey) -> Routes | None:
         """The cached canal, marked recently used, or None."""
         with self._lock:
             canal = self._items.get(key)
@@ -207,7 +209,7 @@ class CanalCache:
                 self._items.move_to_end(key)
             return canal
 
-    def put(self, key: CacheKey, canal: canal_core.Canal) -> None:
+    def put(self, key: CacheKey, canal: Routes) -> None:
         """Keep ``canal``, evicting the least recently used beyond ``size``."""
         if self.size <= 0:
             return
@@ -422,7 +424,8 @@ class CanalService:
         demo_ids = [d[0] for d in loaded]
         positions = [d[1] for d in loaded]
         times = [d[2] for d in loaded]
-        options = body.model_dump(exclude={"demo_ids", "by_time", "orientation", "keep_corrections"})
+        options = body.model_dump(exclude={"demo_ids", "by_time", "orientation", "keep_corrections",
+                                           "routes", "route_separation"})
         # Time stamps always give the model its speed profile; what aligns is by_time's or the
         # fit's timing test's choice, answered as the model's clock.
         stamped = times if any(t is not None for t in times) else None
@@ -430,21 +433,28 @@ class CanalService:
         # Orientation is learned only when every demo has it: a mean over some demos would
         # not be the skill's.
         orientations = quats if body.orientation and all(q is not None for q in quats) else None
-        job = FitJob(positions, stamped, body.by_time, orientations, options)
         started = time.perf_counter()
+        labels = self._route_labels(positions, body.routes, body.route_separation)
+        job = FitJob(positions, stamped, body.by_time, orientations, options, labels)
         try:
-            canal = self.fits.run(name, job, cancel)
+            fitted = self.fits.run(name, job, cancel)
         except canal_core.CanalError as exc:
             raise _fit_rejected(exc, demo_ids) from exc
         seconds = time.perf_counter() - started
-        check_finite_answer({"directrix": canal.directrix, "radii": canal.radii,
-                             "tangents": canal.tangents, "arclength": canal.arclength},
-                            "demonstrations")
-        serialized = canal.to_dict()
+        routes = fitted if isinstance(fitted, Routes) else single_route(fitted)
+        canal = routes.pooled
+        for each in (canal, *(routes.canals if routes.n_routes > 1 else ())):
+            check_finite_answer({"directrix": each.directrix, "radii": each.radii,
+                                 "tangents": each.tangents, "arclength": each.arclength},
+                                "demonstrations")
+        serialized = fitted.to_dict()
         used_options = {**canal.options.to_dict(), "by_time": canal.clock in ("time", "time+arc"),
                         "clock": canal.clock, "orientation": bool(canal.has_orientation)}
+        if routes.n_routes > 1:
+            used_options.update(routes=routes.n_routes, route_separation=body.route_separation,
+                                demo_routes=routes.labels.tolist())
         model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
-        self.cache.put(model[0], canal)  # the next reproduction needs no decoding
+        self.cache.put(model[0], routes)  # the next reproduction needs no decoding
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
         version, instance = model[1].version, model[2]
@@ -457,9 +467,28 @@ class CanalService:
             return model[1]
         # The skill's corrections, re-applied to the new canal (a version of its own, whose
         # parent is the plain fit); one that no longer applies is left behind and said so.
-        refined, applied, notes = self._reapplied(canal, kept)
+        refined, applied, notes = self._reapplied(routes, kept)
         lineage = StoredLineage(version, version, [c.id for c in applied])
         return self._store_refined(name, used_options, demo_ids, refined, lineage, notes)
+
+    def _route_labels(self, positions: list[arrays.FloatArray], routes: int | None,
+                      separation: float) -> list[int] | None:
+        """The route of each demonstration; None when the fit is one canal (``routes`` 1, or
+        the demonstrations all go one way). Clustering runs here, before the fit's cost is
+        estimated, so the estimate counts every route's fit."""
+        if routes == 1 or len(positions) < 4:
+            if routes is not None and routes > 1:
+                raise InvalidInput(f"expected routes <= {max(len(positions) // 2, 1)} (each route "
+                                   f"needs 2 demonstrations; {len(positions)} are fitted), got "
+                                   f"{routes}", field="routes")
+            return None
+        try:
+            canal_core.options.route_options(routes, separation)
+            self.fits.check_route_cost(len(positions), int(positions[0].shape[1]))
+            labels = canal_core.routes.route_labels(positions, routes, separation)
+        except canal_core.CanalError as exc:
+            raise CanalRejected(exc, exc.message, field=exc.field) from exc
+        return None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
                      serialized: dict[str, Any], seconds: float, canal: canal_core.Canal,
@@ -503,6 +532,8 @@ class CanalService:
             n_demos=len(row.demo_ids) if n_demos is None else n_demos,
             n_sections=row.n_sections, section_kind=row.section_kind, fit_seconds=row.fit_seconds,
             has_orientation=bool(dict(row.options).get("orientation", False)),
+            routes=int(dict(row.options).get("routes", 1)),
+            demo_routes=dict(row.options).get("demo_routes"),
         )
 
     def list_models(self, name: str, offset: int, limit: int) -> schemas.Page[schemas.ModelSummary]:
@@ -524,17 +555,25 @@ class CanalService:
         Raises :class:`SkillNotFound`, :class:`NoModelYet` (latest of a skill never fitted)
         or :class:`ModelVersionNotFound`.
         """
-        canal, row, ref = self._load_canal(name, version)
-        return canal, row, ref.version, ref.dim
+        routes, row, ref = self._load_routes(name, version)
+        return routes.pooled, row, ref.version, ref.dim
 
-    def _load_canal(self, name: str, version: int | None
-                    ) -> tuple[canal_core.Canal, ModelVersion | None, repo.ModelRef]:
-        """:meth:`load_canal` with the row's reference (its skill's id and creation time)."""
+    def load_routes(self, name: str, version: int | None
+                    ) -> tuple[Routes, int, int]:
+        """(routes, version, dim) of a version or the latest: every stored model as
+        :class:`Routes` (a single canal is one route, :func:`single_route`)."""
+        routes, _row, ref = self._load_routes(name, version)
+        return routes, ref.version, ref.dim
+
+    def _load_routes(self, name: str, version: int | None
+                     ) -> tuple[Routes, ModelVersion | None, repo.ModelRef]:
+        """The one loader of stored models: (routes, row or None when served from cache, the
+        row's reference: its skill's id and creation time)."""
         ref = repo.model_ref_by_name(self.db, name, version)
         key = model_cache_key(ref.model_id, ref.skill_created_at)
-        canal = self.cache.get(key)
+        routes = self.cache.get(key)
         row = None
-        if canal is None:
+        if routes is None:
             with self.db.read() as s:
                 row = repo.get_model(s, ref.model_id)
             if (row.skill_id, row.version) != (ref.skill_id, ref.version):
@@ -542,9 +581,9 @@ class CanalService:
                 raise ModelVersionNotFound(
                     f"model version {ref.version} of skill {name!r} was deleted meanwhile",
                     field="model")
-            canal = canal_core.Canal.from_dict(row.canal)
-            self.cache.put(key, canal)
-        return canal, row, ref
+            routes = routes_from_dict(row.canal)
+            self.cache.put(key, routes)
+        return routes, row, ref
 
     def latest_version(self, name: str) -> int:
         """The skill's latest model version, from one query (no canal read or decoded).
@@ -567,13 +606,18 @@ class CanalService:
             dim, skill_created_at = skill.dim, skill.created_at
             lineage = repo.lineages(s, [row])[row.id]
         key = model_cache_key(row.id, skill_created_at)
-        canal = self.cache.get(key)
-        if canal is None:
-            canal = canal_core.Canal.from_dict(row.canal)
-            self.cache.put(key, canal)
+        routes = self.cache.get(key)
+        if routes is None:
+            routes = routes_from_dict(row.canal)
+            self.cache.put(key, routes)
+        canal = routes.pooled
         summary = self._model_summary(row, dim, lineage)
         data = row.canal
-        sections = data.get("sections") if isinstance(data, dict) else None
+        pooled_data = data.get("pooled", data) if routes.n_routes > 1 else data
+        sections = pooled_data.get("sections") if isinstance(pooled_data, dict) else None
+        route_canals = None if routes.n_routes == 1 else [
+            schemas.RouteCanal(route=k, n_demos=int(c.n_demos), directrix=_tolist(c.directrix),
+                               radii=_tolist(c.radii)) for k, c in enumerate(routes.canals)]
         return schemas.ModelOut(
             **summary.model_dump(),
             directrix=_tolist(canal.directrix),
@@ -584,6 +628,7 @@ class CanalService:
             bounds=_tolist(canal.bounds),
             sections=sections if isinstance(sections, dict) else None,
             serialized=data if serialized else None,
+            route_canals=route_canals,
         )
 
     def mesh(self, name: str, version: int | None, n_angles: int, caps: bool,
@@ -604,28 +649,30 @@ class CanalService:
         return [StoredCorrection.of(r) for r in repo.get_corrections(s, skill, ids)]
 
     @staticmethod
-    def _reapplied(canal: canal_core.Canal, kept: Sequence[StoredCorrection]
-                   ) -> tuple[canal_core.Canal, list[StoredCorrection], list[str]]:
-        """``canal`` with each correction re-applied in turn; those that fail are skipped."""
+    def _reapplied(routes: Routes, kept: Sequence[StoredCorrection]
+                   ) -> tuple[Routes, list[StoredCorrection], list[str]]:
+        """``routes`` with each correction re-applied in turn (to its route, or to every canal
+        it passes through: :func:`corrected_routes`); those that fail are skipped."""
         applied, notes = [], []
         for stored in kept:
             try:
-                canal = corrected_canal(canal, stored.correction)
+                routes, _first = corrected_routes(routes, stored.correction, stored.route)
             except canal_core.CanalError as exc:
                 notes.append(f"correction {stored.id} no longer applies and was left out: "
                              f"{exc.message}")
                 continue
             applied.append(stored)
-        return canal, applied, notes
+        return routes, applied, notes
 
     def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                       canal: canal_core.Canal, lineage: StoredLineage, notes: list[str]
+                       routes: Routes, lineage: StoredLineage, notes: list[str]
                        ) -> schemas.ModelSummary:
-        """Store a refined canal as the new latest version and tell whoever listens."""
-        serialized = canal.to_dict()
+        """Store a refined model as the new latest version and tell whoever listens."""
+        canal = routes.pooled
+        serialized = canal.to_dict() if routes.n_routes == 1 else routes.to_dict()
         key, summary, instance = self._store_model(name, options, demo_ids, serialized, 0.0,
                                                    canal, lineage)
-        self.cache.put(key, canal)
+        self.cache.put(key, routes)
         version = summary.version
         created = summary.created_at
         stored_ns = None if created is None else repo.created_ns(created)
@@ -639,7 +686,9 @@ class CanalService:
         """Refine a model version (the latest by default) by a person's correction; the
         result is the new latest version. Nothing is stored when canal_core refuses it."""
         version = None if body.model == "latest" else int(body.model)
-        canal, _row, base_version, dim = self.load_canal(name, version)
+        routes, base_version, dim = self.load_routes(name, version)
+        route = check_route(body.route, routes.n_routes, "route")
+        canal = routes.pooled if route is None else routes.canals[route]
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
@@ -650,19 +699,19 @@ class CanalService:
         try:
             correction = checked_correction(body.kind, body.samples, dim, body.weight, body.label,
                                             body.timestamps, body.orientations, body.plan)
-            refined = corrected_canal(canal, correction)
+            refined, applied = corrected_routes(routes, correction, route)
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
-        check_finite_answer({"directrix": refined.directrix, "radii": refined.radii},
-                            "samples, plan")
-        applied = refined.corrections[-1]
+        for each in (refined.pooled, *(refined.canals if refined.n_routes > 1 else ())):
+            check_finite_answer({"directrix": each.directrix, "radii": each.radii},
+                                "samples, plan")
         made: list[Correction] = []
 
         def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
             row = repo.insert_correction(
                 s, skill, correction.kind, correction.label, correction.weight, correction.samples,
                 correction.timestamps, correction.orientations, correction.plan, base_version,
-                version, applied.first, applied.last)
+                version, applied.first, applied.last, route)
             made.append(row)
             return [*ids, row.id]
 
@@ -700,7 +749,7 @@ class CanalService:
                 s, skill, [i for i in lineage.correction_ids if i != correction_id])]
             options, demo_ids = dict(latest.options), list(latest.demo_ids)
             latest_version = latest.version
-        base, _row, _v, _dim = self.load_canal(name, lineage.fit_version)
+        base, _v, _dim = self.load_routes(name, lineage.fit_version)
         refined, applied, notes = self._reapplied(base, rest)
 
         def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
@@ -720,8 +769,10 @@ class CanalService:
                   ) -> schemas.ReproductionOut | schemas.ReproductionBatchOut:
         """Reproduce from one start or a batch; every start is checked before any is computed."""
         version = None if body.model == "latest" else int(body.model)
-        canal, _row, ref = self._load_canal(name, version)
+        routes, _row, ref = self._load_routes(name, version)
+        canal = routes.pooled
         found_version, dim = ref.version, ref.dim
+        forced = check_route(body.route, routes.n_routes, "route")
         if body.start is not None:
             starts, fields = [body.start], ["start"]
         else:
@@ -744,13 +795,15 @@ class CanalService:
             check_obstacles(sent_list)
             sent = canal_core.obstacles.scene_from_list(sent_list, dim)
             scene = sent if scene is None else canal_core.obstacles.merged_scene(scene, sent)
-        results = []
+        results, choices = [], []
         for start, field in zip(inputs.starts, fields, strict=True):
+            choice = (RouteChoice(forced, "forced") if forced is not None
+                      else routes.choose(start))
+            choices.append(choice)
             try:
-                result = canal.reproduce_detailed(start, outside=body.outside, goal=inputs.goal,
-                                                  duration=inputs.duration,
-                                                  start_orientation=start_orientation,
-                                                  obstacles=scene)
+                result = routes.canal_for(choice).reproduce_detailed(
+                    start, outside=body.outside, goal=inputs.goal, duration=inputs.duration,
+                    start_orientation=start_orientation, obstacles=scene)
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field
@@ -763,7 +816,7 @@ class CanalService:
             results.append(result)
         self._keep_reproductions(name, ref, results)
         outs = []
-        for result in results:
+        for result, choice in zip(results, choices, strict=True):
             self.metrics.reproductions.labels(str(bool(result.inside)).lower()).inc()
             # Built from values made here (floats, ints, bools, lists of them): validating
             # 6,000 floats again would cost more than the reproduction's math.
@@ -779,6 +832,7 @@ class CanalService:
                 scene_version=scene_version, obstacles=0 if scene is None else len(scene),
                 start_clearance=result.start_clearance,
                 notes=notes + _orientation_notes(canal, result, start_orientation),
+                route=choice.route, route_reason=choice.reason,
             ))
         if body.start is not None:
             return outs[0]
@@ -940,6 +994,8 @@ class StoredCorrection:
 
     id: int
     correction: Correction_
+    #: The route it corrects; None: every route (and every canal of one route).
+    route: int | None = None
 
     @classmethod
     def of(cls, row: Correction) -> StoredCorrection:
@@ -948,7 +1004,8 @@ class StoredCorrection:
         quats = None if row.orientations is None else arrays.unpack(row.orientations, row.n_points, 4)
         plan = None if row.plan is None else arrays.unpack(row.plan, len(row.plan) // (8 * row.dim),
                                                            row.dim)
-        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats, plan))
+        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats, plan),
+                   row.route)
 
 
 InTransaction = Callable[[Any, Skill, int, list[int]], list[int]]
@@ -970,7 +1027,51 @@ def _correction_out(row: Correction) -> schemas.CorrectionOut:
         id=row.id, kind=row.kind, label=row.label, weight=row.weight, n_points=row.n_points,
         base_version=row.base_version, model_version=row.model_version,
         first_section=row.first_section, last_section=row.last_section,
-        created_at=row.created_at, undone=bool(row.undone))
+        created_at=row.created_at, undone=bool(row.undone), route=row.route)
+
+
+def check_route(route: int | None, n_routes: int, field: str) -> int | None:
+    """A route a request names, checked against the model's routes (None stays None)."""
+    if route is not None and not 0 <= route < n_routes:
+        raise InvalidInput(f"expected {field} in 0..{n_routes - 1} (the model has {n_routes} "
+                           f"route{'s' if n_routes > 1 else ''}), got {route}", field=field)
+    return route
+
+
+def corrected_routes(routes: Routes, correction: Correction_, route: int | None
+                     ) -> tuple[Routes, Any]:
+    """``routes`` refined by ``correction``, and the first canal's applied correction.
+
+    One route: its canal, as a single-canal model (``route`` is 0 or None). Several:
+    ``route`` names the one canal corrected; None corrects every canal the samples pass
+    through (each route's and the canal of all), refused only when none of them takes it.
+    """
+    if routes.n_routes == 1:
+        refined = corrected_canal(routes.pooled, correction)
+        return single_route(refined), refined.corrections[-1]
+    canals = list(routes.canals)
+    if route is not None:
+        canals[route] = corrected_canal(canals[route], correction)
+        return Routes(tuple(canals), routes.pooled, routes.labels), canals[route].corrections[-1]
+    taken: list[Any] = []
+    refusal: canal_core.CanalError | None = None
+
+    def attempt(canal: canal_core.Canal) -> canal_core.Canal:
+        nonlocal refusal
+        try:
+            out = corrected_canal(canal, correction)
+        except canal_core.CanalError as exc:
+            refusal = refusal or exc
+            return canal
+        taken.append(out.corrections[-1])
+        return out
+
+    pooled = attempt(routes.pooled)
+    canals = [attempt(c) for c in canals]
+    if not taken:
+        assert refusal is not None
+        raise refusal
+    return Routes(tuple(canals), pooled, routes.labels), taken[0]
 
 
 def _tell_reproduction(skill: str, version: int, result: canal_core.Reproduction,

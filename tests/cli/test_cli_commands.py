@@ -26,6 +26,7 @@ from canal_live import (
     free_port,
     write_demo_files,
 )
+from canal_testing import ROUTE_STARTS, two_route_demo
 from click.testing import Result
 from mcap.reader import make_reader
 
@@ -251,6 +252,32 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     for bad in (("--goal", "1,2,x"), ("--duration", "0"), ("--duration", "-1")):
         r = run("reproduce", name, "--start", "0,0,0", *bad)
         assert r.exit_code == 2 and bad[0] in r.output, r.output
+
+
+def test_fit_routes_and_reproduce_print_the_route(run: Run, unique_name: Callable[[str], str],
+                                                  tmp_path: Path) -> None:
+    name = unique_name("routes")
+    run("skill", "create", name)
+    for j in range(8):
+        np.save(tmp_path / f"d{j}.npy", two_route_demo(j))
+    assert run("demo", "add", name, str(tmp_path)).exit_code == 0
+    r = run("fit", name, "--samples", "40")
+    assert r.exit_code == 0, r.output
+    assert "2 routes, one canal each" in r.stdout
+    start = ",".join(str(v) for v in ROUTE_STARTS[1])
+    r = run("reproduce", name, "--start", start)
+    assert r.exit_code == 0, r.output
+    assert "followed route 1 (entry)" in r.stdout
+    r = run("--json", "reproduce", name, "--start", start, "--route", "0")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["route"] == 0
+    r = run("--json", "fit", name, "--samples", "40", "--routes", "1")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["routes"] == 1
+    r = run("reproduce", name, "--start", start)
+    assert r.exit_code == 0 and "followed" not in r.stdout
+    r = run("fit", name, "--routes", "0")
+    assert r.exit_code == 2
 
 
 def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[str], str],

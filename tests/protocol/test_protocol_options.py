@@ -18,8 +18,9 @@ from canal_protocol import options
 from canal_protocol.schemas import FitRequest
 
 CORE_OPTIONS = {f.name for f in dataclasses.fields(core.FitOptions)}
-# What the service does around the fit, not how canal_core fits.
-SERVICE_ONLY = {"by_time", "demo_ids", "orientation", "keep_corrections"}
+# What the service does around the fit (routes: canal_core.routes around canal_core.fit),
+# not how canal_core fits one canal.
+SERVICE_ONLY = {"by_time", "demo_ids", "orientation", "keep_corrections", "routes", "route_separation"}
 
 
 def test_every_core_option_is_a_request_field_with_the_core_default() -> None:

@@ -61,6 +61,9 @@ def correct(
     label: Annotated[str, typer.Option("--label", "-l")] = "",
     model: Annotated[str, typer.Option("--model", "-m",
                                        help="Model version corrected, or 'latest'.")] = "latest",
+    route: Annotated[int | None, typer.Option(
+        "--route", min=0, help="A model of several routes: correct this route's canal "
+                               "(default: every route the path passes through).")] = None,
 ) -> None:
     """Refine the skill's canal by a correction: a new model version."""
     if model != "latest" and not model.isdigit():
@@ -69,13 +72,15 @@ def correct(
         raise typer.BadParameter(f"expected a weight > 0, got {weight}", param_hint="--weight")
     samples = read_path(file)
     with connected(ctx) as c:
-        made = c.correct(skill, samples, kind, model=model, weight=weight, label=label)
+        made = c.correct(skill, samples, kind, model=model, weight=weight, label=label,
+                         route=route)
     if options(ctx).json:
         print_json(made)
         return
     cor = made.correction
     out.print(f"correction {cor.id} ({cor.kind}) on sections {cor.first_section}-{cor.last_section}: "
-              f"model version [bold]{made.version}[/bold] (parent {made.parent_version})")
+              f"model version [bold]{made.version}[/bold] (parent {made.parent_version})"
+              + ("" if cor.route is None else f", route {cor.route}"))
 
 
 @app.command("list")

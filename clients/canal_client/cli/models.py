@@ -43,6 +43,7 @@ def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
 
 SAMPLES_MIN, SAMPLES_MAX = field_bounds(FitRequest, "n_samples")
 SMOOTHING_MIN, SMOOTHING_MAX = field_bounds(FitRequest, "frame_smoothing")
+ROUTES_MIN, ROUTES_MAX = field_bounds(FitRequest, "routes")
 
 
 def fit(
@@ -66,6 +67,14 @@ def fit(
     drop_corrections: Annotated[bool, typer.Option(
         "--drop-corrections", help="Leave the skill's corrections behind (by default they "
         "are re-applied to the new canal, as a version of its own).")] = False,
+    routes: Annotated[int | None, typer.Option(
+        "--routes", min=ROUTES_MIN, max=ROUTES_MAX,
+        help="Routes (one canal each): 1 = one canal of all the demonstrations; N = exactly "
+             "N; left out: demonstrations that go clearly different ways are split.")] = None,
+    route_separation: Annotated[float | None, typer.Option(
+        "--route-separation",
+        help="Where routes split when --routes is left out: the demonstrations' mean "
+             "distance as a share of their median path length.")] = None,
 ) -> None:
     """Fit a new model version from the skill's demonstrations (service defaults otherwise)."""
     busy = (contextlib.nullcontext() if options(ctx).json
@@ -74,13 +83,19 @@ def fit(
         model = c.fit(skill, cross_section=cross_section, frames=frames, alignment=alignment,
                       directrix=directrix, n_samples=samples, frame_smoothing=frame_smoothing,
                       by_time=by_time or None, demo_ids=demo or None,
-                      keep_corrections=False if drop_corrections else None)
+                      keep_corrections=False if drop_corrections else None, routes=routes,
+                      route_separation=route_separation)
     if options(ctx).json:
         print_json(model)
         return
     out.print(f"fitted {escape(skill)}: version [bold]{model.version}[/bold], "
               f"{model.n_demos} demos, {model.n_sections} {model.section_kind} sections, "
               f"{model.fit_seconds:.3f} s")
+    if model.routes > 1 and model.demo_routes is not None:
+        split = "; ".join(
+            f"route {k}: demos {', '.join(str(i) for i, r in zip(model.demo_ids, model.demo_routes, strict=True) if r == k)}"
+            for k in range(model.routes))
+        out.print(f"{model.routes} routes, one canal each ({split})")
     if model.corrections:
         out.print(f"corrections {', '.join(map(str, model.corrections))} re-applied (version "
                   f"{model.version}, parent {model.parent_version})")
@@ -136,6 +151,9 @@ def reproduce(
         "--obstacle", help="sphere:x,y,z,r[,clearance] (also box:, capsule:, disc:; repeat): "
                            "go around it too (added to the skill's scene for this run).")
     ] = None,
+    route: Annotated[int | None, typer.Option(
+        "--route", min=0, help="A model of several routes: follow this route (default: the "
+                               "route whose entry holds the start).")] = None,
 ) -> None:
     """Reproduce a trajectory from a new start (optionally to a new goal, in a given time,
     around obstacles)."""
@@ -151,7 +169,8 @@ def reproduce(
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:
         r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
-                        duration=duration, start_orientation=quat, obstacles=obstacles)
+                        duration=duration, start_orientation=quat, obstacles=obstacles,
+                        route=route)
     if out_path is not None:
         write_trajectory(out_path, r.positions, r, r.orientations, r.times)
     if options(ctx).json:
@@ -166,6 +185,9 @@ def reproduce(
     out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}"
               f"{lasts}; start {state} (eta {r.eta:.3f}, section {r.section_index}); "
               f"ends at ({end})")
+    if r.route is not None or r.route_reason not in (None, "single"):
+        which = "the canal of all routes" if r.route is None else f"route {r.route}"
+        out.print(f"followed {which} ({r.route_reason})")
     if r.orientations is not None:
         last = ", ".join(f"{v:.4g}" for v in r.orientations[-1])
         out.print(f"with orientations; ends at qx,qy,qz,qw ({last})")

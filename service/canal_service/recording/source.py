@@ -185,7 +185,8 @@ class DbSource:
                 query = query.where(ModelVersion.version.in_([int(v) for v in versions]))
             for row in s.scalars(query.order_by(ModelVersion.version)):
                 out.append(StoredModel(skill, int(row.version),
-                                       canal_core.Canal.from_dict(row.canal), _t_ns(row.created_at)))
+                                       canal_core.routes.routes_from_dict(row.canal).pooled,
+                                       _t_ns(row.created_at)))
         return out
 
     def close(self) -> None:

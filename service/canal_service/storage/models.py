@@ -186,4 +186,6 @@ class Correction(Base):
     first_section: Mapped[int] = mapped_column(Integer, nullable=False)
     last_section: Mapped[int] = mapped_column(Integer, nullable=False)
     undone: Mapped[bool] = mapped_column(Boolean, nullable=False, default=False)
+    #: The route of a model of several routes it corrects; None: every route.
+    route: Mapped[int | None] = mapped_column(Integer, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

@@ -588,7 +588,8 @@ def insert_correction(session: Session, skill: Skill, kind: str, label: str, wei
                       samples: arrays.FloatArray, timestamps: arrays.FloatArray | None,
                       orientations: arrays.FloatArray | None, plan: arrays.FloatArray | None,
                       base_version: int,
-                      model_version: int, first_section: int, last_section: int) -> Correction:
+                      model_version: int, first_section: int, last_section: int,
+                      route: int | None = None) -> Correction:
     """Store a correction (flushes, so its id is known)."""
     row = Correction(
         skill_id=skill.id, kind=kind, label=label, weight=weight, n_points=int(samples.shape[0]),
@@ -596,7 +597,7 @@ def insert_correction(session: Session, skill: Skill, kind: str, label: str, wei
         timestamps=None if timestamps is None else arrays.pack(timestamps),
         orientations=None if orientations is None else arrays.pack(orientations),
         plan=None if plan is None else arrays.pack(plan), base_version=base_version, model_version=model_version, first_section=first_section,
-        last_section=last_section, undone=False,
+        last_section=last_section, undone=False, route=route,
     )
     session.add(row)
     session.flush()

@@ -1,0 +1,172 @@
+"""Routes over real HTTP: demonstrations that go two ways are fitted as two canals, a start
+follows the route whose entry holds it, and a one-route fit answers as a single canal."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import httpx
+import numpy as np
+import pytest
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from canal_service.fitting import FitJob, FitRunner
+from canal_testing import ROUTE_STARTS, LiveServer, path_distance, two_route_demo
+
+import canal_core
+
+
+def add_two_route_demos(http: httpx.Client, skill: str = "reach") -> list[int]:
+    assert http.post("/skills", json={"name": skill, "dim": 3}).status_code == 201
+    ids = []
+    for j in range(8):
+        r = http.post(f"/skills/{skill}/demonstrations",
+                      json={"positions": two_route_demo(j).tolist()})
+        assert r.status_code == 201, r.text
+        ids.append(r.json()["id"])
+    return ids
+
+
+@pytest.fixture
+def http(live_server: LiveServer) -> Iterator[httpx.Client]:
+    with httpx.Client(base_url=live_server.url, timeout=60) as client:
+        yield client
+
+
+def test_two_ways_fit_two_routes_and_each_start_follows_its_own(http: httpx.Client) -> None:
+    ids = add_two_route_demos(http)
+    r = http.post("/skills/reach/fit", json={"n_samples": 60})
+    assert r.status_code == 201, r.text
+    fitted = r.json()
+    assert fitted["routes"] == 2 and fitted["demo_ids"] == ids
+    assert fitted["demo_routes"] == [0] * 4 + [1] * 4
+    assert fitted["options"]["routes"] == 2
+
+    model = http.get("/skills/reach/models/latest", params={"serialized": True}).json()
+    assert model["routes"] == 2 and [c["route"] for c in model["route_canals"]] == [0, 1]
+    assert [c["n_demos"] for c in model["route_canals"]] == [4, 4]
+    assert model["serialized"]["format"] == "canal-routes"
+    routes = canal_core.routes.routes_from_dict(model["serialized"])
+    assert routes.n_routes == 2
+
+    demos = [two_route_demo(j) for j in range(8)]
+    for k, start in enumerate(ROUTE_STARTS):
+        r = http.post("/skills/reach/reproductions", json={"start": list(start)})
+        assert r.status_code == 200, r.text
+        out = r.json()
+        assert (out["route"], out["route_reason"]) == (k, "entry")
+        own = min(path_distance(out["positions"], d) for d in demos[4 * k: 4 * k + 4])
+        other = min(path_distance(out["positions"], d) for d in demos[4 * (1 - k): 4 * (1 - k) + 4])
+        assert own < 0.05 < other, (k, own, other)
+        # The middle of the path is on its route's side of the obstacle.
+        middle = np.asarray(out["positions"])[len(out["positions"]) // 2]
+        assert np.sign(middle[1]) == (1.0 if k == 0 else -1.0)
+
+    batch = http.post("/skills/reach/reproductions",
+                      json={"starts": [list(s) for s in ROUTE_STARTS]}).json()["reproductions"]
+    assert [b["route"] for b in batch] == [0, 1]
+
+
+def test_a_forced_route_is_followed_and_one_out_of_range_is_refused(http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
+    r = http.post("/skills/reach/reproductions", json={"start": list(ROUTE_STARTS[0]), "route": 1})
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert (out["route"], out["route_reason"]) == (1, "forced")
+    assert np.asarray(out["positions"])[len(out["positions"]) // 2][1] < 0.0
+    r = http.post("/skills/reach/reproductions", json={"start": list(ROUTE_STARTS[0]), "route": 2})
+    assert r.status_code == 422
+    error = r.json()["error"]
+    assert error["field"] == "route" and "0..1" in error["message"]
+
+
+def test_routes_1_gives_the_single_canal_answer(http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    r = http.post("/skills/reach/fit", json={"n_samples": 60, "routes": 1})
+    assert r.status_code == 201, r.text
+    fitted = r.json()
+    assert fitted["routes"] == 1 and fitted["demo_routes"] is None
+    assert "routes" not in fitted["options"] and "demo_routes" not in fitted["options"]
+    model = http.get("/skills/reach/models/1", params={"serialized": True}).json()
+    assert model["serialized"]["format"] == "canal-model" and model["route_canals"] is None
+    canal = canal_core.Canal.from_dict(model["serialized"])
+    out = http.post("/skills/reach/reproductions", json={"start": list(ROUTE_STARTS[0])}).json()
+    assert (out["route"], out["route_reason"]) == (None, "single")
+    np.testing.assert_allclose(out["positions"], canal.reproduce(np.array(ROUTE_STARTS[0])),
+                               atol=1e-9)
+
+
+def test_route_options_out_of_bounds_are_refused_naming_the_field(http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    for body, field in (({"routes": 5}, "routes"), ({"routes": 0}, "routes"),
+                        ({"route_separation": 0}, "route_separation"),
+                        ({"routes": 2, "demo_ids": [1, 2, 3]}, "routes")):
+        r = http.post("/skills/reach/fit", json={"n_samples": 40, **body})
+        assert r.status_code == 422, (body, r.text)
+        assert field in (r.json()["error"]["field"] or ""), (body, r.json())
+    assert http.get("/skills/reach").json()["n_models"] == 0
+
+
+def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
+    routes = canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+    canal = routes.canals[1]
+    idx = np.arange(20, 41)
+    samples = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    r = http.post("/skills/reach/corrections",
+                  json={"kind": "include", "samples": samples.tolist(), "route": 1})
+    assert r.status_code == 201, r.text
+    made = r.json()
+    assert made["routes"] == 2 and made["correction"]["route"] == 1
+    after = canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+    assert len(after.canals[1].corrections) == 1 and len(after.canals[0].corrections) == 0
+    assert float(after.canals[1].radii[30]) > float(canal.radii[30])
+    np.testing.assert_allclose(after.canals[0].directrix, routes.canals[0].directrix)
+    listed = http.get("/skills/reach/corrections").json()["items"]
+    assert [c["route"] for c in listed] == [1]
+    r = http.post("/skills/reach/corrections",
+                  json={"kind": "include", "samples": samples.tolist(), "route": 3})
+    assert r.status_code == 422 and r.json()["error"]["field"] == "route"
+    # A refit keeps the routes and re-applies the correction to its route.
+    r = http.post("/skills/reach/fit", json={"n_samples": 60})
+    assert r.status_code == 201, r.text
+    assert r.json()["routes"] == 2 and r.json()["corrections"] == [made["correction"]["id"]]
+    refit = canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+    assert len(refit.canals[1].corrections) == 1 and len(refit.canals[0].corrections) == 0
+
+
+def test_a_stored_model_loads_after_a_restart(tmp_path: object, settings: Settings) -> None:
+    with LiveServer(create_app(settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=60) as http:
+        add_two_route_demos(http)
+        assert http.post("/skills/reach/fit", json={"n_samples": 60, "routes": 1}).status_code == 201
+        assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
+    # A new process's cache is empty: both formats are decoded from their rows.
+    with LiveServer(create_app(settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=60) as http:
+        one = http.post("/skills/reach/reproductions",
+                        json={"start": list(ROUTE_STARTS[1]), "model": 1}).json()
+        two = http.post("/skills/reach/reproductions",
+                        json={"start": list(ROUTE_STARTS[1]), "model": 2}).json()
+        assert (one["route"], one["route_reason"]) == (None, "single")
+        assert (two["route"], two["route_reason"]) == (1, "entry")
+        assert http.get("/skills/reach/models/1/mesh", params={"format": "json"}).status_code == 200
+        assert http.get("/skills/reach/models/2/mesh", params={"format": "json"}).status_code == 200
+
+
+def test_the_fit_estimate_counts_every_route_fit() -> None:
+    runner = FitRunner(1e9)
+    demos = [two_route_demo(j, n=400) for j in range(8)]
+    one = FitJob(demos, None, None, None, {"n_samples": 400, "alignment": "dtw"})
+    two = FitJob(demos, None, None, None, {"n_samples": 400, "alignment": "dtw"},
+                 [0] * 4 + [1] * 4)
+    assert runner.check_cost(two) == pytest.approx(2 * runner.check_cost(one))
+    small = FitRunner(1.5 * runner.check_cost(one))
+    small.check_cost(one)
+    with pytest.raises(Exception, match="2 routes"):
+        small.check_cost(two)
