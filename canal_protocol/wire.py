@@ -114,6 +114,7 @@ from .codecs.binary import (
 )
 from .codecs.cdr import RosStamp, decode_pose_cdr, encode_pose_stamped_cdr
 from .codecs.json import (
+    NO_ROUTE,
     decode_pose_json,
     decode_target_json,
     encode_pose_json,
@@ -162,6 +163,7 @@ __all__ = [
     "KIND_POSE",
     "KIND_TARGET",
     "MAX_DIM",
+    "NO_ROUTE",
     "POSE_ORIENTATION",
     "POSE_RESTART",
     "POSE_TIME",

@@ -119,16 +119,23 @@ def target_json(answer: Target) -> bytes:
     }
     if answer.velocity is not None:
         body["velocity"] = list(answer.velocity)
+    if answer.route is not None:
+        body["route"] = answer.route
     return orjson.dumps(body)
 
 
 _NUMPY = orjson.OPT_SERIALIZE_NUMPY
+#: ``route`` of :func:`pack_target_json` for a model of one route: the answer has no "route".
+NO_ROUTE = -1
 
 
 def pack_target_json(seq: int, status: str, target: Any, progress: float, eta: float,
                      section: int, inside: bool, done: bool, model_version: int,
-                     orientation: Any = None, velocity: Any = None, coalesced: int = 0) -> bytes:
-    """Fast path for the bridge (see :func:`pack_target`); numpy arrays are fine."""
+                     orientation: Any = None, velocity: Any = None, coalesced: int = 0,
+                     route: int | None = NO_ROUTE) -> bytes:
+    """Fast path for the bridge (see :func:`pack_target`); numpy arrays are fine. ``route``:
+    a model of several routes answers the route the stream follows (null: the canal of all
+    the demonstrations); :data:`NO_ROUTE` (a model of one route) leaves the key out."""
     body = {
         "v": VERSION, "seq": seq, "status": status, "target": target, "progress": progress,
         "eta": eta, "section": section, "inside": inside, "done": done,
@@ -137,6 +144,8 @@ def pack_target_json(seq: int, status: str, target: Any, progress: float, eta: f
     }
     if velocity is not None:
         body["velocity"] = velocity
+    if route != NO_ROUTE:
+        body["route"] = route
     return orjson.dumps(body, option=_NUMPY)
 
 
@@ -168,6 +177,7 @@ def decode_target_json(data: bytes) -> Target:
             orientation=None if orientation is None else _json_floats(orientation),  # type: ignore[arg-type]
             velocity=None if velocity is None else _json_floats(velocity),
             coalesced=int(body.get("coalesced") or 0),
+            route=body.get("route"),
         )
     except (TypeError, ValueError) as exc:
         raise WireError("bad_payload", f"expected a JSON target: {exc}") from None

@@ -96,6 +96,9 @@ class Target:
     orientation: tuple[float, float, float, float] | None = None
     velocity: tuple[float, ...] | None = None
     coalesced: int = 0
+    #: The route of a model of several routes the stream follows (JSON answers and the ROS 2
+    #: status only); None: the model has one route, or the stream follows the canal of all.
+    route: int | None = None
 
     @property
     def usable(self) -> bool:

@@ -97,7 +97,9 @@ class BridgeHealthSource(Protocol):
     def health(self) -> dict[str, Any]: ...
 
 
-FitListener = Callable[[str, int, canal_core.Canal], None]
+#: ``listener(skill, version, model)``: the model is the canal, or :class:`Routes` when it
+#: has several routes.
+FitListener = Callable[[str, int, "canal_core.Canal | Routes"], None]
 
 
 class FitListeners:
@@ -133,7 +135,7 @@ class FitListeners:
         with self._lock:
             return len(self._listeners)
 
-    def notify(self, skill: str, version: int, canal: canal_core.Canal) -> None:
+    def notify(self, skill: str, version: int, canal: canal_core.Canal | Routes) -> None:
         """Call every listener; one that raises is logged and does not stop the others."""
         for listener in self:
             try:
@@ -463,7 +465,7 @@ class CanalService:
         self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
                                                               t_ns=stored_ns, instance=instance))
         if not kept:
-            self.fit_listeners.notify(name, version, canal)
+            self.fit_listeners.notify(name, version, _served(routes))
             return model[1]
         # The skill's corrections, re-applied to the new canal (a version of its own, whose
         # parent is the plain fit); one that no longer applies is left behind and said so.
@@ -678,7 +680,7 @@ class CanalService:
         stored_ns = None if created is None else repo.created_ns(created)
         self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
                                                               t_ns=stored_ns, instance=instance))
-        self.fit_listeners.notify(name, version, canal)
+        self.fit_listeners.notify(name, version, _served(routes))
         summary.notes = notes
         return summary
 
@@ -1028,6 +1030,11 @@ def _correction_out(row: Correction) -> schemas.CorrectionOut:
         base_version=row.base_version, model_version=row.model_version,
         first_section=row.first_section, last_section=row.last_section,
         created_at=row.created_at, undone=bool(row.undone), route=row.route)
+
+
+def _served(routes: Routes) -> canal_core.Canal | Routes:
+    """What listeners hear of a model: its canal when it has one route, else the routes."""
+    return routes.pooled if routes.n_routes == 1 else routes
 
 
 def check_route(route: int | None, n_routes: int, field: str) -> int | None:

@@ -356,13 +356,13 @@ def test_a_first_pose_beyond_the_preload_waits_for_the_loader_not_the_worker(
     bridge = start_bridge(preload_max=0)
     assert bridge.preloaded.wait(20)
     loaded_on: list[str] = []
-    real = service.load_canal
+    real = service.load_routes
 
     def spy(*args: Any, **kwargs: Any) -> Any:
         loaded_on.append(threading.current_thread().name)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(service, "load_canal", spy)
+    monkeypatch.setattr(service, "load_routes", spy)
     first, second = Robot(bridge, "p2", "arm1"), Robot(bridge, "p3", "arm2")
     try:
         assert first.ask(0, starts["p2"]).status == "ok"

@@ -49,6 +49,7 @@ class Answers(StreamTable):
         assert bank is not None
         with_velocity, with_orientation = bank.has_velocity, bank.has_orientation
         version = entry.version
+        route = entry.route  # wire.NO_ROUTE for a model of one route: no "route" key
         counts = self.counts
         period = self.record_period_ns
         now = self.now_ns
@@ -89,7 +90,7 @@ class Answers(StreamTable):
             if fmt == _FJSON:  # the publisher's default encoding
                 st.publisher.put(_pack_json(
                     pose.seq, status, target, progress, eta, section, inside, done,
-                    version, orientation, velocity, st.coalesced))
+                    version, orientation, velocity, st.coalesced, route))
             elif fmt == _FBIN:
                 st.publisher.put(wire.pack_target(
                     pose.seq, code, target, progress, eta, section, inside, done, version,
@@ -132,7 +133,8 @@ class Answers(StreamTable):
                 pose.seq, status, tuple(position[:entry.dim]), progress, eta, section,
                 inside, done, entry.version, None,
                 None if orientation is None else tuple(orientation),  # type: ignore[arg-type]
-                coalesced=st.coalesced)), encoding=ENC_JSON)
+                coalesced=st.coalesced,
+                route=None if entry.route == wire.NO_ROUTE else entry.route)), encoding=ENC_JSON)
 
     def error(self, st: Stream, seq: int | None, key: str, message: str | None,
               fmt: int) -> None:

@@ -321,8 +321,31 @@ class Bridge:
                 "streams": len(self.path.streams), **self.access,
                 "shard": self.options.shard, "shards": self.options.shards,
                 "coalesced": self.counts.coalesced, "drains": self.counts.drains,
-                "parked": self.counts.parked,
+                "parked": self.counts.parked, "routes": self.route_counts(),
                 "tracker": self.tracker, "processes": 0}
+
+    def route_counts(self) -> dict[str, dict[str, int]]:
+        """Streams of each skill whose model has several routes, by the route they follow
+        ("all": the canal of all the demonstrations)."""
+        with self.path.streams_lock:
+            streams = list(self.path.streams.values())
+        counts: dict[str, dict[str, int]] = {}
+        for st in streams:
+            entry = self.models.models.get(st.skill)
+            if entry is None or entry.routes is None or st.route_version != entry.version:
+                continue
+            by_route = counts.setdefault(st.skill, {})
+            key = "all" if st.route is None else str(st.route)
+            by_route[key] = by_route.get(key, 0) + 1
+        return counts
+
+    def stream_route(self, st: Stream) -> int | None:
+        """The route a stream follows in its skill's model now (None: one route, or the
+        canal of all)."""
+        entry = self.models.models.get(st.skill)
+        if entry is None or entry.routes is None or st.route_version != entry.version:
+            return None
+        return st.route
 
     # ---- metrics (off the pose path) ----------------------------------------------------------
 
@@ -703,7 +726,9 @@ class Bridge:
                 "kind": kind, "samples": [list(p.position) for p in poses],
                 "timestamps": times if poses and all(t is not None for t in times) else None,
                 "weight": weight, "label": label or "",
-                "plan": self._live_plan(st.skill, poses) if kind == "exclude" else None})
+                "plan": self._live_plan(st, poses) if kind == "exclude" else None,
+                # a stream's correction refines the route it follows
+                "route": self.stream_route(st)})
             made = self.service.correct(st.skill, body)
         except ValidationError as exc:
             first = exc.errors()[0]
@@ -715,14 +740,17 @@ class Bridge:
             return
         query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
 
-    def _live_plan(self, skill: str, poses: list[Any]) -> list[list[float]] | None:
+    def _live_plan(self, st: Stream, poses: list[Any]) -> list[list[float]] | None:
         """What the robot was on before the push: the live tracker keeps its ratio from the
-        first captured pose on (the paper's constant ratio, no end decay)."""
-        entry = self.models.entry(skill)
+        first captured pose on (the paper's constant ratio, no end decay), in the canal of
+        the route the stream follows."""
+        entry = self.models.entry(st.skill)
         if entry.status != "ok" or not poses or len(poses[0].position) != entry.dim:
             return None
+        route = self.stream_route(st)
+        canal = entry.canal if route is None or entry.routes is None else entry.routes[route].canal
         try:
-            plan = entry.canal.reproduce_detailed(
+            plan = canal.reproduce_detailed(
                 np.array(poses[0].position, dtype=np.float64), persistence="constant",
                 entry=0.0, end_decay=0.0)
         except Exception:  # a start no section brackets: the service's default plan

@@ -12,6 +12,12 @@ fitted skills (:meth:`ModelTable.preload`, a background thread) and on each fit 
 :func:`canal_protocol.keys.shard_of` splits streams by robot, so each shard serves each
 skill. The worker reads ``models`` without a lock; every writer builds an entry completely,
 then installs it with one dict assignment (:meth:`ModelTable.install`).
+
+Routes (:mod:`canal_core.routes`): a model of several routes is one entry for its canal of
+all the demonstrations, holding one sub-entry per route (``routes``), each with its own
+tracker bank; the step puts each stream in one of them at its first pose
+(:meth:`canal_core.routes.Routes.choose`, ``chooser``). A model of one route is a plain entry
+(``routes`` None), served as it always was.
 """
 
 from __future__ import annotations
@@ -25,9 +31,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from canal_core.errors import InvalidInputError
+from canal_core.routes import Routes
 from canal_core.tracker_bank import TrackerBank
 from canal_core.tracker_obstacles import scene_tables
 from canal_protocol import keys as keyspace
+from canal_protocol import wire
 
 from ..errors import NoModelYet, SkillNotFound
 from ..service import CanalService
@@ -52,16 +60,39 @@ class ModelEntry:
     used: float = 0.0
     #: the steering axes of every section (canal_core.steering), built at the first steer
     steer_axes: Any = None
+    #: a model of several routes: one sub-entry per route (this entry is the canal of all)
+    routes: tuple[ModelEntry, ...] | None = None
+    #: ... and the Routes that chooses a stream's route at its first pose
+    chooser: Any = None
+    #: what a JSON answer says of the route: wire.NO_ROUTE for a model of one route, else the
+    #: route this entry tracks (None: the canal of all the demonstrations)
+    route: int | None = wire.NO_ROUTE
 
 
 def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
     """A served model: its canal, the tracker geometry every stream of it shares, and the
-    bank that holds those streams' tracker states as arrays."""
+    bank that holds those streams' tracker states as arrays. ``canal`` may be
+    :class:`canal_core.Routes`: with several routes, the entry of the canal of all holds one
+    entry per route."""
+    if isinstance(canal, Routes):
+        if canal.n_routes == 1:
+            canal = canal.pooled
+        else:
+            entry = _plain_entry(version, canal.pooled, lookahead)
+            entry.route, entry.chooser = None, canal
+            entry.routes = tuple(_plain_entry(version, c, lookahead, k)
+                                 for k, c in enumerate(canal.canals))
+            return entry
+    return _plain_entry(version, canal, lookahead)
+
+
+def _plain_entry(version: int, canal: Any, lookahead: int,
+                 route: int | None = wire.NO_ROUTE) -> ModelEntry:
     # The canal's own geometry: with the orientations and section times it learned, so live
     # targets carry the model's orientation and feed-forward velocity, as Canal.tracker's do.
     geometry = canal.tracker_geometry()
     return ModelEntry("ok", int(version), int(canal.dim), canal,
-                      bank=TrackerBank(geometry, lookahead))
+                      bank=TrackerBank(geometry, lookahead), route=route)
 
 
 class ModelTable:
@@ -96,7 +127,7 @@ class ModelTable:
             except (SkillNotFound, NoModelYet):
                 pass  # deleted meanwhile: the full read below says which entry it gets
         try:
-            canal, _row, version, _dim = self.service.load_canal(skill, None)
+            canal, version, _dim = self.service.load_routes(skill, None)
         except SkillNotFound as exc:
             return ModelEntry("unknown_skill", message=exc.message)
         except NoModelYet as exc:
@@ -167,13 +198,15 @@ class ModelTable:
             with self._scene_lock:
                 self.scenes.setdefault(skill, (0 if version is None else version, scene))
         version, scene = self.scenes[skill]
-        bank = entry.bank
-        if bank is None:
-            return
-        if scene is None or not len(scene) or scene.dim != entry.dim:
-            bank.scene = None
-        else:
-            bank.scene = scene_tables(bank.geometry, scene, entry.canal.largest_step, version)
+        # A scene applies to every route: each route's bank goes around it too.
+        for each in (entry, *(entry.routes or ())):
+            bank = each.bank
+            if bank is None:
+                continue
+            if scene is None or not len(scene) or scene.dim != each.dim:
+                bank.scene = None
+            else:
+                bank.scene = scene_tables(bank.geometry, scene, each.canal.largest_step, version)
 
     def _drop(self, skill: str, entry: ModelEntry) -> None:
         """Forget the skill's entry if it is still ``entry`` (not one installed meanwhile)."""

@@ -255,6 +255,14 @@ class BridgeProcesses:
                         "parked": int(c.counts.get("parked", 0)),
                         "tracker": h.get("tracker", "compiling")})
         first = self.children[0].health
+        routes: dict[str, dict[str, int]] = {}
+        for c in self.children:
+            with c.lock:
+                shard_routes = dict(c.health.get("routes") or {})
+            for skill, by_route in shard_routes.items():
+                into = routes.setdefault(skill, {})
+                for route, n in dict(by_route).items():
+                    into[route] = into.get(route, 0) + int(n)
         return {"status": status, "detail": detail, "prefix": first.get("prefix"),
                 "mode": first.get("mode"), "listen": first.get("listen", []),
                 "multicast_scouting": first.get("multicast_scouting"),
@@ -263,7 +271,7 @@ class BridgeProcesses:
                 "access": first.get("access", "open"), "tls": first.get("tls", False),
                 "acl": first.get("acl", False), "acl_default": first.get("acl_default"),
                 "coalesced": sum(int(p["coalesced"]) for p in per),
-                "processes": len(self.children), "bridges": per}
+                "routes": routes, "processes": len(self.children), "bridges": per}
 
     def close(self) -> None:
         """Stop every bridge process (SIGTERM, then kill after 10 s)."""

@@ -1,7 +1,13 @@
 """The pose path's step: every job's tracker stepped, one
 :class:`~canal_core.tracker_bank.TrackerBank` pass per model; a stream (re)seeded at the
 section its robot is at on a new stream or a restart, at the section and plan it had on a
-model switch; a steered stream's plan moved by its person's input."""
+model switch; a steered stream's plan moved by its person's input.
+
+A model of several routes steps each route's streams in that route's bank: a stream takes the
+route whose entry holds its first pose (the nearest entry when none does; the canal of all
+when several do) and keeps it while the model version stays; on a new version it keeps its
+route number when the new model has it, else it is chosen again from its pose; a restart
+chooses again."""
 
 from __future__ import annotations
 
@@ -55,10 +61,13 @@ class Stepper(Answers):
                     self.error(st, pose.seq, entry.status, entry.message, fmt)
                     continue
                 last_skill = st.skill
-                group = by_model.get(id(entry))
-                if group is None:
-                    group = by_model[id(entry)] = (entry, [], [], [])
-                _, group_jobs, slots, positions = group
+                if entry.routes is not None:
+                    last_skill = None  # its streams are in several banks: grouped below
+                else:
+                    group = by_model.get(id(entry))
+                    if group is None:
+                        group = by_model[id(entry)] = (entry, [], [], [])
+                    _, group_jobs, slots, positions = group
             assert entry is not None
             position = pose.position
             if len(position) != entry.dim:
@@ -69,10 +78,17 @@ class Stepper(Answers):
                                f"expected {entry.dim} coordinates for skill {st.skill!r}, "
                                f"got {len(position)}", fmt)
                     continue
-            if st.bank is not entry.bank or st.version != entry.version or pose.restart:
-                self._seed(st, entry, position, pose.restart)
+            tracked = entry
+            if entry.routes is not None:
+                tracked = self._route_of(st, entry, position, pose.restart)
+                group = by_model.get(id(tracked))
+                if group is None:
+                    group = by_model[id(tracked)] = (tracked, [], [], [])
+                _, group_jobs, slots, positions = group
+            if st.bank is not tracked.bank or st.version != tracked.version or pose.restart:
+                self._seed(st, tracked, position, pose.restart)
             if st.steer is not None:
-                self._steer(st, entry)
+                self._steer(st, tracked)
             group_jobs.append(job)
             slots.append(st.slot)
             positions.append(position)
@@ -89,6 +105,27 @@ class Stepper(Answers):
             out.append((model, model_jobs, rows.tolist(),
                         None if status is None else status.tolist()))
         return out
+
+    @staticmethod
+    def _route_of(st: Stream, entry: ModelEntry, position: tuple[float, ...],
+                  restart: bool) -> ModelEntry:
+        """The entry (a route's, or the canal of all's) a stream of a model of several
+        routes is stepped in: chosen at its first pose, a restart, or a new version whose
+        routes do not include the one it had."""
+        routes = entry.routes
+        assert routes is not None
+        if st.route_version != entry.version or restart:
+            if (not restart and st.route_version >= 0 and st.route is not None
+                    and st.route < len(routes)):
+                st.route_reason = "kept"
+            else:
+                try:
+                    choice = entry.chooser.choose(np.array(position, dtype=np.float64))
+                    st.route, st.route_reason = choice.route, choice.reason
+                except Exception:  # a pose no route can place: the canal of all
+                    st.route, st.route_reason = None, "shared"
+            st.route_version = entry.version
+        return entry if st.route is None else routes[st.route]
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...],
               restart: bool = False) -> None:

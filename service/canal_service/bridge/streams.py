@@ -50,6 +50,11 @@ class Stream:
     bank: TrackerBank | None = None  # the bank of the model version it is tracked with
     slot: int = -1  # its row in that bank
     version: int = -1
+    #: a model of several routes: the route it follows (None: the canal of all), why
+    #: (canal_core.routes.RouteChoice.reason) and the model version it was chosen in
+    route: int | None = None
+    route_reason: str = ""
+    route_version: int = -1
     last_seen: float = 0.0
     last_seq: int = -1
     coalesced: int = 0

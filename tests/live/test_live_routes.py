@@ -1,0 +1,100 @@
+"""Live streams on a model of several routes: each stream takes the route whose entry holds
+its first pose and follows it; answers and /healthz say which."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import orjson
+import pytest
+from canal_client.live import PoseStreamer
+from canal_client.sim import run_sim
+from canal_testing import ROUTE_STARTS, path_distance, two_route_demo
+from live_helpers import wait_until
+
+import canal_core
+from canal_protocol import wire
+
+pytestmark = pytest.mark.timeout(90)
+
+
+@pytest.fixture(scope="module")
+def reach(live: Any) -> str:
+    """'reach': eight demonstrations, four each way round the middle, fitted as two routes."""
+    client = live.client
+    assert client.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+    for j in range(8):
+        r = client.post("/skills/reach/demonstrations",
+                        json={"positions": two_route_demo(j).tolist()})
+        assert r.status_code == 201, r.text
+    r = client.post("/skills/reach/fit", json={"n_samples": 80})
+    assert r.status_code == 201 and r.json()["routes"] == 2, r.text
+    return "reach"
+
+
+@pytest.mark.parametrize("encoding", ["json", "binary"])
+def test_a_stream_from_each_start_follows_its_route(live: Any, reach: str, encoding: str) -> None:
+    demos = [two_route_demo(j) for j in range(8)]
+    for k, start in enumerate(ROUTE_STARTS):
+        r = run_sim(reach, robot=f"r{k}-{encoding}", start=start, rate_hz=500.0, timeout_s=20.0,
+                    endpoint=live.endpoint, encoding=encoding)
+        assert r.reached_end, (k, r.n_steps, r.statuses)
+        own = min(path_distance(r.positions, d) for d in demos[4 * k: 4 * k + 4])
+        other = min(path_distance(r.positions, d) for d in demos[4 * (1 - k): 4 * (1 - k) + 4])
+        assert own < 0.05 < other, (k, own, other)
+        middle = r.positions[len(r.positions) // 2]
+        assert np.sign(middle[1]) == (1.0 if k == 0 else -1.0)
+        if encoding == "json":
+            assert {t.route for t in r.targets} == {k}
+        else:  # the binary layout has no route
+            assert {t.route for t in r.targets} == {None}
+
+
+def test_healthz_counts_streams_by_route_and_one_route_answers_without_it(
+        live: Any, reach: str) -> None:
+    with PoseStreamer(reach, "h0", endpoint=live.endpoint, encoding="json") as a, \
+            PoseStreamer(reach, "h1", endpoint=live.endpoint, encoding="json") as b:
+        first = a.wait_for(a.send(ROUTE_STARTS[0]), timeout=10.0)
+        second = b.wait_for(b.send(ROUTE_STARTS[1]), timeout=10.0)
+        assert first is not None and second is not None
+        assert (first.route, second.route) == (0, 1)
+        # the stream keeps its route though its next pose is in the other's entry
+        again = a.wait_for(a.send(ROUTE_STARTS[1]), timeout=10.0)
+        assert again is not None and again.route == 0
+        counts = wait_until(lambda: live.client.get("/healthz").json()["bridge"]["routes"]
+                            .get(reach), timeout=5.0)
+        assert counts["0"] >= 1 and counts["1"] >= 1, counts
+        assert "arc3" not in live.client.get("/healthz").json()["bridge"]["routes"]
+    with PoseStreamer("arc3", "h2", endpoint=live.endpoint, encoding="json") as c:
+        answer = c.wait_for(c.send([0.0, 0.0, 0.0]), timeout=10.0)
+        assert answer is not None and answer.model_version == 1 and answer.route is None
+
+
+def test_a_live_correction_refines_the_route_its_stream_follows(live: Any, reach: str) -> None:
+    body = live.client.get(f"/skills/{reach}/models/latest", params={"serialized": True}).json()
+    routes = canal_core.routes.routes_from_dict(body["serialized"])
+    canal = routes.canals[1]
+    idx = np.arange(25, 46)
+    wider = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    with PoseStreamer(reach, "corrector", endpoint=live.endpoint, encoding="json") as ps:
+        first = ps.wait_for(ps.send(ROUTE_STARTS[1]), timeout=10.0)
+        assert first is not None and first.route == 1
+        ps.start_correction("include", label="wider below")
+        for point in wider:
+            ps.send(point.tolist())
+        made = ps.stop_correction()
+    assert made["version"] == body["version"] + 1 and made["correction"]["route"] == 1
+    after = canal_core.routes.routes_from_dict(live.client.get(
+        f"/skills/{reach}/models/latest", params={"serialized": True}).json()["serialized"])
+    assert len(after.canals[1].corrections) == 1 and not after.canals[0].corrections
+
+
+def test_a_json_answer_says_the_route_only_for_a_model_of_several() -> None:
+    plain = orjson.loads(wire.pack_target_json(1, "ok", [0.0, 0.0], 0.1, 0.2, 3, True, False, 1))
+    assert "route" not in plain
+    for route in (0, 1, None):
+        body = orjson.loads(wire.pack_target_json(1, "ok", [0.0, 0.0], 0.1, 0.2, 3, True, False,
+                                                  1, None, None, 0, route))
+        assert body["route"] == route
+        assert wire.decode_target_json(orjson.dumps(body)).route == route
