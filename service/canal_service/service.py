@@ -73,7 +73,7 @@ class RecorderLike(Protocol):
     def demo_added(self, skill: str, dim: int, demo_id: int, positions: npt.ArrayLike,
                    timestamps: npt.ArrayLike | None, label: str | None) -> None: ...
     def demo_removed(self, skill: str, demo_id: int) -> None: ...
-    def model_fitted(self, skill: str, version: int, canal: canal_core.Canal, *,
+    def model_fitted(self, skill: str, version: int, canal: canal_core.Canal | Routes, *,
                      t_ns: int | None = None, instance: str | None = None) -> None: ...
     def reproduction(self, skill: str, version: int, result: canal_core.Reproduction, *,
                      number: int | None = None, t_ns: int | None = None,
@@ -462,7 +462,8 @@ class CanalService:
         version, instance = model[1].version, model[2]
         created = model[1].created_at
         stored_ns = None if created is None else repo.created_ns(created)
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
+        served = _served(routes)
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
                                                               t_ns=stored_ns, instance=instance))
         if not kept:
             self.fit_listeners.notify(name, version, _served(routes))
@@ -678,9 +679,10 @@ class CanalService:
         version = summary.version
         created = summary.created_at
         stored_ns = None if created is None else repo.created_ns(created)
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, canal,
+        served = _served(routes)
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
                                                               t_ns=stored_ns, instance=instance))
-        self.fit_listeners.notify(name, version, _served(routes))
+        self.fit_listeners.notify(name, version, served)
         summary.notes = notes
         return summary
 

@@ -58,7 +58,9 @@ class ModelFitted:
     t_ns: int
     skill: str
     version: int
-    canal: Any  # canal_core.Canal: immutable, so holding a reference is safe
+    #: canal_core.Canal, or canal_core.Routes for a model of several routes: immutable, so
+    #: holding a reference is safe
+    canal: Any
     instance: str | None = None  # the skill instance it was fitted for, when known
 
 

@@ -92,7 +92,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                                     translation=_VECTOR3, rotation=_QUATERNION),
     "canal.ModelInfo": _obj("canal.ModelInfo", timestamp=_TIME, version={"type": "integer"},
                             n_sections={"type": "integer"}, radii=_array({"type": "number"}),
-                            arclength=_array({"type": "number"})),
+                            arclength=_array({"type": "number"}),
+                            routes={"type": "integer"}),
     "canal.CorrectionInfo": _obj(
         "canal.CorrectionInfo", timestamp=_TIME, model_version={"type": "integer"},
         kind={"type": "string"}, label={"type": "string"}, weight={"type": "number"},

@@ -7,12 +7,14 @@ Only the canal attributes listed in docs/CONTRACTS.md are used (``directrix``, `
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+
+from canal_core.routes import Routes
 
 FloatArray = NDArray[np.float64]
 
@@ -109,6 +111,8 @@ class ModelGeometry:
     frame_vectors: FloatArray
     #: the correction that made this version (a refined model), else None
     correction: CorrectionGeometry | None = None
+    #: a model of several routes: each route's geometry (this one is the canal of all)
+    routes: tuple[ModelGeometry, ...] = ()
 
     @property
     def n_sections(self) -> int:
@@ -117,7 +121,14 @@ class ModelGeometry:
 
 
 def model_geometry(version: int, canal: Any) -> ModelGeometry:
-    """The review geometry of ``canal`` (slow: builds the mesh; call it off the request path)."""
+    """The review geometry of ``canal`` (slow: builds the mesh; call it off the request path).
+    ``canal`` may be :class:`canal_core.Routes`: with several routes, the geometry of the
+    canal of all with each route's in ``routes``."""
+    if isinstance(canal, Routes):
+        if canal.n_routes == 1:
+            return model_geometry(version, canal.pooled)
+        return replace(model_geometry(version, canal.pooled),
+                       routes=tuple(model_geometry(version, c) for c in canal.canals))
     dim = int(canal.dim)
     directrix = points3d(canal.directrix)
     radii = np.asarray(canal.radii, dtype=np.float64)

@@ -126,7 +126,10 @@ class McapSegment:
                     fx.scene_update(deletions=[(t_ns, f"reproduction/{number}")]))
 
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
-        """Mesh, directrix, rings and frames of one model version (replacing the previous)."""
+        """Mesh, directrix, rings and frames of one model version (replacing the previous). A
+        model of several routes: those are the canal of all the demonstrations, and each
+        route is its own entities ``canal/route_<k>/mesh``, ``.../directrix``, ``.../rings``
+        (metadata ``route``); its info says ``routes``."""
         meta = {"version": geo.version, "n_sections": geo.n_sections}
         n_axes = geo.frame_vectors.shape[1]
         tails = np.repeat(geo.frame_origins, n_axes, axis=0)
@@ -148,10 +151,26 @@ class McapSegment:
                 fx.line(segments, _DIRECTRIX_COLOR, thickness=2.0, kind=fx.LINE_LIST,
                         colors=axis_colors)]),
         ]
+        for k, route in enumerate(geo.routes):
+            base, route_meta = f"canal/route_{k}", {**meta, "route": k,
+                                                   "n_sections": route.n_sections}
+            route_colors = route.vertex_colors.copy()
+            route_colors[:, 3] = CANAL_ALPHA
+            route_rings = np.stack([route.rings[:, :-1], route.rings[:, 1:]],
+                                   axis=2).reshape(-1, 3)
+            entities += [
+                fx.entity(t_ns, f"{base}/mesh", metadata=route_meta, triangle_lists=[
+                    fx.triangles(route.vertices, route.faces, route_colors)]),
+                fx.entity(t_ns, f"{base}/directrix", metadata=route_meta,
+                          lines=[fx.line(route.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
+                fx.entity(t_ns, f"{base}/rings", metadata=route_meta, lines=[
+                    fx.line(route_rings, _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST)]),
+            ]
         self._write("/canal/model", "foxglove.SceneUpdate", t_ns, fx.scene_update(entities))
+        extra = {"routes": len(geo.routes)} if geo.routes else {}
         self._write("/canal/model_info", "canal.ModelInfo", t_ns, fx.plain(
             t_ns, version=geo.version, n_sections=geo.n_sections, radii=geo.radii,
-            arclength=geo.arclength))
+            arclength=geo.arclength, **extra))
         if geo.correction is not None:
             self._correction(t_ns, geo.version, geo.correction)
 

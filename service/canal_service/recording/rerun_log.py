@@ -287,7 +287,9 @@ class RerunSegment:
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Directrix, mesh, rings, frames and radius profile of one model version, under its
         own entity ``model/v<version>``; the previous version is cleared from this time on
-        (scrub back to see it, or toggle it in the viewer)."""
+        (scrub back to see it, or toggle it in the viewer). A model of several routes: that
+        entity is the canal of all the demonstrations, and each route is its own entity
+        ``model/v<version>/route_<k>`` (directrix, mesh, rings, info)."""
         self._at(t_ns, geo.version)
         base = f"model/v{geo.version}"
         if geo.version > 1:
@@ -295,18 +297,14 @@ class RerunSegment:
             self.rec.log(f"frames/v{geo.version - 1}", rr.Clear(recursive=True))
         self.rec.log(f"{base}/directrix", self._strips([geo.directrix],
                                                        colors=[_DIRECTRIX_COLOR]))
-        if self.dim == 2:
-            # A 2-D canal is a strip: its two boundaries (vertices 2i and 2i+1 per section).
-            strip = geo.vertices.reshape(-1, 2, 3)
-            self.rec.log(f"{base}/mesh", self._strips([strip[:, 0], strip[:, 1]],
-                                                      colors=[_RING_COLOR]))
-        else:
-            self.rec.log(f"{base}/mesh", rr.Mesh3D(
-                vertex_positions=geo.vertices, triangle_indices=geo.faces,
-                vertex_normals=geo.vertex_normals,
-                vertex_colors=geo.vertex_colors.astype(np.float32),
-                albedo_factor=[255, 255, 255, round(255 * CANAL_ALPHA)]))
-        self.rec.log(f"{base}/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
+        self._surface(base, geo)
+        for k, route in enumerate(geo.routes):
+            path = f"{base}/route_{k}"
+            self.rec.log(f"{path}/directrix", self._strips([route.directrix],
+                                                           colors=[_DIRECTRIX_COLOR]))
+            self._surface(path, route)
+            self.rec.log(f"{path}/info", rr.AnyValues(version=geo.version, route=k,
+                                                      n_sections=route.n_sections))
         n_axes = geo.frame_vectors.shape[1]
         self.rec.log(f"frames/v{geo.version}", self._arrows(
             np.repeat(geo.frame_origins, n_axes, axis=0), geo.frame_vectors.reshape(-1, 3),
@@ -323,9 +321,25 @@ class RerunSegment:
             self._correction(geo.version, geo.correction)
         if self.dim == 3:
             # The newest canal decides the framing: the default blueprint sent last wins.
-            self.rec.send_blueprint(review_blueprint(self.dim, frame=geo.vertices,
+            frame = np.vstack([geo.vertices, *(r.vertices for r in geo.routes)])
+            self.rec.send_blueprint(review_blueprint(self.dim, frame=frame,
                                                      coordinates=self.coordinates),
                                     make_active=True, make_default=True)
+
+    def _surface(self, base: str, geo: ModelGeometry) -> None:
+        """A canal's surface (``base/mesh``) and rings (``base/rings``)."""
+        if self.dim == 2:
+            # A 2-D canal is a strip: its two boundaries (vertices 2i and 2i+1 per section).
+            strip = geo.vertices.reshape(-1, 2, 3)
+            self.rec.log(f"{base}/mesh", self._strips([strip[:, 0], strip[:, 1]],
+                                                      colors=[_RING_COLOR]))
+        else:
+            self.rec.log(f"{base}/mesh", rr.Mesh3D(
+                vertex_positions=geo.vertices, triangle_indices=geo.faces,
+                vertex_normals=geo.vertex_normals,
+                vertex_colors=geo.vertex_colors.astype(np.float32),
+                albedo_factor=[255, 255, 255, round(255 * CANAL_ALPHA)]))
+        self.rec.log(f"{base}/rings", self._strips(list(geo.rings), colors=[_RING_COLOR]))
 
     def _correction(self, version: int, cor: CorrectionGeometry) -> None:
         """The correction that made model ``version``, under ``corrections/v<version>``: the

@@ -13,6 +13,10 @@ Made on export from the recording's Foxglove JSON MCAP (one source of truth), wi
     /canal/model/directrix           nav_msgs/msg/Path              per model version
     /canal/model/mesh                visualization_msgs/msg/MarkerArray  TRIANGLE_LIST canal surface,
                                                                     LINE_LIST rings and frames
+                                                                    (each route's surface too,
+                                                                    ns canal/route_<k>/mesh)
+    /canal/model/route_<k>/directrix nav_msgs/msg/Path              a model of several routes:
+                                                                    each route's directrix
     /canal/corrections/samples       nav_msgs/msg/Path              the path of each correction
     /canal/corrections/sections      visualization_msgs/msg/MarkerArray  LINE_LIST: the sections it
                                                                     changed, before and after
@@ -94,12 +98,13 @@ def _mesh_markers(stamp: dict[str, int], entities: list[dict[str, Any]]) -> dict
     markers = []
     for ent in entities:
         frame = ent.get("frame_id", "canal")
-        if ent["id"] == "canal/mesh":
+        if ent["id"] == "canal/mesh" or (ent["id"].startswith("canal/route_")
+                                          and ent["id"].endswith("/mesh")):
             for tri in ent.get("triangles", []):
                 pts, cols, idx = tri["points"], tri.get("colors") or [], tri.get("indices") or []
                 order = idx if idx else list(range(len(pts)))
                 # TRIANGLE_LIST: every three points are a triangle (no index buffer in ROS).
-                markers.append(_marker(stamp, frame, "canal/mesh", TRIANGLE_LIST,
+                markers.append(_marker(stamp, frame, ent["id"], TRIANGLE_LIST,
                                        [pts[i] for i in order],
                                        [cols[i] for i in order] if cols else [],
                                        tri.get("color") or {"r": 1, "g": 1, "b": 1, "a": 1}))
@@ -190,6 +195,13 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
                 for ent in entities:
                     if ent["id"] == "canal/directrix" and ent.get("lines"):
                         yield ("/canal/model/directrix", "nav_msgs/msg/Path",
+                               _path(ent["timestamp"], ent["frame_id"],
+                                     ent["lines"][0]["points"]), t)
+                    elif (ent["id"].startswith("canal/route_")
+                          and ent["id"].endswith("/directrix") and ent.get("lines")):
+                        # each route of a model of several routes: its own Path topic
+                        route = ent["id"].split("/")[1]
+                        yield (f"/canal/model/{route}/directrix", "nav_msgs/msg/Path",
                                _path(ent["timestamp"], ent["frame_id"],
                                      ent["lines"][0]["points"]), t)
                 yield ("/canal/model/mesh", "visualization_msgs/msg/MarkerArray",

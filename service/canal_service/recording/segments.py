@@ -99,8 +99,8 @@ class SegmentWriter(RecorderQueue):
                 return  # fitted for a skill deleted since
             if self.source is not None and event.version in self._state(event.skill).models:
                 return  # reconciled from the database before its own event came
-            self._dims[event.skill] = int(event.canal.dim)
             geo = model_geometry(event.version, event.canal)
+            self._dims[event.skill] = geo.dim
             self._write(event.skill, event.t_ns, lambda r: r.model(event.t_ns, geo),
                         lambda m: m.model(event.t_ns, geo), ledger=f"m {event.version}")
         elif isinstance(event, ModelRef):

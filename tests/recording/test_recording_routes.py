@@ -1,0 +1,108 @@
+"""A model of several routes in the recordings: each route its own entity in the .rrd and in
+the MCAP (Foxglove and ros2 profiles), read back by their readers; and through the service,
+fitted over HTTP and rebuilt from the database."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import httpx
+import jsonschema_rs
+import numpy as np
+import pytest
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from canal_service.recording import Recorder
+from canal_service.recording.foxglove import SCHEMAS
+from canal_testing import LiveServer, two_route_demo
+from mcap.reader import make_reader
+from recording_helpers import mcap_messages, rrd_rows, rrd_verify
+from rosbags import highlevel
+
+import canal_core
+
+
+@pytest.fixture(scope="module")
+def routes() -> canal_core.Routes:
+    fitted = canal_core.fit_routes([two_route_demo(j) for j in range(8)], n_samples=40)
+    assert fitted.n_routes == 2
+    return fitted
+
+
+def test_each_route_is_its_own_entity_in_the_rrd(recorder: Recorder, routes: Any,
+                                                 rerun_env: dict[str, str]) -> None:
+    recorder.model_fitted("reach", 1, routes)
+    path = recorder.export_rrd("reach")
+    assert rrd_verify(path, rerun_env).returncode == 0
+    rows = rrd_rows(path, rerun_env)
+    # the canal of all the demonstrations where a one-route model is drawn
+    assert rows[("/model/v1/mesh", "Mesh3D:vertex_positions")] == 1
+    for k in range(routes.n_routes):
+        base = f"/model/v1/route_{k}"
+        assert rows[(f"{base}/mesh", "Mesh3D:vertex_positions")] == 1, base
+        assert rows[(f"{base}/directrix", "LineStrips3D:strips")] == 1, base
+        assert rows[(f"{base}/rings", "LineStrips3D:strips")] == 1, base
+        assert rows[(f"{base}/info", "route")] == 1, base
+    assert not any("route_2" in entity for entity, _ in rows)
+
+
+def test_each_route_is_its_own_entity_in_the_mcap(recorder: Recorder, routes: Any) -> None:
+    recorder.model_fitted("reach", 1, routes)
+    path = recorder.export_mcap("reach")
+    (update,) = mcap_messages(path, "/canal/model")
+    entities = {e["id"]: e for e in update["entities"]}
+    for k, canal in enumerate(routes.canals):
+        assert {f"canal/route_{k}/{part}" for part in ("mesh", "directrix", "rings")} <= set(entities)
+        (line,) = entities[f"canal/route_{k}/directrix"]["lines"]
+        points = np.array([[p["x"], p["y"], p["z"]] for p in line["points"]])
+        np.testing.assert_allclose(points, canal.directrix)
+        meta = {m["key"]: m["value"] for m in entities[f"canal/route_{k}/mesh"]["metadata"]}
+        assert meta["route"] == str(k)
+    (directrix,) = entities["canal/directrix"]["lines"]
+    assert len(directrix["points"]) == routes.pooled.n_sections
+    (info,) = mcap_messages(path, "/canal/model_info")
+    assert info["routes"] == 2
+    validator = jsonschema_rs.validator_for(SCHEMAS["canal.ModelInfo"])
+    validator.validate(info)
+
+    ros2 = recorder.export_mcap("reach", profile="ros2")
+    topics: dict[str, int] = {}
+    with highlevel.AnyReader([ros2]) as reader:
+        for conn, _t, raw in reader.messages():
+            message = reader.deserialize(raw, conn.msgtype)
+            topics[conn.topic] = topics.get(conn.topic, 0) + 1
+            if conn.topic == "/canal/model/route_1/directrix":
+                got = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                                for p in message.poses])
+                np.testing.assert_allclose(got, routes.canals[1].directrix)
+            if conn.topic == "/canal/model/mesh":
+                namespaces = {m.ns for m in message.markers}
+                assert {"canal/mesh", "canal/route_0/mesh", "canal/route_1/mesh"} <= namespaces
+    assert topics["/canal/model/route_0/directrix"] == 1
+    assert topics["/canal/model/route_1/directrix"] == 1
+
+
+def test_a_fit_of_two_routes_over_http_is_recorded_and_rebuilt(tmp_path: Path) -> None:
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
+    with LiveServer(create_app(settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=60) as c:
+        assert c.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+        for j in range(8):
+            r = c.post("/skills/reach/demonstrations",
+                       json={"positions": two_route_demo(j).tolist()})
+            assert r.status_code == 201, r.text
+        r = c.post("/skills/reach/fit", json={"n_samples": 40})
+        assert r.status_code == 201 and r.json()["routes"] == 2, r.text
+        for rebuilt in (False, True):
+            if rebuilt:  # lost, then regenerated from the database
+                shutil.rmtree(settings.resolved_recordings_dir / "reach")
+                assert c.post("/skills/reach/recording/rebuild").status_code == 200
+            mcap = c.get("/skills/reach/recording.mcap").content
+            reader = make_reader(io.BytesIO(mcap))
+            ids = {e["id"] for _, _, m in reader.iter_messages(topics=["/canal/model"])
+                   for e in json.loads(m.data)["entities"]}
+            assert {"canal/route_0/mesh", "canal/route_1/mesh", "canal/mesh"} <= ids, rebuilt
