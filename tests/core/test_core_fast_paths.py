@@ -12,20 +12,18 @@ import numpy as np
 import pytest
 from raw_logs import raw_demo_set
 
-from canal_core import preprocess
-from canal_core.preprocess import (
+from canal_core import glitches, preprocess
+from canal_core.glitches import (
     CHORD_FACTOR,
     GLITCH_PASSES,
     GLITCH_SCALE_WINDOW,
     MAX_GLITCH_RUN,
-    NEAR_DUPLICATE_TOLERANCE,
     SPIKE_FACTOR,
     SPIKE_WINDOW,
-    mask_of_new_samples,
-    robust_path_length,
 )
+from canal_core.preprocess import NEAR_DUPLICATE_TOLERANCE, mask_of_new_samples, robust_path_length
 
-# ---- glitches (step 4 of canal_core.preprocess) ------------------------------------------
+# ---- glitches (canal_core.glitches, step 4 of canal_core.preprocess) -----------------------
 
 
 def slow_spike_mask(x: np.ndarray) -> np.ndarray:
@@ -103,10 +101,10 @@ def glitch_inputs() -> list[np.ndarray]:
 def test_glitch_mask_matches_the_rule_window_by_window() -> None:
     flagged = later_passes = 0
     for x in glitch_inputs():
-        fast = preprocess._glitch_mask(x)
+        fast = glitches.glitch_mask(x)
         np.testing.assert_array_equal(fast, slow_glitch_mask(x))
         flagged += int(fast.sum())
-        later_passes += int(fast.sum() > preprocess._spike_mask(x).sum())
+        later_passes += int(fast.sum() > glitches.spike_mask(x).sum())
     # The comparison saw glitches, and glitches that only a later pass (re-testing the
     # stretches around what the first one removed) finds.
     assert flagged > 20
@@ -114,14 +112,14 @@ def test_glitch_mask_matches_the_rule_window_by_window() -> None:
 
 
 
-@pytest.mark.parametrize("batch_rows", [1, preprocess.SPIKE_BATCH_ROWS, 1 << 30])
+@pytest.mark.parametrize("batch_rows", [1, glitches.SPIKE_BATCH_ROWS, 1 << 30])
 def test_batched_glitch_masks_equal_each_demo_alone(batch_rows: int, monkeypatch: pytest.MonkeyPatch) -> None:
     # One pass over several demonstrations at once (windows must not reach into the next
     # demo, arc lengths restart, medians are clipped to their own demo) gives each demo
     # the slow rule's verdicts. Groups mix long demos with short ones (below
     # BATCHED_SPIKE_MIN they go one at a time) and demos with no glitch with demos whose
     # glitches need the later passes; batches of one part, of the default rows, of all.
-    monkeypatch.setattr(preprocess, "SPIKE_BATCH_ROWS", batch_rows)
+    monkeypatch.setattr(glitches, "SPIKE_BATCH_ROWS", batch_rows)
     cases = glitch_inputs()
     rng = np.random.default_rng(11)
     groups = [cases[k : k + 5] for k in range(0, len(cases), 5)]
@@ -132,7 +130,7 @@ def test_batched_glitch_masks_equal_each_demo_alone(batch_rows: int, monkeypatch
             parts = [x for x in group if x.shape[1] == dim]
             if not parts:
                 continue
-            for x, fast in zip(parts, preprocess._glitch_masks(parts), strict=True):
+            for x, fast in zip(parts, glitches.glitch_masks(parts), strict=True):
                 np.testing.assert_array_equal(fast, slow_glitch_mask(x))
                 flagged += int(fast.sum())
     assert flagged > 20
