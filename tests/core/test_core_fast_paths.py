@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from raw_logs import raw_demo_set
 
 from canal_core import glitches, preprocess
@@ -169,6 +171,96 @@ def test_prepared_samples_many_fails_where_one_at_a_time_fails_first() -> None:
         np.testing.assert_array_equal(p.rows, alone.rows)
         np.testing.assert_array_equal(p.sample_rows, alone.sample_rows)
         np.testing.assert_array_equal(p.sample_phase, alone.sample_phase)
+
+
+@st.composite
+def raw_demo(draw: st.DrawFn, dim: int) -> np.ndarray:
+    """One raw demo as the glitch test can meet it: a random walk, a smooth curve or a line
+    walked out and back (a genuine reversal), through 3 to 200 positions (short demos clip
+    their windows), with glitch runs of 1..8 samples (plateaus or ramps, one pass or several to
+    remove), exact and rounding-level repeats, and jittering still ends."""
+    n = draw(st.one_of(st.integers(3, 20), st.integers(3, 200)))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    kind = draw(st.sampled_from(["walk", "smooth", "reversal"]))
+    if kind == "walk":
+        x = np.cumsum(rng.normal(size=(n, dim)), axis=0)
+    elif kind == "smooth":
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        x = np.sin(t * rng.uniform(1.0, 6.0, size=dim) + rng.uniform(0.0, 3.0, size=dim))
+    else:
+        u = 1.0 - np.abs(np.linspace(-1.0, 1.0, n))[:, None]
+        x = u * rng.normal(size=dim) + 1e-3 * rng.normal(size=(n, dim))
+    step = float(np.median(np.linalg.norm(np.diff(x, axis=0), axis=1))) if n > 1 else 1.0
+    # Repeats: each row shown 1..3 times, some copies off at rounding level.
+    shown = rng.integers(1, 4, size=n) if draw(st.booleans()) else np.ones(n, dtype=int)
+    x = np.repeat(x, shown, axis=0)
+    nudged = rng.random(x.shape[0]) < 0.2
+    x[nudged] += 1e-13 * step * rng.normal(size=(int(nudged.sum()), dim))
+    head, tail = draw(st.sampled_from([0, 2, 30])), draw(st.sampled_from([0, 2, 30]))
+    still = 1e-4 * step * rng.normal(size=(head + tail, dim))
+    x = np.vstack([x[:1] + still[:head], x, x[-1:] + still[head:]])
+    # Glitch runs anywhere, and at the very ends (a reading lost as the logger starts).
+    rows = x.shape[0]
+    for _ in range(draw(st.integers(0, 4))):
+        at = draw(st.one_of(st.integers(0, 3), st.integers(0, rows - 1), st.integers(rows - 4, rows - 1)))
+        at, m = min(max(at, 0), rows - 1), draw(st.integers(1, 8))
+        height = draw(st.floats(0.5, 80.0)) * step
+        direction = rng.normal(size=dim)
+        profile = np.ones(m) if draw(st.booleans()) else 1.0 - np.abs(np.linspace(-0.8, 0.8, m))
+        x[at : at + m] += height * profile[: rows - at, None] * direction / np.linalg.norm(direction)
+    # Units from millimetres to kilometres: demos of one set differ in size, so a window
+    # or a median that strays into the next demo meets steps of another scale.
+    return 10.0 ** draw(st.integers(-3, 3)) * x
+
+
+@st.composite
+def raw_demo_sets(draw: st.DrawFn) -> list[np.ndarray]:
+    dim = draw(st.sampled_from([2, 3]))
+    demos = draw(st.lists(raw_demo(dim), min_size=1, max_size=6))
+    # Demos recorded back to back start where the previous one ended: concatenated, the
+    # window from one demo's tail to the next one's head is then short enough to pass the
+    # window test, which only the part bounds keep out.
+    for j in range(1, len(demos)):
+        if draw(st.booleans()):
+            demos[j] = demos[j] - demos[j][0] + demos[j - 1][-1]
+    return demos
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(demos=raw_demo_sets())
+def test_one_demo_and_many_demo_paths_agree(demos: list[np.ndarray]) -> None:
+    # The one-demo path (a lone part: no part bounds to respect, tested in place) and the
+    # many-demo path (parts concatenated, windows and medians kept inside their own part)
+    # share the rule but not its bookkeeping: a window reaching into the next demo, a median
+    # borrowing its steps, or an arc length that does not restart would show here, against
+    # each other and against the rule written window by window.
+    alone = [glitches.glitch_mask(x) for x in demos]
+    for x, batched, single in zip(demos, glitches.glitch_masks(demos), alone, strict=True):
+        np.testing.assert_array_equal(batched, single)
+        np.testing.assert_array_equal(single, slow_glitch_mask(x))
+    # The whole stage: the same rows and phases, or the same first error.
+    from canal_core.errors import InvalidInputError
+    from canal_core.preprocess import prepared_samples, prepared_samples_many
+
+    names = [f"demos[{j}]" for j in range(len(demos))]
+    expected: list[preprocess.PreparedDemonstration] = []
+    first_error: InvalidInputError | None = None
+    for x, name in zip(demos, names, strict=True):
+        try:
+            expected.append(prepared_samples(x, None, field=name))
+        except InvalidInputError as error:
+            first_error = error
+            break
+    try:
+        got = prepared_samples_many(demos, [None] * len(demos), names, names)
+    except InvalidInputError as error:
+        assert first_error is not None, f"the many-demo path refused what each passes alone: {error}"
+        assert (error.field, str(error)) == (first_error.field, str(first_error))
+        return
+    assert first_error is None, f"the many-demo path accepted what one demo refuses: {first_error}"
+    for p, q in zip(got, expected, strict=True):
+        for field in ("rows", "positions", "sample_rows", "sample_phase"):
+            np.testing.assert_array_equal(getattr(p, field), getattr(q, field))
 
 
 # ---- alignment: every demo's spline in one stacked solve -----------------------------------
