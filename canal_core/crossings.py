@@ -12,17 +12,28 @@ within +-N/3 samples of i (as both published implementations do) and, among the 
 found there, the one nearest in index to i wins. A demonstration that never crosses the
 plane in that window (typically at the two ends, where demonstrations start ahead of or
 stop short of the mean) contributes its sample nearest the plane, projected onto it.
+
+Where a demonstration folds back over itself (pressing: down, up and down again; a wipe back
+and forth) the nearest crossing in index of one plane can lie on a later pass than the next
+plane's: the sections would mix its passes. Such a demonstration's crossings are chosen again
+in its own order (:func:`ordered_crossings`), so the sections follow the directrix's
+parameter, not the nearest plane.
 """
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Callable
+from itertools import pairwise
 
 import numpy as np
 from numpy.lib.stride_tricks import as_strided, sliding_window_view
 
 from .validation import BoolArray, FloatArray, IntArray
 
+#: A demo's crossing more than this many samples before an earlier section's is a fold:
+#: its crossings are chosen again in its own order (:func:`ordered_crossings`).
+FOLD_TOLERANCE = 1.0
 #: Half-width of the dense first search, in samples.
 NEAR_WINDOW = 4
 #: Most (pair x window sample) entries searched at once: bounds the memory of a fit with
@@ -395,7 +406,8 @@ def _far_crossings(
 
 
 def plane_crossings(
-    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0
+    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0,
+    monotone: bool = True,
 ) -> FloatArray:
     """Points where every demonstration meets every cross-section plane.
 
@@ -409,19 +421,29 @@ def plane_crossings(
         Unit tangents t_i (plane normals).
     window : float
         Search half-width as a fraction of N (+-N/3 by default).
+    monotone : bool
+        Choose a folding demo's crossings again in its own order (:func:`located_crossings`).
 
     Returns
     -------
     crossings : array, shape (N, n, D)
         Points in the planes (t_i . (x - c_i) = 0 up to rounding).
     """
-    return located_crossings(aligned, centres, tangents, window)[0]
+    return located_crossings(aligned, centres, tangents, window, monotone)[0]
 
 
 def located_crossings(
-    aligned: FloatArray, centres: FloatArray, tangents: FloatArray, window: float = 1.0 / 3.0
+    aligned: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    window: float = 1.0 / 3.0,
+    monotone: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
     """:func:`plane_crossings` and where along each demo they lie.
+
+    ``monotone``: a demo whose nearest-in-index crossings step back along it (a path that
+    folds back over itself) has them chosen again in its own order
+    (:func:`ordered_crossings`); False keeps the nearest-in-index rule alone.
 
     Returns
     -------
@@ -473,7 +495,190 @@ def located_crossings(
         rows = np.take(flat, take)
         points.reshape(-1, points.shape[2])[rows] = np.take(far_points, take, axis=0)
         index.reshape(-1)[rows] = np.take(far_index, take)
+    if monotone:
+        for j in np.flatnonzero(steps_back(index)):
+            points[j], index[j] = ordered_crossings(aligned[j], tangents, plane, wide, points[j], index[j])
     return points.transpose(1, 0, 2).copy(), index.T.copy()
+
+
+def steps_back(index: FloatArray, tolerance: float = FOLD_TOLERANCE) -> BoolArray:
+    """Whether each demo's crossings (n, N: fractional sample index per section, NaN where
+    none was taken) ever lie more than ``tolerance`` samples before an earlier section's."""
+    reached = np.fmax.accumulate(np.where(np.isfinite(index), index, -np.inf), axis=1)
+    behind = index[:, 1:] < reached[:, :-1] - tolerance
+    return np.asarray(behind.any(axis=1))
+
+
+def ordered_crossings(
+    demo: FloatArray, tangents: FloatArray, plane: FloatArray, half_width: int,
+    points: FloatArray, index: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
+    """One demo's crossings of every plane, in the demo's own order.
+
+    Where the path folds back over itself (pressing: down, up and down again; a wipe back
+    and forth) a plane is met on several passes, and the pass nearest in index to one
+    section can lie after the pass chosen for the next: the sections would then mix the
+    demo's passes. The longest run of the nearest-in-index crossings that is in order (on
+    non-decreasing segments of the demo) is kept; the sections between two kept ones are
+    chosen again among their crossings between those two (:func:`monotone_crossings`).
+
+    Parameters
+    ----------
+    demo : array, shape (N, D)
+        The aligned demonstration.
+    tangents : array, shape (N, D)
+    plane : array, shape (N,)
+        t_i . c_i.
+    half_width : int
+        h: crossings farther than h samples from their section are not candidates.
+    points : array, shape (N, D)
+        The nearest-in-index crossings (or nearest samples, projected).
+    index : array, shape (N,)
+        Their fractional sample indices (NaN for a nearest sample).
+
+    Returns
+    -------
+    points, index : arrays, shapes (N, D) and (N,)
+    """
+    n = demo.shape[0]
+    met = np.flatnonzero(np.isfinite(index))
+    kept = met[_longest_in_order(np.floor(index[met]).astype(np.int64))]
+    points, index = points.copy(), index.copy()
+    good = np.zeros(n, dtype=bool)
+    good[kept] = True
+    bad = np.isfinite(index) & ~good
+    # Runs of sections between consecutive kept ones (and before the first / after the
+    # last) that hold a crossing out of order.
+    edges = np.concatenate([[-1], kept, [n]])
+    for k0, k1 in pairwise(edges.tolist()):
+        if k1 - k0 < 2 or not bad[k0 + 1 : k1].any():
+            continue
+        lo = int(np.floor(index[k0])) if k0 >= 0 else max(0, k0 + 1 - half_width)
+        hi = int(np.ceil(index[k1])) if k1 < n else min(n - 1, k1 - 1 + half_width + 1)
+        rows = slice(k0 + 1, k1)
+        points[rows], index[rows] = monotone_crossings(demo, tangents, plane, half_width, rows, lo, hi)
+    return points, index
+
+
+def _longest_in_order(keys: IntArray) -> IntArray:
+    """Positions of a longest non-decreasing subsequence of ``keys`` (patience sorting)."""
+    tails: list[int] = []  # smallest tail key of a run of each length
+    tail_at: list[int] = []  # its position
+    parent = [-1] * keys.size
+    for position, key in enumerate(keys.tolist()):
+        length = bisect_right(tails, key)
+        parent[position] = tail_at[length - 1] if length else -1
+        if length == len(tails):
+            tails.append(key)
+            tail_at.append(position)
+        else:
+            tails[length], tail_at[length] = key, position
+    out = []
+    c = tail_at[-1] if tail_at else -1
+    while c >= 0:
+        out.append(c)
+        c = parent[c]
+    return np.asarray(out[::-1], dtype=np.int64)
+
+
+def monotone_crossings(
+    demo: FloatArray, tangents: FloatArray, plane: FloatArray, half_width: int,
+    sections: slice, lo: int, hi: int,
+) -> tuple[FloatArray, FloatArray]:
+    """Crossings of the planes of ``sections`` by the demo's samples lo .. hi, in order.
+
+    Every crossing within ``half_width`` samples of its section is a candidate with weight
+    ``w = 1 - |k - i| / (2 (h + 1))`` (k its fractional sample index, i the section's), and
+    the chain of candidates with increasing sections on non-decreasing segments of the demo
+    (crossings within one segment may come in either order: neighbouring planes fan out
+    where the directrix bends) of largest total weight is taken: as many sections as
+    possible met in order, each as near its own index as the order allows. A section left
+    out contributes the demo's sample nearest its plane between the crossings of the
+    sections before and after it (within its window), projected onto the plane.
+
+    Returns
+    -------
+    points : array, shape (S, D)
+    index : array, shape (S,)
+        Fractional sample index of each crossing, NaN where the nearest sample was taken.
+    """
+    h = half_width
+    first, last = int(sections.start), int(sections.stop)
+    m = last - first
+    dist = tangents[first:last] @ demo[lo : hi + 1].T - plane[first:last, None]  # (S, C)
+    changes = sign_changes(dist)  # segment lo + w: samples lo + w, lo + w + 1
+    ids = np.arange(first, last)
+    changes &= np.abs(np.arange(lo, hi)[None, :] + 0.5 - ids[:, None]) <= h
+    r, w = np.nonzero(changes)
+    sec, seg = r, lo + w
+    d0, d1 = dist[r, w], dist[r, w + 1]
+    denom = d0 - d1
+    alpha = np.clip(np.divide(d0, denom, out=np.zeros_like(d0), where=denom != 0.0), 0.0, 1.0)
+    at = seg + alpha
+    weight = 1.0 - np.abs(at - ids[sec]) / (2.0 * (h + 1))
+    chosen = _heaviest_chain(sec, seg - lo, weight, hi - lo + 1)
+    index = np.full(m, np.nan)
+    points = np.empty((m, demo.shape[1]))
+    index[sec[chosen]] = at[chosen]
+    points[sec[chosen]] = demo[seg[chosen]] + alpha[chosen, None] * (demo[seg[chosen] + 1] - demo[seg[chosen]])
+    # Sections left out: the sample nearest the plane between the crossings of the sections
+    # met before and after (the range's ends beyond them), within the section's window.
+    left = np.flatnonzero(~np.isfinite(index))
+    if left.size:
+        met = np.flatnonzero(np.isfinite(index))
+        k = np.searchsorted(met, left)
+        before = np.full(left.size, float(lo))
+        after = np.full(left.size, float(hi))
+        if met.size:
+            before = np.where(k > 0, np.floor(index[met[np.maximum(k - 1, 0)]]), before)
+            after = np.where(k < met.size, np.ceil(index[met[np.minimum(k, met.size - 1)]]), after)
+        sample = np.arange(lo, hi + 1)[None, :]
+        allowed = (sample >= before[:, None]) & (sample <= after[:, None])
+        allowed &= np.abs(sample - ids[left, None]) <= h
+        allowed[~allowed.any(axis=1)] = True
+        pick = np.argmin(np.where(allowed, np.abs(dist[left]), np.inf), axis=1)
+        x = demo[lo + pick]
+        points[left] = x - dist[left, pick][:, None] * tangents[first + left]
+    return points, index
+
+
+def _heaviest_chain(sec: IntArray, seg: IntArray, weight: FloatArray, n: int) -> IntArray:
+    """Candidates (sorted by section) of the heaviest chain with increasing section and
+    non-decreasing segment ``seg`` (< n); a Fenwick tree of the best chain weight by segment.
+
+    Plain lists: the loop touches one entry at a time, where numpy scalars cost several times
+    more.
+    """
+    if sec.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    size = n + 1
+    tree = [0.0] * (size + 1)
+    arg = [-1] * (size + 1)
+    slots = [int(v) + 1 for v in seg.tolist()]
+    weights = weight.tolist()
+    best = [0.0] * len(slots)
+    parent = [-1] * len(slots)
+    bounds = np.flatnonzero(np.concatenate([[True], sec[1:] != sec[:-1], [True]])).tolist()
+    for a, b in pairwise(bounds):
+        for c in range(a, b):  # query the sections before this one
+            q, value, who = slots[c], 0.0, -1
+            while q > 0:
+                if tree[q] > value:
+                    value, who = tree[q], arg[q]
+                q -= q & -q
+            best[c], parent[c] = value + weights[c], who
+        for c in range(a, b):  # then add this section's candidates
+            q, value = slots[c], best[c]
+            while q <= size:
+                if value > tree[q]:
+                    tree[q], arg[q] = value, c
+                q += q & -q
+    chain = []
+    c = int(np.argmax(best)) if best else -1
+    while c >= 0:
+        chain.append(c)
+        c = parent[c]
+    return np.asarray(chain[::-1], dtype=np.int64)
 
 
 def sections_of_samples(index: FloatArray, demo: int, sample_index: FloatArray) -> FloatArray:

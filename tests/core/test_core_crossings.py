@@ -48,7 +48,7 @@ def test_block_search_matches_the_dense_rule(shape: str, seed: int, n_samples: i
     aligned = resampled_demonstrations(demos, [None] * 4, n_samples)
     centres = aligned.mean(axis=0)
     tangents, _, _ = rotation_minimizing_frames(smoothed_curve(centres, 0.02 * n_samples))
-    fast = plane_crossings(aligned, centres, tangents)
+    fast = plane_crossings(aligned, centres, tangents, monotone=False)
     np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
 
 
@@ -69,7 +69,7 @@ def test_block_search_matches_the_dense_rule_on_looping_demos(
     aligned = np.stack([np.roll(base + rng.normal(scale=1.5, size=base.shape), k, axis=0) for k in (-12, 0, 7)])
     centres = aligned.mean(axis=0)
     tangents, _, _ = rotation_minimizing_frames(smoothed_curve(centres, 0.02 * n_samples))
-    fast = plane_crossings(aligned, centres, tangents)
+    fast = plane_crossings(aligned, centres, tangents, monotone=False)
     np.testing.assert_allclose(fast, dense_reference(aligned, centres, tangents), rtol=0, atol=1e-12)
 
 
@@ -101,3 +101,59 @@ def test_bracketing_shells_find_the_nearest_pair_of_planes(seed: int) -> None:
         assert found[k] == (expected is not None)
         if expected is not None:
             assert index[k] == expected
+
+
+def pressing_strokes(seed: int, n_demos: int = 6, n_rows: int = 300) -> list[np.ndarray]:
+    """Down, up and down again (a press repeated beside the first), each demo pressing to
+    its own depths at its own pace."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n_demos):
+        u = np.linspace(0.0, 1.0, n_rows)
+        w = u + rng.uniform(-0.08, 0.08) * np.sin(np.pi * u)
+        first, second = rng.uniform(0.0, 0.04, size=2)
+        knots = [0.0, 0.35, 0.5, 0.65, 1.0]
+        z = np.interp(w, knots, [0.3, 0.05 + first, 0.15, 0.05 + second, 0.05 + second])
+        x = np.interp(w, knots, [0.0, 0.2, 0.22, 0.24, 0.24]) + rng.normal(scale=0.005)
+        y = np.full(n_rows, rng.normal(scale=0.01)) + 0.02 * w
+        out.append(np.column_stack([x, y, z]))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_stroke_that_folds_back_is_crossed_in_its_own_order(seed: int) -> None:
+    # The nearest crossing in index of a plane at the bottom of the first press can be the
+    # second press's (a shallower first press never reaches that plane): the sections then
+    # mixed the two passes. Each demo's crossings must follow its own parameter.
+    demos = pressing_strokes(seed)
+    aligned = resampled_demonstrations(demos, [None] * len(demos), 200)
+    centres = aligned.mean(axis=0)
+    tangents, _, _ = rotation_minimizing_frames(smoothed_curve(centres, 0.02 * 200))
+    plane = np.einsum("nd,nd->n", centres, tangents)
+    _, unordered = crossings.located_crossings(aligned, centres, tangents, monotone=False)
+    assert crossings.steps_back(unordered.T).any()  # the set folds: the old rule mixed passes
+    points, index = crossings.located_crossings(aligned, centres, tangents)
+    assert not crossings.steps_back(index.T).any()
+    for j in range(len(demos)):
+        met = index[:, j][np.isfinite(index[:, j])]
+        # Consecutive met sections lie on the same or later segments of the demo.
+        assert np.all(np.diff(np.floor(met)) >= 0.0)
+    # Every point is on its plane, at the demo's own sample where it crossed there.
+    np.testing.assert_allclose(np.einsum("njd,nd->nj", points, tangents) - plane[:, None], 0.0, atol=1e-12)
+    for i, j in zip(*np.nonzero(np.isfinite(index)), strict=True):
+        k = int(np.floor(index[i, j]))
+        seg = aligned[j, k : k + 2]
+        assert np.linalg.norm(points[i, j] - seg[0]) <= np.linalg.norm(seg[1] - seg[0]) + 1e-12
+
+
+def test_the_heaviest_chain_is_in_order_and_takes_the_nearest_pass() -> None:
+    # Sections 0..3; section 2 is met on its own pass (segment 2) and on the other (9);
+    # section 3 on segment 3. The chain keeps 0, 1, 2 (its own pass), 3.
+    sec = np.array([0, 1, 2, 2, 3])
+    seg = np.array([0, 1, 2, 9, 3])
+    weight = 1.0 - np.abs(seg - sec) / 20.0
+    assert crossings._heaviest_chain(sec, seg, weight, 12).tolist() == [0, 1, 2, 4]
+    # Section 1 met after section 2's only crossing: one of them is left out.
+    seg = np.array([0, 5, 2, 2, 3])
+    chain = crossings._heaviest_chain(sec, seg, 1.0 - np.abs(seg - sec) / 20.0, 12)
+    assert chain.tolist() == [0, 2, 4]
