@@ -276,11 +276,14 @@ class Canal:
         end_decay : float
             Fraction of the canal's length (``entry=0, end_decay=0`` with
             ``persistence="constant"``: the paper's constant, clamped ratio).
-        persistence : {"learned", "constant"}
+        persistence : {"learned", "constant", "learned+end"}
             How much of the start's ratio is kept along the canal before the end decay:
             what the demonstrations themselves kept of their start offsets, section by
             section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
             paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
+            "learned+end": for a start inside and no goal, kept up to the demonstrations'
+            ends, shrunk towards the end decay instead of faded by it (the reproduction
+            then ends where their regression on the start puts it).
         obstacles : Scene or list of obstacle dicts, optional
             What stands in the canal (:mod:`canal_core.obstacles`): the path detours through
             the free part of each section, or stops short saying ``blocked``.

@@ -44,7 +44,7 @@ ENTRY_FRACTION = 0.1
 #: vs 1.41 (0.2); UR5e 0.031 vs 0.036 m; generated 3-D logs 0.0137 vs 0.0129 vs 0.0145.
 END_DECAY = 1.0
 #: How the ratio is carried along the canal (see :func:`learned_persistence`).
-PERSISTENCES = ("learned", "constant")
+PERSISTENCES = ("learned", "constant", "learned+end")
 #: Weight of the paper's constant ratio in the learned persistence, in demonstrations: one
 #: pseudo-demonstration that keeps its whole start offset. It keeps a profile regressed on a
 #: handful of demos (4-6 in practice) from following their noise where they barely spread.
@@ -349,6 +349,15 @@ def smootherstep(x: FloatArray) -> FloatArray:
     """6x^5 - 15x^4 + 10x^3 on [0, 1] (clipped): zero slope and curvature at both ends."""
     x = np.clip(x, 0.0, 1.0)
     return np.asarray(x**3 * (10.0 + x * (-15.0 + 6.0 * x)), dtype=np.float64)
+
+
+def end_faded(arclength: FloatArray, start_arclength: float, end_decay: float) -> FloatArray:
+    """The end decay's share of the offset left on each section (K,): 1 - S((s_k - s_d) / L_out)."""
+    total = float(arclength[-1]) if arclength.size else 0.0
+    tail = min(end_decay * max(total, 1e-300), total - start_arclength)
+    if end_decay <= 0.0 or tail <= 0.0:
+        return np.ones_like(arclength)
+    return np.asarray(1.0 - smootherstep((arclength - (total - tail)) / tail), dtype=np.float64)
 
 
 def path_ratios(

@@ -20,6 +20,7 @@ from .reproduce import (
     ENTRY_FRACTION,
     PERSISTENCE_PRIOR_WEIGHT,
     PERSISTENCES,
+    end_faded,
     learned_persistence,
     located_inside,
     path_ratios,
@@ -149,13 +150,17 @@ def reproduce(
         of the canal's length: the entry blend over that length (0 clamps the ratio to 1 at
         once).
     end_decay : float
-        Fraction of the canal's length (``entry=0, end_decay=0`` with
-        ``persistence="constant"``: the paper's constant, clamped ratio).
-    persistence : {"learned", "constant"}
+        Fraction of the canal's length over which the offset fades onto the directrix's end
+        (``entry=0, end_decay=0`` with ``persistence="constant"``: the paper's constant,
+        clamped ratio).
+    persistence : {"learned", "constant", "learned+end"}
         How much of the start's ratio is kept along the canal before the end decay:
         what the demonstrations themselves kept of their start offsets, section by
         section (:func:`canal_core.reproduce.learned_persistence`, shrunk towards the
         paper's constant ratio by one pseudo-demonstration), or all of it (the paper).
+        "learned+end": for a start inside and no goal, what the demonstrations kept up to
+        their ends, shrunk towards the end decay instead of faded by it: the reproduction
+        ends where their regression on the start puts it, not on the directrix's end.
     obstacles : Scene or list of obstacle dicts, optional
         What stands in the canal (:mod:`canal_core.obstacles`): the path goes through the
         free part of each section, keeps every clearance, steps no further than the
@@ -190,13 +195,23 @@ def reproduce(
     u = loc.direction[0]
     reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
     share: FloatArray | None = None
-    if persistence == "learned":
+    if persistence in ("learned", "learned+end"):
+        # "learned+end", for a start inside: the end decay is the prior the demonstrations'
+        # own persistence is shrunk towards, not a second fade on top of it: where they kept
+        # their offsets to the end (goals that follow the start), the reproduction keeps its
+        # offset too. A start outside keeps both (the end decay is what brings it in by
+        # mid-motion when the demonstrations' offsets barely fade), and so does a goal asked
+        # for (it is reached exactly).
+        to_end = persistence == "learned+end" and eta <= 1.0 and target is None
+        prior = end_faded(canal.arclength[index + 1:], s0, end_decay) if to_end else 1.0
         kept = learned_persistence(
-            canal.section_points[index:], reach, u, alpha, prior=1.0, weight=PERSISTENCE_PRIOR_WEIGHT
+            canal.section_points[index:], reach, u, alpha, prior=prior, weight=PERSISTENCE_PRIOR_WEIGHT
         )
         if kept is not None:
             # At most the start's own ratio: an inside start stays inside by construction.
             share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
+            if to_end:
+                end_decay = 0.0
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)

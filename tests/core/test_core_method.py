@@ -322,3 +322,26 @@ def test_offset_the_demonstrations_forget_is_not_carried() -> None:
     assert off_learned.max() < 0.4 * off_paper.min()
     # Early on both follow the start's offset (the demos still remember it there).
     np.testing.assert_allclose(learned.positions[1:4], paper.positions[1:4], atol=0.01)
+
+
+def test_learned_to_the_end_keeps_what_the_demonstrations_keep_at_their_ends() -> None:
+    # Demos that keep 0.3 of their start offsets to their ends.
+    demos = [d + np.array([0.0, dy, dz]) * np.linspace(1, 0.3, d.shape[0])[:, None]
+             for d, (dy, dz) in zip(canal_core.datasets.task_one(), [(0.05, 0), (-0.05, 0.02), (0, -0.05), (0.02, 0.05)], strict=False)]
+    canal = canal_core.fit(demos)
+    start = 0.5 * (demos[0][0] + canal.directrix[0])
+    faded = canal.reproduce_detailed(start)
+    free = canal.reproduce_detailed(start, persistence="learned+end")
+    np.testing.assert_allclose(faded.positions[-1], canal.directrix[-1], atol=1e-12)
+    assert canal.contains(free.positions).all()
+    kept = free.positions[-1] - canal.directrix[-1]
+    # Part of the start's offset, towards the side of the demo it started near.
+    assert 1e-3 < np.linalg.norm(kept) < np.linalg.norm(start - canal.directrix[0])
+    assert kept @ (demos[0][-1] - canal.directrix[-1]) > 0.0
+    # A goal asked for is still reached exactly; a start outside still lands on the end.
+    goal = canal.directrix[-1] + np.array([0.01, 0.0, 0.0])
+    np.testing.assert_allclose(canal.reproduce_detailed(start, goal=goal, persistence="learned+end").positions[-1],
+                               goal, atol=1e-9)
+    outside = canal.reproduce_detailed(canal.directrix[0] + 5.0 * canal.radii[0] * canal.normals[0],
+                                       persistence="learned+end")
+    np.testing.assert_allclose(outside.positions[-1], canal.directrix[-1], atol=1e-12)
