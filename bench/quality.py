@@ -3,7 +3,8 @@
 Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
 start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
 subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
-canal variants: the fixed entry, arc-length alignment, the other section kinds).
+canal variants: no warp, arc-length clock, the fixed entry, constant persistence, persistence
+learned to the end, the other section kinds).
 ``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
 
 Protocol (every method gets the same arrays, as users' demonstrations are measured from
@@ -297,9 +298,11 @@ DEFAULT = "canal (defaults)"
 CANALS: dict[str, tuple[Fit, Reproduce]] = {
     DEFAULT: canal_method(),
     "canal, routes": routes_method(),
+    "canal, no warp (clock only)": canal_method(alignment="spline"),
     "canal, aligned by arc length": canal_method(timing="arc"),
     "canal, fixed 10 % entry": canal_method(entry=0.1),
     "canal, constant persistence": canal_method(persistence="constant"),
+    "canal, persistence learned to the end": canal_method(persistence="learned+end"),
 }
 CANALS_3D: dict[str, tuple[Fit, Reproduce]] = {
     "canal mec": canal_method(cross_section="mec"),

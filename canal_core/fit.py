@@ -14,10 +14,11 @@ from typing import Any, cast
 import numpy as np
 
 from .alignment import (
-    dtw_aligned_demonstrations,
+    DTW_SAMPLES,
     dtw_parameters,
     resampled_demonstrations,
     spline_parameter,
+    splines_at,
 )
 from .clocks import TIMINGS, TimingChoice, alignment_parameters, chosen_clock
 from .cross_sections import fitted_sections, floored_sections, scaled_sections, section_kind
@@ -60,7 +61,7 @@ def fit(
     timestamps: Any = None,
     cross_section: str = "circle",
     frames: str = "rmf",
-    alignment: str = "spline",
+    alignment: str = FitOptions.alignment,
     directrix: str = "mean",
     n_samples: int = 200,
     still_tolerance: float = STILL_TOLERANCE,
@@ -83,7 +84,12 @@ def fit(
         is False, its alignment (see ``timing``).
     cross_section : {"circle", "mec", "ellipse", "spline"}
     frames : {"rmf", "frenet"}
-    alignment : {"spline", "dtw"}
+    alignment : {"warp", "spline", "dtw"}
+        "spline": every demo resampled evenly in the clock's parameter (see ``timing``), the
+        paper's alignment; "warp" (default): each then matched to their mean by DTW on at
+        most :data:`canal_core.alignment.DTW_SAMPLES` samples and resampled along that warp
+        (the same rhythm at different paces is aligned at a small fixed cost); "dtw": the
+        same DTW on all ``n_samples`` samples (cost grows as ``n_samples`` squared).
     directrix : {"mean", "gmr"}
     n_samples : int
         N, the number of cross-sections.
@@ -146,8 +152,11 @@ def fit(
     clock = chosen_clock(positions, stamped, asked)
     times = alignment_parameters(positions, stamped, clock)
 
-    if options.alignment == "dtw":
-        aligned = dtw_aligned_demonstrations(positions, times, options.n_samples)
+    warps = None
+    if options.alignment in ("dtw", "warp"):
+        warps = dtw_parameters(positions, times, options.n_samples,
+                               resolution=DTW_SAMPLES if options.alignment == "warp" else None)
+        aligned = splines_at(positions, times, warps)
     else:
         aligned = resampled_demonstrations(positions, times, options.n_samples)
 
@@ -193,16 +202,19 @@ def fit(
     samples = np.vstack([np.take(d, p.sample_rows, axis=0) for d, p in zip(demos_, prepared, strict=True)])
     phase = np.concatenate([p.sample_phase for p in prepared])
     # Each sample starts its search at the sections its demo crosses there (not at its own
-    # phase): demos ahead of or behind the mean are then found at once.
+    # phase): demos ahead of or behind the mean are then found at once. A warped demo's
+    # phase is first read through its warp (the aligned sample at that parameter).
+    grid = np.arange(options.n_samples, dtype=np.float64)
     approx = np.rint(np.concatenate([
-        sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1))
+        sections_of_samples(crossing_index, j, p.sample_phase * (options.n_samples - 1) if warps is None
+                            else np.interp(p.sample_phase, warps[j], grid))
         for j, p in enumerate(prepared)
     ])).astype(np.int64)
     enclosure = enclosing_scales(samples, approx, centres, tangents, basis, sections)
     sections = scaled_sections(sections, enclosure.scale)
     orientation = None
     if quats_ is not None:
-        orientation = _fitted_orientation(prepared, times, quats_, options)
+        orientation = _fitted_orientation(prepared, times, quats_, options, warps)
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
         section_times=section_times(positions, stamped, options.n_samples, times),
@@ -225,6 +237,7 @@ def _fitted_orientation(
     times: list[FloatArray | None],
     quaternions: list[FloatArray],
     options: FitOptions,
+    warps: FloatArray | None = None,
 ) -> OrientationModel:
     """The orientation model on the same alignment as the positions.
 
@@ -234,8 +247,11 @@ def _fitted_orientation(
     """
     positions = [p.positions for p in prepared]
     parameters = [spline_parameter(d, t) for d, t in zip(positions, times, strict=True)]
-    if options.alignment == "dtw":
-        at = dtw_parameters(positions, times, options.n_samples)
+    if warps is not None:
+        at = warps
+    elif options.alignment in ("dtw", "warp"):
+        at = dtw_parameters(positions, times, options.n_samples,
+                            resolution=DTW_SAMPLES if options.alignment == "warp" else None)
     else:
         at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(prepared), options.n_samples))
     return fitted_orientations([q[p.rows] for q, p in zip(quaternions, prepared, strict=True)], parameters, at)

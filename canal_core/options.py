@@ -16,7 +16,10 @@ from .sections import section_kinds
 from .validation import check_choice, check_fraction, check_int, check_positive
 
 FrameKind = Literal["rmf", "frenet"]
-AlignmentKind = Literal["spline", "dtw"]
+#: "spline": resampled evenly in the clock's parameter (the paper); "warp": each demo then
+#: warped onto their mean by DTW on at most 64 samples, the warp interpolated to N (the
+#: default); "dtw": DTW on all N samples (cost N^2 per demo).
+AlignmentKind = Literal["spline", "dtw", "warp"]
 DirectrixKind = Literal["mean", "gmr"]
 #: The built-in choices of ``cross_section`` ("interval" is the 2-D form of each and is not
 #: chosen by name); kinds registered later are accepted by :func:`canal_core.fit.fit` too
@@ -57,7 +60,7 @@ class FitOptions:
     #: One of :data:`CROSS_SECTIONS`.
     cross_section: str = "circle"
     frames: FrameKind = "rmf"
-    alignment: AlignmentKind = "spline"
+    alignment: AlignmentKind = "warp"
     directrix: DirectrixKind = "mean"
     #: In [MIN_SAMPLES, MAX_SAMPLES].
     n_samples: int = 200
@@ -72,7 +75,7 @@ class FitOptions:
 def fit_options(
     cross_section: str = "circle",
     frames: str = "rmf",
-    alignment: str = "spline",
+    alignment: str = FitOptions.alignment,
     directrix: str = "mean",
     n_samples: int = 200,
     frame_smoothing: float = FitOptions.frame_smoothing,

@@ -94,6 +94,74 @@ def dtw_path(a: FloatArray, b: FloatArray, band: int | None = None) -> tuple[Int
     return pairs[:, 0], pairs[:, 1]
 
 
+def banded_dtw_path(a: FloatArray, b: FloatArray, band: int) -> tuple[IntArray, IntArray]:
+    """:func:`dtw_path` within a Sakoe-Chiba band, computed over the band's cells only.
+
+    The table is stored by anti-diagonal (k = i + j), so each step of the fill reads and
+    writes contiguous slices of the band's cells on diagonals k - 1 and k - 2: its cost
+    follows the band's width, not the whole table's. A cell (i, j) is in the band when
+    |i (m - 1) / (n - 1) - j| <= ``band``, as in :func:`band_mask`.
+
+    Parameters
+    ----------
+    a : array, shape (n, D)
+    b : array, shape (m, D)
+    band : int
+        Half-width in samples of ``b`` (at least 1).
+
+    Returns
+    -------
+    ia, ib : arrays of int, shape (L,)
+        Matched index pairs, monotone, from (0, 0) to (n - 1, m - 1).
+    """
+    n, m = a.shape[0], b.shape[0]
+    if n == 1 or m == 1:
+        return dtw_path(a, b, band)
+    ratio = (m - 1) / (n - 1)
+    # Band cells per row i: j in [ceil(i r - band), floor(i r + band)] within [0, m - 1].
+    rows = np.arange(n)
+    j_lo = np.clip(np.ceil(rows * ratio - band - 1e-9).astype(np.int64), 0, m - 1)
+    j_hi = np.clip(np.floor(rows * ratio + band + 1e-9).astype(np.int64), 0, m - 1)
+    ii = np.repeat(rows, j_hi - j_lo + 1)
+    jj = np.concatenate([np.arange(lo, hi + 1) for lo, hi in zip(j_lo.tolist(), j_hi.tolist(), strict=True)])
+    n_diag = n + m - 1
+    # Diagonal-major cost and table, column c = i + 1 (column 0: the padding at i = -1).
+    cost = np.full((n_diag, n + 1), np.inf)
+    diff = a[ii] - b[jj]
+    cost[ii + jj, ii + 1] = np.sqrt(np.einsum("pd,pd->p", diff, diff))
+    table = np.full((n_diag, n + 1), np.inf)
+    # The band's rows on diagonal k: from the first cell (ii + jj == k) to the last.
+    k_cells = ii + jj
+    i_lo = np.full(n_diag, n, dtype=np.int64)
+    i_hi = np.full(n_diag, -1, dtype=np.int64)
+    np.minimum.at(i_lo, k_cells, ii)
+    np.maximum.at(i_hi, k_cells, ii)
+    table[0, 1] = cost[0, 1]
+    lows, highs = i_lo.tolist(), i_hi.tolist()
+    for k in range(1, n_diag):
+        lo, hi = lows[k], highs[k] + 1
+        if hi <= lo:
+            continue
+        best = np.minimum(table[k - 1, lo:hi], table[k - 1, lo + 1 : hi + 1])
+        if k >= 2:
+            np.minimum(best, table[k - 2, lo:hi], out=best)
+        table[k, lo + 1 : hi + 1] = cost[k, lo + 1 : hi + 1] + best
+    # Backtrack: (i - 1, j - 1) is diagonal k - 2, (i - 1, j) and (i, j - 1) are k - 1.
+    i, k = n - 1, n_diag - 1
+    path_i, path_k = [i], [k]
+    while k > 0:
+        options = (
+            (table[k - 2, i] if k >= 2 and i >= 1 else np.inf, k - 2, i - 1),
+            (table[k - 1, i] if i >= 1 else np.inf, k - 1, i - 1),
+            (table[k - 1, i + 1] if k - 1 - i >= 0 else np.inf, k - 1, i),
+        )
+        _, k, i = min(options, key=lambda o: o[0])
+        path_i.append(i)
+        path_k.append(k)
+    ia = np.asarray(path_i[::-1], dtype=np.int64)
+    return ia, np.asarray(path_k[::-1], dtype=np.int64) - ia
+
+
 def dtw_distance(a: FloatArray, b: FloatArray, band: int | None = None) -> float:
     """Sum of matched Euclidean distances along the optimal DTW path (unnormalised)."""
     return float(dtw_table(a, b, band)[-1, -1])

@@ -60,7 +60,8 @@ def test_section_means_are_markley_means_and_ignore_signs() -> None:
 
 def test_reproduction_without_start_orientation_follows_the_section_means() -> None:
     demos, quats = persistent_set([-10.0, -5.0, 0.0, 5.0, 10.0])
-    canal = canal_core.fit(demos, orientations=quats, n_samples=60)
+    # Resampled evenly (the demos share one pace): section k is the profile's sample k.
+    canal = canal_core.fit(demos, orientations=quats, n_samples=60, alignment="spline")
     assert canal.has_orientation and canal.orientation is not None
     rep = canal.reproduce_detailed(demos[2][0])
     assert rep.orientations is not None and rep.orientation_eta is None
@@ -74,7 +75,7 @@ def test_reproduction_without_start_orientation_follows_the_section_means() -> N
 
 def test_a_persistent_start_offset_is_carried_to_the_end() -> None:
     demos, quats = persistent_set([-12.0, -4.0, 4.0, 12.0])
-    canal = canal_core.fit(demos, orientations=quats, n_samples=60)
+    canal = canal_core.fit(demos, orientations=quats, n_samples=60, alignment="spline")
     start_q = (profile()[0] * Rotation.from_euler("x", 8.0, degrees=True)).as_quat()
     rep = canal.reproduce_detailed(arc(1)[0], start_orientation=-start_q)
     assert rep.orientations is not None
@@ -95,7 +96,7 @@ def test_an_offset_the_demos_did_not_keep_blends_back_to_the_mean() -> None:
         fade = np.clip(1.0 - 3.0 * s, 0.0, 1.0)
         demos.append(arc(j))
         quats.append((profile() * Rotation.from_euler("x", a * fade[:, None], degrees=True)).as_quat())
-    canal = canal_core.fit(demos, orientations=quats, n_samples=60)
+    canal = canal_core.fit(demos, orientations=quats, n_samples=60, alignment="spline")
     start_q = Rotation.from_euler("x", 8.0, degrees=True).as_quat()
     rep = canal.reproduce_detailed(arc(1)[0], start_orientation=start_q)
     assert rep.orientations is not None
