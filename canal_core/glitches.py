@@ -229,14 +229,16 @@ def _spikes(positions: FloatArray, starts: IntArray, ends: IntArray) -> np.ndarr
     for first, last in zip(starts.tolist(), ends.tolist(), strict=True):
         arc[first] = 0.0
         np.cumsum(steps[first:last], out=arc[first + 1 : last + 1])
-    fewest_steps = int((ends - starts).min())
-    # Short parts clip the excursions and the median windows to what they have.
+    lone = starts.size == 1
+    # Several parts all have BATCHED_SPIKE_MIN rows; a lone part may have fewer, and then
+    # clips the excursions and the median windows to what it has.
+    fewest_steps = int(ends[0] - starts[0]) if lone else BATCHED_SPIKE_MIN - 1
     longest = min(MAX_GLITCH_RUN, fewest_steps - 1)
     width = min(2 * SPIKE_WINDOW + 1, fewest_steps)
     wide = min(2 * GLITCH_SCALE_WINDOW + MAX_GLITCH_RUN + 1, fewest_steps)
     chords, spans = _chords_and_spans(positions, arc, longest)
     candidate = spans > 2.0 * CHORD_FACTOR * chords
-    if starts.size == 1:
+    if lone:
         # A lone part: windows past its end read the NaN padding and fail the test anyway,
         # and its bounds need not be copied for every row.
         row_first, row_last = np.broadcast_to(starts, (total,)), np.broadcast_to(ends, (total,))
