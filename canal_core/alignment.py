@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .validation import FloatArray
-from .warping import banded_dtw_path, dtw_path
+from .warping import banded_mean_matches, dtw_path
 
 if TYPE_CHECKING:
     from scipy.interpolate import CubicSpline
@@ -20,8 +20,11 @@ if TYPE_CHECKING:
 #: Samples the "warp" alignment matches the demonstrations on (:func:`dtw_parameters`):
 #: measured leave-one-out on RAIL, 64 aligned as well as 200 and as all N.
 DTW_SAMPLES = 64
-#: Most samples matched by :func:`canal_core.warping.banded_dtw_path` (its table is 2m x m).
+#: Most samples matched by :func:`canal_core.warping.banded_mean_matches` (its tables are
+#: 2m x m per demo); longer matches go through :func:`canal_core.warping.dtw_path`.
 BANDED_LIMIT = 1000
+#: Table entries :func:`dtw_parameters` gives the banded kernel at once (a few tens of MB).
+BANDED_ENTRIES = 1 << 21
 #: Smallest step of a warp, in reference samples (keeps every warp strictly increasing).
 MIN_WARP_STEP = 1e-6
 
@@ -240,12 +243,19 @@ def dtw_parameters(
     parameters = np.empty((len(demos), n_samples))
     grid = np.linspace(0.0, 1.0, n_samples)
     coarse = np.linspace(0.0, 1.0, m)
+    if m <= BANDED_LIMIT:
+        # The banded kernel's diagonal-major tables hold (2m) x m entries per demo: a few
+        # demos at a time at fine resolution, all of them at the warp's coarse one.
+        step = max(1, BANDED_ENTRIES // (2 * m * m))
+        matched = np.concatenate([banded_mean_matches(reference, resampled[j : j + step], width)
+                                  for j in range(0, len(demos), step)])
+    else:
+        matched = np.empty((len(demos), m))
+        for j in range(len(demos)):
+            i_ref, i_demo = dtw_path(reference, resampled[j], band=width)
+            matched[j] = np.bincount(i_ref, weights=i_demo, minlength=m) / np.bincount(i_ref, minlength=m)
     for j in range(len(demos)):
-        # The banded kernel's diagonal-major table is (2m) x m: at coarse resolution only.
-        path = banded_dtw_path if m <= BANDED_LIMIT else dtw_path
-        i_ref, i_demo = path(reference, resampled[j], width)
-        counts = np.bincount(i_ref, minlength=m)
-        mean_index = np.bincount(i_ref, weights=i_demo, minlength=m) / counts
+        mean_index = matched[j]
         # Averaging keeps the map monotone; pin the ends so every demo spans its whole path.
         mean_index[0], mean_index[-1] = 0.0, m - 1.0
         warp = strictly_increasing_warp(mean_index, m - 1.0) / (m - 1)

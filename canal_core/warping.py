@@ -162,6 +162,84 @@ def banded_dtw_path(a: FloatArray, b: FloatArray, band: int) -> tuple[IntArray, 
     return ia, np.asarray(path_k[::-1], dtype=np.int64) - ia
 
 
+def banded_mean_matches(a: FloatArray, curves: FloatArray, band: int) -> FloatArray:
+    """For every row of ``a``, the mean index of the samples of each curve matched to it on
+    the curve's :func:`banded_dtw_path` with ``a``, all curves at once.
+
+    The same tables and tie-breaking as :func:`banded_dtw_path`, filled and backtracked for
+    every curve in one pass: one numpy step per anti-diagonal and per backtracking step,
+    whatever the number of curves.
+
+    Parameters
+    ----------
+    a : array, shape (n, D)
+    curves : array, shape (c, m, D)
+    band : int
+        Half-width in samples of the curves (at least 1).
+
+    Returns
+    -------
+    mean_index : array, shape (c, n)
+    """
+    n, m, count = a.shape[0], curves.shape[1], curves.shape[0]
+    if n == 1 or m == 1:
+        out = np.empty((count, n))
+        for c in range(count):
+            ia, ib = dtw_path(a, curves[c], band)
+            out[c] = np.bincount(ia, weights=ib, minlength=n) / np.bincount(ia, minlength=n)
+        return out
+    ratio = (m - 1) / (n - 1)
+    rows = np.arange(n)
+    j_lo = np.clip(np.ceil(rows * ratio - band - 1e-9).astype(np.int64), 0, m - 1)
+    j_hi = np.clip(np.floor(rows * ratio + band + 1e-9).astype(np.int64), 0, m - 1)
+    ii = np.repeat(rows, j_hi - j_lo + 1)
+    jj = np.concatenate([np.arange(lo, hi + 1) for lo, hi in zip(j_lo.tolist(), j_hi.tolist(), strict=True)])
+    n_diag = n + m - 1
+    cost = np.full((count, n_diag, n + 1), np.inf)
+    diff = a[ii][None, :, :] - curves[:, jj, :]
+    cost[:, ii + jj, ii + 1] = np.sqrt(np.einsum("cpd,cpd->cp", diff, diff))
+    table = np.full((count, n_diag, n + 1), np.inf)
+    k_cells = ii + jj
+    i_lo = np.full(n_diag, n, dtype=np.int64)
+    i_hi = np.full(n_diag, -1, dtype=np.int64)
+    np.minimum.at(i_lo, k_cells, ii)
+    np.maximum.at(i_hi, k_cells, ii)
+    table[:, 0, 1] = cost[:, 0, 1]
+    lows, highs = i_lo.tolist(), i_hi.tolist()
+    for k in range(1, n_diag):
+        lo, hi = lows[k], highs[k] + 1
+        if hi <= lo:
+            continue
+        best = np.minimum(table[:, k - 1, lo:hi], table[:, k - 1, lo + 1 : hi + 1])
+        if k >= 2:
+            np.minimum(best, table[:, k - 2, lo:hi], out=best)
+        table[:, k, lo + 1 : hi + 1] = cost[:, k, lo + 1 : hi + 1] + best
+    # Backtrack each curve on plain lists (scalar reads of numpy arrays cost several times more).
+    out = np.empty((count, n))
+    for c in range(count):
+        rows_ = table[c].tolist()
+        i, k = n - 1, n_diag - 1
+        sums = [0.0] * n
+        counts = [0] * n
+        sums[i] += k - i
+        counts[i] += 1
+        while k > 0:
+            # In dtw_path's order on ties: (i - 1, j - 1), (i - 1, j), (i, j - 1).
+            low: float = float("inf")
+            nk, ni = 0, 0
+            if k >= 2 and i >= 1:
+                low, nk, ni = rows_[k - 2][i], k - 2, i - 1
+            if i >= 1 and rows_[k - 1][i] < low:
+                low, nk, ni = rows_[k - 1][i], k - 1, i - 1
+            if k - 1 - i >= 0 and rows_[k - 1][i + 1] < low:
+                low, nk, ni = rows_[k - 1][i + 1], k - 1, i
+            k, i = nk, ni
+            sums[i] += k - i
+            counts[i] += 1
+        out[c] = np.asarray(sums) / np.asarray(counts)
+    return out
+
+
 def dtw_distance(a: FloatArray, b: FloatArray, band: int | None = None) -> float:
     """Sum of matched Euclidean distances along the optimal DTW path (unnormalised)."""
     return float(dtw_table(a, b, band)[-1, -1])

@@ -8,7 +8,7 @@ import pytest
 
 import canal_core
 from canal_core.alignment import DTW_SAMPLES, dtw_parameters, resampled_demonstrations, splines_at
-from canal_core.warping import banded_dtw_path, dtw_path
+from canal_core.warping import banded_dtw_path, banded_mean_matches, dtw_path
 
 
 @pytest.mark.parametrize(("n", "m", "band"), [(40, 40, 4), (64, 64, 6), (50, 80, 8), (80, 50, 5), (30, 30, 1)])
@@ -21,6 +21,17 @@ def test_the_banded_kernel_finds_the_same_path(n: int, m: int, band: int, seed: 
     ja, jb = dtw_path(a, b, band=band)
     np.testing.assert_array_equal(ia, ja)
     np.testing.assert_array_equal(ib, jb)
+
+
+@pytest.mark.parametrize(("n", "m", "band"), [(64, 64, 6), (50, 80, 8), (80, 50, 5)])
+def test_the_batched_kernel_matches_each_path(n: int, m: int, band: int) -> None:
+    rng = np.random.default_rng(n + m)
+    a = np.cumsum(rng.normal(size=(n, 3)), axis=0)
+    curves = np.cumsum(rng.normal(size=(4, m, 3)), axis=1)
+    got = banded_mean_matches(a, curves, band)
+    for c in range(4):
+        ia, ib = dtw_path(a, curves[c], band=band)
+        np.testing.assert_allclose(got[c], np.bincount(ia, weights=ib, minlength=n) / np.bincount(ia, minlength=n))
 
 
 def paced(pace: float, n_rows: int = 400) -> np.ndarray:
