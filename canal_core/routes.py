@@ -18,11 +18,17 @@ A route needs two demonstrations (a canal is the envelope of several): a lone de
 joins the route nearest to it. ``routes=1`` forces one route (one canal, as before).
 
 Choosing a route. A start is given to the route whose entry holds it: inside that route's
-canal, located in its first third. When exactly one route's entry holds it, that route; when
-none does, the route whose entry is nearest (the start's smallest distance to the first third
-of its directrix, over the route's radius there). When several hold it (routes that share their
-start and part later: the start cannot tell them apart), the canal of all the demonstrations is
-used and the answer says so (route None).
+canal, located in its first third. When exactly one route's entry holds it, that route ("entry").
+Otherwise the route whose entry passes nearest the start,
+
+    g_k = min_{i < N_k / 3} |x_0 - c_k(i)|                                        (R2)
+
+(c_k the route's directrix): among all routes when no entry holds the start ("nearest"), among
+those that hold it when several do ("shared": routes that share their start and part later;
+the start cannot tell them apart, and the canal of all the demonstrations would go between
+them, where no demonstration went). Measured leave-one-out on LASA's multi-route shapes and
+RAIL reaching (``bench/quality.py``), the plain distance of (R2) picks better than the same
+distance over the route's radius (which draws starts to the widest route) or the canal of all.
 """
 
 from __future__ import annotations
@@ -119,11 +125,12 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
 
 @dataclass(frozen=True, eq=False)
 class RouteChoice:
-    """Which canal a start follows: ``route`` (None: the canal of all demonstrations) and why."""
+    """Which canal a start follows: ``route`` (None: the canal of all demonstrations, which
+    :meth:`Routes.choose` answers for a model of one route only) and why."""
 
     route: int | None
-    #: "entry" (one route's entry holds the start), "nearest" (none holds it), "shared"
-    #: (several hold it), "single" (one route only).
+    #: "entry" (one route's entry holds the start), "nearest" (none holds it: the nearest
+    #: entry), "shared" (several hold it: the nearest of those), "single" (one route only).
     reason: str
 
 
@@ -160,12 +167,11 @@ class Routes:
             loc = canal.locate(point[None, :])
             if bool(canal.contains(point[None, :])[0]) and int(loc.index[0]) < entry:
                 held.append(k)
-            dist = np.linalg.norm(canal.directrix[:entry] - point, axis=1) / np.maximum(canal.radii[:entry], 1e-300)
-            gaps.append(float(dist.min()))
+            gaps.append(float(np.linalg.norm(canal.directrix[:entry] - point, axis=1).min()))  # (R2)
         if len(held) == 1:
             return RouteChoice(held[0], "entry")
         if len(held) > 1:
-            return RouteChoice(None, "shared")
+            return RouteChoice(min(held, key=gaps.__getitem__), "shared")
         return RouteChoice(int(np.argmin(gaps)), "nearest")
 
     def canal_for(self, choice: RouteChoice) -> Any:

@@ -547,11 +547,11 @@ class ReproductionOut(BaseModel):
         description="What the service did that the request did not say, e.g. "
                     "'model has no orientation: start_orientation ignored'.")
     route: int | None = Field(
-        None, description="The route followed (0, 1, ...); null: the model's one canal, or "
-                          "the canal of all the demonstrations (route_reason 'shared').")
+        None, description="The route followed (0, 1, ...); null: the model's one canal.")
     route_reason: str | None = Field(
         None, description="Why that route: 'single' (one route), 'entry' (its entry holds the "
-                          "start), 'nearest' (no entry holds it), 'shared' (several do), "
+                          "start), 'nearest' (no entry holds it: the nearest entry), 'shared' "
+                          "(several do: the nearest of those), "
                           "'forced' (the request's route).")
 
 

@@ -53,12 +53,18 @@ def test_a_start_follows_the_route_whose_entry_holds_it_and_no_canal_between_the
     assert abs(pooled.positions[pooled.positions.shape[0] // 2][1]) < 0.3
 
 
-def test_routes_that_share_their_start_follow_the_canal_of_all_and_say_so() -> None:
+def test_routes_that_share_their_start_follow_one_demonstrated_route_and_say_so() -> None:
     routes = canal_core.fit_routes(two_route_demos(shared_start=True), n_samples=60)
     assert routes.n_routes == 2
-    choice = routes.choose(np.array([0.0, 0.0, 0.0]))
-    assert choice.route is None and choice.reason == "shared"
-    assert routes.canal_for(choice) is routes.pooled
+    start = np.array([0.0, 0.0, 0.0])
+    choice = routes.choose(start)
+    assert choice.reason == "shared" and choice.route in (0, 1)
+    # The route goes round the middle on its side, as its demonstrations did; the canal of
+    # all would pass through the middle.
+    path = routes.canal_for(choice).reproduce_detailed(start).positions
+    assert abs(path[path.shape[0] // 2][1]) > 0.3
+    pooled = routes.pooled.reproduce_detailed(start).positions
+    assert abs(pooled[pooled.shape[0] // 2][1]) < 0.3
 
 
 def test_a_routes_model_round_trips_and_a_bad_one_is_refused() -> None:

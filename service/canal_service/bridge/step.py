@@ -4,10 +4,9 @@ section its robot is at on a new stream or a restart, at the section and plan it
 model switch; a steered stream's plan moved by its person's input.
 
 A model of several routes steps each route's streams in that route's bank: a stream takes the
-route whose entry holds its first pose (the nearest entry when none does; the canal of all
-when several do) and keeps it while the model version stays; on a new version it keeps its
-route number when the new model has it, else it is chosen again from its pose; a restart
-chooses again."""
+route whose entry holds its first pose (the nearest entry when none or several do) and keeps
+it while the model version stays; on a new version it keeps its route number when the new
+model has it, else it is chosen again from its pose; a restart chooses again."""
 
 from __future__ import annotations
 
