@@ -271,6 +271,8 @@ def test_fit_routes_and_reproduce_print_the_route(run: Run, unique_name: Callabl
     r = run("--json", "reproduce", name, "--start", start, "--route", "0")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["route"] == 0
+    r = run("skill", "show", name)
+    assert r.exit_code == 0 and "routes" in r.stdout
     r = run("--json", "fit", name, "--samples", "40", "--routes", "1")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["routes"] == 1

@@ -92,11 +92,12 @@ def corrections_list(ctx: typer.Context, skill: str) -> None:
         print_json(rows)
         return
     table = Table("id", "kind", "label", "points", "sections", "made version", "undone",
-                  "created", title="corrections")
+                  "created", "route", title="corrections")
     for r in rows:
         table.add_row(str(r.id), r.kind, escape(r.label), str(r.n_points),
                       f"{r.first_section}-{r.last_section}", str(r.model_version),
-                      "yes" if r.undone else "", time_text(r.created_at))
+                      "yes" if r.undone else "", time_text(r.created_at),
+                      "" if r.route is None else str(r.route))
     out.print(table)
 
 

@@ -70,11 +70,11 @@ def skill_show(ctx: typer.Context, name: str) -> None:
     if demos:
         out.print(demo_table(demos))
     if models:
-        table = Table("version", "section", "demos", "sections", "fit s", "created",
+        table = Table("version", "section", "demos", "sections", "routes", "fit s", "created",
                       title="models")
         for m in models:
             table.add_row(str(m.version), m.section_kind, str(m.n_demos), str(m.n_sections),
-                          f"{m.fit_seconds:.3f}", time_text(m.created_at))
+                          str(m.routes), f"{m.fit_seconds:.3f}", time_text(m.created_at))
         out.print(table)
 
 
