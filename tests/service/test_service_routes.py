@@ -138,6 +138,13 @@ def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx
     refit = canal_core.routes.routes_from_dict(
         http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
     assert len(refit.canals[1].corrections) == 1 and len(refit.canals[0].corrections) == 0
+    # Undone: a new version of two routes without it.
+    r = http.delete(f"/skills/reach/corrections/{made['correction']['id']}")
+    assert r.status_code == 200, r.text
+    assert r.json()["routes"] == 2 and r.json()["corrections"] == []
+    undone = canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+    assert undone.n_routes == 2 and not any(c.corrections for c in undone.canals)
 
 
 def test_a_stored_model_loads_after_a_restart(tmp_path: object, settings: Settings) -> None:
