@@ -3,6 +3,7 @@ its first pose and follows it; answers and /healthz say which."""
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -10,11 +11,18 @@ import orjson
 import pytest
 from canal_client.live import PoseStreamer
 from canal_client.sim import run_sim
-from canal_testing import ROUTE_STARTS, path_distance, two_route_demo
+from canal_service.app import create_app
+from canal_service.bridge.bridge import shard_of
+from canal_service.core.config import Settings
+from canal_testing import ROUTE_STARTS, free_port, path_distance, two_route_demo
 from live_helpers import wait_until
 
 import canal_core
 from canal_protocol import wire
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    from fastapi.testclient import TestClient
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -98,3 +106,33 @@ def test_a_json_answer_says_the_route_only_for_a_model_of_several() -> None:
                                                   1, None, None, 0, route))
         assert body["route"] == route
         assert wire.decode_target_json(orjson.dumps(body)).route == route
+
+
+def test_bridge_processes_serve_routes_and_healthz_sums_them(tmp_path: Any) -> None:
+    """The default deployment (bridges in processes of their own, here two shards): each
+    stream follows its route, and /healthz adds up every shard's streams by route."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
+                        zenoh_processes=2)
+    robots = [f"r{i}" for i in range(6)]
+    assert {shard_of("reach", r, 2) for r in robots} == {0, 1}
+    with TestClient(create_app(settings)) as client:
+        assert client.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+        for j in range(8):
+            assert client.post("/skills/reach/demonstrations",
+                               json={"positions": two_route_demo(j).tolist()}).status_code == 201
+        assert client.post("/skills/reach/fit", json={"n_samples": 60}).json()["routes"] == 2
+        streamers = [PoseStreamer("reach", r, endpoint=endpoint, encoding="json") for r in robots]
+        try:
+            for i, ps in enumerate(streamers):
+                answer = ps.wait_for(ps.send(ROUTE_STARTS[i % 2]), timeout=10.0)
+                assert answer is not None and answer.route == i % 2, (robots[i], answer)
+
+            def by_route() -> Any:
+                counts = client.get("/healthz").json()["bridge"]["routes"].get("reach", {})
+                return counts if sum(counts.values()) == len(robots) else None
+
+            assert wait_until(by_route, 5.0) == {"0": 3, "1": 3}
+        finally:
+            for ps in streamers:
+                ps.close()
