@@ -3,9 +3,13 @@
 Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
 start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
 subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
-canal variants: no warp, arc-length clock, the fixed entry, constant persistence, persistence
+canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, the fixed entry, constant persistence, persistence
 learned to the end, the other section kinds).
 ``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
+
+``canal (defaults)`` is what ``canal serve`` fits with its defaults: ``canal_core.routes.fit_routes``
+(one canal per route when the demonstrations go different ways, else one canal); the other canal
+rows are single canals (``canal_core.fit``) with one option changed.
 
 Protocol (every method gets the same arrays, as users' demonstrations are measured from
 outside): every demo is trimmed of its still head and tail (samples within 1 mm, in the set's
@@ -294,10 +298,12 @@ PEERS: dict[str, tuple[Fit, Reproduce]] = {
     "DMP": (dmp_fit, dmp_reproduce),
     "ProMP-cond": (promp_fit, promp_reproduce),
 }
+# What `canal serve` fits with its defaults: the demonstrations split into routes when they go
+# different ways, one canal per route.
 DEFAULT = "canal (defaults)"
 CANALS: dict[str, tuple[Fit, Reproduce]] = {
-    DEFAULT: canal_method(),
-    "canal, routes": routes_method(),
+    DEFAULT: routes_method(),
+    "canal, one route": canal_method(),
     "canal, no warp (clock only)": canal_method(alignment="spline"),
     "canal, aligned by arc length": canal_method(timing="arc"),
     "canal, fixed 10 % entry": canal_method(entry=0.1),
