@@ -9,12 +9,19 @@ and b = a + m + 1 holds a glitch at interior sample k when
     |x_k - (x_a + x_b) / 2| > SPIKE_FACTOR x (m + 1) / 2 x (local step),
 
 the local step being the median of the 5 steps around a single sample, of the 17 steps around
-a longer excursion (a resampled glitch brings its own ramps). Real motion cannot pass both:
-for monotone sampling of a curve that distance is at most half the chord, and at a genuine
-reversal (out and back along a line) about one step per sample of the excursion. An end
-sample has no sample beyond it; it is a glitch when its step dwarfs both the next step and
-the local step. The test runs again on what is left (``GLITCH_PASSES`` passes), which catches
-the partial ramps around a removed glitch.
+a longer excursion (a resampled glitch brings its own ramps), and
+
+    |x_k - (x_a + x_b) / 2| > GLITCH_FLOOR x (robust path length of the demonstration).
+
+Smooth motion cannot pass the first two: for monotone sampling of a curve that distance is
+at most half the chord, and at a genuine reversal (out and back along a line) about one step
+per sample of the excursion. Where the arm moves a fraction of a millimetre per sample,
+though, a genuine dip of a millimetre is many steps deep and off its chord; the floor keeps
+every excursion too small to matter (see ``GLITCH_FLOOR``), so the canal encloses it rather
+than leaving it out. An end sample has no sample beyond it; it is a glitch when its step
+dwarfs both the next step and the local step, and exceeds the floor. The test runs again on
+what is left (``GLITCH_PASSES`` passes), which catches the partial ramps around a removed
+glitch; every pass keeps the floor of the whole demonstration.
 
 The rule is written once, over *parts*: demonstrations (or stretches of one) concatenated,
 each window and each local median kept inside its own part, so a fit tests all its demos in
@@ -47,6 +54,15 @@ GLITCH_SCALE_WINDOW = 5
 #: Samples on each side of a removed glitch whose verdict the next pass can change: a
 #: window reaches 6 samples, a local median 8 steps beyond the window's centre.
 GLITCH_REACH = 16
+#: Smallest deviation dropped, as a fraction of the demonstration's robust path length: an
+#: excursion nearer the path than this is kept whatever its steps. Kept, it widens the canal
+#: by at most its deviation and moves the demo's arc-length phase by at most twice this
+#: fraction; dropped, it may lie outside the canal fitted without it. Slow kinesthetic motion (a fraction of a millimetre per sample) has
+#: genuine dips of 1-2 mm, 0.2 % of a 0.5 m path; an IK/TF glitch or a dropout is a sizeable
+#: share of the path.
+GLITCH_FLOOR = 0.01
+#: Chords of the robust path length: at most this many, so jitter does not inflate it.
+PATH_CHORDS = 256
 #: Fewest samples a part needs for the test: fewer are never flagged.
 MIN_TESTED = 5
 #: Shortest part :func:`spike_masks` tests together with others: from here on every window
@@ -72,6 +88,36 @@ def step_lengths(positions: FloatArray) -> FloatArray:
     """
     diffs = positions[1:] - positions[:-1]
     return np.asarray(np.sqrt(np.einsum("ij,ij->i", diffs, diffs)), dtype=np.float64)
+
+
+def robust_path_length(positions: FloatArray) -> float:
+    """Path length measured on at most ``PATH_CHORDS`` chords (jitter does not add up).
+
+    Parameters
+    ----------
+    positions : array, shape (T, D)
+    """
+    stride = max(1, -(-(positions.shape[0] - 1) // PATH_CHORDS))
+    coarse = positions[::stride]
+    if (positions.shape[0] - 1) % stride:
+        coarse = np.vstack([coarse, positions[-1:]])
+    return float(step_lengths(coarse).sum())
+
+
+def glitch_floor(positions: FloatArray) -> float:
+    """Smallest deviation the glitch rule drops in this demonstration.
+
+    Parameters
+    ----------
+    positions : array, shape (T, D)
+        The whole demonstration (its stretches re-tested later keep this floor).
+
+    Returns
+    -------
+    floor : float
+        ``GLITCH_FLOOR`` x its robust path length.
+    """
+    return GLITCH_FLOOR * robust_path_length(positions)
 
 
 def _local_medians(steps: FloatArray, width: int, at: IntArray, first: IntArray, last: IntArray) -> FloatArray:
@@ -143,7 +189,7 @@ def _chords_and_spans(positions: FloatArray, arc: FloatArray,
 
 
 def _excursion_glitches(positions: FloatArray, steps: FloatArray, row_first: IntArray, row_last: IntArray,
-                        hit: IntArray, chords: FloatArray, spans: FloatArray,
+                        row_floor: FloatArray, hit: IntArray, chords: FloatArray, spans: FloatArray,
                         width: int, wide: int) -> IntArray:
     """Rows of the glitch samples inside the excursions left by the window-level test.
 
@@ -154,6 +200,8 @@ def _excursion_glitches(positions: FloatArray, steps: FloatArray, row_first: Int
     steps : array, shape (n - 1,)
     row_first, row_last : array of int, shape (n,)
         First and last row of each row's part.
+    row_floor : array, shape (n,)
+        The glitch floor of each row's part.
     hit : array of int, shape (E,)
         Flat indices (m - 1) x (n - 2) + a of the excursions of m interior samples from
         sample a to sample b = a + m + 1 left to test, b inside a's part.
@@ -165,8 +213,9 @@ def _excursion_glitches(positions: FloatArray, steps: FloatArray, row_first: Int
     Returns
     -------
     rows : array of int
-        Interior samples a + k (k = 1..m) farther than both ``CHORD_FACTOR`` x chord and
-        ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step from the chord's midpoint.
+        Interior samples a + k (k = 1..m) farther than ``CHORD_FACTOR`` x chord,
+        ``SPIKE_FACTOR`` x (m + 1) / 2 x the local step and the part's floor from the
+        chord's midpoint.
     """
     n = positions.shape[0]
     run_index, a = np.divmod(hit, n - 2)
@@ -185,7 +234,7 @@ def _excursion_glitches(positions: FloatArray, steps: FloatArray, row_first: Int
             median_at = np.empty(n)
             median_at[at] = _local_medians(steps, window, at, row_first[at], row_last[at])
             step[rows] = median_at[centre[rows]]
-    limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
+    limit = np.maximum(SPIKE_FACTOR * 0.5 * (m + 1) * step, row_floor[a])
     # Half the path (with rounding slack) bounds every interior sample's deviation.
     can = np.flatnonzero(0.5 * (1.0 + 1e-9) * span > limit)
     if not can.size:
@@ -201,7 +250,7 @@ def _excursion_glitches(positions: FloatArray, steps: FloatArray, row_first: Int
     return np.asarray((a[owner] + k)[glitch], dtype=np.intp)
 
 
-def _spikes(positions: FloatArray, starts: IntArray, ends: IntArray) -> np.ndarray:
+def _spikes(positions: FloatArray, starts: IntArray, ends: IntArray, floors: FloatArray) -> np.ndarray:
     """One pass of the glitch rule (see the module docstring) over concatenated parts.
 
     The whole-window tests come first, both from |x_k - (x_a + x_b) / 2| <= (path length
@@ -217,6 +266,8 @@ def _spikes(positions: FloatArray, starts: IntArray, ends: IntArray) -> np.ndarr
     starts, ends : array of int, shape (P,)
         First and last row of each part; every part has at least ``MIN_TESTED`` rows, and
         all of them ``BATCHED_SPIKE_MIN`` when there are several (windows share one width).
+    floors : array, shape (P,)
+        The glitch floor of each part (:func:`glitch_floor` of its whole demonstration).
 
     Returns
     -------
@@ -242,30 +293,38 @@ def _spikes(positions: FloatArray, starts: IntArray, ends: IntArray) -> np.ndarr
         # A lone part: windows past its end read the NaN padding and fail the test anyway,
         # and its bounds need not be copied for every row.
         row_first, row_last = np.broadcast_to(starts, (total,)), np.broadcast_to(ends, (total,))
+        row_floor = np.broadcast_to(floors, (total,))
     else:
         sizes = ends - starts + 1
         row_first, row_last = np.repeat(starts, sizes), np.repeat(ends, sizes)
+        row_floor = np.repeat(floors, sizes)
         # Window (a, m) ends at b = a + m + 1, which must lie in a's part.
         b = np.arange(2, longest + 2)[:, None] + np.arange(total - 2)[None, :]
         candidate &= (b <= row_last[None, : total - 2]).reshape(-1)
     hit = np.flatnonzero(candidate)
     spike = np.zeros(total, dtype=bool)
     if hit.size:
-        spike[_excursion_glitches(positions, steps, row_first, row_last, hit, chords, spans, width, wide)] = True
-    # An end sample is a glitch when its step dwarfs the next one and the local steps.
+        spike[_excursion_glitches(positions, steps, row_first, row_last, row_floor, hit, chords, spans,
+                                    width, wide)] = True
+    # An end sample is a glitch when its step dwarfs the next one and the local steps, and
+    # exceeds the floor.
     head_scale = _local_medians(steps, width, starts + 1, starts, ends)
     tail_scale = _local_medians(steps, width, ends - 1, starts, ends)
-    spike[starts] |= steps[starts] > SPIKE_FACTOR * np.maximum(steps[starts + 1], head_scale) * 2.0
-    spike[ends] |= steps[ends - 1] > SPIKE_FACTOR * np.maximum(steps[ends - 2], tail_scale) * 2.0
+    head, tail = steps[starts], steps[ends - 1]
+    spike[starts] |= (head > SPIKE_FACTOR * np.maximum(steps[starts + 1], head_scale) * 2.0) & (head > floors)
+    spike[ends] |= (tail > SPIKE_FACTOR * np.maximum(steps[ends - 2], tail_scale) * 2.0) & (tail > floors)
     return spike
 
 
-def spike_mask(positions: FloatArray) -> np.ndarray:
+def spike_mask(positions: FloatArray, floor: float | None = None) -> np.ndarray:
     """One pass of the glitch rule over one demonstration.
 
     Parameters
     ----------
     positions : array, shape (T, D)
+    floor : float, optional
+        Smallest deviation dropped; :func:`glitch_floor` of ``positions`` when None (a
+        stretch of a longer demonstration passes that demonstration's).
 
     Returns
     -------
@@ -275,10 +334,12 @@ def spike_mask(positions: FloatArray) -> np.ndarray:
     n = positions.shape[0]
     if n < MIN_TESTED:
         return np.zeros(n, dtype=bool)
-    return _spikes(positions, np.array([0]), np.array([n - 1]))
+    if floor is None:
+        floor = glitch_floor(positions)
+    return _spikes(positions, np.array([0]), np.array([n - 1]), np.array([floor]))
 
 
-def spike_masks(parts: list[FloatArray]) -> list[np.ndarray]:
+def spike_masks(parts: list[FloatArray], floors: list[float] | None = None) -> list[np.ndarray]:
     """:func:`spike_mask` of several demonstrations (or stretches), batched.
 
     Parts are grouped in order into batches of at most ``SPIKE_BATCH_ROWS`` rows (a longer
@@ -288,35 +349,39 @@ def spike_masks(parts: list[FloatArray]) -> list[np.ndarray]:
     Parameters
     ----------
     parts : list of array, each shape (T_j, D)
+    floors : list of float, optional
+        Smallest deviation dropped in each part; :func:`glitch_floor` of each when None.
 
     Returns
     -------
     spikes : list of array of bool, each shape (T_j,)
     """
+    if floors is None:
+        floors = [glitch_floor(p) for p in parts]
     out: list[np.ndarray] = [np.zeros(0, dtype=bool)] * len(parts)
     group: list[int] = []
     rows = 0
     for k, p in enumerate(parts):
         if p.shape[0] < BATCHED_SPIKE_MIN:
-            out[k] = spike_mask(p)
+            out[k] = spike_mask(p, floors[k])
             continue
         if group and rows + p.shape[0] > SPIKE_BATCH_ROWS:
-            _batch_into(parts, group, out)
+            _batch_into(parts, floors, group, out)
             group, rows = [], 0
         group.append(k)
         rows += p.shape[0]
     if group:
-        _batch_into(parts, group, out)
+        _batch_into(parts, floors, group, out)
     return out
 
 
-def _batch_into(parts: list[FloatArray], group: list[int], out: list[np.ndarray]) -> None:
+def _batch_into(parts: list[FloatArray], floors: list[float], group: list[int], out: list[np.ndarray]) -> None:
     """One :func:`_spikes` pass over the parts listed in ``group``, written to ``out``."""
     sizes = np.array([parts[k].shape[0] for k in group])
     starts = np.cumsum(sizes) - sizes
     # A lone part (a long demonstration) is tested in place, not copied.
     positions = parts[group[0]] if len(group) == 1 else np.concatenate([parts[k] for k in group])
-    spike = _spikes(positions, starts, starts + sizes - 1)
+    spike = _spikes(positions, starts, starts + sizes - 1, np.array([floors[k] for k in group]))
     for k, first, size in zip(group, starts.tolist(), sizes.tolist(), strict=True):
         out[k] = spike[first : first + size]
 
@@ -374,12 +439,15 @@ def glitch_masks(parts: list[FloatArray]) -> list[np.ndarray]:
     """
     glitch = [np.zeros(p.shape[0], dtype=bool) for p in parts]
     left = [np.arange(p.shape[0]) for p in parts]
-    found = spike_masks(parts)
+    # Each demonstration's floor, kept for every pass and every stretch re-tested.
+    floors = [glitch_floor(p) for p in parts]
+    found = spike_masks(parts, floors)
     active = list(range(len(parts)))
     for _ in range(GLITCH_PASSES - 1):
         still: list[int] = []
         jobs: list[tuple[int, int, int, int]] = []  # (part, first, last, s0)
         pieces: list[FloatArray] = []
+        piece_floors: list[float] = []
         for j in active:
             if not found[j].any():
                 continue  # final: nothing was removed
@@ -391,7 +459,8 @@ def glitch_masks(parts: list[FloatArray]) -> list[np.ndarray]:
             for first, last, s0, s1 in _stretches_to_retest(left[j], removed):
                 jobs.append((j, first, last, s0))
                 pieces.append(np.take(parts[j], left[j][s0:s1], axis=0))
-        for (j, first, last, s0), verdict in zip(jobs, spike_masks(pieces), strict=True):
+                piece_floors.append(floors[j])
+        for (j, first, last, s0), verdict in zip(jobs, spike_masks(pieces, piece_floors), strict=True):
             found[j][first : last + 1] = verdict[first - s0 : last + 1 - s0]
         active = still
     for j in active:

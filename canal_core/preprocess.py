@@ -29,9 +29,12 @@ The stage only *selects* rows, it never invents values: every output row is an i
 4. **Spikes.** An excursion of m = 1..6 samples that leaves the path and comes back is a
    glitch: its interior sample k is dropped when its distance from the midpoint of the
    samples a and b around the excursion exceeds both ``CHORD_FACTOR`` (2) x |x_b - x_a|
-   and ``SPIKE_FACTOR`` (4) x (m + 1) / 2 local steps (median of the surrounding steps).
-   Real motion cannot: for monotone sampling that distance is at most half the chord, and
-   at a genuine reversal about (m + 1) / 2 steps. A glitch repeated by the poller is one
+   and ``SPIKE_FACTOR`` (4) x (m + 1) / 2 local steps (median of the surrounding steps),
+   and ``GLITCH_FLOOR`` (1 %) of the demo's robust path length. Real motion cannot pass the
+   first two: for monotone sampling that distance is at most half the chord, and at a
+   genuine reversal about (m + 1) / 2 steps; slow motion can (a millimetre dip is many
+   steps of a tenth of a millimetre), and the floor keeps such small excursions, which the
+   canal then encloses. A glitch repeated by the poller is one
    sample after step 3; a resampled glitch (with its ramps) spans a few. The test runs
    again on what is left (up to 3 passes), which catches the partial ramps around a
    removed glitch. Longer excursions are kept. The rule and its constants live in
@@ -58,7 +61,7 @@ import numpy as np
 
 from .bounds import MAX_COORDINATE
 from .errors import InvalidInputError
-from .glitches import glitch_masks, step_lengths
+from .glitches import glitch_masks, robust_path_length, step_lengths
 from .validation import MIN_POINTS, FloatArray, IntArray, check_positions
 
 #: Fraction of a demonstration's path length below which a head/tail sample counts as "still".
@@ -73,8 +76,6 @@ TIME_TOLERANCE = 1e-9
 MAX_TIME_REPAIRS = 0.01
 #: A repeat run longer than this many median sampling intervals is a pause (see step 3).
 PAUSE_INTERVALS = 10.0
-#: Chords of the robust path length: at most this many, so jitter does not inflate it.
-PATH_CHORDS = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,20 +128,6 @@ def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
         changed |= positions[1:, axis] != positions[:-1, axis]
     keep[1:] = changed
     return keep
-
-
-def robust_path_length(positions: FloatArray) -> float:
-    """Path length measured on at most ``PATH_CHORDS`` chords (jitter does not add up).
-
-    Parameters
-    ----------
-    positions : array, shape (T, D)
-    """
-    stride = max(1, -(-(positions.shape[0] - 1) // PATH_CHORDS))
-    coarse = positions[::stride]
-    if (positions.shape[0] - 1) % stride:
-        coarse = np.vstack([coarse, positions[-1:]])
-    return float(step_lengths(coarse).sum())
 
 
 def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> slice:

@@ -17,19 +17,22 @@ from raw_logs import raw_demo_set
 from canal_core import glitches, preprocess
 from canal_core.glitches import (
     CHORD_FACTOR,
+    GLITCH_FLOOR,
     GLITCH_PASSES,
     GLITCH_SCALE_WINDOW,
     MAX_GLITCH_RUN,
     SPIKE_FACTOR,
     SPIKE_WINDOW,
+    robust_path_length,
 )
-from canal_core.preprocess import NEAR_DUPLICATE_TOLERANCE, mask_of_new_samples, robust_path_length
+from canal_core.preprocess import NEAR_DUPLICATE_TOLERANCE, mask_of_new_samples
 
 # ---- glitches (canal_core.glitches, step 4 of canal_core.preprocess) -----------------------
 
 
-def slow_spike_mask(x: np.ndarray) -> np.ndarray:
-    """Step 4 as its docstring states it: every window, every interior sample, in Python."""
+def slow_spike_mask(x: np.ndarray, floor: float) -> np.ndarray:
+    """Step 4 as its docstring states it: every window, every interior sample, in Python
+    (``floor``: GLITCH_FLOOR x the robust path length of the whole demonstration)."""
     n = x.shape[0]
     spike = np.zeros(n, dtype=bool)
     if n < 5:
@@ -53,19 +56,20 @@ def slow_spike_mask(x: np.ndarray) -> np.ndarray:
             limit = SPIKE_FACTOR * 0.5 * (m + 1) * step
             for k in range(1, m + 1):
                 dev = float(np.linalg.norm(x[a + k] - mid))
-                if dev > CHORD_FACTOR * chord and dev > limit:
+                if dev > CHORD_FACTOR * chord and dev > limit and dev > floor:
                     spike[a + k] = True
     width = 2 * SPIKE_WINDOW + 1
-    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], median(width, 1)) * 2.0
-    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], median(width, n - 2)) * 2.0
+    spike[0] |= steps[0] > SPIKE_FACTOR * max(steps[1], median(width, 1)) * 2.0 and steps[0] > floor
+    spike[-1] |= steps[-1] > SPIKE_FACTOR * max(steps[-2], median(width, n - 2)) * 2.0 and steps[-1] > floor
     return spike
 
 
 def slow_glitch_mask(x: np.ndarray) -> np.ndarray:
     glitch = np.zeros(x.shape[0], dtype=bool)
+    floor = GLITCH_FLOOR * robust_path_length(x)
     for _ in range(GLITCH_PASSES):
         left = np.flatnonzero(~glitch)
-        found = slow_spike_mask(x[left])
+        found = slow_spike_mask(x[left], floor)
         if not found.any():
             break
         glitch[left[found]] = True

@@ -282,6 +282,34 @@ def test_a_glitch_spread_by_row_resampling_is_dropped_with_its_ramps() -> None:
     assert not off_path.any(), positions[off_path]
 
 
+def slow_demo_with_dip(dy: float = 0.0) -> np.ndarray:
+    """A 0.5 m reach in metres, slowing to a tenth of a millimetre per sample near its end,
+    where the arm dips 1.5 mm and comes back over three samples (a kinesthetic demo's touch)."""
+    u = np.linspace(0.0, 1.0, 600)
+    s = u**2 * (3.0 - 2.0 * u)  # slow at both ends
+    demo = np.column_stack([0.5 * s, 0.08 * np.sin(np.pi * s) + dy, 0.0 * s])
+    steps = np.linalg.norm(np.diff(demo, axis=0), axis=1)
+    at = int(np.flatnonzero(steps > 1e-4)[-1])  # the last sample still moving 0.1 mm a step
+    demo[at - 1 : at + 2, 2] -= np.array([0.75e-3, 1.5e-3, 0.75e-3])
+    return demo
+
+
+def test_a_millimetre_dip_in_slow_motion_is_kept_and_a_5_cm_spike_dropped() -> None:
+    # The dip is several local steps deep and off its chord, as a glitch is, but far below
+    # GLITCH_FLOOR of the path: dropped, it could lie outside the canal fitted without it.
+    demo = slow_demo_with_dip()
+    dip = np.flatnonzero(demo[:, 2] < 0.0)
+    spike_at = 300
+    demo[spike_at] += np.array([0.0, 0.03, 0.04])  # one reading 5 cm off
+    rows = prepared_rows(demo, field="d")
+    assert np.isin(dip, rows).all(), dip[~np.isin(dip, rows)]
+    assert spike_at not in rows
+    # Every kept sample, the dip's included, is inside the canal fitted on it.
+    demos = [demo] + [slow_demo_with_dip(dy) for dy in (-0.01, 0.01)]
+    canal = canal_core.fit(demos)
+    assert canal.contains(demo[rows]).all()
+
+
 def test_a_demo_and_its_reverse_are_refused_naming_the_demos() -> None:
     # Found by the property test above: the mean of a path and its reverse stands still.
     demo = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
