@@ -94,6 +94,25 @@ def dtw_path(a: FloatArray, b: FloatArray, band: int | None = None) -> tuple[Int
     return pairs[:, 0], pairs[:, 1]
 
 
+def band_cells(n: int, m: int, band: int) -> tuple[IntArray, IntArray]:
+    """The cells of a band around the diagonal of an (n, m) table, row by row.
+
+    Row i holds j in [ceil(i r - band), floor(i r + band)] within [0, m - 1], r = (m - 1) / (n - 1).
+
+    Returns
+    -------
+    ii, jj : arrays of int, shape (L,)
+        Row and column of each cell, rows ascending and columns ascending within a row.
+    """
+    ratio = (m - 1) / (n - 1)
+    rows = np.arange(n)
+    j_lo = np.clip(np.ceil(rows * ratio - band - 1e-9).astype(np.int64), 0, m - 1)
+    j_hi = np.clip(np.floor(rows * ratio + band + 1e-9).astype(np.int64), 0, m - 1)
+    ii = np.repeat(rows, j_hi - j_lo + 1)
+    jj = np.concatenate([np.arange(lo, hi + 1) for lo, hi in zip(j_lo.tolist(), j_hi.tolist(), strict=True)])
+    return ii, jj
+
+
 def banded_dtw_path(a: FloatArray, b: FloatArray, band: int) -> tuple[IntArray, IntArray]:
     """:func:`dtw_path` within a Sakoe-Chiba band, computed over the band's cells only.
 
@@ -117,13 +136,7 @@ def banded_dtw_path(a: FloatArray, b: FloatArray, band: int) -> tuple[IntArray, 
     n, m = a.shape[0], b.shape[0]
     if n == 1 or m == 1:
         return dtw_path(a, b, band)
-    ratio = (m - 1) / (n - 1)
-    # Band cells per row i: j in [ceil(i r - band), floor(i r + band)] within [0, m - 1].
-    rows = np.arange(n)
-    j_lo = np.clip(np.ceil(rows * ratio - band - 1e-9).astype(np.int64), 0, m - 1)
-    j_hi = np.clip(np.floor(rows * ratio + band + 1e-9).astype(np.int64), 0, m - 1)
-    ii = np.repeat(rows, j_hi - j_lo + 1)
-    jj = np.concatenate([np.arange(lo, hi + 1) for lo, hi in zip(j_lo.tolist(), j_hi.tolist(), strict=True)])
+    ii, jj = band_cells(n, m, band)
     n_diag = n + m - 1
     # Diagonal-major cost and table, column c = i + 1 (column 0: the padding at i = -1).
     cost = np.full((n_diag, n + 1), np.inf)
@@ -188,12 +201,7 @@ def banded_mean_matches(a: FloatArray, curves: FloatArray, band: int) -> FloatAr
             ia, ib = dtw_path(a, curves[c], band)
             out[c] = np.bincount(ia, weights=ib, minlength=n) / np.bincount(ia, minlength=n)
         return out
-    ratio = (m - 1) / (n - 1)
-    rows = np.arange(n)
-    j_lo = np.clip(np.ceil(rows * ratio - band - 1e-9).astype(np.int64), 0, m - 1)
-    j_hi = np.clip(np.floor(rows * ratio + band + 1e-9).astype(np.int64), 0, m - 1)
-    ii = np.repeat(rows, j_hi - j_lo + 1)
-    jj = np.concatenate([np.arange(lo, hi + 1) for lo, hi in zip(j_lo.tolist(), j_hi.tolist(), strict=True)])
+    ii, jj = band_cells(n, m, band)
     n_diag = n + m - 1
     cost = np.full((count, n_diag, n + 1), np.inf)
     diff = a[ii][None, :, :] - curves[:, jj, :]

@@ -81,6 +81,18 @@ def two_route_demo(j: int, n: int = 120, n_each: int = 4, dim: int = 3) -> np.nd
     return np.column_stack([s, y, z][:dim])
 
 
+def fit_two_route_skill(client: Any, name: str, n_samples: int) -> Any:
+    """Skill ``name`` with eight :func:`two_route_demo` demonstrations, fitted over ``client``
+    (an httpx client of the service) as two routes; the fit's answer."""
+    assert client.post("/skills", json={"name": name, "dim": 3}).status_code == 201
+    for j in range(8):
+        r = client.post(f"/skills/{name}/demonstrations", json={"positions": two_route_demo(j).tolist()})
+        assert r.status_code == 201, r.text
+    r = client.post(f"/skills/{name}/fit", json={"n_samples": n_samples})
+    assert r.status_code == 201 and r.json()["routes"] == 2, r.text
+    return r.json()
+
+
 def path_distance(path: Any, demo: Any) -> float:
     """The mean distance from each point of ``path`` to the nearest point of ``demo``."""
     a, b = np.asarray(path, dtype=np.float64), np.asarray(demo, dtype=np.float64)

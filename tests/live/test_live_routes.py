@@ -14,7 +14,13 @@ from canal_client.sim import run_sim
 from canal_service.app import create_app
 from canal_service.bridge.bridge import shard_of
 from canal_service.core.config import Settings
-from canal_testing import ROUTE_STARTS, free_port, path_distance, two_route_demo
+from canal_testing import (
+    ROUTE_STARTS,
+    fit_two_route_skill,
+    free_port,
+    path_distance,
+    two_route_demo,
+)
 from live_helpers import wait_until
 
 import canal_core
@@ -30,14 +36,7 @@ pytestmark = pytest.mark.timeout(90)
 @pytest.fixture(scope="module")
 def reach(live: Any) -> str:
     """'reach': eight demonstrations, four each way round the middle, fitted as two routes."""
-    client = live.client
-    assert client.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
-    for j in range(8):
-        r = client.post("/skills/reach/demonstrations",
-                        json={"positions": two_route_demo(j).tolist()})
-        assert r.status_code == 201, r.text
-    r = client.post("/skills/reach/fit", json={"n_samples": 80})
-    assert r.status_code == 201 and r.json()["routes"] == 2, r.text
+    fit_two_route_skill(live.client, "reach", 80)
     return "reach"
 
 

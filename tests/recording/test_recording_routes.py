@@ -18,7 +18,7 @@ from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.recording import Recorder
 from canal_service.recording.foxglove import SCHEMAS
-from canal_testing import LiveServer, two_route_demo
+from canal_testing import LiveServer, fit_two_route_skill, two_route_demo
 from mcap.reader import make_reader
 from recording_helpers import mcap_messages, rrd_rows, rrd_verify
 from rosbags import highlevel
@@ -90,13 +90,7 @@ def test_a_fit_of_two_routes_over_http_is_recorded_and_rebuilt(tmp_path: Path) -
     settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
     with LiveServer(create_app(settings)) as server, \
             httpx.Client(base_url=server.url, timeout=60) as c:
-        assert c.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
-        for j in range(8):
-            r = c.post("/skills/reach/demonstrations",
-                       json={"positions": two_route_demo(j).tolist()})
-            assert r.status_code == 201, r.text
-        r = c.post("/skills/reach/fit", json={"n_samples": 40})
-        assert r.status_code == 201 and r.json()["routes"] == 2, r.text
+        fit_two_route_skill(c, "reach", 40)
         for rebuilt in (False, True):
             if rebuilt:  # lost, then regenerated from the database
                 shutil.rmtree(settings.resolved_recordings_dir / "reach")
