@@ -3,7 +3,7 @@
 Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
 start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
 subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
-canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, the fixed entry, constant persistence, persistence
+canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, index clock, the fixed entry, constant persistence, persistence
 learned to the end, the other section kinds).
 ``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
 
@@ -307,6 +307,7 @@ CANALS: dict[str, tuple[Fit, Reproduce]] = {
     "canal, one route": canal_method(),
     "canal, no warp (clock only)": canal_method(alignment="spline"),
     "canal, aligned by arc length": canal_method(timing="arc"),
+    "canal, aligned by the sample index": canal_method(timing="index"),
     "canal, fixed 10 % entry": canal_method(entry=0.1),
     "canal, constant persistence": canal_method(persistence="constant"),
     "canal, persistence learned to the end": canal_method(persistence="learned+end"),
