@@ -96,7 +96,10 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
 
     n = len(demos)
     if routes is not None:
-        check_int(routes, 1, "routes", maximum=max(n // 2, 1))
+        check_int(routes, 1, "routes")
+        if routes > max(n // 2, 1):
+            raise InvalidInputError(f"expected routes <= {max(n // 2, 1)} (each route needs 2 "
+                                    f"demonstrations; {n} are fitted), got {routes}", field="routes")
     if n < 4 or routes == 1:
         return np.zeros(n, dtype=np.int64)
     dist = route_distances(demos)
@@ -155,6 +158,12 @@ class Routes:
     @property
     def n_routes(self) -> int:
         return len(self.canals)
+
+    @property
+    def every_canal(self) -> tuple[Any, ...]:
+        """Each canal the model holds once: the canal of all, then each route's when there
+        are several."""
+        return (self.pooled, *self.canals) if self.n_routes > 1 else (self.pooled,)
 
     def choose(self, start: Any) -> RouteChoice:
         """The route a start follows (see the module docstring)."""
@@ -217,6 +226,12 @@ class Routes:
 def single_route(canal: Any) -> Routes:
     """A one-route :class:`Routes` of ``canal`` (what a single-canal model is as routes)."""
     return Routes((canal,), canal, np.zeros(max(int(canal.n_demos), 0), dtype=np.int64))
+
+
+def served_model(routes: Routes) -> Any:
+    """What a model is outside this module: its canal when it has one route (stored in the
+    ``canal-model`` format and served as a single canal), else the :class:`Routes`."""
+    return routes.pooled if routes.n_routes == 1 else routes
 
 
 def routes_from_dict(data: dict[str, Any]) -> Routes:

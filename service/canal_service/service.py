@@ -28,7 +28,7 @@ from sqlalchemy.exc import IntegrityError
 import canal_core
 from canal_core.corrections import Correction as Correction_
 from canal_core.corrections import checked_correction, corrected_canal
-from canal_core.routes import RouteChoice, Routes, routes_from_dict, single_route
+from canal_core.routes import RouteChoice, Routes, routes_from_dict, served_model, single_route
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
 
@@ -445,7 +445,7 @@ class CanalService:
         seconds = time.perf_counter() - started
         routes = fitted if isinstance(fitted, Routes) else single_route(fitted)
         canal = routes.pooled
-        for each in (canal, *(routes.canals if routes.n_routes > 1 else ())):
+        for each in routes.every_canal:
             check_finite_answer({"directrix": each.directrix, "radii": each.radii,
                                  "tangents": each.tangents, "arclength": each.arclength},
                                 "demonstrations")
@@ -462,11 +462,11 @@ class CanalService:
         version, instance = model[1].version, model[2]
         created = model[1].created_at
         stored_ns = None if created is None else repo.created_ns(created)
-        served = _served(routes)
+        served = served_model(routes)
         self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
                                                               t_ns=stored_ns, instance=instance))
         if not kept:
-            self.fit_listeners.notify(name, version, _served(routes))
+            self.fit_listeners.notify(name, version, served)
             return model[1]
         # The skill's corrections, re-applied to the new canal (a version of its own, whose
         # parent is the plain fit); one that no longer applies is left behind and said so.
@@ -479,11 +479,7 @@ class CanalService:
         """The route of each demonstration; None when the fit is one canal (``routes`` 1, or
         the demonstrations all go one way). Clustering runs here, before the fit's cost is
         estimated, so the estimate counts every route's fit."""
-        if routes == 1 or len(positions) < 4:
-            if routes is not None and routes > 1:
-                raise InvalidInput(f"expected routes <= {max(len(positions) // 2, 1)} (each route "
-                                   f"needs 2 demonstrations; {len(positions)} are fitted), got "
-                                   f"{routes}", field="routes")
+        if routes == 1:
             return None
         try:
             canal_core.options.route_options(routes, separation)
@@ -672,14 +668,14 @@ class CanalService:
                        ) -> schemas.ModelSummary:
         """Store a refined model as the new latest version and tell whoever listens."""
         canal = routes.pooled
-        serialized = canal.to_dict() if routes.n_routes == 1 else routes.to_dict()
+        served = served_model(routes)
+        serialized = served.to_dict()
         key, summary, instance = self._store_model(name, options, demo_ids, serialized, 0.0,
                                                    canal, lineage)
         self.cache.put(key, routes)
         version = summary.version
         created = summary.created_at
         stored_ns = None if created is None else repo.created_ns(created)
-        served = _served(routes)
         self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
                                                               t_ns=stored_ns, instance=instance))
         self.fit_listeners.notify(name, version, served)
@@ -706,7 +702,7 @@ class CanalService:
             refined, applied = corrected_routes(routes, correction, route)
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
-        for each in (refined.pooled, *(refined.canals if refined.n_routes > 1 else ())):
+        for each in refined.every_canal:
             check_finite_answer({"directrix": each.directrix, "radii": each.radii},
                                 "samples, plan")
         made: list[Correction] = []
@@ -1032,11 +1028,6 @@ def _correction_out(row: Correction) -> schemas.CorrectionOut:
         base_version=row.base_version, model_version=row.model_version,
         first_section=row.first_section, last_section=row.last_section,
         created_at=row.created_at, undone=bool(row.undone), route=row.route)
-
-
-def _served(routes: Routes) -> canal_core.Canal | Routes:
-    """What listeners hear of a model: its canal when it has one route, else the routes."""
-    return routes.pooled if routes.n_routes == 1 else routes
 
 
 def check_route(route: int | None, n_routes: int, field: str) -> int | None:

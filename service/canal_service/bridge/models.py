@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from canal_core.errors import InvalidInputError
-from canal_core.routes import Routes
+from canal_core.routes import Routes, served_model
 from canal_core.tracker_bank import TrackerBank
 from canal_core.tracker_obstacles import scene_tables
 from canal_protocol import keys as keyspace
@@ -74,16 +74,13 @@ def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
     bank that holds those streams' tracker states as arrays. ``canal`` may be
     :class:`canal_core.Routes`: with several routes, the entry of the canal of all holds one
     entry per route."""
-    if isinstance(canal, Routes):
-        if canal.n_routes == 1:
-            canal = canal.pooled
-        else:
-            entry = _plain_entry(version, canal.pooled, lookahead)
-            entry.route, entry.chooser = None, canal
-            entry.routes = tuple(_plain_entry(version, c, lookahead, k)
-                                 for k, c in enumerate(canal.canals))
-            return entry
-    return _plain_entry(version, canal, lookahead)
+    model = served_model(canal) if isinstance(canal, Routes) else canal
+    if not isinstance(model, Routes):
+        return _plain_entry(version, model, lookahead)
+    entry = _plain_entry(version, model.pooled, lookahead)
+    entry.route, entry.chooser = None, model
+    entry.routes = tuple(_plain_entry(version, c, lookahead, k) for k, c in enumerate(model.canals))
+    return entry
 
 
 def _plain_entry(version: int, canal: Any, lookahead: int,

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from canal_core.routes import Routes
+from canal_core.routes import Routes, served_model
 
 FloatArray = NDArray[np.float64]
 
@@ -125,10 +125,11 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
     ``canal`` may be :class:`canal_core.Routes`: with several routes, the geometry of the
     canal of all with each route's in ``routes``."""
     if isinstance(canal, Routes):
-        if canal.n_routes == 1:
-            return model_geometry(version, canal.pooled)
-        return replace(model_geometry(version, canal.pooled),
-                       routes=tuple(model_geometry(version, c) for c in canal.canals))
+        model = served_model(canal)
+        if not isinstance(model, Routes):
+            return model_geometry(version, model)
+        return replace(model_geometry(version, model.pooled),
+                       routes=tuple(model_geometry(version, c) for c in model.canals))
     dim = int(canal.dim)
     directrix = points3d(canal.directrix)
     radii = np.asarray(canal.radii, dtype=np.float64)

@@ -184,10 +184,10 @@ class DbSource:
             if versions is not None:
                 query = query.where(ModelVersion.version.in_([int(v) for v in versions]))
             for row in s.scalars(query.order_by(ModelVersion.version)):
-                routes = canal_core.routes.routes_from_dict(row.canal)
-                out.append(StoredModel(skill, int(row.version),
-                                       routes.pooled if routes.n_routes == 1 else routes,
-                                       _t_ns(row.created_at)))
+                out.append(StoredModel(
+                    skill, int(row.version),
+                    canal_core.routes.served_model(canal_core.routes.routes_from_dict(row.canal)),
+                    _t_ns(row.created_at)))
         return out
 
     def close(self) -> None:
