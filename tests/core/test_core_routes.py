@@ -33,6 +33,9 @@ def test_demonstrations_that_go_different_ways_are_two_routes_and_one_route_can_
     assert route_labels(demos[:4]).tolist() == [0] * 4
     with pytest.raises(canal_core.InvalidInputError, match="routes"):
         route_labels(demos, routes=5)
+    # Three demonstrations hold one route at most, whatever the clustering would say.
+    with pytest.raises(canal_core.InvalidInputError, match="each route needs 2 demonstrations"):
+        route_labels(demos[:3], routes=2)
 
 
 def test_a_start_follows_the_route_whose_entry_holds_it_and_no_canal_between_them() -> None:
