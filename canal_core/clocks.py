@@ -18,17 +18,25 @@ RAIL tasks, UR5e and LASA have sigma_tau 0.02-0.05 and follow held-out demos clo
 by time; the generated logs, whose speed profiles are warped by up to a quarter, have 0.08 and
 follow them closer by arc length.
 
-Without time stamps the sample index is a clock only when the logger's rate was steady. For a
-smooth motion sampled at a steady rate, consecutive steps have nearly equal lengths; a logger
-that drops or bunches samples makes them jump. The index is taken as a clock when
+Without time stamps the sample index is a clock only when the logger's rate was steady at the
+scale the alignment pairs phases: the warp alignment matches the demonstrations on
+``DTW_SAMPLES`` (64) samples, so each demonstration is judged on windows of w_j = ceil((T_j - 1) / 64)
+samples. For a smooth motion logged at a steady rate, consecutive windows cover nearly equal
+lengths; a logger that writes in bursts or stalls makes them jump. The index is taken as a clock
+when
 
-    median_i |log(l_{i+1} / l_i)|  <=  STEADY_JITTER                              (T2)
+    median_k |log(L_{k+1} / L_k)|  <=  STEADY_JITTER                              (T2)
 
-over the steps l_i longer than 5 % of the median step (starts and stops, where speed goes to
-zero, say nothing), for every demonstration (0.45: steady logs, raw or resampled, measure
-0.03-0.31 here, the same logs with a random two thirds of the rows dropped 0.6-0.7). An index
-clock aligns, but it is not seconds: a model aligned by it has no section times, and its
-reproductions no duration, unless one is asked for.
+(L_k: the chord of window k) over the windows longer than 5 % of the median window (starts and
+stops, where speed goes to zero, say nothing), for every demonstration. 0.45: steady logs measure
+0.03-0.43 here, and a rate that changes fourfold from one window to the next measures 1.4.
+Single rows are not judged: a logger that polls a slower pose source holds each pose for two or
+three rows (the RAIL logs: 100 Hz rows, 40 Hz poses) and its row-to-row steps jump from zero to
+twice the mean, yet its index is a clock. Rows dropped at random make the windows noisy (two
+thirds of 400 rows dropped: 0.32-0.63 over 20 draws, about the threshold). A rate that drifts
+slowly, or stalls once, is not seen by (T2); (T1) below sees it when the demonstrations differ.
+An index clock aligns, but it is not seconds: a model aligned by it has no section times, and
+its reproductions no duration, unless one is asked for.
 
 Blended clock (the default when the rhythm is consistent). Measured leave-one-out (BENCHMARKS.md)
 pure time beats arc length on some tasks (RAIL pressing and pushing, UR5e) and loses on others
@@ -47,7 +55,7 @@ from typing import Literal, cast, get_args
 
 import numpy as np
 
-from .alignment import normalised_arc_length
+from .alignment import DTW_SAMPLES, normalised_arc_length
 from .validation import FloatArray
 
 #: The clocks a fit may align by: the demos' time stamps, their sample index, arc length, or
@@ -59,17 +67,32 @@ TimingChoice = Literal["auto", "time", "index", "arc", "time+arc", "index+arc"]
 TIMINGS: tuple[TimingChoice, ...] = get_args(TimingChoice)
 #: (T1): largest mean spread of the demonstrations' elapsed-time share at equal path share.
 TIMING_SPREAD = 0.06
-#: (T2): largest median |log| ratio of consecutive step lengths of a steady logger.
+#: (T2): largest median |log| ratio of consecutive window chords of a steady logger.
 STEADY_JITTER = 0.45
-#: Steps shorter than this share of the median step are not judged by (T2).
+#: Windows shorter than this share of the median window are not judged by (T2).
 MOVING_STEP = 0.05
 #: Phases at which (T1) compares the demonstrations.
 PHASES = 101
 
 
-def step_jitter(positions: FloatArray) -> float:
-    """median |log(l_{i+1} / l_i)| over consecutive moving steps of a demo (T, D) (T2)."""
-    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+def jitter_window(n_samples: int) -> int:
+    """Samples per window of (T2) for a demo of ``n_samples``: 1/64 of it, at least one step."""
+    return max(1, -(-(int(n_samples) - 1) // DTW_SAMPLES))
+
+
+def step_jitter(positions: FloatArray, window: int = 1) -> float:
+    """median |log(L_{k+1} / L_k)| over consecutive moving windows of a demo (T2).
+
+    Parameters
+    ----------
+    positions : array, shape (T, D)
+    window : int
+        Samples per window: L_k is the chord from sample k * window to (k + 1) * window.
+    """
+    last = (positions.shape[0] - 1) // window * window
+    steps = np.linalg.norm(np.diff(positions[: last + 1 : window], axis=0), axis=1)
+    if steps.size < 2:
+        return float("inf")
     moving = steps > MOVING_STEP * float(np.median(steps[steps > 0.0])) if np.any(steps > 0.0) else steps > 0.0
     pair = moving[:-1] & moving[1:]
     if not np.any(pair):
@@ -78,8 +101,8 @@ def step_jitter(positions: FloatArray) -> float:
 
 
 def steady_index_clock(demos: list[FloatArray]) -> bool:
-    """Whether every demo's sample index is a fair clock (T2)."""
-    return all(step_jitter(d) <= STEADY_JITTER for d in demos)
+    """Whether every demo's sample index is a fair clock at the alignment's scale (T2)."""
+    return all(step_jitter(d, jitter_window(d.shape[0])) <= STEADY_JITTER for d in demos)
 
 
 def timing_spread(demos: list[FloatArray], clocks: list[FloatArray]) -> float:

@@ -9,6 +9,7 @@ import canal_core
 from canal_core.clocks import (
     STEADY_JITTER,
     chosen_clock,
+    jitter_window,
     steady_index_clock,
     step_jitter,
     timing_spread,
@@ -72,14 +73,34 @@ def test_an_inside_start_is_unchanged_by_the_learned_entry() -> None:
     assert canal.contains(a.positions).all()
 
 
-def test_step_jitter_tells_a_steady_logger_from_one_that_drops_rows() -> None:
-    t = np.linspace(0.0, 1.0, 400)
-    steady = np.column_stack([np.sin(2 * t), t**2, np.zeros_like(t)])
-    rows = np.sort(np.random.default_rng(0).choice(400, 140, replace=False))
-    assert step_jitter(steady) < 0.1
-    assert step_jitter(steady[rows]) > STEADY_JITTER
-    assert steady_index_clock([steady, steady * 1.1])
-    assert not steady_index_clock([steady, steady[rows]])
+def _logged(times: np.ndarray) -> np.ndarray:
+    """A smooth reach (speed from rest to rest) at the given times in [0, 1], shape (T, 3)."""
+    u = 0.5 - 0.5 * np.cos(np.pi * times)
+    return np.column_stack([np.sin(2 * u), u**2, 0.1 * u])
+
+
+def test_a_logger_that_holds_a_slower_pose_source_is_a_steady_clock() -> None:
+    # 100 Hz rows of a 40 Hz pose source: each pose is held for two or three rows.
+    rows = np.arange(400) / 399.0
+    held = _logged(np.floor(rows * 399.0 / 2.5) * 2.5 / 399.0)
+    assert step_jitter(held) > STEADY_JITTER  # row to row, the steps jump from zero
+    assert step_jitter(held, jitter_window(400)) < 0.2
+    assert steady_index_clock([held, held * 1.1])
+    assert chosen_clock([held, held * 1.05, held * 0.95], [None] * 3) == "index+arc"
+
+
+def test_a_logger_that_writes_in_bursts_is_not_a_clock() -> None:
+    # Blocks of ten rows, alternately 1 and 4 time units apart: the rate jumps fourfold from
+    # one window of the alignment to the next.
+    gaps = np.tile(np.repeat([1.0, 4.0], 10), 32)[:639]
+    times = np.concatenate([[0.0], np.cumsum(gaps)])
+    bursty = _logged(times / times[-1])
+    steady = _logged(np.linspace(0.0, 1.0, 640))
+    assert jitter_window(640) == 10
+    assert step_jitter(bursty, jitter_window(640)) > 1.0
+    assert step_jitter(steady, jitter_window(640)) < 0.1
+    assert not steady_index_clock([steady, bursty])
+    assert chosen_clock([steady, bursty, steady * 1.05], [None] * 3) == "arc"
 
 
 def test_the_clock_follows_the_rhythm_of_the_demonstrations() -> None:
