@@ -39,15 +39,36 @@ def test_each_route_is_its_own_entity_in_the_rrd(recorder: Recorder, routes: Any
     path = recorder.export_rrd("reach")
     assert rrd_verify(path, rerun_env).returncode == 0
     rows = rrd_rows(path, rerun_env)
-    # the canal of all the demonstrations where a one-route model is drawn
-    assert rows[("/model/v1/mesh", "Mesh3D:vertex_positions")] == 1
     for k in range(routes.n_routes):
         base = f"/model/v1/route_{k}"
         assert rows[(f"{base}/mesh", "Mesh3D:vertex_positions")] == 1, base
         assert rows[(f"{base}/directrix", "LineStrips3D:strips")] == 1, base
         assert rows[(f"{base}/rings", "LineStrips3D:strips")] == 1, base
+        assert rows[(f"{base}/radius", "BarChart:values")] == 1, base
         assert rows[(f"{base}/info", "route")] == 1, base
     assert not any("route_2" in entity for entity, _ in rows)
+    # The canal of all the demonstrations is not drawn: no reproduction follows it, and its
+    # wide tube between the routes would hide them.
+    for part in ("mesh", "directrix", "rings"):
+        assert not any(entity == f"/model/v1/{part}" for entity, _ in rows), part
+    assert rows[("/model/v1/info", "routes")] == 1
+
+
+def test_a_model_of_one_route_after_one_of_two_is_drawn_alone(
+        recorder: Recorder, routes: Any, rerun_env: dict[str, str]) -> None:
+    one = canal_core.fit_routes([two_route_demo(j) for j in range(4)], n_samples=40)
+    assert one.n_routes == 1
+    recorder.model_fitted("reach", 1, routes)
+    recorder.model_fitted("reach", 2, one)
+    rows = rrd_rows(recorder.export_rrd("reach"), rerun_env)
+    assert rows[("/model/v2/mesh", "Mesh3D:vertex_positions")] == 1
+    assert not any(entity.startswith("/model/v2/route_") for entity, _ in rows)
+    # Foxglove: the second update deletes every entity first, then draws the one canal.
+    first, second = mcap_messages(recorder.export_mcap("reach"), "/canal/model")
+    assert {e["id"] for e in first["entities"]} >= {"canal/route_0/mesh", "canal/route_1/mesh"}
+    assert [d["type"] for d in second["deletions"]] == [1]  # DELETE_ALL
+    assert {e["id"] for e in second["entities"]} == {
+        "canal/mesh", "canal/directrix", "canal/rings", "canal/frames"}
 
 
 def test_each_route_is_its_own_entity_in_the_mcap(recorder: Recorder, routes: Any) -> None:
@@ -62,8 +83,7 @@ def test_each_route_is_its_own_entity_in_the_mcap(recorder: Recorder, routes: An
         np.testing.assert_allclose(points, canal.directrix)
         meta = {m["key"]: m["value"] for m in entities[f"canal/route_{k}/mesh"]["metadata"]}
         assert meta["route"] == str(k)
-    (directrix,) = entities["canal/directrix"]["lines"]
-    assert len(directrix["points"]) == routes.pooled.n_sections
+    assert not {"canal/mesh", "canal/directrix", "canal/rings"} & set(entities)
     (info,) = mcap_messages(path, "/canal/model_info")
     assert info["routes"] == 2
     validator = jsonschema_rs.validator_for(SCHEMAS["canal.ModelInfo"])
@@ -80,10 +100,13 @@ def test_each_route_is_its_own_entity_in_the_mcap(recorder: Recorder, routes: An
                                 for p in message.poses])
                 np.testing.assert_allclose(got, routes.canals[1].directrix)
             if conn.topic == "/canal/model/mesh":
-                namespaces = {m.ns for m in message.markers}
-                assert {"canal/mesh", "canal/route_0/mesh", "canal/route_1/mesh"} <= namespaces
+                assert message.markers[0].action == 3  # DELETEALL: the previous model goes
+                namespaces = {m.ns for m in message.markers[1:]}
+                assert namespaces == {f"canal/route_{k}/{part}" for k in (0, 1)
+                                      for part in ("mesh", "rings")} | {"canal/frames"}
     assert topics["/canal/model/route_0/directrix"] == 1
     assert topics["/canal/model/route_1/directrix"] == 1
+    assert "/canal/model/directrix" not in topics
 
 
 def test_a_fit_of_two_routes_over_http_is_recorded_and_rebuilt(tmp_path: Path) -> None:
@@ -99,4 +122,5 @@ def test_a_fit_of_two_routes_over_http_is_recorded_and_rebuilt(tmp_path: Path) -
             reader = make_reader(io.BytesIO(mcap))
             ids = {e["id"] for _, _, m in reader.iter_messages(topics=["/canal/model"])
                    for e in json.loads(m.data)["entities"]}
-            assert {"canal/route_0/mesh", "canal/route_1/mesh", "canal/mesh"} <= ids, rebuilt
+            assert {"canal/route_0/mesh", "canal/route_1/mesh"} <= ids, rebuilt
+            assert "canal/mesh" not in ids, rebuilt

@@ -6,7 +6,9 @@ Topics (all JSON, see :mod:`.foxglove` for the schemas)::
                                                           canal -> robot/<name> (live)
     /canal/demos               foxglove.SceneUpdate      demo/<id> line; deletions on removal
     /canal/demo_poses/<id>     foxglove.PosesInFrame     a demo's poses (when it has orientations)
-    /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames
+    /canal/model               foxglove.SceneUpdate      canal/mesh, directrix, rings, frames (a
+                                                          model of several routes:
+                                                          canal/route_<k>/..., no canal/mesh)
     /canal/model_info          canal.ModelInfo           version, radii and arclength arrays
     /canal/corrections         foxglove.SceneUpdate      correction/v<k>: the path of the
                                correction that made version k, the changed sections before
@@ -127,46 +129,39 @@ class McapSegment:
 
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Mesh, directrix, rings and frames of one model version (replacing the previous). A
-        model of several routes: those are the canal of all the demonstrations, and each
-        route is its own entities ``canal/route_<k>/mesh``, ``.../directrix``, ``.../rings``
-        (metadata ``route``); its info says ``routes``."""
+        model of several routes draws each route as its own entities ``canal/route_<k>/mesh``,
+        ``.../directrix``, ``.../rings`` (metadata ``route``) and not the canal of all the
+        demonstrations, which no reproduction follows; its info says ``routes``."""
         meta = {"version": geo.version, "n_sections": geo.n_sections}
-        n_axes = geo.frame_vectors.shape[1]
-        tails = np.repeat(geo.frame_origins, n_axes, axis=0)
-        heads = tails + geo.frame_vectors.reshape(-1, 3)
-        segments = np.stack([tails, heads], axis=1).reshape(-1, 3)
-        axis_colors = np.repeat(np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1)), 2, axis=0)
-        # Rings as one LINE_LIST: consecutive ring points pair up into segments.
-        ring_segments = np.stack([geo.rings[:, :-1], geo.rings[:, 1:]], axis=2).reshape(-1, 3)
-        see_through = geo.vertex_colors.copy()
-        see_through[:, 3] = CANAL_ALPHA
-        entities = [
-            fx.entity(t_ns, "canal/mesh", metadata=meta, triangle_lists=[
-                fx.triangles(geo.vertices, geo.faces, see_through)]),
-            fx.entity(t_ns, "canal/directrix", metadata=meta,
-                      lines=[fx.line(geo.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
-            fx.entity(t_ns, "canal/rings", metadata=meta, lines=[
-                fx.line(ring_segments, _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST)]),
-            fx.entity(t_ns, "canal/frames", metadata=meta, lines=[
-                fx.line(segments, _DIRECTRIX_COLOR, thickness=2.0, kind=fx.LINE_LIST,
-                        colors=axis_colors)]),
-        ]
-        for k, route in enumerate(geo.routes):
-            base, route_meta = f"canal/route_{k}", {**meta, "route": k,
-                                                   "n_sections": route.n_sections}
-            route_colors = route.vertex_colors.copy()
-            route_colors[:, 3] = CANAL_ALPHA
-            route_rings = np.stack([route.rings[:, :-1], route.rings[:, 1:]],
-                                   axis=2).reshape(-1, 3)
+        drawn = {f"canal/route_{k}": (route, {**meta, "route": k, "n_sections": route.n_sections})
+                 for k, route in enumerate(geo.routes)} or {"canal": (geo, meta)}
+        entities = []
+        for base, (canal, canal_meta) in drawn.items():
+            see_through = canal.vertex_colors.copy()
+            see_through[:, 3] = CANAL_ALPHA
+            # Rings as one LINE_LIST: consecutive ring points pair up into segments.
+            ring_segments = np.stack([canal.rings[:, :-1], canal.rings[:, 1:]],
+                                     axis=2).reshape(-1, 3)
             entities += [
-                fx.entity(t_ns, f"{base}/mesh", metadata=route_meta, triangle_lists=[
-                    fx.triangles(route.vertices, route.faces, route_colors)]),
-                fx.entity(t_ns, f"{base}/directrix", metadata=route_meta,
-                          lines=[fx.line(route.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
-                fx.entity(t_ns, f"{base}/rings", metadata=route_meta, lines=[
-                    fx.line(route_rings, _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST)]),
+                fx.entity(t_ns, f"{base}/mesh", metadata=canal_meta, triangle_lists=[
+                    fx.triangles(canal.vertices, canal.faces, see_through)]),
+                fx.entity(t_ns, f"{base}/directrix", metadata=canal_meta,
+                          lines=[fx.line(canal.directrix, _DIRECTRIX_COLOR, thickness=3.0)]),
+                fx.entity(t_ns, f"{base}/rings", metadata=canal_meta, lines=[
+                    fx.line(ring_segments, _RING_COLOR, thickness=1.0, kind=fx.LINE_LIST)]),
             ]
-        self._write("/canal/model", "foxglove.SceneUpdate", t_ns, fx.scene_update(entities))
+        origins = np.vstack([c.frame_origins for c, _ in drawn.values()])
+        vectors = np.vstack([c.frame_vectors for c, _ in drawn.values()])
+        n_axes = vectors.shape[1]
+        tails = np.repeat(origins, n_axes, axis=0)
+        segments = np.stack([tails, tails + vectors.reshape(-1, 3)], axis=1).reshape(-1, 3)
+        axis_colors = np.repeat(np.tile(_AXIS_COLORS[:n_axes], (len(origins), 1)), 2, axis=0)
+        entities.append(fx.entity(t_ns, "canal/frames", metadata=meta, lines=[
+            fx.line(segments, _DIRECTRIX_COLOR, thickness=2.0, kind=fx.LINE_LIST,
+                    colors=axis_colors)]))
+        # Cleared first: the previous version may have had other routes (or a canal of all).
+        self._write("/canal/model", "foxglove.SceneUpdate", t_ns,
+                    fx.scene_update(entities, clear_at=t_ns))
         extra = {"routes": len(geo.routes)} if geo.routes else {}
         self._write("/canal/model_info", "canal.ModelInfo", t_ns, fx.plain(
             t_ns, version=geo.version, n_sections=geo.n_sections, radii=geo.radii,

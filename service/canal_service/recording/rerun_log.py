@@ -11,6 +11,8 @@ Entities and timelines::
     model/v<k>/rings        LineStrips3D       wall_time, model_version
     model/v<k>/info         AnyValues          wall_time, model_version
     model/v<k>/radius       BarChart           wall_time, model_version (radius per section index)
+    model/v<k>/route_<r>/   directrix, mesh, rings, radius as above, and info (route r): a
+                            model of several routes draws its routes and not the canal of all
     model/v<k-1>            Clear(recursive)   wall_time   when version k arrives
     corrections/v<k>/samples LineStrips3D      wall_time, model_version (the path of the
                             correction that made version k: green include, orange exclude)
@@ -18,7 +20,8 @@ Entities and timelines::
                             in the parent canal), corrections/v<k>/after (in version k),
                             corrections/v<k>/info AnyValues (kind, label, weight, span)
     frames/v<k>             Arrows3D           wall_time, model_version (tangent r, normal g, binormal b)
-    radius/v<version>       Scalars            section (the directrix parameter, 0..N-1)
+    radius/v<version>       Scalars            section (the directrix parameter, 0..N-1);
+                            radius/v<version>/route_<r> for a model of several routes
     reproductions/<n>/path  LineStrips3D       wall_time, model_version (n-th reproduction)
     reproductions/<n>/start Points3D           wall_time, model_version
     reproductions/<n>/orientation Arrows3D     wall_time (triads, when it has orientations)
@@ -287,41 +290,48 @@ class RerunSegment:
     def model(self, t_ns: int, geo: ModelGeometry) -> None:
         """Directrix, mesh, rings, frames and radius profile of one model version, under its
         own entity ``model/v<version>``; the previous version is cleared from this time on
-        (scrub back to see it, or toggle it in the viewer). A model of several routes: that
-        entity is the canal of all the demonstrations, and each route is its own entity
-        ``model/v<version>/route_<k>`` (directrix, mesh, rings, info)."""
+        (scrub back to see it, or toggle it in the viewer). A model of several routes draws
+        each route as its own entity ``model/v<version>/route_<k>`` (directrix, mesh, rings,
+        radius, info) and not the canal of all the demonstrations: no reproduction follows
+        that one, and its wide tube between the routes would hide them."""
         self._at(t_ns, geo.version)
         base = f"model/v{geo.version}"
         if geo.version > 1:
             self.rec.log(f"model/v{geo.version - 1}", rr.Clear(recursive=True))
             self.rec.log(f"frames/v{geo.version - 1}", rr.Clear(recursive=True))
-        self.rec.log(f"{base}/directrix", self._strips([geo.directrix],
-                                                       colors=[_DIRECTRIX_COLOR]))
-        self._surface(base, geo)
-        for k, route in enumerate(geo.routes):
-            path = f"{base}/route_{k}"
-            self.rec.log(f"{path}/directrix", self._strips([route.directrix],
+        drawn = {f"{base}/route_{k}": route for k, route in enumerate(geo.routes)} or {base: geo}
+        for path, canal in drawn.items():
+            self.rec.log(f"{path}/directrix", self._strips([canal.directrix],
                                                            colors=[_DIRECTRIX_COLOR]))
-            self._surface(path, route)
-            self.rec.log(f"{path}/info", rr.AnyValues(version=geo.version, route=k,
-                                                      n_sections=route.n_sections))
-        n_axes = geo.frame_vectors.shape[1]
+            self._surface(path, canal)
+            self.rec.log(f"{path}/radius", rr.BarChart(canal.radii, color=_RADIUS_COLOR,
+                                                       abscissa=np.arange(canal.n_sections)))
+        for k, route in enumerate(geo.routes):
+            self.rec.log(f"{base}/route_{k}/info", rr.AnyValues(
+                version=geo.version, route=k, n_sections=route.n_sections))
+        origins = np.vstack([c.frame_origins for c in drawn.values()])
+        vectors = np.vstack([c.frame_vectors for c in drawn.values()])
+        n_axes = vectors.shape[1]
         self.rec.log(f"frames/v{geo.version}", self._arrows(
-            np.repeat(geo.frame_origins, n_axes, axis=0), geo.frame_vectors.reshape(-1, 3),
-            np.tile(_AXIS_COLORS[:n_axes], (len(geo.frame_origins), 1))))
-        self.rec.log(f"{base}/info", rr.AnyValues(version=geo.version,
-                                                  n_sections=geo.n_sections))
-        self.rec.log(f"{base}/radius", rr.BarChart(geo.radii, color=_RADIUS_COLOR,
-                                                   abscissa=np.arange(geo.n_sections)))
-        radius = f"radius/v{geo.version}"
-        self.rec.log(radius, rr.SeriesLines(names=[f"v{geo.version}"]), static=True)
-        self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
-            geo.n_sections))], columns=rr.Scalars.columns(scalars=geo.radii))
+            np.repeat(origins, n_axes, axis=0), vectors.reshape(-1, 3),
+            np.tile(_AXIS_COLORS[:n_axes], (len(origins), 1))))
+        info = rr.AnyValues(version=geo.version, n_sections=geo.n_sections)
+        if geo.routes:
+            info = rr.AnyValues(version=geo.version, n_sections=geo.n_sections,
+                                routes=len(geo.routes))
+        self.rec.log(f"{base}/info", info)
+        for k, canal in enumerate(drawn.values()):
+            radius = f"radius/v{geo.version}" + (f"/route_{k}" if geo.routes else "")
+            name = f"v{geo.version}" + (f" route {k}" if geo.routes else "")
+            self.rec.log(radius, rr.SeriesLines(names=[name]), static=True)
+            self.rec.send_columns(radius, indexes=[rr.TimeColumn("section", sequence=np.arange(
+                canal.n_sections))], columns=rr.Scalars.columns(scalars=canal.radii))
         if geo.correction is not None:
             self._correction(geo.version, geo.correction)
         if self.dim == 3:
-            # The newest canal decides the framing: the default blueprint sent last wins.
-            frame = np.vstack([geo.vertices, *(r.vertices for r in geo.routes)])
+            # Sent with every model so a viewer that takes the newest default blueprint frames
+            # the newest canal; the web viewer keeps the layout its recording opened with.
+            frame = np.vstack([c.vertices for c in drawn.values()])
             self.rec.send_blueprint(review_blueprint(self.dim, frame=frame,
                                                      coordinates=self.coordinates),
                                     make_active=True, make_default=True)

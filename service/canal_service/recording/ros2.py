@@ -10,11 +10,11 @@ Made on export from the recording's Foxglove JSON MCAP (one source of truth), wi
     /canal/demos/demo_<id>           nav_msgs/msg/Path              a demonstration, with its
                                                                     orientations (an empty Path
                                                                     when it was deleted)
-    /canal/model/directrix           nav_msgs/msg/Path              per model version
-    /canal/model/mesh                visualization_msgs/msg/MarkerArray  TRIANGLE_LIST canal surface,
-                                                                    LINE_LIST rings and frames
-                                                                    (each route's surface too,
-                                                                    ns canal/route_<k>/mesh)
+    /canal/model/directrix           nav_msgs/msg/Path              per model version of one route
+    /canal/model/mesh                visualization_msgs/msg/MarkerArray  DELETEALL, then TRIANGLE_LIST
+                                                                    canal surface, LINE_LIST rings
+                                                                    and frames (a model of several
+                                                                    routes: ns canal/route_<k>/...)
     /canal/model/route_<k>/directrix nav_msgs/msg/Path              a model of several routes:
                                                                     each route's directrix
     /canal/corrections/samples       nav_msgs/msg/Path              the path of each correction
@@ -95,11 +95,14 @@ def _marker(stamp: dict[str, int], frame_id: str, ns: str, kind: int,
 
 
 def _mesh_markers(stamp: dict[str, int], entities: list[dict[str, Any]]) -> dict[str, Any]:
-    markers = []
+    """The model's SceneUpdate as a MarkerArray: DELETEALL first (a model replaces the previous
+    one, which may have had other routes), then each canal's surface, rings and the frames."""
+    clear = _marker(stamp, "canal", "canal/model", SPHERE, [], [], {"r": 0, "g": 0, "b": 0, "a": 0})
+    clear["action"] = DELETEALL
+    markers = [clear]
     for ent in entities:
         frame = ent.get("frame_id", "canal")
-        if ent["id"] == "canal/mesh" or (ent["id"].startswith("canal/route_")
-                                          and ent["id"].endswith("/mesh")):
+        if ent["id"].endswith("/mesh"):
             for tri in ent.get("triangles", []):
                 pts, cols, idx = tri["points"], tri.get("colors") or [], tri.get("indices") or []
                 order = idx if idx else list(range(len(pts)))
@@ -108,7 +111,7 @@ def _mesh_markers(stamp: dict[str, int], entities: list[dict[str, Any]]) -> dict
                                        [pts[i] for i in order],
                                        [cols[i] for i in order] if cols else [],
                                        tri.get("color") or {"r": 1, "g": 1, "b": 1, "a": 1}))
-        elif ent["id"] in ("canal/rings", "canal/frames"):
+        elif ent["id"].endswith("/rings") or ent["id"] == "canal/frames":
             for line in ent.get("lines", []):
                 markers.append(_marker(stamp, frame, ent["id"], LINE_LIST, line["points"],
                                        line.get("colors") or [], line["color"], scale=0.002))
