@@ -17,6 +17,10 @@ split at 0.45-0.78 L, the RAIL reaching groups (two goals half a metre apart) at
 A route needs two demonstrations (a canal is the envelope of several): a lone demonstration
 joins the route nearest to it. ``routes=1`` forces one route (one canal, as before).
 
+Route numbers follow the order in which the demonstrations first appear. A correction kept over
+a refit goes to the route its samples lie along (R3 of :func:`way_of`), so it follows its way
+when deleting demonstrations renumbers the routes, or a refit has fewer.
+
 Choosing a route. A start is given to the route whose entry holds it: inside that route's
 canal, located in its first third. When exactly one route's entry holds it, that route ("entry").
 Otherwise the route whose entry passes nearest the start,
@@ -221,6 +225,30 @@ class Routes:
             raise ModelFormatError(f"expected route labels in 0..{len(canals) - 1}, got {labels.tolist()}",
                                    field="labels")
         return cls(canals, pooled, labels)
+
+
+def way_of(routes: Routes, points: Any, keep: int | None = None) -> int:
+    """The route whose directrix passes nearest ``points`` (M, D): the least mean distance
+    from each point to the directrix's nearest sample,
+
+        h_k = (1 / M) sum_m min_i |p_m - c_k(i)|                                   (R3)
+
+    ``keep`` (a route number, or None) stays unless another route is less than half as far:
+    a correction kept over a refit follows the way it was made on when the routes are
+    renumbered or fewer, and keeps its number where routes share their way."""
+    pts = np.asarray(points, dtype=np.float64)
+    gaps = []
+    for canal in routes.canals:
+        c = np.asarray(canal.directrix, dtype=np.float64)
+        step = max(1, _ROUTE_BLOCK // max(c.shape[0], 1))
+        nearest = np.concatenate([
+            np.linalg.norm(pts[i:i + step, None, :] - c[None, :, :], axis=2).min(axis=1)
+            for i in range(0, pts.shape[0], step)])
+        gaps.append(float(nearest.mean()))
+    best = int(np.argmin(gaps))
+    if keep is not None and 0 <= keep < len(gaps) and not gaps[best] < 0.5 * gaps[keep]:
+        return keep
+    return best
 
 
 def single_route(canal: Any) -> Routes:

@@ -654,8 +654,14 @@ class CanalService:
         it passes through: :func:`corrected_routes`); those that fail are skipped."""
         applied, notes = [], []
         for stored in kept:
+            route = stored.route
+            if route is not None and routes.n_routes > 1:
+                route = canal_core.routes.way_of(routes, stored.correction.samples, keep=route)
+                if route != stored.route:
+                    notes.append(f"correction {stored.id} follows its way: route {stored.route} "
+                                 f"is now route {route}")
             try:
-                routes, _first = corrected_routes(routes, stored.correction, stored.route)
+                routes, _first = corrected_routes(routes, stored.correction, route)
             except canal_core.CanalError as exc:
                 notes.append(f"correction {stored.id} no longer applies and was left out: "
                              f"{exc.message}")

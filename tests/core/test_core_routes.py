@@ -79,3 +79,18 @@ def test_a_routes_model_round_trips_and_a_bad_one_is_refused() -> None:
     data["labels"] = [0, 7]
     with pytest.raises(canal_core.ModelFormatError, match="labels"):
         canal_core.Routes.from_dict(data)
+
+
+def test_way_of_finds_the_route_points_lie_along_and_keeps_a_number_where_ways_are_shared() -> None:
+    from canal_core.routes import way_of
+
+    routes = canal_core.fit_routes(two_route_demos(shared_start=True), n_samples=60)
+    assert routes.n_routes == 2
+    first, second = (c.directrix for c in routes.canals)
+    late = slice(40, 55)  # where the ways have parted
+    assert way_of(routes, second[late]) == 1
+    assert way_of(routes, second[late], keep=0) == 1  # renumbered: follows the way
+    assert way_of(routes, first[late], keep=1) == 0
+    assert way_of(routes, first[late], keep=5) == 0  # a route the model no longer has
+    shared = 0.5 * (first[:3] + second[:3])  # the common start: either way is as near
+    assert way_of(routes, shared, keep=1) == 1 and way_of(routes, shared, keep=0) == 0

@@ -177,3 +177,53 @@ def test_the_fit_estimate_counts_every_route_fit() -> None:
     small.check_cost(one)
     with pytest.raises(Exception, match="2 routes"):
         small.check_cost(two)
+
+
+def _latest_routes(http: httpx.Client) -> canal_core.Routes:
+    return canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+
+
+def _widening(canal: canal_core.Canal) -> np.ndarray:
+    idx = np.arange(20, 41)
+    return canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+
+
+def test_a_kept_correction_follows_its_way_when_a_refit_renumbers_the_routes(
+        http: httpx.Client) -> None:
+    # Route numbers follow the first demonstration of each way: the -y way is route 1 while
+    # demonstration 0 (+y) comes first, route 0 once it is deleted.
+    assert http.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
+    ids = {}
+    for j in (0, 4, 5, 6, 1, 2, 3, 7):
+        r = http.post("/skills/reach/demonstrations", json={"positions": two_route_demo(j).tolist()})
+        ids[j] = r.json()["id"]
+    assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
+    minus_y = _latest_routes(http).canals[1]
+    assert minus_y.directrix[30, 1] < 0
+    made = http.post("/skills/reach/corrections", json={
+        "kind": "include", "samples": _widening(minus_y).tolist(), "route": 1}).json()
+    assert http.delete(f"/skills/reach/demonstrations/{ids[0]}").status_code in (200, 204)
+    r = http.post("/skills/reach/fit", json={"n_samples": 60})
+    assert r.status_code == 201, r.text
+    assert r.json()["corrections"] == [made["correction"]["id"]]
+    refit = _latest_routes(http)
+    assert refit.canals[0].directrix[30, 1] < 0  # the -y way is route 0 now
+    assert [len(c.corrections) for c in refit.canals] == [1, 0]
+    assert any("route 1 is now route 0" in note for note in r.json()["notes"]), r.json()["notes"]
+
+
+def test_a_correction_of_a_route_a_refit_no_longer_has_goes_to_the_nearest(
+        http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    assert http.post("/skills/reach/fit", json={"n_samples": 60, "routes": 3}).status_code == 201
+    three = _latest_routes(http)
+    last = three.canals[2]
+    made = http.post("/skills/reach/corrections", json={
+        "kind": "include", "samples": _widening(last).tolist(), "route": 2}).json()
+    r = http.post("/skills/reach/fit", json={"n_samples": 60, "routes": 2})
+    assert r.status_code == 201, r.text
+    assert r.json()["corrections"] == [made["correction"]["id"]]
+    two = _latest_routes(http)
+    way = int(np.argmin([path_distance(last.directrix, c.directrix) for c in two.canals]))
+    assert [len(c.corrections) for c in two.canals] == [int(k == way) for k in range(2)]
