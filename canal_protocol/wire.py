@@ -48,8 +48,9 @@ many bytes of UTF-8 message. Target flags: 0x01 inside, 0x02 done, 0x04 seq is k
 set when the pose could not be read), 0x08 has message. A 3-D target is 62 bytes.
 Optional extras follow, each present when its flag is set, in this order: 0x10 ``4 x
 float64`` target orientation (x, y, z, w); 0x20 ``D x float64`` feed-forward velocity;
-0x40 ``uint32`` poses of this stream coalesced so far. They sit after everything an older
-reader looks at, so clients written before them keep working (they ignore the tail).
+0x40 ``uint32`` poses of this stream coalesced so far; 0x80 ``uint16`` the route the stream
+follows (a model of several routes only). They sit after everything an older reader looks at,
+so clients written before them keep working (they ignore the tail).
 
 ROS 2 (CDR): a sample whose Zenoh encoding is ``application/cdr`` or whose first two bytes
 are a CDR encapsulation header (``00 01`` little-endian, ``00 00`` big-endian; a binary
@@ -114,7 +115,6 @@ from .codecs.binary import (
 )
 from .codecs.cdr import RosStamp, decode_pose_cdr, encode_pose_stamped_cdr
 from .codecs.json import (
-    NO_ROUTE,
     decode_pose_json,
     decode_target_json,
     encode_pose_json,
@@ -131,6 +131,7 @@ from .codecs.messages import (
     KIND_POSE,
     KIND_TARGET,
     MAX_DIM,
+    NO_ROUTE,
     POSE_ORIENTATION,
     POSE_RESTART,
     POSE_TIME,
@@ -142,6 +143,7 @@ from .codecs.messages import (
     TARGET_INSIDE,
     TARGET_MESSAGE,
     TARGET_ORIENTATION,
+    TARGET_ROUTE,
     TARGET_SEQ,
     TARGET_VELOCITY,
     USABLE,
@@ -176,6 +178,7 @@ __all__ = [
     "TARGET_INSIDE",
     "TARGET_MESSAGE",
     "TARGET_ORIENTATION",
+    "TARGET_ROUTE",
     "TARGET_SEQ",
     "TARGET_VELOCITY",
     "USABLE",

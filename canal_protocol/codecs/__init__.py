@@ -12,7 +12,6 @@ from __future__ import annotations
 from .binary import decode_pose, decode_target, encode_pose, encode_target, pack_target
 from .cdr import RosStamp, decode_pose_cdr, encode_pose_stamped_cdr, pose_stamped_columns
 from .json import (
-    NO_ROUTE,
     decode_pose_json,
     decode_target_json,
     encode_pose_json,
@@ -26,6 +25,7 @@ from .messages import (
     FORMAT_CDR,
     FORMAT_JSON,
     JSON_ENCODING,
+    NO_ROUTE,
     Pose,
     Target,
     WireError,

@@ -11,6 +11,7 @@ from .messages import (
     KIND_TARGET,
     MAX_COORDINATE,
     MAX_DIM,
+    NO_ROUTE,
     POSE_ORIENTATION,
     POSE_RESTART,
     POSE_TIME,
@@ -21,6 +22,7 @@ from .messages import (
     TARGET_INSIDE,
     TARGET_MESSAGE,
     TARGET_ORIENTATION,
+    TARGET_ROUTE,
     TARGET_SEQ,
     TARGET_VELOCITY,
     VERSION,
@@ -131,7 +133,8 @@ def encode_target(answer: Target) -> bytes:
     message = answer.message.encode("utf-8")[:65535] if answer.message else b""
     if message:
         flags |= TARGET_MESSAGE
-    flags |= _extra_flags(answer.orientation, answer.velocity, answer.coalesced)
+    route = NO_ROUTE if answer.route is None else answer.route
+    flags |= _extra_flags(answer.orientation, answer.velocity, answer.coalesced, route)
     data = _target_struct(dim).pack(
         VERSION, KIND_TARGET, flags, dim, 0 if answer.seq is None else answer.seq,
         -1 if answer.model_version is None else answer.model_version,
@@ -139,18 +142,23 @@ def encode_target(answer: Target) -> bytes:
         math.nan if answer.eta is None else answer.eta, STATUS_CODES[answer.status], *position)
     if message:
         data += _U16.pack(len(message)) + message
-    return data + _extras(flags, answer.orientation, answer.velocity, answer.coalesced)
+    return data + _extras(flags, answer.orientation, answer.velocity, answer.coalesced, route)
 
 
-def _extra_flags(orientation: Any, velocity: Any, coalesced: int) -> int:
+def _extra_flags(orientation: Any, velocity: Any, coalesced: int, route: int = NO_ROUTE) -> int:
     return ((TARGET_ORIENTATION if orientation is not None else 0)
             | (TARGET_VELOCITY if velocity is not None else 0)
-            | (TARGET_COALESCED if coalesced else 0))
+            | (TARGET_COALESCED if coalesced else 0)
+            | (TARGET_ROUTE if route >= 0 else 0))
 
 
-def _extras(flags: int, orientation: Any, velocity: Any, coalesced: int) -> bytes:
-    """The optional tail of a target (flags 0x10, 0x20, 0x40), after the message."""
-    if not flags & (TARGET_ORIENTATION | TARGET_VELOCITY | TARGET_COALESCED):
+_EXTRAS = TARGET_ORIENTATION | TARGET_VELOCITY | TARGET_COALESCED | TARGET_ROUTE
+
+
+def _extras(flags: int, orientation: Any, velocity: Any, coalesced: int,
+            route: int = NO_ROUTE) -> bytes:
+    """The optional tail of a target (flags 0x10, 0x20, 0x40, 0x80), after the message."""
+    if not flags & _EXTRAS:
         return b""
     tail = b""
     if flags & TARGET_ORIENTATION:
@@ -159,20 +167,23 @@ def _extras(flags: int, orientation: Any, velocity: Any, coalesced: int) -> byte
         tail += struct.pack(f"<{len(velocity)}d", *velocity)
     if flags & TARGET_COALESCED:
         tail += _U32.pack(min(int(coalesced), 0xFFFFFFFF))
+    if flags & TARGET_ROUTE:
+        tail += _U16.pack(route)
     return tail
 
 
 def pack_target(seq: int, status: int, target: Any, progress: float, eta: float, section: int,
                 inside: bool, done: bool, model_version: int, orientation: Any = None,
-                velocity: Any = None, coalesced: int = 0) -> bytes:
-    """Fast path for the bridge: a usable target, no message, ``target`` a (D,) sequence."""
+                velocity: Any = None, coalesced: int = 0, route: int = NO_ROUTE) -> bytes:
+    """Fast path for the bridge: a usable target, no message, ``target`` a (D,) sequence;
+    ``route`` >= 0: the route of a model of several routes the stream follows."""
     flags = TARGET_SEQ | (TARGET_INSIDE if inside else 0) | (TARGET_DONE if done else 0)
-    flags |= _extra_flags(orientation, velocity, coalesced)
+    flags |= _extra_flags(orientation, velocity, coalesced, route)
     dim = len(target)
     data = _target_struct(dim).pack(VERSION, KIND_TARGET, flags, dim, seq, model_version,
                                     section, progress, eta, status, *target)
-    if flags & 0x70:
-        data += _extras(flags, orientation, velocity, coalesced)
+    if flags & _EXTRAS:
+        data += _extras(flags, orientation, velocity, coalesced, route)
     return data
 
 
@@ -192,6 +203,7 @@ def decode_target(data: bytes) -> Target:
         at += 2 + n
     orientation = velocity = None
     coalesced = 0
+    route: int | None = None
     try:
         if flags & TARGET_ORIENTATION:
             orientation = _QUAT.unpack_from(data, at)
@@ -201,6 +213,9 @@ def decode_target(data: bytes) -> Target:
             at += 8 * dim
         if flags & TARGET_COALESCED:
             (coalesced,) = _U32.unpack_from(data, at)
+            at += _U32.size
+        if flags & TARGET_ROUTE:
+            (route,) = _U16.unpack_from(data, at)
     except struct.error:
         raise WireError("bad_payload", "expected the target's optional fields, got fewer bytes"
                         ) from None
@@ -218,4 +233,5 @@ def decode_target(data: bytes) -> Target:
         orientation=orientation,  # type: ignore[arg-type]
         velocity=velocity,
         coalesced=coalesced,
+        route=route,
     )

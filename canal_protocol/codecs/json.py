@@ -10,6 +10,7 @@ import orjson
 from .messages import (
     MAX_COORDINATE,
     MAX_DIM,
+    NO_ROUTE,
     SEQ_MAX,
     VERSION,
     Pose,
@@ -125,8 +126,6 @@ def target_json(answer: Target) -> bytes:
 
 
 _NUMPY = orjson.OPT_SERIALIZE_NUMPY
-#: ``route`` of :func:`pack_target_json` for a model of one route: the answer has no "route".
-NO_ROUTE = -1
 
 
 def pack_target_json(seq: int, status: str, target: Any, progress: float, eta: float,

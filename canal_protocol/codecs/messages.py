@@ -26,6 +26,9 @@ TARGET_MESSAGE = 0x08
 TARGET_ORIENTATION = 0x10
 TARGET_VELOCITY = 0x20
 TARGET_COALESCED = 0x40
+TARGET_ROUTE = 0x80
+#: The answer's route for a model of one route: none (no "route" key, no flag 0x80).
+NO_ROUTE = -1
 
 SEQ_MAX = 2**64 - 1
 
@@ -96,8 +99,8 @@ class Target:
     orientation: tuple[float, float, float, float] | None = None
     velocity: tuple[float, ...] | None = None
     coalesced: int = 0
-    #: The route of a model of several routes the stream follows (JSON answers and the ROS 2
-    #: status only); None: the model has one route, or the stream follows the canal of all.
+    #: The route of a model of several routes the stream follows; None: the model has one
+    #: route, or the stream follows the canal of all.
     route: int | None = None
 
     @property

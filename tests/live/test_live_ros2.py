@@ -3,6 +3,8 @@ back with rosbags (an independent CDR implementation), never with our own encode
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import threading
 import time
 
@@ -228,6 +230,17 @@ def test_binary_target_extras_keep_old_readers_working():
                                              False, 2, (0.0, 0.0, 0.0, 1.0), None, 7))
     assert doc["orientation"] == [0.0, 0.0, 0.0, 1.0] and doc["coalesced"] == 7
     assert "velocity" not in doc
+    # the route (flag 0x80, a uint16 after the coalesced count) of a model of several routes
+    routed = wire.encode_target(replace(answer, route=1))
+    assert routed[:len(data)] == data[:2] + bytes([data[2] | 0x80]) + data[3:]
+    assert len(routed) == len(data) + 2 and struct.unpack_from("<H", routed, len(data)) == (1,)
+    assert wire.decode_target(routed) == replace(answer, route=1)
+    assert wire.pack_target(3, 0, [1.0, 2.0, 3.0], 0.5, 0.1, 4, True, False, 2,
+                            (0.0, 0.0, 0.0, 1.0), (0.1, 0.2, 0.3), 7, 1) == routed
+    bare = wire.pack_target(3, 0, [1.0, 2.0, 3.0], 0.5, 0.1, 4, True, False, 2, route=0)
+    assert len(bare) == 62 + 2 and wire.decode_target(bare).route == 0
+    assert wire.decode_target(wire.pack_target(3, 0, [1.0, 2.0, 3.0], 0.5, 0.1, 4, True, False,
+                                               2)).route is None
 
 
 def test_rmw_zenoh_adapter_round_trip(live):

@@ -52,10 +52,7 @@ def test_a_stream_from_each_start_follows_its_route(live: Any, reach: str, encod
         assert own < 0.05 < other, (k, own, other)
         middle = r.positions[len(r.positions) // 2]
         assert np.sign(middle[1]) == (1.0 if k == 0 else -1.0)
-        if encoding == "json":
-            assert {t.route for t in r.targets} == {k}
-        else:  # the binary layout has no route
-            assert {t.route for t in r.targets} == {None}
+        assert {t.route for t in r.targets} == {k}
 
 
 def test_healthz_counts_streams_by_route_and_one_route_answers_without_it(

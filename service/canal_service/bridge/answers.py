@@ -50,6 +50,7 @@ class Answers(StreamTable):
         with_velocity, with_orientation = bank.has_velocity, bank.has_orientation
         version = entry.version
         route = entry.route  # wire.NO_ROUTE for a model of one route: no "route" key
+        binary_route = wire.NO_ROUTE if route is None else route  # the canal of all: none
         counts = self.counts
         period = self.record_period_ns
         now = self.now_ns
@@ -94,7 +95,7 @@ class Answers(StreamTable):
             elif fmt == _FBIN:
                 st.publisher.put(wire.pack_target(
                     pose.seq, code, target, progress, eta, section, inside, done, version,
-                    orientation, velocity, st.coalesced), encoding=ENC_BINARY)
+                    orientation, velocity, st.coalesced, binary_route), encoding=ENC_BINARY)
             else:
                 self._answer_cdr(st, pose, ros, entry, target, progress, eta, section, inside,
                                  done, orientation, status)
