@@ -3,10 +3,9 @@ back with rosbags (an independent CDR implementation), never with our own encode
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import orjson
