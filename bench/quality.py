@@ -41,7 +41,9 @@ Peers, on the same 200-point arrays with their index as normalised time: GMR (gm
 components on [t, x]), GMR+offset (the start offset fading linearly), DMP (movement_primitives,
 30 weights per dimension, fitted on the mean demo, goal = mean goal, started at the held-out
 start) and ProMP conditioned on the start (30 weights per dimension). Medians over folds; the
-ratio table divides each canal row's median DTW by the best peer's of the same group.
+ratio table divides each canal row's median DTW by the best peer's of the same group, and
+counts the folds in which the defaults' reproduction is closer to the held-out demo than the
+best peer's on the same fold (a ratio near 1 with about half the folds each way is a tie).
 """
 
 from __future__ import annotations
@@ -435,6 +437,14 @@ def ratio_table(records: list[dict], groups: list[str], methods: list[str]) -> s
         rs = [r for r in per[g] if r["method"] == DEFAULT and "start in" in r]
         inside.append(f"{100 * np.mean([r['start in'] for r in rs]):.0f} %" if rs else "-")
     lines.append("| held-out starts inside (defaults) | " + " | ".join(inside) + " |")
+    closer = []
+    for g in groups:
+        theirs = {(r["set"], r["fold"]): r["dtw"] for r in per[g]
+                  if r["method"] == peers[g][0] and "dtw" in r}
+        pairs = [(r["dtw"], theirs[(r["set"], r["fold"])]) for r in per[g]
+                 if r["method"] == DEFAULT and "dtw" in r and (r["set"], r["fold"]) in theirs]
+        closer.append(f"{sum(a < b for a, b in pairs)}/{len(pairs)}" if pairs else "-")
+    lines.append("| folds the defaults follow closer than the best peer | " + " | ".join(closer) + " |")
     return "\n".join(lines)
 
 

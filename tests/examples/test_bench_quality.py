@@ -41,3 +41,6 @@ def test_every_method_is_scored_on_the_same_folds_and_the_canal_reports_containm
     assert all(0.0 < r["dtw"] < 0.1 for r in records)  # the path is about 1 long
     table = quality.ratio_table(records, ["raw 3-D"], list(methods))
     assert "DMP" in table and "held-out starts inside" in table
+    dmp = {r["fold"]: r["dtw"] for r in records if r["method"] == "DMP"}
+    closer = sum(r["dtw"] < dmp[r["fold"]] for r in canal)
+    assert f"| folds the defaults follow closer than the best peer | {closer}/4 |" in table
