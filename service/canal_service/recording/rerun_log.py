@@ -67,7 +67,9 @@ _RING_COLOR = (60, 60, 60, 200)
 _AXIS_COLORS = np.array([[230, 50, 50, 255], [50, 200, 50, 255], [50, 80, 240, 255]], np.uint8)
 _INSIDE_COLOR = (25, 190, 75, 255)
 _OUTSIDE_COLOR = (240, 130, 25, 255)
-_RADIUS_COLOR = (200, 160, 60, 255)
+#: Radius bars: the canal's, or each route's in turn (they share one bar chart).
+_RADIUS_COLORS = ((200, 160, 60, 255), (70, 130, 200, 255), (190, 80, 120, 255),
+                  (90, 160, 90, 255))
 _OBSTACLE_COLOR = (200, 40, 40, 160)
 
 
@@ -300,11 +302,12 @@ class RerunSegment:
             self.rec.log(f"model/v{geo.version - 1}", rr.Clear(recursive=True))
             self.rec.log(f"frames/v{geo.version - 1}", rr.Clear(recursive=True))
         drawn = {f"{base}/route_{k}": route for k, route in enumerate(geo.routes)} or {base: geo}
-        for path, canal in drawn.items():
+        for k, (path, canal) in enumerate(drawn.items()):
             self.rec.log(f"{path}/directrix", self._strips([canal.directrix],
                                                            colors=[_DIRECTRIX_COLOR]))
             self._surface(path, canal)
-            self.rec.log(f"{path}/radius", rr.BarChart(canal.radii, color=_RADIUS_COLOR,
+            color = _RADIUS_COLORS[k % len(_RADIUS_COLORS)]
+            self.rec.log(f"{path}/radius", rr.BarChart(canal.radii, color=color,
                                                        abscissa=np.arange(canal.n_sections)))
         for k, route in enumerate(geo.routes):
             self.rec.log(f"{base}/route_{k}/info", rr.AnyValues(
