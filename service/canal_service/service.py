@@ -15,7 +15,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
@@ -471,7 +471,17 @@ class CanalService:
         # The skill's corrections, re-applied to the new canal (a version of its own, whose
         # parent is the plain fit); one that no longer applies is left behind and said so.
         refined, applied, notes = self._reapplied(routes, kept)
-        lineage = StoredLineage(version, version, [c.id for c in applied])
+        made_on = {c.id: c.route for c in kept}
+        moved = {c.id: c.route for c in applied if c.route != made_on[c.id]}
+
+        def follow(s: Any, skill: Skill, _version: int, ids: list[int]) -> list[int]:
+            # a correction that followed its way to another route number keeps that number
+            for row in repo.get_corrections(s, skill, list(moved)):
+                row.route = moved[row.id]
+            return ids
+
+        lineage = StoredLineage(version, version, [c.id for c in applied],
+                                follow if moved else None)
         return self._store_refined(name, used_options, demo_ids, refined, lineage, notes)
 
     def _route_labels(self, positions: list[arrays.FloatArray], routes: int | None,
@@ -650,8 +660,9 @@ class CanalService:
     @staticmethod
     def _reapplied(routes: Routes, kept: Sequence[StoredCorrection]
                    ) -> tuple[Routes, list[StoredCorrection], list[str]]:
-        """``routes`` with each correction re-applied in turn (to its route, or to every canal
-        it passes through: :func:`corrected_routes`); those that fail are skipped."""
+        """``routes`` with each correction re-applied in turn (to the route its samples lie
+        along, or to every canal it passes through: :func:`corrected_routes`), those applied
+        (with the route they went to) and notes; those that fail are skipped."""
         applied, notes = [], []
         for stored in kept:
             route = stored.route
@@ -666,7 +677,7 @@ class CanalService:
                 notes.append(f"correction {stored.id} no longer applies and was left out: "
                              f"{exc.message}")
                 continue
-            applied.append(stored)
+            applied.append(replace(stored, route=route))
         return routes, applied, notes
 
     def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],

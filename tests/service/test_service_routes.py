@@ -211,6 +211,11 @@ def test_a_kept_correction_follows_its_way_when_a_refit_renumbers_the_routes(
     assert refit.canals[0].directrix[30, 1] < 0  # the -y way is route 0 now
     assert [len(c.corrections) for c in refit.canals] == [1, 0]
     assert any("route 1 is now route 0" in note for note in r.json()["notes"]), r.json()["notes"]
+    # the stored correction now names the route it follows, and the next refit keeps it there
+    assert [c["route"] for c in http.get("/skills/reach/corrections").json()["items"]] == [0]
+    again = http.post("/skills/reach/fit", json={"n_samples": 60}).json()
+    assert not any("follows its way" in note for note in again["notes"])
+    assert [len(c.corrections) for c in _latest_routes(http).canals] == [1, 0]
 
 
 def test_a_correction_of_a_route_a_refit_no_longer_has_goes_to_the_nearest(
