@@ -3,13 +3,13 @@
 Every ``interval`` (0.1 s by default) a bridge puts one message on
 ``{prefix}/@recorder/live/{bridge}`` (:func:`canal_protocol.keys.recorder_key`): what each
 stream kept for the recording since its last batch, as columns (no per-row parsing on the
-recorder's side), and the stream's count deltas. Binary, version 2, little-endian:
+recorder's side), and the stream's count deltas. Binary, version 3, little-endian:
 
 ====== ============ =========================================================================
 offset type         field
 ====== ============ =========================================================================
 0      3 bytes      magic ``CRB`` (a version 1 batch was a JSON object: it starts with ``{``)
-3      uint8        version (2)
+3      uint8        version (3)
 4      uint32       header length H
 8      H bytes      header, JSON: ``{"bridge": str, "n": int, "streams": [[skill, robot,
                     poses, answered, coalesced, errors, decimated, rows, dim], ...]}``
@@ -17,7 +17,9 @@ offset type         field
                     ``t_ns`` int64[M], ``position`` float64[M*dim], ``orientation``
                     float64[M*4], ``target`` float64[M*dim], ``target_orientation``
                     float64[M*4], ``progress`` float64[M], ``eta`` float64[M], ``section``
-                    int32[M], ``flags`` uint8[M], ``status`` uint8[M] (:data:`STATUS_CODES`)
+                    int32[M], ``flags`` uint8[M], ``status`` uint8[M] (:data:`STATUS_CODES`),
+                    ``route`` int16[M] (the route of a model of several routes the stream
+                    followed; -1 for a model of one route)
 ====== ============ =========================================================================
 
 ``flags``: :data:`RECORD_ORIENTATION` (the pose had an orientation), :data:`RECORD_TARGET_
@@ -45,8 +47,9 @@ from canal_protocol.codecs.messages import MAX_DIM, STATUS_CODES, STATUS_KEYS, W
 from canal_protocol.keys import is_plain_chunk
 
 RECORD_BATCH_MAGIC = b"CRB"
-RECORD_BATCH_VERSION = 2
-RECORD_ROW_FIELDS = 11
+RECORD_BATCH_VERSION = 3
+#: Fields of a row handed to :func:`encode_record_batch`; the route (the 12th) may be left out.
+RECORD_ROW_FIELDS = 12
 RECORD_ORIENTATION = 0x01
 RECORD_TARGET_ORIENTATION = 0x02
 RECORD_INSIDE = 0x04
@@ -72,6 +75,8 @@ class RecordRow:
     inside: bool
     done: bool
     status: str
+    #: the route of a model of several routes the stream followed; None: one route
+    route: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,6 +106,7 @@ class RecordStream:
     section: array[int]
     flags: bytes
     status: bytes
+    route: array[int]
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -119,7 +125,8 @@ class RecordStream:
                 tuple(self.target_orientation[4 * i:4 * i + 4])
                 if f & RECORD_TARGET_ORIENTATION else None,
                 self.progress[i], self.eta[i], self.section[i], bool(f & RECORD_INSIDE),
-                bool(f & RECORD_DONE), STATUS_KEYS[self.status[i]]))
+                bool(f & RECORD_DONE), STATUS_KEYS[self.status[i]],
+                None if self.route[i] < 0 else self.route[i]))
         return tuple(out)
 
 
@@ -153,10 +160,11 @@ def _quaternions(values: tuple[Any, ...]) -> bytes:
 
 
 def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]]) -> bytes:
-    """A recording batch (binary, version 2); ``streams`` holds ``(skill, robot, poses,
+    """A recording batch (binary, version 3); ``streams`` holds ``(skill, robot, poses,
     answered, coalesced, errors, decimated, rows)`` with rows as tuples ``(t_ns, position,
     orientation|None, target, target_orientation|None, progress, eta, section, inside,
-    done, status)``. A stream's positions and targets share one dimension."""
+    done, status[, route])`` (route -1 or left out: a model of one route). A stream's
+    positions and targets share one dimension."""
     heads: list[list[Any]] = []
     body: list[bytes] = []
     for skill, robot, poses, answered, coalesced, errors, decimated, rows in streams:
@@ -166,9 +174,12 @@ def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]]) -> 
         if not m:
             continue
         cols = tuple(zip(*rows, strict=True))
+        if len(cols) == RECORD_ROW_FIELDS - 1:
+            cols = (*cols, (-1,) * m)
         if len(cols) != RECORD_ROW_FIELDS:
-            raise WireError("bad_payload", f"expected rows of {RECORD_ROW_FIELDS} fields")
-        t, pos, q, target, tq, progress, eta, section, inside, done, status = cols
+            raise WireError("bad_payload", f"expected rows of {RECORD_ROW_FIELDS - 1} or "
+                            f"{RECORD_ROW_FIELDS} fields")
+        t, pos, q, target, tq, progress, eta, section, inside, done, status, route = cols
         body += [
             _column("q", t), _vectors(pos, dim, "position"), _quaternions(q),
             _vectors(target, dim, "target"), _quaternions(tq),
@@ -178,7 +189,8 @@ def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]]) -> 
                    | (RECORD_TARGET_ORIENTATION if b is not None else 0)
                    | (RECORD_INSIDE if c else 0) | (RECORD_DONE if d else 0)
                    for a, b, c, d in zip(q, tq, inside, done, strict=True)]),
-            bytes([STATUS_CODES[s] for s in status])]
+            bytes([STATUS_CODES[s] for s in status]),
+            _column("h", [-1 if r is None else r for r in route])]
     header = orjson.dumps({"bridge": bridge, "n": n, "streams": heads})
     return b"".join([_RECORD_PREFIX.pack(RECORD_BATCH_MAGIC, RECORD_BATCH_VERSION, len(header)),
                      header, *body])
@@ -206,7 +218,7 @@ _STREAM_COUNTS = ("poses", "answered", "coalesced", "errors", "decimated", "rows
 
 
 def decode_record_batch(data: bytes) -> RecordBatch:
-    """A recording batch; WireError (``bad_payload``) when it is not a whole version 2 batch
+    """A recording batch; WireError (``bad_payload``) when it is not a whole version 3 batch
     (a bridge of another Canal version is named as such)."""
     if data[:1] == b"{":
         raise WireError("bad_payload", "expected a binary recording batch of version "
@@ -258,11 +270,12 @@ def decode_record_batch(data: bytes) -> RecordBatch:
         section, at = _take(view, at, "i", m)
         flags, at = _take(view, at, "B", m)
         status, at = _take(view, at, "B", m)
+        route, at = _take(view, at, "h", m)
         if any(code not in STATUS_KEYS for code in set(status)):
             raise WireError("bad_payload", "expected known status codes in the rows")
         out.append(RecordStream(skill, robot, poses, answered, coalesced, errors, decimated,
                                 dim, t, pos, q, target, tq, progress, eta, section,
-                                flags.tobytes(), status.tobytes()))
+                                flags.tobytes(), status.tobytes(), route))
     if at != len(data):
         raise WireError("bad_payload", f"expected {at} bytes as the header announces, got "
                         f"{len(data)}")

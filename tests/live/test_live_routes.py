@@ -132,3 +132,25 @@ def test_bridge_processes_serve_routes_and_healthz_sums_them(tmp_path: Any) -> N
         finally:
             for ps in streamers:
                 ps.close()
+
+
+def test_the_recording_says_which_route_each_stream_followed(live: Any, reach: str) -> None:
+    import io
+
+    from mcap.reader import make_reader
+
+    for k, start in enumerate(ROUTE_STARTS):
+        r = run_sim(reach, robot=f"rec{k}", start=start, rate_hz=200.0, timeout_s=20.0,
+                    endpoint=live.endpoint, encoding="binary")
+        assert r.reached_end, (k, r.statuses)
+
+    def states() -> dict[str, set[int | None]]:
+        mcap = live.client.get(f"/skills/{reach}/recording.mcap").content
+        out: dict[str, set[int | None]] = {}
+        for _s, channel, message in make_reader(io.BytesIO(mcap)).iter_messages():
+            if channel.topic in ("/live/rec0/state", "/live/rec1/state"):
+                out.setdefault(channel.topic, set()).add(orjson.loads(message.data).get("route"))
+        return out
+
+    seen = wait_until(lambda: (lambda s: s if len(s) == 2 else None)(states()), timeout=10.0)
+    assert seen == {"/live/rec0/state": {0}, "/live/rec1/state": {1}}, seen

@@ -18,12 +18,13 @@ from mcap.reader import make_reader
 from recording_helpers import mcap_counts, rrd_rows
 
 
-def _rows(robot: str, t0: int, m: int = 30) -> LiveRows:
+def _rows(robot: str, t0: int, m: int = 30, route: int | None = None) -> LiveRows:
     rng = np.random.default_rng(len(robot))
     q = rng.standard_normal((m, 4))
     return live_rows("pour", robot, t0 + 1_000_000 * np.arange(m), rng.random((m, 3)), q,
                      rng.random((m, 3)), q[::-1], np.linspace(0, 1, m), rng.random(m),
-                     np.arange(m), np.arange(m) % 3 != 0, np.zeros(m, bool))
+                     np.arange(m), np.arange(m) % 3 != 0, np.zeros(m, bool),
+                     None if route is None else np.full(m, route))
 
 
 def _mcap(path: Path, fast: bool) -> list[tuple[str, int, bytes]]:
@@ -66,7 +67,7 @@ def _rrd(path: Path, fast: bool, env: dict[str, str]) -> Path:
     seg = RerunSegment(path, "0" * 32, "pour", blueprint=False, fast=fast)
     t0 = 1_700_000_000_000_000_000
     seg.live(_rows("arm1", t0))
-    seg.live(_rows("arm2", t0 + 50_000_000))
+    seg.live(_rows("arm2", t0 + 50_000_000, route=1))  # a stream on route 1
     seg.close()
     return path
 
@@ -81,6 +82,8 @@ def test_rerun_paths_log_the_same_live_rows(tmp_path: Path, rerun_env: dict[str,
     assert live[("/live/arm1/frame", "Transform3D:quaternion")] == 30
     assert live[("/live/arm2/eta", "Scalars:scalars")] == 30
     assert live[("/live/arm1/progress", "Scalars:scalars")] == 30
+    assert live[("/live/arm2/route", "Scalars:scalars")] == 30
+    assert not any(entity == "/live/arm1/route" for entity, _ in live)
 
 
 def test_an_untested_rerun_takes_the_public_api(monkeypatch: pytest.MonkeyPatch) -> None:

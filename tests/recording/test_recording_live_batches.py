@@ -1,6 +1,6 @@
 """The live recording's batch codec and writers: columns in, the same files out.
 
-The bridges hand the recorder binary column batches (``canal_service.record_batches``, version 2); the
+The bridges hand the recorder binary column batches (``canal_service.record_batches``, version 3); the
 recorder writes them as columns (MCAP messages from per-topic templates, added to the chunk
 in one write). These tests decode what was encoded, refuse what is not a whole batch (and
 queue nothing of it), and read the MCAP back record by record with mcap's own reader.
@@ -93,6 +93,12 @@ def test_the_recorder_gets_the_columns_as_sent() -> None:
     assert np.isnan(rows.eta[0]) and rows.eta[1] == 1e308
     assert rows.inside.tolist() == [True, False, True] and rows.done.tolist() == [False, False, True]
     assert rows.section_index.tolist() == [3, 4, 79]
+    assert rows.route.tolist() == [-1, -1, -1]  # rows without a route: a model of one route
+    with_routes = [(*r, k) for r, k in zip(_rows3(), (1, 1, 0), strict=True)]
+    routed = record_batches.decode_record_batch(record_batches.encode_record_batch(
+        "b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, with_routes)])).streams[0]
+    assert rows_of(routed).route.tolist() == [1, 1, 0]
+    assert [r.route for r in routed.rows] == [1, 1, 0]
     flat = record_batches.decode_record_batch(record_batches.encode_record_batch(
         "b", 0, [("draw", "pen", 1, 1, 0, 0, 0, _rows2())])).streams[0]
     assert rows_of(flat).position.tolist() == [[0.1, 0.2, 0.0]]  # 2-D in the z=0 plane
@@ -109,12 +115,13 @@ def test_a_bridge_of_another_version_is_named_as_such() -> None:
     with pytest.raises(wire.WireError, match=r"JSON \(version 1\).*older Canal"):
         record_batches.decode_record_batch(_old_json_batch())
     good = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3())])
-    with pytest.raises(wire.WireError, match="version 2, got version 3"):
-        record_batches.decode_record_batch(good[:3] + bytes([3]) + good[4:])
+    for older in (2, 4):  # a version 2 batch has no route column
+        with pytest.raises(wire.WireError, match=f"version 3, got version {older}"):
+            record_batches.decode_record_batch(good[:3] + bytes([older]) + good[4:])
 
 
 def _malformed() -> dict[str, bytes]:
-    """Batches that are not whole version 2 batches (each must be refused whole)."""
+    """Batches that are not whole version 3 batches (each must be refused whole)."""
     good = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()),
                                              ("pour", "arm2", 3, 3, 0, 0, 0, _rows3())])
     size = int.from_bytes(good[4:8], "little")
@@ -125,12 +132,13 @@ def _malformed() -> dict[str, bytes]:
         return good[:4] + len(h).to_bytes(4, "little") + h + good[8 + size:]
 
     streams = header["streams"]
-    status_at = len(good) - 1  # the second stream's last status byte
+    status_at = len(good) - 1 - 2 * 3  # the second stream's last status byte (3 routes after)
     return {
         "empty": b"",
         "no magic": b"XYZ\x02" + good[4:],
         "cut in the header": good[:8 + size // 2],
         "cut in the second stream": good[:-5],
+        "no route column": good[:-6],
         "trailing bytes": good + b"\x00",
         "more rows than sent": with_header(streams=[streams[0], [*streams[1][:7], 4, 3]]),
         "a wildcard robot": with_header(streams=[streams[0], ["pour", "*", *streams[1][2:]]]),
@@ -138,7 +146,7 @@ def _malformed() -> dict[str, bytes]:
                                                               *streams[1][3:]]]),
         "a dimension of 17": with_header(streams=[streams[0], [*streams[1][:8], 17]]),
         "no bridge": with_header(bridge=None),
-        "an unknown status": good[:status_at] + b"\xfe",
+        "an unknown status": good[:status_at] + b"\xfe" + good[status_at + 1:],
         "a header that is not JSON": good[:8] + b"\xff" * size + good[8 + size:],
     }
 

@@ -124,3 +124,25 @@ def test_a_fit_of_two_routes_over_http_is_recorded_and_rebuilt(tmp_path: Path) -
                    for e in json.loads(m.data)["entities"]}
             assert {"canal/route_0/mesh", "canal/route_1/mesh"} <= ids, rebuilt
             assert "canal/mesh" not in ids, rebuilt
+
+
+def test_live_rows_say_which_route_their_stream_followed(recorder: Recorder, routes: Any) -> None:
+    from canal_service.recording.events import live_rows
+
+    recorder.model_fitted("reach", 1, routes)
+    m = 5
+    t0 = 1_700_000_000_000_000_000
+
+    def rows(robot: str, route: Any) -> Any:
+        return live_rows("reach", robot, t0 + np.arange(m), np.zeros((m, 3)), None,
+                         np.zeros((m, 3)), None, np.linspace(0, 1, m), np.ones(m), np.arange(m),
+                         np.ones(m, bool), np.zeros(m, bool), route)
+
+    recorder.live_rows([rows("arm", np.ones(m, int)), rows("solo", None)])
+    path = recorder.export_mcap("reach")
+    states = {topic: [msg.get("route") for msg in mcap_messages(path, topic)]
+              for topic in ("/live/arm/state", "/live/solo/state")}
+    assert states == {"/live/arm/state": [1] * m, "/live/solo/state": [None] * m}
+    validator = jsonschema_rs.validator_for(SCHEMAS["canal.TrackerState"])
+    for msg in mcap_messages(path, "/live/arm/state"):
+        validator.validate(msg)

@@ -91,8 +91,9 @@ def live_chunks(base: str, rows: LiveRows, dim: int = 3
     """The live entities of one stream's rows as ``(entity, timelines, components)``.
 
     ``base/pose`` and ``base/target`` points (pink / cyan), ``base/frame`` transform (3-D:
-    translation and the pose's quaternion), ``base/progress`` and ``base/eta`` scalars, all
-    on the ``wall_time`` timeline.
+    translation and the pose's quaternion), ``base/progress`` and ``base/eta`` scalars (and
+    ``base/route`` when the stream followed a route of a model of several), all on the
+    ``wall_time`` timeline.
     """
     m = len(rows)
     offsets = pa.array(np.arange(m + 1, dtype=np.int32))
@@ -113,6 +114,9 @@ def live_chunks(base: str, rows: LiveRows, dim: int = 3
         (f"{base}/progress", timelines, _chunk("Scalars", offsets, scalars=rows.progress)),
         (f"{base}/eta", timelines, _chunk("Scalars", offsets, scalars=rows.eta)),
     ]
+    if np.any(rows.route >= 0):  # a model of several routes: the one the stream followed
+        out.append((f"{base}/route", timelines,
+                    _chunk("Scalars", offsets, scalars=rows.route.astype(np.float64))))
     return out
 
 
@@ -142,6 +146,9 @@ def send_live(rec: rr.RecordingStream, base: str, rows: LiveRows, dim: int = 3,
                     columns=rr.Scalars.columns(scalars=rows.progress))
     rr.send_columns(f"{base}/eta", indexes=index, recording=rec,
                     columns=rr.Scalars.columns(scalars=rows.eta))
+    if np.any(rows.route >= 0):
+        rr.send_columns(f"{base}/route", indexes=index, recording=rec,
+                        columns=rr.Scalars.columns(scalars=rows.route.astype(np.float64)))
 
 
 @functools.cache

@@ -87,7 +87,7 @@ class Answers(StreamTable):
                 st.rec_next = now + period
                 st.rec_state = (code, inside, done)
                 st.rec_rows.append((now, pose.position, pose.orientation, target, orientation,
-                                    progress, eta, section, inside, done, status))
+                                    progress, eta, section, inside, done, status, binary_route))
             if fmt == _FJSON:  # the publisher's default encoding
                 st.publisher.put(_pack_json(
                     pose.seq, status, target, progress, eta, section, inside, done,

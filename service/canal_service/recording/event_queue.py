@@ -35,6 +35,11 @@ if TYPE_CHECKING:
 log = logging.getLogger("canal_service.recording")
 
 
+def _route(value: Any) -> int:
+    """A target's route as a live row's column: -1 for none."""
+    return -1 if value is None or int(value) < 0 else int(value)
+
+
 def _vector(value: Any) -> list[float]:
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 1 or not 1 <= arr.shape[0] <= 16:
@@ -186,7 +191,8 @@ class RecorderQueue:
             row = live_rows(skill, robot, [t], _vector(position), orientation,
                             _vector(target.target), getattr(target, "orientation", None),
                             [float(target.progress)], [float(target.eta)],
-                            [int(target.section_index)], [inside], [done])
+                            [int(target.section_index)], [inside], [done],
+                            [_route(getattr(target, "route", None))])
             key = (skill, robot)
             with self._live_lock:
                 last = self._live_last.get(key)

@@ -202,6 +202,7 @@ class LiveRows:
     section_index: NDArray[np.int64]  # (M,)
     inside: NDArray[np.bool_]  # (M,)
     done: NDArray[np.bool_]  # (M,)
+    route: NDArray[np.int64]  # (M,) the route of a model of several routes; -1: one route
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -213,14 +214,14 @@ class LiveRows:
 
 
 _COLUMNS = ("t_ns", "position", "orientation", "target", "target_orientation", "progress",
-            "eta", "section_index", "inside", "done")
+            "eta", "section_index", "inside", "done", "route")
 
 
 def live_rows(skill: str, robot: str, t_ns: Any, position: Any, orientation: Any,
               target: Any, target_orientation: Any, progress: Any, eta: Any,
-              section_index: Any, inside: Any, done: Any) -> LiveRows:
+              section_index: Any, inside: Any, done: Any, route: Any = None) -> LiveRows:
     """Columns as :class:`LiveRows`: positions and targets (M, D) drawn in 3-D, missing
-    orientations (None) as the identity."""
+    orientations (None) as the identity, a missing route (None) as -1 (one route)."""
     t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
     m = t.shape[0]
 
@@ -239,7 +240,9 @@ def live_rows(skill: str, robot: str, t_ns: Any, position: Any, orientation: Any
                     np.asarray(eta, dtype=np.float64).reshape(m),
                     np.asarray(section_index, dtype=np.int64).reshape(m),
                     np.asarray(inside, dtype=bool).reshape(m),
-                    np.asarray(done, dtype=bool).reshape(m))
+                    np.asarray(done, dtype=bool).reshape(m),
+                    np.full(m, -1, dtype=np.int64) if route is None
+                    else np.asarray(route, dtype=np.int64).reshape(m))
 
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])

@@ -107,7 +107,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
     "canal.TrackerState": _obj(
         "canal.TrackerState", timestamp=_TIME, robot={"type": "string"},
         progress={"type": "number"}, eta={"type": ["number", "null"]}, section_index={"type": "integer"},
-        inside={"type": "boolean"}, done={"type": "boolean"}),
+        inside={"type": "boolean"}, done={"type": "boolean"}, route={"type": "integer"}),
 }
 
 
@@ -369,13 +369,18 @@ def pose_and_frame_messages(t_ns: np.ndarray, positions: FloatArray, orientation
 
 def tracker_state_messages(t_ns: np.ndarray, robot: str, progress: FloatArray, eta: FloatArray,
                            section_index: np.ndarray, inside: np.ndarray,
-                           done: np.ndarray) -> list[bytes]:
+                           done: np.ndarray, route: np.ndarray | None = None) -> list[bytes]:
     """``canal.TrackerState`` messages, one per row (as :func:`plain` writes them; a NaN
-    eta is null). All arrays shape (M,)."""
+    eta is null; ``route`` only where the stream followed a route of a model of several).
+    All arrays shape (M,)."""
     template = (_STAMP + b'"robot":' + _literal(robot)
                 + b',"progress":%b,"eta":%b,"section_index":%d,"inside":%b,"done":%b}')
     sec, nsec = _stamps(t_ns)
-    return [template % row for row in zip(
+    out = [template % row for row in zip(
         sec, nsec, _tokens(progress), _tokens(eta), np.asarray(section_index).tolist(),
         [_BOOL[v] for v in np.asarray(inside, dtype=bool).tolist()],
         [_BOOL[v] for v in np.asarray(done, dtype=bool).tolist()], strict=True)]
+    if route is not None and np.any(route >= 0):
+        out = [m if k < 0 else m[:-1] + b',"route":%d}' % k
+               for m, k in zip(out, np.asarray(route).tolist(), strict=True)]
+    return out

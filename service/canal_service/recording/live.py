@@ -123,7 +123,8 @@ def rows_of(stream: record_batches.RecordStream) -> LiveRows:
                      np.frombuffer(stream.progress, dtype=np.float64),
                      np.frombuffer(stream.eta, dtype=np.float64),
                      np.frombuffer(stream.section, dtype=np.int32),
-                     (flags & record_batches.RECORD_INSIDE) != 0, (flags & record_batches.RECORD_DONE) != 0)
+                     (flags & record_batches.RECORD_INSIDE) != 0, (flags & record_batches.RECORD_DONE) != 0,
+                     np.frombuffer(stream.route, dtype=np.int16))
 
 
 @dataclass

@@ -246,7 +246,8 @@ class McapSegment:
                         channel("/tf", "foxglove.FrameTransform"), frames, t)
         targets = fx.pose_in_frame_messages(rows.t_ns, rows.target, rows.target_orientation)
         states = fx.tracker_state_messages(rows.t_ns, robot, rows.progress, rows.eta,
-                                           rows.section_index, rows.inside, rows.done)
+                                           rows.section_index, rows.inside, rows.done,
+                                           rows.route)
         self._add_pairs(channel(f"/live/{robot}/target", "foxglove.PoseInFrame"), targets,
                         channel(f"/live/{robot}/state", "canal.TrackerState"), states, t)
 
