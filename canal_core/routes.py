@@ -94,7 +94,24 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
                  separation: float = ROUTE_SEPARATION) -> IntArray:
     """Route 0, 1, ... of each demonstration (in order of first appearance), shape (n,):
     average linkage of (R1) cut at ``separation``, or into ``routes`` clusters when given;
-    every route has two demos or more."""
+    every route has two demos or more (:func:`route_split`)."""
+    return route_split(demos, routes, separation).labels
+
+
+@dataclass(frozen=True, eq=False)
+class RouteSplit:
+    """The demonstrations' routes, and which of them went a way of their own alone."""
+
+    #: Route 0, 1, ... of each demonstration, shape (n,).
+    labels: IntArray
+    #: Demonstrations the clustering left alone in a route: a canal needs two, so each
+    #: joined the route nearest to it (indices into the demonstrations, in order).
+    joined: tuple[int, ...]
+
+
+def route_split(demos: list[FloatArray], routes: int | None = None,
+                separation: float = ROUTE_SEPARATION) -> RouteSplit:
+    """:func:`route_labels`, and the lone demonstrations that joined another route."""
     from scipy.cluster.hierarchy import fcluster, linkage
     from scipy.spatial.distance import squareform
 
@@ -105,7 +122,7 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
             raise InvalidInputError(f"expected routes <= {max(n // 2, 1)} (each route needs 2 "
                                     f"demonstrations; {n} are fitted), got {routes}", field="routes")
     if n < 4 or routes == 1:
-        return np.zeros(n, dtype=np.int64)
+        return RouteSplit(np.zeros(n, dtype=np.int64), ())
     dist = route_distances(demos)
     tree = linkage(squareform(dist, checks=False), "average")
     if routes is None:
@@ -114,12 +131,14 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
         raw = fcluster(tree, routes, criterion="maxclust")
     labels = np.unique(raw, return_inverse=True)[1].astype(np.int64)
     # A lone demonstration joins the route nearest to it (average distance).
+    joined: list[int] = []
     while True:
         counts = np.bincount(labels)
         lone = np.flatnonzero(counts < 2)
         if lone.size == 0 or counts.size == 1:
             break
         j = int(np.flatnonzero(labels == lone[0])[0])
+        joined.append(j)
         others = [k for k in range(counts.size) if k != lone[0]]
         nearest = min(others, key=lambda k: float(dist[j, labels == k].mean()))
         labels[labels == lone[0]] = nearest
@@ -127,7 +146,12 @@ def route_labels(demos: list[FloatArray], routes: int | None = None,
     # Route 0 is the first demonstration's, route 1 the next new one's, ...
     _, first = np.unique(labels, return_index=True)
     rank = np.argsort(np.argsort(first))
-    return np.asarray(rank[labels], dtype=np.int64)
+    final = np.asarray(rank[labels], dtype=np.int64)
+    # Lone demonstrations that joined each other make a route of their own: not joined.
+    alone = np.zeros(n, dtype=bool)
+    alone[joined] = True
+    kept = tuple(j for j in sorted(joined) if np.any(~alone & (final == final[j])))
+    return RouteSplit(final, kept)
 
 
 @dataclass(frozen=True, eq=False)

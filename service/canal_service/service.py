@@ -436,7 +436,8 @@ class CanalService:
         # not be the skill's.
         orientations = quats if body.orientation and all(q is not None for q in quats) else None
         started = time.perf_counter()
-        labels = self._route_labels(positions, body.routes, body.route_separation)
+        labels, route_notes = self._route_labels(positions, body.routes, body.route_separation,
+                                                 demo_ids)
         job = FitJob(positions, stamped, body.by_time, orientations, options, labels)
         try:
             fitted = self.fits.run(name, job, cancel)
@@ -467,6 +468,7 @@ class CanalService:
                                                               t_ns=stored_ns, instance=instance))
         if not kept:
             self.fit_listeners.notify(name, version, served)
+            model[1].notes = route_notes
             return model[1]
         # The skill's corrections, re-applied to the new canal (a version of its own, whose
         # parent is the plain fit); one that no longer applies is left behind and said so.
@@ -482,22 +484,30 @@ class CanalService:
 
         lineage = StoredLineage(version, version, [c.id for c in applied],
                                 follow if moved else None)
-        return self._store_refined(name, used_options, demo_ids, refined, lineage, notes)
+        return self._store_refined(name, used_options, demo_ids, refined, lineage,
+                                   route_notes + notes)
 
     def _route_labels(self, positions: list[arrays.FloatArray], routes: int | None,
-                      separation: float) -> list[int] | None:
-        """The route of each demonstration; None when the fit is one canal (``routes`` 1, or
-        the demonstrations all go one way). Clustering runs here, before the fit's cost is
-        estimated, so the estimate counts every route's fit."""
+                      separation: float, demo_ids: list[int]
+                      ) -> tuple[list[int] | None, list[str]]:
+        """The route of each demonstration (None when the fit is one canal: ``routes`` 1, or
+        the demonstrations all go one way) and notes on the demonstrations that went a way
+        of their own alone. Clustering runs here, before the fit's cost is estimated, so the
+        estimate counts every route's fit."""
         if routes == 1:
-            return None
+            return None, []
         try:
             canal_core.options.route_options(routes, separation)
             self.fits.check_route_cost(len(positions), int(positions[0].shape[1]))
-            labels = canal_core.routes.route_labels(positions, routes, separation)
+            split = canal_core.routes.route_split(positions, routes, separation)
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
-        return None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]
+        labels = split.labels
+        notes = [f"demonstration {demo_ids[j]} goes a way of its own; a route needs two "
+                 f"demonstrations, so it joined route {int(labels[j])} (and widens it): show "
+                 "that way once more to learn it as a route, or delete it"
+                 for j in split.joined]
+        return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
                      serialized: dict[str, Any], seconds: float, canal: canal_core.Canal,

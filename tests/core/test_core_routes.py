@@ -94,3 +94,17 @@ def test_way_of_finds_the_route_points_lie_along_and_keeps_a_number_where_ways_a
     assert way_of(routes, first[late], keep=5) == 0  # a route the model no longer has
     shared = 0.5 * (first[:3] + second[:3])  # the common start: either way is as near
     assert way_of(routes, shared, keep=1) == 1 and way_of(routes, shared, keep=0) == 0
+
+
+def test_a_lone_demonstration_joins_the_nearest_route_and_is_named() -> None:
+    from canal_core.routes import route_split
+
+    s = np.linspace(0.0, 1.0, 120)
+    over = np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)])  # over the top, once
+    demos = two_route_demos()
+    split = route_split([*demos, over])
+    assert split.labels.max() == 1 and split.joined == (8,)
+    assert route_split(demos).joined == ()
+    # two lone ways of one demonstration each that are near each other make a route of two
+    twice = route_split([*demos, over, over + 0.01])
+    assert twice.labels.max() == 2 and twice.joined == ()

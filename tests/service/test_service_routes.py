@@ -232,3 +232,18 @@ def test_a_correction_of_a_route_a_refit_no_longer_has_goes_to_the_nearest(
     two = _latest_routes(http)
     way = int(np.argmin([path_distance(last.directrix, c.directrix) for c in two.canals]))
     assert [len(c.corrections) for c in two.canals] == [int(k == way) for k in range(2)]
+
+
+def test_a_demonstration_that_goes_its_own_way_alone_is_named_in_the_fit_notes(
+        http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    s = np.linspace(0.0, 1.0, 120)
+    over = np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)])  # over the top, once
+    lone = http.post("/skills/reach/demonstrations", json={"positions": over.tolist()}).json()["id"]
+    r = http.post("/skills/reach/fit", json={"n_samples": 60})
+    assert r.status_code == 201, r.text
+    assert r.json()["routes"] == 2
+    (note,) = [n for n in r.json()["notes"] if "way of its own" in n]
+    assert f"demonstration {lone} " in note and "joined route" in note
+    plain = http.post("/skills/reach/fit", json={"n_samples": 60, "demo_ids": list(range(1, 9))})
+    assert plain.status_code == 201 and plain.json()["notes"] == []
