@@ -128,9 +128,11 @@ def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> Floa
             field="timestamps",
         )
     _check_finite(times[:, None], "timestamps")
-    if unit is not None and unit != "s":
-        times = (times - times[0]) * TIME_UNITS[unit]
-    span = float(times.max() - times.min()) if times.size else 0.0
+    # Stamps near the float limits overflow to an infinite span, which the check below refuses.
+    with np.errstate(over="ignore"):
+        if unit is not None and unit != "s":
+            times = (times - times[0]) * TIME_UNITS[unit]
+        span = float(times.max() - times.min()) if times.size else 0.0
     if span > MAX_DEMO_SECONDS:
         raise InvalidInput(
             f"expected timestamps in seconds spanning at most {MAX_DEMO_SECONDS:g} s (one "
