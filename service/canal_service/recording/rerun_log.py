@@ -332,8 +332,8 @@ class RerunSegment:
         if geo.correction is not None:
             self._correction(geo.version, geo.correction)
         if self.dim == 3:
-            # Sent with every model so a viewer that takes the newest default blueprint frames
-            # the newest canal; the web viewer keeps the layout its recording opened with.
+            # Sent with every model: within a segment the newest blueprint is the active one
+            # (a merge of several segments does not keep which was active: docs/recording.md).
             frame = np.vstack([c.vertices for c in drawn.values()])
             self.rec.send_blueprint(review_blueprint(self.dim, frame=frame,
                                                      coordinates=self.coordinates),
