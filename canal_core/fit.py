@@ -237,21 +237,18 @@ def _fitted_orientation(
     times: list[FloatArray | None],
     quaternions: list[FloatArray],
     options: FitOptions,
-    warps: FloatArray | None = None,
+    warps: FloatArray | None,
 ) -> OrientationModel:
     """The orientation model on the same alignment as the positions.
 
     Orientations follow the rows the preparation stage kept for their positions, at the
     spline parameter the positions were aligned by (``times``: the stamps, or None for arc
-    length).
+    length), read at the positions' warps (``warps``, (n, N)) or, without one, evenly.
     """
     positions = [p.positions for p in prepared]
     parameters = [spline_parameter(d, t) for d, t in zip(positions, times, strict=True)]
     if warps is not None:
         at = warps
-    elif options.alignment in ("dtw", "warp"):
-        at = dtw_parameters(positions, times, options.n_samples,
-                            resolution=DTW_SAMPLES if options.alignment == "warp" else None)
     else:
         at = np.broadcast_to(np.linspace(0.0, 1.0, options.n_samples), (len(prepared), options.n_samples))
     return fitted_orientations([q[p.rows] for q, p in zip(quaternions, prepared, strict=True)], parameters, at)
