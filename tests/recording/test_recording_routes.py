@@ -71,6 +71,16 @@ def test_a_model_of_one_route_after_one_of_two_is_drawn_alone(
         "canal/mesh", "canal/directrix", "canal/rings", "canal/frames"}
 
 
+def test_the_canal_of_all_is_not_meshed_for_a_model_of_several_routes(routes: Any) -> None:
+    from canal_service.recording.geometry import model_geometry
+
+    geo = model_geometry(3, routes)
+    assert geo.vertices.shape == (0, 3) and geo.rings.shape[0] == 0 and geo.frame_origins.size == 0
+    np.testing.assert_allclose(geo.radii, routes.pooled.radii)  # what the model info says
+    assert geo.n_sections == routes.pooled.n_sections
+    assert all(r.vertices.shape[0] > 0 and r.frame_origins.shape[0] > 0 for r in geo.routes)
+
+
 def test_each_route_is_its_own_entity_in_the_mcap(recorder: Recorder, routes: Any) -> None:
     recorder.model_fitted("reach", 1, routes)
     path = recorder.export_mcap("reach")

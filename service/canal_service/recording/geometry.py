@@ -7,7 +7,7 @@ Only the canal attributes listed in docs/CONTRACTS.md are used (``directrix``, `
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -128,8 +128,8 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
         model = served_model(canal)
         if not isinstance(model, Routes):
             return model_geometry(version, model)
-        return replace(model_geometry(version, model.pooled),
-                       routes=tuple(model_geometry(version, c) for c in model.canals))
+        return _undrawn_geometry(version, model.pooled,
+                                 tuple(model_geometry(version, c) for c in model.canals))
     dim = int(canal.dim)
     directrix = points3d(canal.directrix)
     radii = np.asarray(canal.radii, dtype=np.float64)
@@ -170,6 +170,25 @@ def model_geometry(version: int, canal: Any) -> ModelGeometry:
         vertex_colors=colors, rings=rings, frame_origins=centres, frame_vectors=axes * scale,
         correction=correction_geometry(canal),
     )
+
+
+def _undrawn_geometry(version: int, canal: Any, routes: tuple[ModelGeometry, ...]
+                      ) -> ModelGeometry:
+    """The canal of all of a model of several routes: only what the logs say of the model
+    (its sections, radii, arclength and correction). The logs draw the routes, never this
+    canal, so it gets no mesh, rings or frames (the mesh is the slow part)."""
+    dim = int(canal.dim)
+    none = np.empty((0, 3), dtype=np.float64)
+    ring_points = MESH_ANGLES + 1 if dim == 3 else 2
+    return ModelGeometry(
+        version=int(version), dim=dim, directrix=points3d(canal.directrix),
+        radii=np.asarray(canal.radii, dtype=np.float64),
+        arclength=np.asarray(canal.arclength, dtype=np.float64),
+        vertices=none, vertex_normals=none, faces=np.empty((0, 3), dtype=np.uint32),
+        vertex_colors=np.empty((0, 4), dtype=np.float64),
+        rings=np.empty((0, ring_points, 3), dtype=np.float64), frame_origins=none,
+        frame_vectors=np.empty((0, dim, 3), dtype=np.float64),
+        correction=correction_geometry(canal), routes=routes)
 
 
 #: Most section rings drawn before and after a correction.
