@@ -331,21 +331,25 @@ class Bridge:
             streams = list(self.path.streams.values())
         counts: dict[str, dict[str, int]] = {}
         for st in streams:
-            entry = self.models.models.get(st.skill)
-            if entry is None or entry.routes is None or st.route_version != entry.version:
+            if self._routes_entry(st) is None:
                 continue
             by_route = counts.setdefault(st.skill, {})
             key = "all" if st.route is None else str(st.route)
             by_route[key] = by_route.get(key, 0) + 1
         return counts
 
-    def stream_route(self, st: Stream) -> int | None:
-        """The route a stream follows in its skill's model now (None: one route, or the
-        canal of all)."""
+    def _routes_entry(self, st: Stream) -> ModelEntry | None:
+        """The stream's model entry when it has several routes and the stream's route was
+        chosen in it (``st.route`` is then current), else None."""
         entry = self.models.models.get(st.skill)
         if entry is None or entry.routes is None or st.route_version != entry.version:
             return None
-        return st.route
+        return entry
+
+    def stream_route(self, st: Stream) -> int | None:
+        """The route a stream follows in its skill's model now (None: one route, or the
+        canal of all)."""
+        return None if self._routes_entry(st) is None else st.route
 
     # ---- metrics (off the pose path) ----------------------------------------------------------
 
