@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .validation import FloatArray
-from .warping import banded_mean_matches, dtw_path
+from .warping import banded_mean_matches, dtw_path, mean_matched_index
 
 if TYPE_CHECKING:
     from scipy.interpolate import CubicSpline
@@ -252,8 +252,7 @@ def dtw_parameters(
     else:
         matched = np.empty((len(demos), m))
         for j in range(len(demos)):
-            i_ref, i_demo = dtw_path(reference, resampled[j], band=width)
-            matched[j] = np.bincount(i_ref, weights=i_demo, minlength=m) / np.bincount(i_ref, minlength=m)
+            matched[j] = mean_matched_index(*dtw_path(reference, resampled[j], band=width), m)
     for j in range(len(demos)):
         mean_index = matched[j]
         # Averaging keeps the map monotone; pin the ends so every demo spans its whole path.

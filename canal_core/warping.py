@@ -113,75 +113,24 @@ def band_cells(n: int, m: int, band: int) -> tuple[IntArray, IntArray]:
     return ii, jj
 
 
-def banded_dtw_path(a: FloatArray, b: FloatArray, band: int) -> tuple[IntArray, IntArray]:
-    """:func:`dtw_path` within a Sakoe-Chiba band, computed over the band's cells only.
-
-    The table is stored by anti-diagonal (k = i + j), so each step of the fill reads and
-    writes contiguous slices of the band's cells on diagonals k - 1 and k - 2: its cost
-    follows the band's width, not the whole table's. A cell (i, j) is in the band when
-    |i (m - 1) / (n - 1) - j| <= ``band``, as in :func:`band_mask`.
-
-    Parameters
-    ----------
-    a : array, shape (n, D)
-    b : array, shape (m, D)
-    band : int
-        Half-width in samples of ``b`` (at least 1).
-
-    Returns
-    -------
-    ia, ib : arrays of int, shape (L,)
-        Matched index pairs, monotone, from (0, 0) to (n - 1, m - 1).
-    """
-    n, m = a.shape[0], b.shape[0]
-    if n == 1 or m == 1:
-        return dtw_path(a, b, band)
-    ii, jj = band_cells(n, m, band)
-    n_diag = n + m - 1
-    # Diagonal-major cost and table, column c = i + 1 (column 0: the padding at i = -1).
-    cost = np.full((n_diag, n + 1), np.inf)
-    diff = a[ii] - b[jj]
-    cost[ii + jj, ii + 1] = np.sqrt(np.einsum("pd,pd->p", diff, diff))
-    table = np.full((n_diag, n + 1), np.inf)
-    # The band's rows on diagonal k: from the first cell (ii + jj == k) to the last.
-    k_cells = ii + jj
-    i_lo = np.full(n_diag, n, dtype=np.int64)
-    i_hi = np.full(n_diag, -1, dtype=np.int64)
-    np.minimum.at(i_lo, k_cells, ii)
-    np.maximum.at(i_hi, k_cells, ii)
-    table[0, 1] = cost[0, 1]
-    lows, highs = i_lo.tolist(), i_hi.tolist()
-    for k in range(1, n_diag):
-        lo, hi = lows[k], highs[k] + 1
-        if hi <= lo:
-            continue
-        best = np.minimum(table[k - 1, lo:hi], table[k - 1, lo + 1 : hi + 1])
-        if k >= 2:
-            np.minimum(best, table[k - 2, lo:hi], out=best)
-        table[k, lo + 1 : hi + 1] = cost[k, lo + 1 : hi + 1] + best
-    # Backtrack: (i - 1, j - 1) is diagonal k - 2, (i - 1, j) and (i, j - 1) are k - 1.
-    i, k = n - 1, n_diag - 1
-    path_i, path_k = [i], [k]
-    while k > 0:
-        options = (
-            (table[k - 2, i] if k >= 2 and i >= 1 else np.inf, k - 2, i - 1),
-            (table[k - 1, i] if i >= 1 else np.inf, k - 1, i - 1),
-            (table[k - 1, i + 1] if k - 1 - i >= 0 else np.inf, k - 1, i),
-        )
-        _, k, i = min(options, key=lambda o: o[0])
-        path_i.append(i)
-        path_k.append(k)
-    ia = np.asarray(path_i[::-1], dtype=np.int64)
-    return ia, np.asarray(path_k[::-1], dtype=np.int64) - ia
+def mean_matched_index(ia: IntArray, ib: IntArray, n: int) -> FloatArray:
+    """For each row 0 .. n - 1 of the first curve, the mean index of the second curve's
+    samples a DTW path (``ia``, ``ib``) matches to it, shape (n,)."""
+    return np.asarray(np.bincount(ia, weights=ib, minlength=n) / np.bincount(ia, minlength=n),
+                      dtype=np.float64)
 
 
 def banded_mean_matches(a: FloatArray, curves: FloatArray, band: int) -> FloatArray:
     """For every row of ``a``, the mean index of the samples of each curve matched to it on
-    the curve's :func:`banded_dtw_path` with ``a``, all curves at once.
+    the curve's :func:`dtw_path` with ``a`` within a Sakoe-Chiba band, all curves at once.
 
-    The same tables and tie-breaking as :func:`banded_dtw_path`, filled and backtracked for
-    every curve in one pass: one numpy step per anti-diagonal and per backtracking step,
-    whatever the number of curves.
+    The tables cover the band's cells only: a cell (i, j) is in the band when
+    |i (m - 1) / (n - 1) - j| <= ``band``, as in :func:`band_mask`. They are stored by
+    anti-diagonal (k = i + j), so each step of the fill reads and writes contiguous slices of
+    diagonals k - 1 and k - 2, for every curve at once: one numpy step per anti-diagonal,
+    whatever the number of curves, and a cost that follows the band's width, not the whole
+    table's. The backtrack breaks ties in :func:`dtw_path`'s order, so the paths are its
+    paths.
 
     Parameters
     ----------
@@ -198,8 +147,7 @@ def banded_mean_matches(a: FloatArray, curves: FloatArray, band: int) -> FloatAr
     if n == 1 or m == 1:
         out = np.empty((count, n))
         for c in range(count):
-            ia, ib = dtw_path(a, curves[c], band)
-            out[c] = np.bincount(ia, weights=ib, minlength=n) / np.bincount(ia, minlength=n)
+            out[c] = mean_matched_index(*dtw_path(a, curves[c], band), n)
         return out
     ii, jj = band_cells(n, m, band)
     n_diag = n + m - 1
