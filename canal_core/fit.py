@@ -21,7 +21,13 @@ from .alignment import (
     splines_at,
 )
 from .clocks import TIMINGS, TimingChoice, alignment_parameters, chosen_clock
-from .cross_sections import fitted_sections, floored_sections, scaled_sections, section_kind
+from .cross_sections import (
+    CrossSections,
+    fitted_sections,
+    floored_sections,
+    scaled_sections,
+    section_kind,
+)
 from .crossings import in_plane_coordinates, located_crossings, sections_of_samples
 from .directrix import directrix_gmr, directrix_mean
 from .enclosing import enclosing_scales
@@ -141,6 +147,64 @@ def fit(
             field="cross_section",
         )
 
+    return _fitted_canal(demos_, times_, options, asked, quats_, still_tolerance)
+
+
+def fit_lone(
+    demo: Any,
+    donor: Canal,
+    timestamps: Any = None,
+    orientations: Any = None,
+    still_tolerance: float = STILL_TOLERANCE,
+) -> Canal:
+    """A canal for a route only one demonstration took: its own directrix, a borrowed envelope.
+
+    A canal is the envelope of several demonstrations; one demonstration shows its route but
+    not how far the person strays from it. The canal of a lone route is the demonstration
+    itself as the directrix (resampled by ``donor``'s clock where it can be), framed as
+    :func:`fit` frames one, with ``donor``'s sections and demonstration offsets
+    (``section_points``, which the learned persistence reads) scaled by the ratio of the
+    two directrices' lengths, section for section,
+
+        R_i^lone = (L^lone / L^donor) R_i^donor                                      (L1)
+
+    then grown, as :func:`fit` grows any canal, until every sample of the demonstration is
+    inside. ``donor`` is the route the demonstration would otherwise have joined
+    (:func:`canal_core.routes.fit_routes`): the person's spread there is the best guess of
+    their spread here. The canal's ``n_demos`` is the donor's (its offsets are); the route
+    knows it has one.
+
+    Parameters
+    ----------
+    demo : array_like, shape (T, D)
+    donor : Canal
+        Fitted to two demonstrations or more; its options (section kind, N, frames) are kept.
+    timestamps : array_like, shape (T,), optional
+    orientations : array_like, shape (T, 4), optional
+        Without them the canal has no orientation model, whatever the donor has.
+    still_tolerance : float
+        As :func:`fit`.
+    """
+    demos_, times_, dim = check_demonstrations([demo], None if timestamps is None else [timestamps],
+                                               at_least=1)
+    if dim != donor.dim:
+        raise InvalidInputError(f"expected a demonstration of dimension {donor.dim} like its donor, "
+                                f"got {dim}", field="demos")
+    quats_ = None if orientations is None else check_demonstration_orientations([orientations], demos_)
+    return _fitted_canal(demos_, times_, donor.options, cast(TimingChoice, donor.clock), quats_,
+                         still_tolerance, donor=donor)
+
+
+def _fitted_canal(
+    demos_: list[FloatArray],
+    times_: list[FloatArray | None],
+    options: FitOptions,
+    asked: TimingChoice,
+    quats_: list[FloatArray] | None,
+    still_tolerance: float,
+    donor: Canal | None = None,
+) -> Canal:
+    """:func:`fit` on validated demonstrations; with ``donor``, :func:`fit_lone`."""
     # Timestamps are prepared (repaired or refused) even when the alignment is by arc
     # length: they still give the speed profile.
     prepared = prepared_samples_many(
@@ -153,7 +217,8 @@ def fit(
     times = alignment_parameters(positions, stamped, clock)
 
     warps = None
-    if options.alignment in ("dtw", "warp"):
+    dim = demos_[0].shape[1]
+    if options.alignment in ("dtw", "warp") and donor is None:
         warps = dtw_parameters(positions, times, options.n_samples,
                                resolution=DTW_SAMPLES if options.alignment == "warp" else None)
         aligned = splines_at(positions, times, warps)
@@ -180,22 +245,13 @@ def fit(
         beyond = outward * offset > 0.0
         crossings[end, beyond] = aligned[beyond, end] - offset[beyond, None] * tangents[end]
     basis = section_basis(normals, binormals)
-    coords = in_plane_coordinates(crossings, centres, basis)
-    resolution = 1e-12 * arclength[-1]
-    if not np.any(np.abs(coords) > resolution):
-        apart = float(np.abs(coords).max())
-        if apart <= 1e-14 * max(float(arclength[-1]), float(np.abs(centres).max())):  # rounding
-            raise DegenerateCanalError(
-                "every demonstration is identical: the canal has zero radius everywhere",
-                field="demos")
-        # Not identical: their differences are lost in the rounding of coordinates this large.
-        raise DegenerateCanalError(
-            f"the demonstrations are at most {apart:.3g} apart across the canal, below its "
-            f"resolution of {resolution:.3g} (1e-12 of the directrix length {arclength[-1]:.3g}): "
-            "at this scale they cannot be told apart; rescale the units, or demonstrate "
-            "the variation", field="demos")
-    size = float(np.abs(coords).max())
-    sections = floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
+    if donor is not None:  # (L1)
+        ratio = float(arclength[-1] / donor.arclength[-1])
+        coords = donor.section_points * ratio
+        sections = scaled_sections(donor.sections, np.full(options.n_samples, ratio))
+    else:
+        coords = in_plane_coordinates(crossings, centres, basis)
+        sections = _crossing_sections(coords, arclength, centres, options)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every genuine sample counts, the trimmed still ends included (glitches do not); its
     # phase is its place in the prepared demonstration, 0 / 1 in the still ends.
@@ -230,6 +286,28 @@ def fit(
         options=options,
         orientation=orientation,
     )
+
+
+def _crossing_sections(coords: FloatArray, arclength: FloatArray, centres: FloatArray,
+                       options: FitOptions) -> CrossSections:
+    """Sections fitted to the demonstrations' crossings (N, n, D - 1); a canal of no width is
+    refused."""
+    resolution = 1e-12 * arclength[-1]
+    if not np.any(np.abs(coords) > resolution):
+        apart = float(np.abs(coords).max())
+        if apart <= 1e-14 * max(float(arclength[-1]), float(np.abs(centres).max())):  # rounding
+            raise DegenerateCanalError(
+                "every demonstration is identical: the canal has zero radius everywhere",
+                field="demos")
+        # Not identical: their differences are lost in the rounding of coordinates this large.
+        raise DegenerateCanalError(
+            f"the demonstrations are at most {apart:.3g} apart across the canal, below its "
+            f"resolution of {resolution:.3g} (1e-12 of the directrix length {arclength[-1]:.3g}): "
+            "at this scale they cannot be told apart; rescale the units, or demonstrate "
+            "the variation", field="demos")
+    size = float(np.abs(coords).max())
+    size = float(np.abs(coords).max())
+    return floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
 
 
 def _fitted_orientation(

@@ -321,23 +321,44 @@ def start_and_located_points(
     basis: FloatArray,
     sections: CrossSections,
     plane: FloatArray | None = None,
+    end_depths: FloatArray | None = None,
+    end_radii: FloatArray | None = None,
 ) -> tuple[Location, Location]:
     """:func:`start_locations` and :func:`located_points` of the same points, from one search
     of the candidates (a reproduction needs both: where to start, and whether it is inside).
-    ``plane`` (t_i . c_i, shape (N,)) when the caller keeps it."""
+    ``plane`` (t_i . c_i, shape (N,)) when the caller keeps it. With ``end_depths`` and
+    ``end_radii`` (the largest radius of the first and last section, shape (2,)), a start
+    beyond an end section counts as far from it as it lies beyond its depth (see
+    :func:`_start_among`)."""
     candidates = _candidates(points, centres, tangents, basis, sections, plane)
-    return _start_among(points.shape[0], candidates), _located_among(points.shape[0], candidates)
+    return (_start_among(points.shape[0], candidates, end_depths, end_radii),
+            _located_among(points.shape[0], candidates))
 
 
-def _start_among(m: int, candidates: Candidates) -> Location:
-    """:func:`start_locations`' choice among the candidates of m points."""
+def _start_among(m: int, candidates: Candidates, end_depths: FloatArray | None = None,
+                 end_radii: FloatArray | None = None) -> Location:
+    """:func:`start_locations`' choice among the candidates of m points.
+
+    An end candidate's eta is its offset across the end section only: a start far behind
+    the first plane or past the last one, near the line of the end section's normal, would
+    have a small eta there and be taken to start at the goal (the whole motion skipped). With
+    the ends' depths and radii, the choice weighs an end candidate by
+    hypot(eta, (|axial| - depth)_+ / R_end), its distance outside in the end's own radii.
+    """
     pt, sec, alpha, axial, coords, direction, eta = candidates
-    holds = eta <= 1.0 + INSIDE_TOLERANCE
+    weighed = eta
+    if end_depths is not None and end_radii is not None:
+        behind = axial < 0.0
+        over = np.maximum(np.abs(axial) - np.where(behind, end_depths[0], end_depths[1]), 0.0)
+        radius = np.where(behind, end_radii[0], end_radii[1])
+        weighed = np.where(over > 0.0, np.hypot(eta, np.divide(over, radius, out=np.full_like(over, np.inf),
+                                                               where=radius > 0.0)), eta)
+    holds = weighed <= 1.0 + INSIDE_TOLERANCE
     any_holds = np.zeros(m, dtype=bool)
     any_holds[pt[holds]] = True
     best = np.full(m, np.inf)
-    np.minimum.at(best, pt, eta)
-    plausible = np.where(any_holds[pt], holds, eta <= START_ETA_FACTOR * best[pt] + INSIDE_TOLERANCE)
+    np.minimum.at(best, pt, weighed)
+    plausible = np.where(any_holds[pt], holds, weighed <= START_ETA_FACTOR * best[pt] + INSIDE_TOLERANCE)
     # Earliest along the motion: section index, then the end-behind candidate before pair 0.
     position = np.where(plausible, sec + np.where(axial < 0.0, -0.5, alpha), np.inf)
     order = np.lexsort((eta, position, pt))

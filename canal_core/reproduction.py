@@ -179,7 +179,8 @@ def reproduce(
     if target is not None:
         canal = canal.with_goal(target)
     loc, held = start_and_located_points(
-        point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets
+        point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets,
+        canal.end_depths, canal.radii[[0, -1]],
     )
     eta = float(loc.eta[0])
     index, alpha = int(loc.index[0]), float(loc.alpha[0])

@@ -14,8 +14,13 @@ path length L: two groups are separate routes when their demos are on average mo
 0.25 L apart. Measured on the sets of BENCHMARKS.md: every LASA shape, UR5e, the generated logs
 and the RAIL pressing, pushing and writing groups merge below 0.15 L; the LASA multi-route shapes
 split at 0.45-0.78 L, the RAIL reaching groups (two goals half a metre apart) at 0.34-0.48 L.
-A route needs two demonstrations (a canal is the envelope of several): a lone demonstration
-joins the route nearest to it. ``routes=1`` forces one route (one canal, as before).
+A demonstration that goes a way of its own alone is a route of its own: its canal is the
+demonstration with the envelope of the route nearest to it (average distance), scaled to its
+length (:func:`canal_core.fit.fit_lone`, L1). A canal of the lone demonstration joined to its
+nearest route would go between the two ways, where neither went (LASA ``Multi_Models_1``
+held out leave-one-out: a route of two demonstrations leaves one alone in every fold that
+holds the other out). Only when no route has two demonstrations to lend its envelope do lone
+demonstrations join the route nearest to them. ``routes=1`` forces one route (one canal).
 
 Route numbers follow the order in which the demonstrations first appear. A correction kept over
 a refit goes to the route its samples lie along (R3 of :func:`way_of`), so it follows its way
@@ -104,9 +109,14 @@ class RouteSplit:
 
     #: Route 0, 1, ... of each demonstration, shape (n,).
     labels: IntArray
-    #: Demonstrations the clustering left alone in a route: a canal needs two, so each
-    #: joined the route nearest to it (indices into the demonstrations, in order).
+    #: Demonstrations the clustering left alone in a route while no route had two to lend
+    #: its envelope: each joined the route nearest to it (indices, in order).
     joined: tuple[int, ...]
+    #: Demonstrations alone in their route, which borrows the envelope of the route in
+    #: ``donors`` (indices, in order).
+    lone: tuple[int, ...] = ()
+    #: The route each of ``lone`` borrows its envelope from.
+    donors: tuple[int, ...] = ()
 
 
 def route_split(demos: list[FloatArray], routes: int | None = None,
@@ -130,12 +140,13 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
     else:
         raw = fcluster(tree, routes, criterion="maxclust")
     labels = np.unique(raw, return_inverse=True)[1].astype(np.int64)
-    # A lone demonstration joins the route nearest to it (average distance).
+    # Lone demonstrations join the route nearest to them (average distance) only while no
+    # route has two to lend its envelope.
     joined: list[int] = []
     while True:
         counts = np.bincount(labels)
         lone = np.flatnonzero(counts < 2)
-        if lone.size == 0 or counts.size == 1:
+        if lone.size == 0 or counts.size == 1 or counts.max() >= 2:
             break
         j = int(np.flatnonzero(labels == lone[0])[0])
         joined.append(j)
@@ -151,7 +162,33 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
     alone = np.zeros(n, dtype=bool)
     alone[joined] = True
     kept = tuple(j for j in sorted(joined) if np.any(~alone & (final == final[j])))
-    return RouteSplit(final, kept)
+    lone_demos, donors = _lone_routes(final, dist)
+    return RouteSplit(final, kept, lone_demos, donors)
+
+
+def _lone_routes(labels: IntArray, dist: FloatArray) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The demonstrations alone in their route, and the route of two or more nearest each
+    (the least mean (R1) distance to its demonstrations)."""
+    counts = np.bincount(labels)
+    shared = np.flatnonzero(counts >= 2)
+    lone = tuple(int(j) for j in np.flatnonzero(counts[labels] == 1))
+    if not lone or shared.size == 0:
+        return (), ()
+    return lone, tuple(int(min(shared, key=lambda k: float(dist[j, labels == k].mean()))) for j in lone)
+
+
+def route_donors(demos: list[FloatArray], labels: IntArray) -> dict[int, int]:
+    """For each route of one demonstration, the route (of two or more) that lends it its
+    envelope: the nearest by (R1), as :func:`route_split` chooses. Raises
+    :class:`InvalidInputError` when a route has one demonstration and none has two."""
+    counts = np.bincount(labels)
+    if not np.any(counts == 1):
+        return {}
+    if not np.any(counts >= 2):
+        raise InvalidInputError(f"expected a route of at least 2 demonstrations to lend its envelope to "
+                                f"the routes of one, got route sizes {counts.tolist()}", field="labels")
+    lone, donors = _lone_routes(labels, route_distances(demos))
+    return {int(labels[j]): k for j, k in zip(lone, donors, strict=True)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,7 +353,7 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
         Passed to every :func:`canal_core.fit`; ``orientations`` (one per demonstration) is
         split between the routes as the demonstrations are.
     """
-    from .fit import fit
+    from .fit import fit, fit_lone
 
     if not isinstance(demos, (list, tuple)) or len(demos) < 2:
         raise InvalidInputError("expected a list of at least 2 demonstrations", field="demos")
@@ -333,12 +370,20 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
         return Routes((pooled,), pooled, labels)
     stamps = [None] * len(arrays) if timestamps is None else list(timestamps)
     quats = options.pop("orientations", None)
-    canals = []
-    for k in range(int(labels.max()) + 1):
+    donors = route_donors(arrays, labels)
+    canals: list[Any] = [None] * (int(labels.max()) + 1)
+    # Routes of two demonstrations or more first: they lend their envelopes to the lone ones.
+    for k in sorted(range(len(canals)), key=lambda k: k in donors):
         members = np.flatnonzero(labels == k)
         member_stamps = [stamps[j] for j in members]
-        canals.append(fit([demos[j] for j in members],
-                          None if all(s is None for s in member_stamps) else member_stamps,
-                          orientations=None if quats is None else [quats[j] for j in members],
-                          **options))
+        member_quats = None if quats is None else [quats[j] for j in members]
+        if k in donors:
+            j = int(members[0])
+            canals[k] = fit_lone(demos[j], canals[donors[k]], stamps[j],
+                                 None if quats is None else quats[j],
+                                 **{o: v for o, v in options.items() if o == "still_tolerance"})
+            continue
+        canals[k] = fit([demos[j] for j in members],
+                        None if all(s is None for s in member_stamps) else member_stamps,
+                        orientations=member_quats, **options)
     return Routes(tuple(canals), pooled, labels)

@@ -90,15 +90,17 @@ def check_timestamps(value: Any, n_points: int, field: str = "timestamps") -> Fl
 
 
 def check_demonstrations(
-    demos: Any, timestamps: Any = None
+    demos: Any, timestamps: Any = None, at_least: int = MIN_DEMOS
 ) -> tuple[list[FloatArray], list[FloatArray | None], int]:
     """Validate a set of demonstrations and their optional timestamps.
 
     Parameters
     ----------
     demos : sequence of array_like, each shape (T_j, D)
-        At least two demonstrations of one dimension D in {2, 3}, each with T_j >= 4.
+        At least ``at_least`` demonstrations (two for a canal) of one dimension D in {2, 3},
+        each with T_j >= 4.
     timestamps : sequence of (array_like, shape (T_j,) or None), optional
+    at_least : int
 
     Returns
     -------
@@ -113,9 +115,9 @@ def check_demonstrations(
             f"expected demos as a list of (T_j, D) arrays, got {type(demos).__name__}",
             field="demos",
         )
-    if len(demos) < MIN_DEMOS:
+    if len(demos) < at_least:
         raise InvalidInputError(
-            f"expected at least {MIN_DEMOS} demonstrations in demos, got {len(demos)}", field="demos"
+            f"expected at least {at_least} demonstrations in demos, got {len(demos)}", field="demos"
         )
     checked = [check_positions(d, f"demos[{j}]") for j, d in enumerate(demos)]
     dims = {d.shape[1] for d in checked}

@@ -503,10 +503,15 @@ class CanalService:
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
         labels = split.labels
-        notes = [f"demonstration {demo_ids[j]} goes a way of its own; a route needs two "
-                 f"demonstrations, so it joined route {int(labels[j])} (and widens it): show "
-                 "that way once more to learn it as a route, or delete it"
+        notes = [f"demonstration {demo_ids[j]} goes a way of its own; no route has two "
+                 f"demonstrations to lend it a width, so it joined route {int(labels[j])} (and "
+                 "widens it): show that way once more to learn it as a route, or delete it"
                  for j in split.joined]
+        notes += [f"demonstration {demo_ids[j]} goes a way of its own alone: it is route "
+                  f"{int(labels[j])}, with the width of route {donor} in proportion to its "
+                  "length (one demonstration shows a way, not how far it strays): show that way "
+                  "once more to learn its own width, or delete it if it was a slip"
+                  for j, donor in zip(split.lone, split.donors, strict=True)]
         return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
@@ -635,8 +640,9 @@ class CanalService:
         pooled_data = data.get("pooled", data) if routes.n_routes > 1 else data
         sections = pooled_data.get("sections") if isinstance(pooled_data, dict) else None
         route_canals = None if routes.n_routes == 1 else [
-            schemas.RouteCanal(route=k, n_demos=int(c.n_demos), directrix=_tolist(c.directrix),
-                               radii=_tolist(c.radii)) for k, c in enumerate(routes.canals)]
+            schemas.RouteCanal(route=k, n_demos=int(np.count_nonzero(routes.labels == k)),
+                               directrix=_tolist(c.directrix), radii=_tolist(c.radii))
+            for k, c in enumerate(routes.canals)]
         return schemas.ModelOut(
             **summary.model_dump(),
             directrix=_tolist(canal.directrix),

@@ -67,6 +67,27 @@ def test_start_is_matched_to_its_nearest_section_not_the_first() -> None:
     np.testing.assert_allclose(paper.positions[-1], canal.directrix[-1] + result.eta * canal.radii[-1] * canal.normals[-1], atol=1e-9)
 
 
+def test_a_start_behind_the_first_plane_on_the_line_of_the_last_section_starts_at_the_beginning() -> None:
+    # Up, right, down and back left: the motion ends heading towards where it began, so a
+    # start just behind the first plane lies far past the last one, near its normal line,
+    # where its ratio across the last section alone is below 1.
+    t = np.linspace(0.0, 1.0, 200)
+    corners = np.array([[0.0, 0.0], [0.0, 10.0], [20.0, 10.0], [20.0, 0.0], [10.0, 0.0]])
+    legs = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(corners, axis=0), axis=1)])
+    path = np.column_stack([np.interp(t * legs[-1], legs, corners[:, d]) for d in range(2)])
+    demos = [path + np.array([dx, dy]) for dx, dy in ((-0.4, 0.0), (0.4, 0.0), (0.0, 0.4), (0.0, -0.4))]
+    canal = canal_core.fit(demos, n_samples=120, alignment="spline")
+    start = np.array([1.2, -0.3])  # beside the first section, behind its plane
+    assert (start - canal.directrix[0]) @ canal.tangents[0] < 0.0
+    past = (start - canal.directrix[-1]) @ canal.tangents[-1]
+    assert past > 5.0 and canal.locate(start[None, :]).eta[0] < 1.0  # across the last: inside
+    result = canal.reproduce_detailed(start)
+    assert result.section_index == 0
+    assert result.positions[:, 1].max() > 9.0  # it goes up first, the whole way round
+    # A start past the end, on the line of its last section, still starts at the goal.
+    assert canal.reproduce_detailed(canal.directrix[-1] + 0.2 * canal.tangents[-1]).section_index == canal.n_sections - 2
+
+
 def test_start_on_the_directrix_follows_the_directrix() -> None:
     canal = canal_core.fit(datasets.task_one())
     result = canal.reproduce_detailed(canal.directrix[0])

@@ -96,15 +96,57 @@ def test_way_of_finds_the_route_points_lie_along_and_keeps_a_number_where_ways_a
     assert way_of(routes, shared, keep=1) == 1 and way_of(routes, shared, keep=0) == 0
 
 
-def test_a_lone_demonstration_joins_the_nearest_route_and_is_named() -> None:
+def test_a_lone_demonstration_is_a_route_of_its_own_with_the_nearest_routes_envelope() -> None:
     from canal_core.routes import route_split
 
     s = np.linspace(0.0, 1.0, 120)
     over = np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)])  # over the top, once
     demos = two_route_demos()
     split = route_split([*demos, over])
-    assert split.labels.max() == 1 and split.joined == (8,)
-    assert route_split(demos).joined == ()
+    assert split.labels.tolist() == [0] * 4 + [1] * 4 + [2] and split.joined == ()
+    assert split.lone == (8,) and split.donors in ((0,), (1,))
+    assert route_split(demos).lone == () and route_split(demos).joined == ()
     # two lone ways of one demonstration each that are near each other make a route of two
     twice = route_split([*demos, over, over + 0.01])
-    assert twice.labels.max() == 2 and twice.joined == ()
+    assert twice.labels.max() == 2 and twice.lone == ()
+
+    routes = canal_core.fit_routes([*demos, over], n_samples=60)
+    lone, donor = routes.canals[2], routes.canals[split.donors[0]]
+    assert routes.n_routes == 3 and lone.n_sections == donor.n_sections == 60
+    # Its directrix is the demonstration; its width the donor's, in proportion to its length (L1).
+    gaps = np.linalg.norm(lone.directrix[:, None, :] - over[None, :, :], axis=2).min(axis=1)
+    assert gaps.max() < 0.01 and np.allclose(lone.directrix[[0, -1]], over[[0, -1]])
+    ratio = lone.arclength[-1] / donor.arclength[-1]
+    assert np.all(lone.radii >= ratio * donor.radii * (1 - 1e-9))
+    assert lone.contains(over).all()
+    assert routes.contains(np.vstack([*demos, over])).all()
+    # A start beside its start follows it over the top, not one of the ways round.
+    choice, result = routes.reproduce_detailed(over[0] + np.array([0.0, 0.01, 0.0]))
+    assert choice.route == 2
+    assert result.positions[:, 2].max() > 0.4
+    # A model that round-trips keeps it.
+    again = canal_core.routes.routes_from_dict(json.loads(json.dumps(routes.to_dict())))
+    assert np.array_equal(again.canals[2].radii, lone.radii)
+
+
+def test_lone_demonstrations_join_the_nearest_route_when_no_route_has_two() -> None:
+    from canal_core.routes import route_split
+
+    s = np.linspace(0.0, 1.0, 80)
+    # four parallel ways a path length apart: every one alone
+    ways = [np.column_stack([s, np.full_like(s, c) + 0.01 * s * s]) for c in (0.0, 1.0, 2.5, 4.5)]
+    split = route_split(ways)
+    # the first joins its nearest; the route of two lends its envelope to the others
+    assert split.labels.tolist() == [0, 0, 1, 2] and split.joined == (0,)
+    assert split.lone == (2, 3) and split.donors == (0, 0)
+    # Labels that leave a route of one with no route of two to lend it a width are refused.
+    with pytest.raises(canal_core.InvalidInputError, match="lend its envelope"):
+        canal_core.fit_routes(ways[:2], labels=[0, 1], n_samples=40)
+
+
+def test_fit_lone_refuses_a_demonstration_of_another_dimension() -> None:
+    from canal_core.fit import fit_lone
+
+    donor = canal_core.fit(two_route_demos()[:4], n_samples=40)
+    with pytest.raises(canal_core.InvalidInputError, match="dimension 3"):
+        fit_lone(np.zeros((10, 2)) + np.linspace(0, 1, 10)[:, None], donor)

@@ -234,7 +234,7 @@ def test_a_correction_of_a_route_a_refit_no_longer_has_goes_to_the_nearest(
     assert [len(c.corrections) for c in two.canals] == [int(k == way) for k in range(2)]
 
 
-def test_a_demonstration_that_goes_its_own_way_alone_is_named_in_the_fit_notes(
+def test_a_demonstration_that_goes_its_own_way_alone_is_a_route_named_in_the_fit_notes(
         http: httpx.Client) -> None:
     add_two_route_demos(http)
     s = np.linspace(0.0, 1.0, 120)
@@ -242,8 +242,11 @@ def test_a_demonstration_that_goes_its_own_way_alone_is_named_in_the_fit_notes(
     lone = http.post("/skills/reach/demonstrations", json={"positions": over.tolist()}).json()["id"]
     r = http.post("/skills/reach/fit", json={"n_samples": 60})
     assert r.status_code == 201, r.text
-    assert r.json()["routes"] == 2
+    assert r.json()["routes"] == 3 and r.json()["demo_routes"][-1] == 2
     (note,) = [n for n in r.json()["notes"] if "way of its own" in n]
-    assert f"demonstration {lone} " in note and "joined route" in note
+    assert f"demonstration {lone} " in note and "it is route 2, with the width of route" in note
+    version = r.json()["version"]
+    model = http.get(f"/skills/reach/models/{version}").json()
+    assert [c["n_demos"] for c in model["route_canals"]] == [4, 4, 1]
     plain = http.post("/skills/reach/fit", json={"n_samples": 60, "demo_ids": list(range(1, 9))})
     assert plain.status_code == 201 and plain.json()["notes"] == []
