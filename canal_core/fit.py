@@ -181,7 +181,9 @@ def fit_lone(
         Fitted to two demonstrations or more; its options (section kind, N, frames) are kept.
     timestamps : array_like, shape (T,), optional
     orientations : array_like, shape (T, 4), optional
-        Without them the canal has no orientation model, whatever the donor has.
+        The demonstration's orientations: its canal's mean orientations, with the donor's
+        offsets from its means (the spread, in radians, unscaled). Without them the canal
+        has no orientation model, whatever the donor has.
     still_tolerance : float
         As :func:`fit`.
     """
@@ -271,6 +273,9 @@ def _fitted_canal(
     orientation = None
     if quats_ is not None:
         orientation = _fitted_orientation(prepared, times, quats_, options, warps)
+        if donor is not None and donor.orientation is not None:
+            # One demonstration has no spread of orientation either: the donor's, unscaled.
+            orientation = OrientationModel(orientation.means, donor.orientation.offsets)
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
         section_times=section_times(positions, stamped, options.n_samples, times),

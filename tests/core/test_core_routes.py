@@ -124,6 +124,15 @@ def test_a_lone_demonstration_is_a_route_of_its_own_with_the_nearest_routes_enve
     choice, result = routes.reproduce_detailed(over[0] + np.array([0.0, 0.01, 0.0]))
     assert choice.route == 2
     assert result.positions[:, 2].max() > 0.4
+    # With orientations, it keeps its own and borrows the donor's spread of them.
+    turn = [np.tile([0.0, 0.0, np.sin(0.1 * k), np.cos(0.1 * k)], (len(d), 1)) for k, d in enumerate([*demos, over])]
+    turned = canal_core.fit_routes([*demos, over], n_samples=60, orientations=turn)
+    mean = turned.canals[2].orientation.means
+    assert np.allclose(np.abs(mean @ turn[8][0]), 1.0)
+    assert np.array_equal(turned.canals[2].orientation.spreads,
+                          turned.canals[split.donors[0]].orientation.spreads)
+    _, held = turned.reproduce_detailed(over[0] + np.array([0.0, 0.01, 0.0]), start_orientation=turn[7][0])
+    assert held.orientation_eta is not None and np.isfinite(held.orientation_eta)
     # A model that round-trips keeps it.
     again = canal_core.routes.routes_from_dict(json.loads(json.dumps(routes.to_dict())))
     assert np.array_equal(again.canals[2].radii, lone.radii)
