@@ -162,17 +162,18 @@ def fit_lone(
     A canal is the envelope of several demonstrations; one demonstration shows its route but
     not how far the person strays from it. The canal of a lone route is the demonstration
     itself as the directrix (resampled by ``donor``'s clock where it can be), framed as
-    :func:`fit` frames one, with ``donor``'s sections and demonstration offsets
-    (``section_points``, which the learned persistence reads) scaled by the ratio of the
-    two directrices' lengths, section for section,
+    :func:`fit` frames one, with ``donor``'s sections scaled by the ratio of the two
+    directrices' lengths, section for section,
 
         R_i^lone = (L^lone / L^donor) R_i^donor                                      (L1)
 
     then grown, as :func:`fit` grows any canal, until every sample of the demonstration is
     inside. ``donor`` is the route the demonstration would otherwise have joined
     (:func:`canal_core.routes.fit_routes`): the person's spread there is the best guess of
-    their spread here. The canal's ``n_demos`` is the donor's (its offsets are); the route
-    knows it has one.
+    their spread here. Its ``section_points`` are the demonstration's own crossings (on the
+    directrix), so ``n_demos`` is 1 and the learned persistence, with no spread of offsets to
+    read, leaves a start's ratio to the end decay (borrowing the donor's offsets as well
+    follows LASA ``Multi_Models_1`` no closer).
 
     Parameters
     ----------
@@ -247,12 +248,11 @@ def _fitted_canal(
         beyond = outward * offset > 0.0
         crossings[end, beyond] = aligned[beyond, end] - offset[beyond, None] * tangents[end]
     basis = section_basis(normals, binormals)
+    coords = in_plane_coordinates(crossings, centres, basis)
     if donor is not None:  # (L1)
         ratio = float(arclength[-1] / donor.arclength[-1])
-        coords = donor.section_points * ratio
         sections = scaled_sections(donor.sections, np.full(options.n_samples, ratio))
     else:
-        coords = in_plane_coordinates(crossings, centres, basis)
         sections = _crossing_sections(coords, arclength, centres, options)
     # Make the canal a true envelope of the demonstrated samples, not only of the crossings.
     # Every genuine sample counts, the trimmed still ends included (glitches do not); its

@@ -112,7 +112,7 @@ def test_a_lone_demonstration_is_a_route_of_its_own_with_the_nearest_routes_enve
 
     routes = canal_core.fit_routes([*demos, over], n_samples=60)
     lone, donor = routes.canals[2], routes.canals[split.donors[0]]
-    assert routes.n_routes == 3 and lone.n_sections == donor.n_sections == 60
+    assert routes.n_routes == 3 and lone.n_sections == donor.n_sections == 60 and lone.n_demos == 1
     # Its directrix is the demonstration; its width the donor's, in proportion to its length (L1).
     gaps = np.linalg.norm(lone.directrix[:, None, :] - over[None, :, :], axis=2).min(axis=1)
     assert gaps.max() < 0.01 and np.allclose(lone.directrix[[0, -1]], over[[0, -1]])
