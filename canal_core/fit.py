@@ -311,7 +311,6 @@ def _crossing_sections(coords: FloatArray, arclength: FloatArray, centres: Float
             "at this scale they cannot be told apart; rescale the units, or demonstrate "
             "the variation", field="demos")
     size = float(np.abs(coords).max())
-    size = float(np.abs(coords).max())
     return floored_sections(fitted_sections(coords, options.cross_section), 1e-9 * size)
 
 
