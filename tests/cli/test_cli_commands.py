@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -273,6 +274,15 @@ def test_fit_routes_and_reproduce_print_the_route(run: Run, unique_name: Callabl
     assert json.loads(r.stdout)["route"] == 0
     r = run("skill", "show", name)
     assert r.exit_code == 0 and "routes" in r.stdout
+    # A way shown once is a route of its own, one demonstration, named in a note.
+    s = np.linspace(0.0, 1.0, 120)
+    np.save(tmp_path / "over.npy", np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)]))
+    assert run("demo", "add", name, str(tmp_path / "over.npy")).exit_code == 0
+    r = run("fit", name, "--samples", "40")
+    assert r.exit_code == 0, r.output
+    lone = re.search(r"; route 2: demo (\d+)\)", r.stdout)
+    assert "3 routes, one canal each" in r.stdout and lone, r.stdout
+    assert f"demonstration {lone[1]} goes a way of its own alone" in " ".join(r.stdout.split())
     r = run("--json", "fit", name, "--samples", "40", "--routes", "1")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["routes"] == 1

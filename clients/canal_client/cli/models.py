@@ -92,9 +92,10 @@ def fit(
               f"{model.n_demos} demos, {model.n_sections} {model.section_kind} sections, "
               f"{model.fit_seconds:.3f} s")
     if model.routes > 1 and model.demo_routes is not None:
-        split = "; ".join(
-            f"route {k}: demos {', '.join(str(i) for i, r in zip(model.demo_ids, model.demo_routes, strict=True) if r == k)}"
-            for k in range(model.routes))
+        members = [[str(i) for i, r in zip(model.demo_ids, model.demo_routes, strict=True) if r == k]
+                   for k in range(model.routes)]
+        split = "; ".join(f"route {k}: demo{'s' if len(m) > 1 else ''} {', '.join(m)}"
+                          for k, m in enumerate(members))
         out.print(f"{model.routes} routes, one canal each ({split})")
     if model.corrections:
         out.print(f"corrections {', '.join(map(str, model.corrections))} re-applied (version "
