@@ -150,9 +150,8 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
             break
         j = int(np.flatnonzero(labels == lone[0])[0])
         joined.append(j)
-        others = [k for k in range(counts.size) if k != lone[0]]
-        nearest = min(others, key=lambda k: float(dist[j, labels == k].mean()))
-        labels[labels == lone[0]] = nearest
+        labels[labels == lone[0]] = _nearest_route(j, [k for k in range(counts.size) if k != lone[0]],
+                                                   labels, dist)
         labels = np.unique(labels, return_inverse=True)[1].astype(np.int64)
     # Route 0 is the first demonstration's, route 1 the next new one's, ...
     _, first = np.unique(labels, return_index=True)
@@ -166,15 +165,25 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
     return RouteSplit(final, kept, lone_demos, donors)
 
 
+def _nearest_route(j: int, among: Any, labels: IntArray, dist: FloatArray) -> int:
+    """Of the routes ``among``, the one whose demonstrations are nearest demonstration ``j``
+    on average (R1)."""
+    return int(min(among, key=lambda k: float(dist[j, labels == k].mean())))
+
+
 def _lone_routes(labels: IntArray, dist: FloatArray) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """The demonstrations alone in their route, and the route of two or more nearest each
-    (the least mean (R1) distance to its demonstrations)."""
+    """The demonstrations alone in their route, and the route of two or more nearest each."""
     counts = np.bincount(labels)
     shared = np.flatnonzero(counts >= 2)
     lone = tuple(int(j) for j in np.flatnonzero(counts[labels] == 1))
     if not lone or shared.size == 0:
         return (), ()
-    return lone, tuple(int(min(shared, key=lambda k: float(dist[j, labels == k].mean()))) for j in lone)
+    return lone, tuple(_nearest_route(j, shared, labels, dist) for j in lone)
+
+
+def _donor_routes(labels: IntArray, lone: tuple[int, ...], donors: tuple[int, ...]) -> dict[int, int]:
+    """Route of each lone demonstration -> the route that lends it its envelope."""
+    return {int(labels[j]): k for j, k in zip(lone, donors, strict=True)}
 
 
 def route_donors(demos: list[FloatArray], labels: IntArray) -> dict[int, int]:
@@ -187,8 +196,7 @@ def route_donors(demos: list[FloatArray], labels: IntArray) -> dict[int, int]:
     if not np.any(counts >= 2):
         raise InvalidInputError(f"expected a route of at least 2 demonstrations to lend its envelope to "
                                 f"the routes of one, got route sizes {counts.tolist()}", field="labels")
-    lone, donors = _lone_routes(labels, route_distances(demos))
-    return {int(labels[j]): k for j, k in zip(lone, donors, strict=True)}
+    return _donor_routes(labels, *_lone_routes(labels, route_distances(demos)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -354,13 +362,16 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
         split between the routes as the demonstrations are.
     """
     from .fit import fit, fit_lone
+    from .preprocess import STILL_TOLERANCE
 
     if not isinstance(demos, (list, tuple)) or len(demos) < 2:
         raise InvalidInputError("expected a list of at least 2 demonstrations", field="demos")
     arrays = [np.asarray(d, dtype=np.float64) for d in demos]
     pooled = fit(demos, timestamps, **options)
+    donors: dict[int, int] | None = None
     if labels is None:
-        labels = route_labels(arrays, routes, separation)
+        split = route_split(arrays, routes, separation)
+        labels, donors = split.labels, _donor_routes(split.labels, split.lone, split.donors)
     else:
         labels = np.asarray(labels, dtype=np.int64)
         if labels.shape != (len(arrays),) or labels.min() < 0:
@@ -368,22 +379,23 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
                                     f"got {labels.tolist()}", field="labels")
     if labels.max(initial=0) == 0:
         return Routes((pooled,), pooled, labels)
+    if donors is None:
+        donors = route_donors(arrays, labels)
     stamps = [None] * len(arrays) if timestamps is None else list(timestamps)
     quats = options.pop("orientations", None)
-    donors = route_donors(arrays, labels)
     canals: list[Any] = [None] * (int(labels.max()) + 1)
     # Routes of two demonstrations or more first: they lend their envelopes to the lone ones.
     for k in sorted(range(len(canals)), key=lambda k: k in donors):
         members = np.flatnonzero(labels == k)
-        member_stamps = [stamps[j] for j in members]
-        member_quats = None if quats is None else [quats[j] for j in members]
         if k in donors:
             j = int(members[0])
             canals[k] = fit_lone(demos[j], canals[donors[k]], stamps[j],
                                  None if quats is None else quats[j],
-                                 **{o: v for o, v in options.items() if o == "still_tolerance"})
+                                 still_tolerance=options.get("still_tolerance", STILL_TOLERANCE))
             continue
+        member_stamps = [stamps[j] for j in members]
         canals[k] = fit([demos[j] for j in members],
                         None if all(s is None for s in member_stamps) else member_stamps,
-                        orientations=member_quats, **options)
+                        orientations=None if quats is None else [quats[j] for j in members],
+                        **options)
     return Routes(tuple(canals), pooled, labels)

@@ -640,9 +640,8 @@ class CanalService:
         pooled_data = data.get("pooled", data) if routes.n_routes > 1 else data
         sections = pooled_data.get("sections") if isinstance(pooled_data, dict) else None
         route_canals = None if routes.n_routes == 1 else [
-            schemas.RouteCanal(route=k, n_demos=int(np.count_nonzero(routes.labels == k)),
-                               directrix=_tolist(c.directrix), radii=_tolist(c.radii))
-            for k, c in enumerate(routes.canals)]
+            schemas.RouteCanal(route=k, n_demos=int(c.n_demos), directrix=_tolist(c.directrix),
+                               radii=_tolist(c.radii)) for k, c in enumerate(routes.canals)]
         return schemas.ModelOut(
             **summary.model_dump(),
             directrix=_tolist(canal.directrix),
