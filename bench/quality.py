@@ -3,8 +3,8 @@
 Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
 start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
 subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
-canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, index clock, the fixed entry, constant persistence, persistence
-learned to the end, the other section kinds).
+canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, index clock, the fixed entry,
+the end decay over the last fifth, constant persistence, persistence learned to the end, the other section kinds).
 ``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
 
 ``canal (defaults)`` is what ``canal serve`` fits with its defaults: ``canal_core.routes.fit_routes``
@@ -311,6 +311,7 @@ CANALS: dict[str, tuple[Fit, Reproduce]] = {
     "canal, aligned by arc length": canal_method(timing="arc"),
     "canal, aligned by the sample index": canal_method(timing="index"),
     "canal, fixed 10 % entry": canal_method(entry=0.1),
+    "canal, end decay over the last fifth": canal_method(end_decay=0.2),
     "canal, constant persistence": canal_method(persistence="constant"),
     "canal, persistence learned to the end": canal_method(persistence="learned+end"),
 }

@@ -39,17 +39,16 @@ START_ETA_FACTOR = 2.0
 ENTRY_FRACTION = 0.1
 #: The ratio rule's offset fades out over this last fraction of the canal's length, or over
 #: all that is left after the start when less (path_ratios). 1.0: the whole motion, with a
-#: smootherstep that keeps 94 % of the offset over the first fifth and 6 % over the last.
-#: Measured (docs/method.md): median DTW on leave-one-out LASA 1.21 mm (1.0) vs 1.33 (0.5)
-#: vs 1.41 (0.2); UR5e 0.031 vs 0.036 m; generated 3-D logs 0.0137 vs 0.0129 vs 0.0145.
+#: smootherstep that keeps 94 % of the offset over the first fifth and 6 % over the last: a
+#: demonstrator's offset at the start says less and less about where they are later (docs/method.md
+#: section 4; BENCHMARKS.md's quality row "canal, end decay over the last fifth" is 0.2).
 END_DECAY = 1.0
 #: How the ratio is carried along the canal (see :func:`learned_persistence`).
 PERSISTENCES = ("learned", "constant", "learned+end")
 #: Weight of the paper's constant ratio in the learned persistence, in demonstrations: one
 #: pseudo-demonstration that keeps its whole start offset. It keeps a profile regressed on a
-#: handful of demos (4-6 in practice) from following their noise where they barely spread.
-#: Measured (docs/method.md), median DTW leave-one-out, weight 0 / 1: LASA 1.115 / 1.108 mm,
-#: UR5e 0.0340 / 0.0326 m, generated 3-D 0.0154 / 0.0152.
+#: handful of demos (4-6 in practice) from following their noise where they barely spread
+#: (docs/method.md section 4b).
 PERSISTENCE_PRIOR_WEIGHT = 1.0
 #: Relative tolerance of :meth:`canal_core.model.Canal.contains` on eta and on the axial
 #: offset at the ends.
