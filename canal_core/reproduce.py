@@ -47,8 +47,7 @@ END_DECAY = 1.0
 PERSISTENCES = ("learned", "constant", "learned+end")
 #: Weight of the paper's constant ratio in the learned persistence, in demonstrations: one
 #: pseudo-demonstration that keeps its whole start offset. It keeps a profile regressed on a
-#: handful of demos (4-6 in practice) from following their noise where they barely spread
-#: (docs/method.md section 4b).
+#: few demos from following their noise where they barely spread (docs/method.md section 4b).
 PERSISTENCE_PRIOR_WEIGHT = 1.0
 #: Relative tolerance of :meth:`canal_core.model.Canal.contains` on eta and on the axial
 #: offset at the ends.
