@@ -15,7 +15,10 @@ Protocol (every method gets the same arrays, as users' demonstrations are measur
 outside): every demo is trimmed of its still head and tail (samples within 1 mm, in the set's
 unit, of its first / last sample) and resampled to 200 points uniformly in its own normalised
 time (its time stamps; no time stamps are passed on). For each held-out demo, each method is
-fitted on the other demos of its set and reproduces from the held-out demo's first point. The
+fitted on the other demos of its set and reproduces from the held-out demo's first point,
+over the normalised duration 1 the peers run in (a canal's reproduction is asked for
+``duration=1.0`` and taken evenly in its own times, as a robot executes it: without time
+stamps a steady logger's sample index paces it, P1 of ``canal_core.timing``). The
 reproduction is resampled to 200 points by index and compared with the held-out arrays:
 
 * ``dtw``: DTW distance / 200 (a mean matched distance), the median over folds and (``dtw p90``)
@@ -232,6 +235,20 @@ Fit = Callable[[list[np.ndarray]], Any]
 Reproduce = Callable[[Any, np.ndarray], np.ndarray]
 
 
+def executed(reproduction: Any) -> np.ndarray:
+    """A reproduction as it is executed: its positions evenly in its own times (N points).
+
+    Asked for the duration 1 (the peers' normalised time), a canal times its reproduction by
+    the demonstrations' pace (``Reproduction.times``); without times, its positions as given.
+    """
+    y = np.asarray(reproduction.positions)
+    if reproduction.times is None:
+        return y
+    t = np.asarray(reproduction.times)
+    at = np.linspace(t[0], t[-1], N)
+    return np.column_stack([np.interp(at, t, y[:, i]) for i in range(y.shape[1])])
+
+
 def canal_method(**options: Any) -> tuple[Fit, Reproduce]:
     schedule = {k: options.pop(k) for k in ("entry", "end_decay", "persistence") if k in options}
 
@@ -239,7 +256,7 @@ def canal_method(**options: Any) -> tuple[Fit, Reproduce]:
         return canal_core.fit(train, n_samples=N, **options)
 
     def reproduce(canal: Any, start: np.ndarray) -> np.ndarray:
-        return np.asarray(canal.reproduce_detailed(start, **schedule).positions)
+        return executed(canal.reproduce_detailed(start, duration=1.0, **schedule))
 
     return fit, reproduce
 
@@ -249,7 +266,7 @@ def routes_method(**options: Any) -> tuple[Fit, Reproduce]:
         return canal_core.routes.fit_routes(train, n_samples=N, **options)
 
     def reproduce(routes: Any, start: np.ndarray) -> np.ndarray:
-        return np.asarray(routes.reproduce_detailed(start)[1].positions)
+        return executed(routes.reproduce_detailed(start, duration=1.0)[1])
 
     return fit, reproduce
 

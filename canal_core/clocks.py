@@ -36,7 +36,8 @@ twice the mean, yet its index is a clock. Rows dropped at random make the window
 thirds of 400 rows dropped: 0.32-0.63 over 20 draws, about the threshold). A rate that drifts
 slowly, or stalls once, is not seen by (T2); (T1) below sees it when the demonstrations differ.
 An index clock aligns, but it is not seconds: a model aligned by it has no section times, and
-its reproductions no duration, unless one is asked for.
+its reproductions no duration, unless one is asked for (then the index paces them, P1 of
+:mod:`canal_core.timing`).
 
 Blended clock (the default when the rhythm is consistent). Measured leave-one-out (BENCHMARKS.md)
 pure time beats arc length on some tasks (RAIL pressing and pushing, UR5e) and loses on others

@@ -20,7 +20,7 @@ from .alignment import (
     spline_parameter,
     splines_at,
 )
-from .clocks import TIMINGS, TimingChoice, alignment_parameters, chosen_clock
+from .clocks import TIMINGS, TimingChoice, alignment_parameters, chosen_clock, steady_index_clock
 from .cross_sections import (
     CrossSections,
     fitted_sections,
@@ -38,7 +38,7 @@ from .options import FitOptions, fit_options
 from .orientation import OrientationModel, fitted_orientations
 from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples_many
 from .reproduce import section_basis
-from .timing import section_times
+from .timing import section_pace, section_times
 from .validation import (
     FloatArray,
     check_choice,
@@ -279,6 +279,8 @@ def _fitted_canal(
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
         section_times=section_times(positions, stamped, options.n_samples, times),
+        section_pace=(section_pace(positions, options.n_samples, times)
+                      if all(t is None for t in stamped) and steady_index_clock(positions) else None),
         clock=clock,
         envelope_margin=float(enclosure.scale.max() - 1.0),
         directrix=centres,

@@ -45,6 +45,7 @@ def canal_dict(canal: Canal) -> dict[str, Any]:
         "orientation": None if canal.orientation is None else canal.orientation.to_dict(),
         # Optional keys (absent in models written before them; from_dict defaults them).
         "section_times": None if canal.section_times is None else canal.section_times.tolist(),
+        "section_pace": None if canal.section_pace is None else canal.section_pace.tolist(),
         "envelope_margin": canal.envelope_margin,
         "parent": canal.parent,
         "corrections": [c.to_dict() for c in canal.corrections],
@@ -110,6 +111,7 @@ def canal_fields(data: dict[str, Any]) -> dict[str, Any]:
             options=FitOptions(**{"frame_smoothing": 0.0, **data["options"]}),
             orientation=orientation,
             section_times=_optional_times(data.get("section_times"), n),
+            section_pace=_optional_times(data.get("section_pace"), n, "section_pace"),
             envelope_margin=float(data.get("envelope_margin", 0.0)),
             # Absent in models written before corrections existed.
             parent=None if data.get("parent") is None else str(data["parent"]),
@@ -132,13 +134,13 @@ def _clock(value: Any) -> Clock:
     return cast(Clock, value)
 
 
-def _optional_times(values: Any, n: int) -> FloatArray | None:
+def _optional_times(values: Any, n: int, name: str = "section_times") -> FloatArray | None:
     if values is None:
         return None
     times = np.asarray(values, dtype=np.float64)
     if times.shape != (n,) or not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0.0):
         raise ModelFormatError(
-            f"expected section_times of shape ({n},), finite and non-decreasing, got shape {times.shape}",
-            field="section_times",
+            f"expected {name} of shape ({n},), finite and non-decreasing, got shape {times.shape}",
+            field=name,
         )
     return times

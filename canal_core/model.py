@@ -71,6 +71,10 @@ class Canal:
     section_times : array, shape (N,), or None
         Mean time (s) at which the demonstrations reach each section, from the first
         (:mod:`canal_core.timing`); None when they carried no time stamps.
+    section_pace : array, shape (N,), or None
+        Without time stamps, from a steady logger: the mean share of their samples the
+        demonstrations had logged at each section, 0 to 1 (P1 of :mod:`canal_core.timing`);
+        a reproduction asked for a duration is timed by it. None otherwise.
     envelope_margin : float
         The fit's report of how much the sections fitted to the plane crossings had to grow
         so that every demonstrated sample is inside: the largest relative enlargement of
@@ -96,6 +100,7 @@ class Canal:
     options: FitOptions = field(default_factory=FitOptions)
     orientation: OrientationModel | None = None
     section_times: FloatArray | None = None
+    section_pace: FloatArray | None = None
     envelope_margin: float = 0.0
     #: The content digest of the canal this one was refined from (None for a fit).
     parent: str | None = None
@@ -267,8 +272,8 @@ class Canal:
         goal : array_like, shape (D,), optional
             End the reproduction here: the canal is deformed first (:meth:`with_goal`).
         duration : float, optional
-            Seconds; the times are stretched to end there (constant speed along the path
-            when the model has no speed profile).
+            Seconds; the times are stretched to end there (without time stamps, paced by
+            ``section_pace`` when the logger was steady, else at constant speed along the path).
         entry : float or None
             None (default): a start outside enters the canal over the length in which the
             demonstrations' own start offsets half faded (:mod:`canal_core.entry`); a
@@ -320,6 +325,7 @@ class Canal:
             options=self.options,
             orientation=self.orientation,
             section_times=self.section_times,
+            section_pace=self.section_pace,
             envelope_margin=self.envelope_margin,
             clock=self.clock,
         )

@@ -142,8 +142,8 @@ def reproduce(
     goal : array_like, shape (D,), optional
         End the reproduction here: the canal is deformed first (:meth:`Canal.with_goal`).
     duration : float, optional
-        Seconds; the times are stretched to end there (constant speed along the path
-        when the model has no speed profile).
+        Seconds; the times are stretched to end there (without time stamps, paced by
+        ``section_pace`` when the logger was steady, else at constant speed along the path).
     entry : float or None
         None (default): a start outside enters the canal over the length in which the
         demonstrations' own start offsets half faded (:mod:`canal_core.entry`); a fraction
@@ -231,6 +231,9 @@ def reproduce(
         if seconds is not None:
             times = rescaled_times(times, seconds)
         times = times[: positions.shape[0]]  # a blocked path keeps its own times
+    elif seconds is not None and canal.section_pace is not None:
+        times = rescaled_times(reproduction_times(canal.section_pace, index, alpha, path.shape[0] + 1), seconds)
+        times = times[: positions.shape[0]]
     elif seconds is not None:
         times = arc_length_times(positions, seconds)
     orientations, orientation_eta = None, None

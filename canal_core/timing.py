@@ -14,6 +14,17 @@ over the n_t demonstrations with time stamps. A reproduction located at fraction
 i0 + alpha and passing through sections i0 + 1 .. N - 1 is given the times
 tau(k) - tau(i0 + alpha) (linear in the fractional section), optionally rescaled to a
 requested duration, and velocities by finite differences of positions over those times.
+
+Without time stamps a steady logger's sample index still says how the motion is paced, though
+not in seconds (:func:`canal_core.clocks.steady_index_clock`). The canal then keeps the mean
+share of each demonstration's samples elapsed at each phase,
+
+    pi_i = (1 / n) sum_j k_j(u_i) / (T_j - 1),     i = 0 .. N - 1,                (P1)
+
+(k_j(u_i): the sample index at which demonstration j reaches phase u_i), and a reproduction
+asked for a duration is timed by pi scaled to it, as by tau: it spends its time where the
+demonstrations spent theirs. Constant speed along the path (:func:`arc_length_times`) is left
+for loggers whose index is no clock.
 """
 
 from __future__ import annotations
@@ -57,6 +68,31 @@ def section_times(
         return None
     tau = np.maximum.accumulate(np.mean(rows, axis=0))
     return np.asarray(tau - tau[0], dtype=np.float64)
+
+
+def section_pace(
+    demos: list[FloatArray], n_samples: int, parameters: list[FloatArray | None],
+) -> FloatArray:
+    """Mean share of their samples the demonstrations have logged at each section (P1), shape (N,).
+
+    Parameters
+    ----------
+    demos : list of arrays, each shape (T_j, D)
+        Cleaned demonstrations from a steady logger without time stamps.
+    n_samples : int
+        N.
+    parameters : list of (array, shape (T_j,)) or None
+        What each demonstration was aligned by, as :func:`section_times`.
+
+    Returns
+    -------
+    pi : array, shape (N,)
+        Non-decreasing from 0 to 1.
+    """
+    shares = [np.linspace(0.0, 1.0, d.shape[0]) for d in demos]
+    pace = section_times(demos, list(shares), n_samples, parameters)
+    assert pace is not None  # every demonstration has its shares
+    return np.asarray(pace / max(float(pace[-1]), 1e-300), dtype=np.float64)
 
 
 def reproduction_times(

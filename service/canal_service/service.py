@@ -816,7 +816,10 @@ class CanalService:
         if canal.section_times is None and body.duration is not None:
             # Without a duration the answer's null times say it all; with one, the pacing
             # is an assumption worth stating.
-            notes.append("model has no time stamps: times follow arc length at constant speed")
+            notes.append("model has no time stamps: times follow the demonstrations' pace by their "
+                         "sample index (a steady logger), scaled to the duration"
+                         if canal.section_pace is not None else
+                         "model has no time stamps: times follow arc length at constant speed")
         start_orientation = body.start_orientation
         if start_orientation is not None and not canal.has_orientation:
             notes.append("model has no orientation: start_orientation ignored")

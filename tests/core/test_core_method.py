@@ -208,6 +208,31 @@ def test_no_timestamps_no_times_unless_a_duration_is_asked() -> None:
     assert err.value.field == "duration"
 
 
+def test_an_unstamped_steady_log_paces_a_timed_reproduction_like_the_demonstrations() -> None:
+    """Demos from a steady logger without stamps that spend 70 % of their samples on the first
+    half of the path: a reproduction asked for a duration spends 70 % of it there too (not
+    half, as constant speed along the path would)."""
+    u = np.linspace(0.0, 1.0, 300)
+    share = np.where(u < 0.7, 0.5 * u / 0.7, 0.5 + 0.5 * (u - 0.7) / 0.3)  # path share over time
+    path = np.column_stack([share, 0.2 * np.sin(np.pi * share), 0.1 * share])
+    demos = [path + 0.004 * k * np.sin(3.0 * np.pi * share)[:, None] for k in range(-2, 3)]
+    canal = canal_core.fit(demos, n_samples=100)
+    assert canal.section_times is None and canal.clock.startswith("index")
+    assert canal.section_pace is not None
+    result = canal.reproduce_detailed(canal.directrix[0], duration=10.0)
+    assert result.times is not None
+    halfway = int(np.argmin(np.abs(canal.arclength - 0.5 * canal.arclength[-1])))
+    assert abs(result.times[halfway] - 7.0) < 0.3, result.times[halfway]
+    np.testing.assert_allclose(result.times[-1], 10.0)
+    assert canal.reproduce_detailed(canal.directrix[0]).times is None  # no seconds without a duration
+    again = canal_core.Canal.from_dict(canal.to_dict())
+    assert again.section_pace is not None
+    np.testing.assert_array_equal(again.section_pace, canal.section_pace)
+    # A logger that writes in bursts is not a clock: constant speed along the path.
+    bursts = [d[np.sort(np.random.default_rng(k).choice(300, 120, replace=False))] for k, d in enumerate(demos)]
+    assert canal_core.fit(bursts, n_samples=100).section_pace is None
+
+
 def test_section_times_average_the_demos() -> None:
     demos, times = timed_demos()
     tau = section_times(demos, times, 50, times)
