@@ -226,14 +226,13 @@ def reproduce(
         positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
         start_clearance = avoided.start_clearance
     times = None
-    if canal.section_times is not None:
-        times = reproduction_times(canal.section_times, index, alpha, path.shape[0] + 1)
+    # Seconds from the stamps; a steady logger's pace only once a duration says how long.
+    profile = canal.section_times if canal.section_times is not None or seconds is None else canal.section_pace
+    if profile is not None:
+        times = reproduction_times(profile, index, alpha, path.shape[0] + 1)
         if seconds is not None:
             times = rescaled_times(times, seconds)
         times = times[: positions.shape[0]]  # a blocked path keeps its own times
-    elif seconds is not None and canal.section_pace is not None:
-        times = rescaled_times(reproduction_times(canal.section_pace, index, alpha, path.shape[0] + 1), seconds)
-        times = times[: positions.shape[0]]
     elif seconds is not None:
         times = arc_length_times(positions, seconds)
     orientations, orientation_eta = None, None

@@ -89,8 +89,8 @@ def section_pace(
     pi : array, shape (N,)
         Non-decreasing from 0 to 1.
     """
-    shares = [np.linspace(0.0, 1.0, d.shape[0]) for d in demos]
-    pace = section_times(demos, list(shares), n_samples, parameters)
+    shares: list[FloatArray | None] = [np.linspace(0.0, 1.0, d.shape[0]) for d in demos]
+    pace = section_times(demos, shares, n_samples, parameters)
     assert pace is not None  # every demonstration has its shares
     return np.asarray(pace / max(float(pace[-1]), 1e-300), dtype=np.float64)
 
