@@ -278,8 +278,8 @@ def _fitted_canal(
             orientation = OrientationModel(orientation.means, donor.orientation.offsets)
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
-        section_times=section_times(positions, stamped, options.n_samples, times),
-        section_pace=(section_pace(positions, options.n_samples, times)
+        section_times=section_times(positions, stamped, options.n_samples, times, warps),
+        section_pace=(section_pace(positions, options.n_samples, times, warps)
                       if all(t is None for t in stamped) and steady_index_clock(positions) else None),
         clock=clock,
         envelope_margin=float(enclosure.scale.max() - 1.0),

@@ -4,11 +4,12 @@ The paper's reproduction is time-independent: one point per cross-section, paced
 length. Demonstrations that carry time stamps also say *how fast* each part of the motion
 goes (slow near a narrow passage, fast in the open). The canal keeps their mean time along
 the phase: for each demonstration j (cleaned, see :mod:`canal_core.preprocess`), the time
-t_j(u_i) at which it reaches phase u_i = i / (N - 1) of its alignment parameter (the same
-parameter the aligned sample i comes from: normalised arc length, or normalised time when
-aligned by time), measured from its first sample. The section times are their mean,
+t_j(u_ji) at which it reaches the phase its aligned sample i comes from: u_ji = i / (N - 1) of
+its alignment parameter (normalised arc length, time, index or their blend), or its warp
+w_j(i) under a warped alignment (:func:`canal_core.alignment.dtw_parameters`), measured from
+its first sample. The section times are their mean,
 
-    tau_i = (1 / n_t) sum_j t_j(u_i),     i = 0 .. N - 1,
+    tau_i = (1 / n_t) sum_j t_j(u_ji),     i = 0 .. N - 1,
 
 over the n_t demonstrations with time stamps. A reproduction located at fractional section
 i0 + alpha and passing through sections i0 + 1 .. N - 1 is given the times
@@ -19,9 +20,9 @@ Without time stamps a steady logger's sample index still says how the motion is 
 not in seconds (:func:`canal_core.clocks.steady_index_clock`). The canal then keeps the mean
 share of each demonstration's samples elapsed at each phase,
 
-    pi_i = (1 / n) sum_j k_j(u_i) / (T_j - 1),     i = 0 .. N - 1,                (P1)
+    pi_i = (1 / n) sum_j k_j(u_ji) / (T_j - 1),     i = 0 .. N - 1,               (P1)
 
-(k_j(u_i): the sample index at which demonstration j reaches phase u_i), and a reproduction
+(k_j(u_ji): the sample index at which demonstration j reaches phase u_ji), and a reproduction
 asked for a duration is timed by pi scaled to it, as by tau: it spends its time where the
 demonstrations spent theirs. Constant speed along the path (:func:`arc_length_times`) is left
 for loggers whose index is no clock.
@@ -37,7 +38,7 @@ from .validation import FloatArray
 
 def section_times(
     demos: list[FloatArray], timestamps: list[FloatArray | None], n_samples: int,
-    parameters: list[FloatArray | None],
+    parameters: list[FloatArray | None], warps: FloatArray | None = None,
 ) -> FloatArray | None:
     """Mean time from the start at which the demonstrations reach each section, shape (N,).
 
@@ -51,6 +52,9 @@ def section_times(
     parameters : list of (array, shape (T_j,)) or None
         What each demonstration was aligned by (:func:`canal_core.clocks.alignment_parameters`;
         None: arc length).
+    warps : array, shape (n, N), optional
+        The phase each demonstration's aligned sample i came from (a warped alignment,
+        :func:`canal_core.alignment.dtw_parameters`); None: u_i = i / (N - 1) for every one.
 
     Returns
     -------
@@ -59,11 +63,11 @@ def section_times(
     """
     u = np.linspace(0.0, 1.0, n_samples)
     rows = []
-    for positions, times, parameter in zip(demos, timestamps, parameters, strict=True):
+    for j, (positions, times, parameter) in enumerate(zip(demos, timestamps, parameters, strict=True)):
         if times is None:
             continue
         phase = spline_parameter(positions, parameter)
-        rows.append(np.interp(u, phase, times - times[0]))
+        rows.append(np.interp(u if warps is None else warps[j], phase, times - times[0]))
     if not rows:
         return None
     tau = np.maximum.accumulate(np.mean(rows, axis=0))
@@ -72,6 +76,7 @@ def section_times(
 
 def section_pace(
     demos: list[FloatArray], n_samples: int, parameters: list[FloatArray | None],
+    warps: FloatArray | None = None,
 ) -> FloatArray:
     """Mean share of their samples the demonstrations have logged at each section (P1), shape (N,).
 
@@ -83,6 +88,8 @@ def section_pace(
         N.
     parameters : list of (array, shape (T_j,)) or None
         What each demonstration was aligned by, as :func:`section_times`.
+    warps : array, shape (n, N), optional
+        As :func:`section_times`.
 
     Returns
     -------
@@ -90,7 +97,7 @@ def section_pace(
         Non-decreasing from 0 to 1.
     """
     shares: list[FloatArray | None] = [np.linspace(0.0, 1.0, d.shape[0]) for d in demos]
-    pace = section_times(demos, shares, n_samples, parameters)
+    pace = section_times(demos, shares, n_samples, parameters, warps)
     assert pace is not None  # every demonstration has its shares
     return np.asarray(pace / max(float(pace[-1]), 1e-300), dtype=np.float64)
 

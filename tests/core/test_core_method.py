@@ -241,6 +241,20 @@ def test_section_times_average_the_demos() -> None:
     assert section_times(demos, [None] * 3, 50, [None] * 3) is None
 
 
+def test_a_warped_alignment_times_each_section_where_each_demonstration_was_read() -> None:
+    """Under a warped alignment, section i holds demo j's sample at its warp w_j(i), not at
+    u_i: the section's time is the demos' mean time there. Two straight demos, each 10 s at
+    constant speed, warped so that section i reads the first at u_i^2 and the second at
+    sqrt(u_i): their times there are 10 u_i^2 and 10 sqrt(u_i)."""
+    line = np.column_stack([np.linspace(0.0, 1.0, 201), np.zeros(201), np.zeros(201)])
+    stamps = [np.linspace(0.0, 10.0, 201)] * 2
+    u = np.linspace(0.0, 1.0, 21)
+    warps = np.vstack([u**2, np.sqrt(u)])
+    tau = section_times([line, line], stamps, 21, [None, None], warps)
+    assert tau is not None
+    np.testing.assert_allclose(tau, 5.0 * (u**2 + np.sqrt(u)), atol=0.02)
+
+
 def test_models_in_the_first_format_still_load_and_timing_round_trips() -> None:
     demos, times = timed_demos()
     canal = canal_core.fit(demos, times, n_samples=60)
