@@ -3,7 +3,7 @@
 Run: ``.venv/bin/python bench/quality.py`` (full), ``--quick`` (a smoke run: 6 LASA shapes, one
 start region per RAIL task, one generated instance), ``--only rail,lasa,multi,ur5e,raw3d`` (a
 subset), ``--users 8,9,10`` (RAIL groups made of those people only), ``--defaults-only`` (without the
-canal variants: one route (``canal_core.fit`` alone), no warp, arc-length clock, index clock, the fixed entry,
+canal variants: the defaults' positions streamed at a fixed rate, one route (``canal_core.fit`` alone), no warp, arc-length clock, index clock, the fixed entry,
 the end decay over the last fifth, constant persistence, persistence learned to the end, the other section kinds).
 ``python -m bench --only quality --write`` puts the tables in BENCHMARKS.md's quality section.
 
@@ -18,7 +18,9 @@ time (its time stamps; no time stamps are passed on). For each held-out demo, ea
 fitted on the other demos of its set and reproduces from the held-out demo's first point,
 over the normalised duration 1 the peers run in (a canal's reproduction is asked for
 ``duration=1.0`` and taken evenly in its own times, as a robot executes it: without time
-stamps a steady logger's sample index paces it, P1 of ``canal_core.timing``). The
+stamps a steady logger's sample index paces it, P1 of ``canal_core.timing``; the row
+``canal, positions at a fixed rate`` takes the defaults' positions without a duration, one per
+section, as a robot streaming waypoints at a fixed rate does, P2). The
 reproduction is resampled to 200 points by index and compared with the held-out arrays:
 
 * ``dtw``: DTW distance / 200 (a mean matched distance), the median over folds and (``dtw p90``)
@@ -271,6 +273,17 @@ def routes_method(**options: Any) -> tuple[Fit, Reproduce]:
     return fit, reproduce
 
 
+def streamed_method() -> tuple[Fit, Reproduce]:
+    """The defaults' positions as given (no duration asked), one per section, streamed at a
+    fixed rate: what a robot that plays waypoints without times executes."""
+    fit, _ = routes_method()
+
+    def reproduce(routes: Any, start: np.ndarray) -> np.ndarray:
+        return np.asarray(routes.reproduce_detailed(start)[1].positions)
+
+    return fit, reproduce
+
+
 GRID = np.linspace(0.0, 1.0, N)
 
 
@@ -323,6 +336,7 @@ PEERS: dict[str, tuple[Fit, Reproduce]] = {
 DEFAULT = "canal (defaults)"
 CANALS: dict[str, tuple[Fit, Reproduce]] = {
     DEFAULT: routes_method(),
+    "canal, positions at a fixed rate (no duration)": streamed_method(),
     "canal, one route": canal_method(),
     "canal, no warp (clock only)": canal_method(alignment="spline"),
     "canal, aligned by arc length": canal_method(timing="arc"),

@@ -38,7 +38,7 @@ from .options import FitOptions, fit_options
 from .orientation import OrientationModel, fitted_orientations
 from .preprocess import STILL_TOLERANCE, PreparedDemonstration, prepared_samples_many
 from .reproduce import section_basis
-from .timing import section_pace, section_times
+from .timing import paced_phases, section_pace, section_times
 from .validation import (
     FloatArray,
     check_choice,
@@ -227,6 +227,16 @@ def _fitted_canal(
         aligned = splines_at(positions, times, warps)
     else:
         aligned = resampled_demonstrations(positions, times, options.n_samples)
+    # The index is a clock only for a steady logger without stamps (T2); its pace is kept.
+    steady = all(t is None for t in stamped) and steady_index_clock(positions)
+    pace = section_pace(positions, options.n_samples, times, warps) if steady else None
+    if pace is not None and clock.startswith("index") and donor is None:  # (P2)
+        phases = paced_phases(pace)
+        grid = np.linspace(0.0, 1.0, options.n_samples)
+        read = np.tile(grid, (len(positions), 1)) if warps is None else warps
+        warps = np.vstack([np.interp(phases, grid, row) for row in read])
+        aligned = splines_at(positions, times, warps)
+        pace = section_pace(positions, options.n_samples, times, warps)
 
     centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
@@ -279,8 +289,7 @@ def _fitted_canal(
     return Canal(
         end_depths=np.maximum(end_depths(samples, phase, centres, tangents), enclosure.depths),
         section_times=section_times(positions, stamped, options.n_samples, times, warps),
-        section_pace=(section_pace(positions, options.n_samples, times, warps)
-                      if all(t is None for t in stamped) and steady_index_clock(positions) else None),
+        section_pace=pace,
         clock=clock,
         envelope_margin=float(enclosure.scale.max() - 1.0),
         directrix=centres,

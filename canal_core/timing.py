@@ -26,6 +26,19 @@ share of each demonstration's samples elapsed at each phase,
 asked for a duration is timed by pi scaled to it, as by tau: it spends its time where the
 demonstrations spent theirs. Constant speed along the path (:func:`arc_length_times`) is left
 for loggers whose index is no clock.
+
+When the demonstrations were aligned by their sample index (one rhythm, T1, on a steady logger,
+T2, :mod:`canal_core.clocks`) the sections themselves are placed where the pace reaches equal
+shares,
+
+    u'_i = pi^-1(i / (N - 1)),     i = 0 .. N - 1,                                 (P2)
+
+(each demonstration read at its aligned phase there), so a reproduction's positions, one per
+section, are evenly spaced in the demonstrations' samples: a robot that streams them at a
+fixed rate, with no duration asked, moves with the demonstrations' rhythm. With the arc-length
+clock (rhythms that differ) the sections stay at equal phases: the mean pace of rhythms that
+differ is a blur, and sections placed by it follow held-out demonstrations less closely
+(measured leave-one-out on the generated logs, ``bench/quality.py``).
 """
 
 from __future__ import annotations
@@ -100,6 +113,19 @@ def section_pace(
     pace = section_times(demos, shares, n_samples, parameters, warps)
     assert pace is not None  # every demonstration has its shares
     return np.asarray(pace / max(float(pace[-1]), 1e-300), dtype=np.float64)
+
+
+def paced_phases(pace: FloatArray) -> FloatArray:
+    """Phases u'_i, shape (N,), at which ``pace`` (N,), given at equal phases, reaches equal
+    shares i / (N - 1) (P2); 0 first and 1 last."""
+    n = pace.shape[0]
+    grid = np.linspace(0.0, 1.0, n)
+    # A flat stretch of the pace (a demonstration at rest) has no single phase: the ramp of
+    # 1e-9 keeps the inverse a function without moving it measurably.
+    share = np.maximum.accumulate(pace / max(float(pace[-1]), 1e-300)) + 1e-9 * grid
+    phases = np.interp(grid, share / share[-1], grid)
+    phases[0], phases[-1] = 0.0, 1.0
+    return np.asarray(phases, dtype=np.float64)
 
 
 def reproduction_times(

@@ -211,7 +211,8 @@ def test_no_timestamps_no_times_unless_a_duration_is_asked() -> None:
 def test_an_unstamped_steady_log_paces_a_timed_reproduction_like_the_demonstrations() -> None:
     """Demos from a steady logger without stamps that spend 70 % of their samples on the first
     half of the path: a reproduction asked for a duration spends 70 % of it there too (not
-    half, as constant speed along the path would)."""
+    half, as constant speed along the path would), and one streamed without a duration has
+    70 % of its positions there."""
     u = np.linspace(0.0, 1.0, 300)
     share = np.where(u < 0.7, 0.5 * u / 0.7, 0.5 + 0.5 * (u - 0.7) / 0.3)  # path share over time
     path = np.column_stack([share, 0.2 * np.sin(np.pi * share), 0.1 * share])
@@ -228,6 +229,13 @@ def test_an_unstamped_steady_log_paces_a_timed_reproduction_like_the_demonstrati
     again = canal_core.Canal.from_dict(canal.to_dict())
     assert again.section_pace is not None
     np.testing.assert_array_equal(again.section_pace, canal.section_pace)
+    # Streamed at a fixed rate without a duration, the positions keep that pace too (P2):
+    # 70 % of them on the first half of the path, not the half that sections evenly spaced
+    # along the alignment clock would put there.
+    streamed = canal.reproduce_detailed(canal.directrix[0]).positions
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(streamed, axis=0), axis=1))])
+    first_half = float(np.mean(along <= 0.5 * along[-1]))
+    assert abs(first_half - 0.7) < 0.03, first_half
     # A logger that writes in bursts is not a clock: constant speed along the path.
     bursts = [d[np.sort(np.random.default_rng(k).choice(300, 120, replace=False))] for k, d in enumerate(demos)]
     assert canal_core.fit(bursts, n_samples=100).section_pace is None
