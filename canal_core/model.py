@@ -44,6 +44,7 @@ from .reproduce import (
 from .reproduction import Reproduction
 from .surface import Mesh, envelope_vertices, ring_vertices, strip_mesh, tube_mesh
 from .tracker import Tracker, TrackerGeometry, tracker_geometry
+from .tube import in_plane_curvature
 from .validation import BoolArray, FloatArray, check_int, check_point, check_points
 
 
@@ -154,6 +155,12 @@ class Canal:
     def plane_offsets(self) -> FloatArray:
         """t_i . c_i per section, shape (N,): plane i is {x : t_i . x = t_i . c_i}."""
         return np.asarray(np.einsum("nd,nd->n", self.directrix, self.tangents), dtype=np.float64)
+
+    @cached_property
+    def curvature(self) -> FloatArray:
+        """The directrix's curvature vector in each section's in-plane coordinates, shape
+        (N, D - 1) (b_k of :mod:`canal_core.tube`, F1)."""
+        return in_plane_curvature(self.tangents, self.basis, self.arclength)
 
     @cached_property
     def radii(self) -> FloatArray:

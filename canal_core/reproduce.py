@@ -386,6 +386,7 @@ def path_ratios(
     entry: float = ENTRY_FRACTION,
     end_decay: float = END_DECAY,
     persistence: FloatArray | None = None,
+    cap: FloatArray | None = None,
 ) -> FloatArray:
     """Ratio of the reproduced point on each remaining section (the schedule of the ratio rule).
 
@@ -417,6 +418,9 @@ def path_ratios(
         Share f_k in [0, 1] of the start's ratio kept on each section before the end decay
         (:func:`learned_persistence`): eta is replaced by eta f_k above (and an outside start
         by min(eta f_k, its entry blend)). None: f_k = 1, the paper's constant ratio.
+    cap : array, shape (K,), optional
+        The largest ratio on each section (the tube condition, F1 of :mod:`canal_core.tube`),
+        applied before "inside stays inside": a path capped inside at a tight turn stays in.
 
     Returns
     -------
@@ -438,6 +442,8 @@ def path_ratios(
         ratios = ratios * (1.0 - smootherstep((arclength - (total - tail)) / tail))
     elif end_decay > 0.0 and ratios.size:
         ratios[-1] = 0.0
+    if cap is not None:
+        ratios = np.minimum(ratios, cap)
     if eta > 1.0:
         ratios = inside_stays_inside(ratios)
     return np.asarray(ratios, dtype=np.float64)

@@ -29,6 +29,7 @@ from .reproduce import (
     start_and_located_points,
 )
 from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
+from .tube import tube_ratio_caps
 from .validation import (
     BoolArray,
     FloatArray,
@@ -216,7 +217,8 @@ def reproduce(
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
-    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share)
+    caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
+    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
     positions = np.vstack([point, path])
     blocked, detoured, start_clearance = None, None, None

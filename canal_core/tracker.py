@@ -13,7 +13,9 @@ canal within 25 sections). So the plan is kept while the live position stays wit
 ``replan_tolerance`` (25 % of the local boundary distance) of where the plan puts it, and
 the target pulls the robot back onto it; a larger deviation (a push, a new start) replaces
 the plan by the live position's eta (at most ``MAX_PLAN_ETA``) and direction at once.
-``TrackerTarget.eta`` always reports the live position's ratio.
+``TrackerTarget.eta`` always reports the live position's ratio. On the inner side of a turn
+tighter than the canal is wide, a target's ratio (not the plan's) is capped by the tube
+condition (F1 of :mod:`canal_core.tube`), so that targets never fall behind the ones before.
 
 Progress never goes back: the window starts one section behind the last index reached, so
 a curve that comes back close to itself cannot pull the robot to an earlier section. If the
@@ -49,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
+from .tube import TUBE_MARGIN, in_plane_curvature
 from .validation import FloatArray
 
 WINDOW = 16
@@ -145,6 +148,7 @@ class TrackerGeometry:
     done_tolerance: float
     orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
     section_times: FloatArray | None = None  # (N,) mean seconds to each section
+    curvature: FloatArray | None = None  # (N, D - 1) b_k of the tube condition (F1); None: uncapped
 
 
 def tracker_geometry(
@@ -161,12 +165,27 @@ def tracker_geometry(
     the one of its section; ``section_times`` (N,), the demonstrations' mean time to each
     section, gives targets a feed-forward velocity.
     """
-    spacing = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).mean()) if len(centres) > 1 else 0.0
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    spacing = float(steps.mean()) if len(centres) > 1 else 0.0
+    arclength = np.concatenate([[0.0], np.cumsum(steps)])
     return TrackerGeometry(
         centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
         orientations,
         section_times,
+        in_plane_curvature(tangents, basis, arclength),
     )
+
+
+def planned_point(g: TrackerGeometry, index: int, eta: float, reach: float, direction: FloatArray) -> FloatArray:
+    """The point at ratio ``eta`` along ``direction`` (D - 1,) on section ``index`` (boundary
+    distance ``reach`` there), the ratio capped by the tube condition (F1 of
+    :mod:`canal_core.tube`): a target on the inner side of a tight turn never falls behind
+    the one before it."""
+    if g.curvature is not None:
+        bend = reach * float(direction @ g.curvature[index])
+        if bend > 0.0 and eta * bend > TUBE_MARGIN:
+            eta = TUBE_MARGIN / bend
+    return np.asarray(g.centres[index] + (eta * reach) * (direction @ g.basis[index]), dtype=np.float64)
 
 
 def _first_crossing(dist: FloatArray) -> int:
@@ -286,7 +305,7 @@ def tracker_step(
     behind_start = index == 0 and d0 < 0.0
     past_end = index == n - 2 and d1 > 0.0
     inside = bool(eta <= 1.0 + 1e-9 and not behind_start and not past_end)
-    target = g.centres[target_index] + (plan_eta * plan_reach) * (plan_direction @ g.basis[target_index])
+    target = planned_point(g, target_index, plan_eta, plan_reach, plan_direction)
     last = n - 1
     # "Reached" up to a millionth of the mean section spacing: a robot converging on the
     # last target approaches its plane geometrically and would otherwise never cross it.
@@ -360,7 +379,7 @@ def _held_answer(g: TrackerGeometry, state: TrackerState, eta: float,
     else:
         reach = float(boundary_distance(g.sections, np.array([target_index]),
                                         state.direction[None, :])[0])
-    target = g.centres[target_index] + (state.eta * reach) * (state.direction @ g.basis[target_index])
+    target = planned_point(g, target_index, state.eta, reach, state.direction)
     velocity = None
     if g.section_times is not None:
         velocity = _feed_forward(g, target_index, target, state.eta, state.direction)
@@ -385,7 +404,7 @@ def _feed_forward(
         reach = float(g.sections.params["radius"][nxt])
     else:
         reach = float(boundary_distance(g.sections, np.array([nxt]), direction[None, :])[0])
-    ahead = g.centres[nxt] + (eta * reach) * (direction @ g.basis[nxt])
+    ahead = planned_point(g, nxt, eta, reach, direction)
     return np.asarray((ahead - target) / dt, dtype=np.float64)
 
 

@@ -27,6 +27,7 @@ from .tracker import (
 from .tracker_batch import TrackerBatch, batched_tracker_step, step_tables
 from .tracker_kernel import compiled_step_rows, packed_width
 from .tracker_obstacles import SceneTables, avoided_targets
+from .tube import TUBE_MARGIN
 from .validation import FloatArray
 
 #: Batches of at least this many rows take :class:`TrackerBank`'s vectorised pass; a single
@@ -91,7 +92,7 @@ class TrackerBank:
             tables = step_tables(geometry)
             g = geometry
             self._kernel_arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (
-                g.centres, g.tangents, g.offsets, g.basis, tables.radius,
+                g.centres, g.tangents, g.offsets, g.basis, tables.radius, tables.bend,
                 np.zeros(0) if g.section_times is None else g.section_times,
                 np.zeros((0, 4)) if g.orientations is None else g.orientations,
                 tables.default_direction))
@@ -224,7 +225,7 @@ class TrackerBank:
         kernel(*self._kernel_arrays, np.array(slots, dtype=np.intp),
                np.ascontiguousarray(p), self.index, self.eta, self.direction, self.pending,
                self.strikes, self.lookahead, WINDOW, self.replan_tolerance, MAX_PLAN_ETA,
-               float(g.done_tolerance), MAX_ADVANCE, FAR_ETA, SUSTAIN, out)
+               float(g.done_tolerance), MAX_ADVANCE, FAR_ETA, SUSTAIN, TUBE_MARGIN, out)
         return out
 
     def _batch_of_rows(self, rows: FloatArray) -> TrackerBatch:

@@ -30,6 +30,7 @@ from .tracker import (
     TrackerTarget,
     tracker_step,
 )
+from .tube import TUBE_MARGIN
 from .validation import FloatArray
 
 
@@ -157,6 +158,9 @@ class StepTables:
         Each section's basis rows scaled by its radius, then its centre: what a target
         is built from.
     default_direction : array, shape (D - 1,)
+    bend : array, shape (N, D - 1)
+        r_k b_k: a plan's ratio times its direction's product with it is the bend of the
+        tube condition (F1 of :mod:`canal_core.tube`).
     """
 
     lo: NDArray[np.intp]
@@ -167,6 +171,7 @@ class StepTables:
     radius: FloatArray
     frame: FloatArray
     default_direction: FloatArray
+    bend: FloatArray
 
 
 # Built on first use per geometry and dropped with it: every bank and batch of one model
@@ -205,7 +210,8 @@ def built_step_tables(g: TrackerGeometry) -> StepTables:
         lo, hi, np.ascontiguousarray(window), open_pairs, np.ascontiguousarray(pair), radius,
         np.ascontiguousarray(np.concatenate(
             [radius[:, None, None] * g.basis, g.centres[:, None, :]], axis=1)),
-        DEFAULT_DIRECTIONS[d - 1])
+        DEFAULT_DIRECTIONS[d - 1],
+        np.zeros((n, d - 1)) if g.curvature is None else np.ascontiguousarray(radius[:, None] * g.curvature))
 
 
 def batched_tracker_step(
@@ -409,8 +415,10 @@ def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
                     direction: FloatArray) -> FloatArray:
     """The points at ratio ``eta`` (B,) in ``direction`` (B, D - 1) on sections ``index``
     (B,), shape (B, D): c + eta (direction . r basis), one product of [eta direction, 1]
-    with the section's frame."""
+    with the section's frame, the ratio capped by the tube condition (F1)."""
     b, k = direction.shape
+    bend = eta * np.einsum("bk,bk->b", direction, t.bend[index])
+    eta = np.where(bend > TUBE_MARGIN, eta * (TUBE_MARGIN / np.where(bend > TUBE_MARGIN, bend, 1.0)), eta)
     scaled = np.empty((b, 1, k + 1))
     np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
     scaled[:, 0, k] = 1.0

@@ -33,12 +33,12 @@ _lock = threading.Lock()
 _compiled: Any = None  # step_rows compiled: its entry point (or dispatcher), set once
 
 
-def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any,
+def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any, bend: Any,
               times: Any, orientations: Any, default_direction: Any, slots: Any, p: Any,
               index: Any, eta: Any, direction: Any, pending: Any, strikes: Any,
               lookahead: int, window: int, tolerance: float, max_plan_eta: float,
               done_tolerance: float, max_advance: int, far_eta: float, sustain: int,
-              out: Any) -> None:
+              tube_margin: float, out: Any) -> None:
     """Step the trackers of ``slots`` (B,) at live positions ``p`` (B, D) in place, the
     answers packed in the rows of ``out`` (see :func:`packed_width`).
 
@@ -49,6 +49,9 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         t_i . c_i.
     basis : array, shape (N, D - 1, D)
     radius : array, shape (N,)
+    bend : array, shape (N, D - 1)
+        r_k b_k of the tube condition (:mod:`canal_core.tube`, F1): a planned ratio is
+        capped where its product with the plan's direction exceeds ``tube_margin``.
     times : array, shape (N,) or (0,)
         Mean time to each section; empty: no feed-forward velocity.
     orientations : array, shape (N, 4) or (0, 4)
@@ -77,6 +80,9 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
     max_advance, far_eta, sustain
         The plausible-step rule's :data:`~canal_core.tracker.MAX_ADVANCE`,
         :data:`~canal_core.tracker.FAR_ETA` and :data:`~canal_core.tracker.SUSTAIN`.
+    tube_margin : float
+        :data:`~canal_core.tube.TUBE_MARGIN` (an argument, not a global: numba's cache would
+        keep a global's value from the compile).
     out : array, shape (B, 2 D + 9)
         Row b: target (D), progress, live eta, section index, inside (1.0 or 0.0), done
         (1.0 or 0.0), feed-forward velocity (D; NaN when ``times`` is empty), orientation (4;
@@ -213,7 +219,14 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             and not (at == n - 2 and d1 > 0.0) and not held
         done = at >= n - 2 and d1 >= -done_tolerance and not held
         aim = min(at + lookahead, n - 1)
-        scale = plan_eta * radius[aim]
+        # the tube condition (F1): the target's ratio, not the plan's, is capped
+        turn = 0.0
+        for m in range(k):
+            turn += plan[m] * bend[aim, m]
+        aim_eta = plan_eta
+        if plan_eta * turn > tube_margin:
+            aim_eta = tube_margin / turn
+        scale = aim_eta * radius[aim]
         for j in range(d):
             s_j = 0.0
             for m in range(k):
@@ -237,7 +250,13 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
                 for j in range(d):
                     out[r, v0 + j] = 0.0
             else:
-                ahead_scale = plan_eta * radius[nxt]
+                turn = 0.0
+                for m in range(k):
+                    turn += plan[m] * bend[nxt, m]
+                ahead_eta = plan_eta
+                if plan_eta * turn > tube_margin:
+                    ahead_eta = tube_margin / turn
+                ahead_scale = ahead_eta * radius[nxt]
                 for j in range(d):
                     s_j = 0.0
                     for m in range(k):
@@ -318,11 +337,11 @@ def _run_once(kernel: Callable[..., None]) -> None:
     tangents[:, 0] = 1.0
     basis = np.zeros((n, d - 1, d))
     basis[:, 0, 1] = basis[:, 1, 2] = 1.0
-    kernel(centres, tangents, centres[:, 0].copy(), basis, np.ones(n), np.zeros(0),
+    kernel(centres, tangents, centres[:, 0].copy(), basis, np.ones(n), np.zeros((n, d - 1)), np.zeros(0),
            np.zeros((0, 4)), np.array([1.0, 0.0]), np.zeros(1, dtype=np.intp),
            np.array([[0.5, 0.1, 0.0]]), np.zeros(1, dtype=np.intp), np.full(1, np.nan),
            np.zeros((1, d - 1)), np.zeros((1, d)), np.zeros(1, dtype=np.intp),
-           1, 16, 0.25, 0.9, 1e-9, 8, 3.0, 4, np.empty((1, packed_width(d))))
+           1, 16, 0.25, 0.9, 1e-9, 8, 3.0, 4, 0.95, np.empty((1, packed_width(d))))
 
 
 __all__ = ["compile_step_rows", "compiled_step_rows", "numba_available", "packed_width",

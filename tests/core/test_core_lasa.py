@@ -8,6 +8,8 @@ import pytest
 
 import canal_core
 from canal_core import metrics
+from canal_core.tracker_bank import TrackerBank
+from canal_core.tracker_kernel import compile_step_rows
 
 SHAPES = ["Angle", "CShape", "GShape", "Sshape", "Snake", "Worm"]
 
@@ -43,3 +45,54 @@ def test_leave_one_out(name: str, kind: str) -> None:
         assert metrics.rmse(path, demos[held]) < 0.25 * size
         # Training demos' own samples, every one: the canal is their envelope by construction.
         assert all(canal.contains(d).all() for d in train)
+
+
+def backwards_share(canal: canal_core.Canal, points: np.ndarray, first: int) -> float:
+    """How far ``points`` (one per section from ``first`` on) step back along the directrix,
+    summed, as a share of the canal's length."""
+    t = canal.tangents[first:first + points.shape[0]]
+    along = np.einsum("kd,kd->k", np.diff(points, axis=0), 0.5 * (t[1:] + t[:-1]))
+    return float(-along[along < 0.0].sum() / canal.arclength[-1])
+
+
+@pytest.mark.parametrize("name", ["JShape", "Khamesh", "LShape"])
+def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards(name: str) -> None:
+    """Held-out starts on the inner side of these shapes' turns: the ratio rule alone carries
+    their offset past the centre of curvature, where neighbouring planes cross, and the path
+    loops back by up to 5 % of the canal's length (F1 of canal_core.tube caps it)."""
+    demos, _ = shape_demos(name)
+    for held in range(len(demos)):
+        canal = canal_core.fit([d for j, d in enumerate(demos) if j != held], n_samples=200)
+        path = canal.reproduce_detailed(demos[held][0]).positions[1:]
+        assert backwards_share(canal, path, canal.n_sections - path.shape[0]) < 0.002, held
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_live_targets_on_the_inner_side_of_a_tight_turn_never_run_backwards(dim: int) -> None:
+    """A robot that rides the inner side of JShape's turn at 0.9 of the canal's width: the
+    tracker's targets (one section ahead) keep moving forwards along the directrix, in the
+    scalar step, the numpy batch and the compiled kernel (3-D: JShape lifted off its plane,
+    circle sections)."""
+    demos, _ = shape_demos("JShape")
+    if dim == 3:
+        demos = [np.column_stack([d, 0.3 * (j - 3) * np.sin(np.linspace(0.0, np.pi, d.shape[0]))])
+                 for j, d in enumerate(demos)]
+    canal = canal_core.fit(demos, n_samples=200)
+    norms = np.linalg.norm(canal.curvature, axis=1)
+    tightest = int(np.argmax(norms * canal.radii))
+    assert norms[tightest] * canal.radii[tightest] > 1.0  # the turn folds the uncapped sweep
+    inner = canal.curvature[tightest] / norms[tightest]
+    ride = canal.directrix + 0.9 * canal.radii[:, None] * np.einsum("k,nkd->nd", inner, canal.basis)
+    walks = {"scalar": canal.tracker()}
+    if dim == 3:
+        assert canal.sections.spec.isotropic
+        compile_step_rows()
+        walks["numpy"] = TrackerBank(canal.tracker_geometry(), 1, compiled=False)
+        walks["compiled"] = TrackerBank(canal.tracker_geometry(), 1, compiled=True)
+    for name, walk in walks.items():
+        if isinstance(walk, TrackerBank):
+            slot = walk.add()
+            targets = np.array([walk.step([slot], point[None, :]).target[0] for point in ride[1:-2]])
+        else:
+            targets = np.array([walk.step(point).target for point in ride[1:-2]])
+        assert backwards_share(canal, targets, 2) < 0.002, name
