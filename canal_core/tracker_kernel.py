@@ -219,14 +219,15 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             and not (at == n - 2 and d1 > 0.0) and not held
         done = at >= n - 2 and d1 >= -done_tolerance and not held
         aim = min(at + lookahead, n - 1)
-        # the tube condition (F1): the target's ratio, not the plan's, is capped
+        # the tube condition (F1) on the target's section and the next (the feed-forward's):
+        # their ratios are capped, not the plan's
+        after = min(aim + 1, n - 1)
         turn = 0.0
+        turn_after = 0.0
         for m in range(k):
             turn += plan[m] * bend[aim, m]
-        aim_eta = plan_eta
-        if plan_eta * turn > tube_margin:
-            aim_eta = tube_margin / turn
-        scale = aim_eta * radius[aim]
+            turn_after += plan[m] * bend[after, m]
+        scale = (plan_eta if plan_eta * turn <= tube_margin else tube_margin / turn) * radius[aim]
         for j in range(d):
             s_j = 0.0
             for m in range(k):
@@ -250,13 +251,8 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
                 for j in range(d):
                     out[r, v0 + j] = 0.0
             else:
-                turn = 0.0
-                for m in range(k):
-                    turn += plan[m] * bend[nxt, m]
-                ahead_eta = plan_eta
-                if plan_eta * turn > tube_margin:
-                    ahead_eta = tube_margin / turn
-                ahead_scale = ahead_eta * radius[nxt]
+                ahead_scale = (plan_eta if plan_eta * turn_after <= tube_margin
+                               else tube_margin / turn_after) * radius[nxt]
                 for j in range(d):
                     s_j = 0.0
                     for m in range(k):
