@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cross_sections import CrossSections, boundary_distance
+from .cross_sections import CrossSections, boundary_distance, section_radii
 from .tube import TUBE_MARGIN, in_plane_curvature
 from .validation import FloatArray
 
@@ -148,7 +148,8 @@ class TrackerGeometry:
     done_tolerance: float
     orientations: FloatArray | None = None  # (N, 4) section mean orientations, or None
     section_times: FloatArray | None = None  # (N,) mean seconds to each section
-    curvature: FloatArray | None = None  # (N, D - 1) b_k of the tube condition (F1); None: uncapped
+    # (N, D - 1) b_k of the tube condition (F1); None where no plan can reach it (uncapped)
+    curvature: FloatArray | None = None
 
 
 def tracker_geometry(
@@ -167,12 +168,15 @@ def tracker_geometry(
     """
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
     spacing = float(steps.mean()) if len(centres) > 1 else 0.0
-    arclength = np.concatenate([[0.0], np.cumsum(steps)])
+    curvature = in_plane_curvature(tangents, basis, np.concatenate([[0.0], np.cumsum(steps)]))
+    # A plan never exceeds MAX_PLAN_ETA: a canal whose widest offsets stay clear of every
+    # centre of curvature needs no cap, and its steps skip it.
+    folds = bool(np.any(MAX_PLAN_ETA * section_radii(sections) * np.linalg.norm(curvature, axis=1) > TUBE_MARGIN))
     return TrackerGeometry(
         centres, tangents, basis, np.einsum("nd,nd->n", centres, tangents), sections, 1e-6 * spacing,
         orientations,
         section_times,
-        in_plane_curvature(tangents, basis, arclength),
+        curvature if folds else None,
     )
 
 

@@ -161,6 +161,8 @@ class StepTables:
     bend : array, shape (N, D - 1)
         r_k b_k: a plan's ratio times its direction's product with it is the bend of the
         tube condition (F1 of :mod:`canal_core.tube`).
+    folds : bool
+        Whether some plan can reach the condition (else ``bend`` is zero and not read).
     """
 
     lo: NDArray[np.intp]
@@ -172,6 +174,7 @@ class StepTables:
     frame: FloatArray
     default_direction: FloatArray
     bend: FloatArray
+    folds: bool
 
 
 # Built on first use per geometry and dropped with it: every bank and batch of one model
@@ -211,7 +214,8 @@ def built_step_tables(g: TrackerGeometry) -> StepTables:
         np.ascontiguousarray(np.concatenate(
             [radius[:, None, None] * g.basis, g.centres[:, None, :]], axis=1)),
         DEFAULT_DIRECTIONS[d - 1],
-        np.zeros((n, d - 1)) if g.curvature is None else np.ascontiguousarray(radius[:, None] * g.curvature))
+        np.zeros((n, d - 1)) if g.curvature is None else np.ascontiguousarray(radius[:, None] * g.curvature),
+        g.curvature is not None)
 
 
 def batched_tracker_step(
@@ -417,8 +421,9 @@ def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
     (B,), shape (B, D): c + eta (direction . r basis), one product of [eta direction, 1]
     with the section's frame, the ratio capped by the tube condition (F1)."""
     b, k = direction.shape
-    bend = eta * np.einsum("bk,bk->b", direction, t.bend[index])
-    eta = np.where(bend > TUBE_MARGIN, eta * (TUBE_MARGIN / np.where(bend > TUBE_MARGIN, bend, 1.0)), eta)
+    if t.folds:
+        bend = eta * np.einsum("bk,bk->b", direction, t.bend[index])
+        eta = np.where(bend > TUBE_MARGIN, eta * (TUBE_MARGIN / np.where(bend > TUBE_MARGIN, bend, 1.0)), eta)
     scaled = np.empty((b, 1, k + 1))
     np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
     scaled[:, 0, k] = 1.0
