@@ -124,7 +124,8 @@ def timing_spread(demos: list[FloatArray], clocks: list[FloatArray]) -> float:
 
 
 def chosen_clock(
-    demos: list[FloatArray], timestamps: list[FloatArray | None], timing: TimingChoice = "auto"
+    demos: list[FloatArray], timestamps: list[FloatArray | None], timing: TimingChoice = "auto",
+    steady: bool | None = None,
 ) -> Clock:
     """The clock a fit aligns by.
 
@@ -133,7 +134,7 @@ def chosen_clock(
     "arc" always. "auto" takes the time stamps when every demo has them, else the index when
     no demo has them and every logger was steady (T2), and keeps that clock, blended with arc
     length (B1), only when the demonstrations' rhythm is consistent by it (T1); otherwise arc
-    length.
+    length. ``steady``: (T2) when the caller has it already (None: judged here).
     """
     stamped = all(t is not None for t in timestamps)
     if timing == "time":
@@ -147,7 +148,7 @@ def chosen_clock(
     if stamped:
         clocks = [np.asarray(t, dtype=np.float64) for t in timestamps if t is not None]
         candidate: Clock = "time+arc"
-    elif all(t is None for t in timestamps) and steady_index_clock(demos):
+    elif all(t is None for t in timestamps) and (steady_index_clock(demos) if steady is None else steady):
         clocks = [np.arange(d.shape[0], dtype=np.float64) for d in demos]
         candidate = "index+arc"
     else:

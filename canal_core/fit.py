@@ -216,7 +216,9 @@ def _fitted_canal(
     )
     positions = [p.positions for p in prepared]
     stamped = [p.timestamps for p in prepared]
-    clock = chosen_clock(positions, stamped, asked)
+    # The index is a clock only for a steady logger without stamps (T2); its pace is kept.
+    steady = all(t is None for t in stamped) and steady_index_clock(positions)
+    clock = chosen_clock(positions, stamped, asked, steady)
     times = alignment_parameters(positions, stamped, clock)
 
     warps = None
@@ -227,8 +229,6 @@ def _fitted_canal(
         aligned = splines_at(positions, times, warps)
     else:
         aligned = resampled_demonstrations(positions, times, options.n_samples)
-    # The index is a clock only for a steady logger without stamps (T2); its pace is kept.
-    steady = all(t is None for t in stamped) and steady_index_clock(positions)
     pace = section_pace(positions, options.n_samples, times, warps) if steady else None
     if pace is not None and clock.startswith("index") and donor is None:  # (P2)
         phases = paced_phases(pace)
