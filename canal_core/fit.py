@@ -226,17 +226,17 @@ def _fitted_canal(
     if options.alignment in ("dtw", "warp") and donor is None:
         warps = dtw_parameters(positions, times, options.n_samples,
                                resolution=DTW_SAMPLES if options.alignment == "warp" else None)
-        aligned = splines_at(positions, times, warps)
-    else:
-        aligned = resampled_demonstrations(positions, times, options.n_samples)
     pace = section_pace(positions, options.n_samples, times, warps) if steady else None
     if pace is not None and clock.startswith("index") and donor is None:  # (P2)
         phases = paced_phases(pace)
-        grid = np.linspace(0.0, 1.0, options.n_samples)
-        read = np.tile(grid, (len(positions), 1)) if warps is None else warps
-        warps = np.vstack([np.interp(phases, grid, row) for row in read])
-        aligned = splines_at(positions, times, warps)
+        even = np.linspace(0.0, 1.0, options.n_samples)
+        read = np.tile(even, (len(positions), 1)) if warps is None else warps
+        warps = np.vstack([np.interp(phases, even, row) for row in read])
         pace = section_pace(positions, options.n_samples, times, warps)
+    if warps is None:
+        aligned = resampled_demonstrations(positions, times, options.n_samples)
+    else:
+        aligned = splines_at(positions, times, warps)
 
     centres = directrix_gmr(aligned) if options.directrix == "gmr" else directrix_mean(aligned)
     steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
