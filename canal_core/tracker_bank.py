@@ -92,7 +92,7 @@ class TrackerBank:
             tables = step_tables(geometry)
             g = geometry
             self._kernel_arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (
-                g.centres, g.tangents, g.offsets, g.basis, tables.radius, tables.bend,
+                g.centres, g.tangents, g.offsets, g.basis, tables.radius, tables.curvature,
                 np.zeros(0) if g.section_times is None else g.section_times,
                 np.zeros((0, 4)) if g.orientations is None else g.orientations,
                 tables.default_direction))

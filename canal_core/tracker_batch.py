@@ -30,7 +30,7 @@ from .tracker import (
     TrackerTarget,
     tracker_step,
 )
-from .tube import TUBE_MARGIN
+from .tube import tube_ratio_caps
 from .validation import FloatArray
 
 
@@ -158,11 +158,11 @@ class StepTables:
         Each section's basis rows scaled by its radius, then its centre: what a target
         is built from.
     default_direction : array, shape (D - 1,)
-    bend : array, shape (N, D - 1)
-        r_k b_k: a plan's ratio times its direction's product with it is the bend of the
-        tube condition (F1 of :mod:`canal_core.tube`).
+    curvature : array, shape (N, D - 1)
+        b_k of the tube condition (F1 of :mod:`canal_core.tube`); zero when no plan can
+        reach it.
     folds : bool
-        Whether some plan can reach the condition (else ``bend`` is zero and not read).
+        Whether some plan can reach the condition (else ``curvature`` is not read).
     """
 
     lo: NDArray[np.intp]
@@ -173,7 +173,7 @@ class StepTables:
     radius: FloatArray
     frame: FloatArray
     default_direction: FloatArray
-    bend: FloatArray
+    curvature: FloatArray
     folds: bool
 
 
@@ -214,7 +214,7 @@ def built_step_tables(g: TrackerGeometry) -> StepTables:
         np.ascontiguousarray(np.concatenate(
             [radius[:, None, None] * g.basis, g.centres[:, None, :]], axis=1)),
         DEFAULT_DIRECTIONS[d - 1],
-        np.zeros((n, d - 1)) if g.curvature is None else np.ascontiguousarray(radius[:, None] * g.curvature),
+        np.zeros((n, d - 1)) if g.curvature is None else np.ascontiguousarray(g.curvature),
         g.curvature is not None)
 
 
@@ -422,8 +422,7 @@ def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
     with the section's frame, the ratio capped by the tube condition (F1)."""
     b, k = direction.shape
     if t.folds:
-        bend = eta * np.einsum("bk,bk->b", direction, t.bend[index])
-        eta = np.where(bend > TUBE_MARGIN, eta * (TUBE_MARGIN / np.where(bend > TUBE_MARGIN, bend, 1.0)), eta)
+        eta = np.minimum(eta, tube_ratio_caps(t.radius[index], direction, t.curvature[index]))
     scaled = np.empty((b, 1, k + 1))
     np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
     scaled[:, 0, k] = 1.0

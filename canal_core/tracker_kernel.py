@@ -33,7 +33,7 @@ _lock = threading.Lock()
 _compiled: Any = None  # step_rows compiled: its entry point (or dispatcher), set once
 
 
-def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any, bend: Any,
+def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any, curvature: Any,
               times: Any, orientations: Any, default_direction: Any, slots: Any, p: Any,
               index: Any, eta: Any, direction: Any, pending: Any, strikes: Any,
               lookahead: int, window: int, tolerance: float, max_plan_eta: float,
@@ -49,9 +49,9 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         t_i . c_i.
     basis : array, shape (N, D - 1, D)
     radius : array, shape (N,)
-    bend : array, shape (N, D - 1)
-        r_k b_k of the tube condition (:mod:`canal_core.tube`, F1): a planned ratio is
-        capped where its product with the plan's direction exceeds ``tube_margin``.
+    curvature : array, shape (N, D - 1)
+        b_k of the tube condition (:mod:`canal_core.tube`, F1): a planned ratio is capped
+        where its product with r_k and the plan's direction exceeds ``tube_margin``.
     times : array, shape (N,) or (0,)
         Mean time to each section; empty: no feed-forward velocity.
     orientations : array, shape (N, 4) or (0, 4)
@@ -225,8 +225,10 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         turn = 0.0
         turn_after = 0.0
         for m in range(k):
-            turn += plan[m] * bend[aim, m]
-            turn_after += plan[m] * bend[after, m]
+            turn += plan[m] * curvature[aim, m]
+            turn_after += plan[m] * curvature[after, m]
+        turn *= radius[aim]
+        turn_after *= radius[after]
         scale = (plan_eta if plan_eta * turn <= tube_margin else tube_margin / turn) * radius[aim]
         for j in range(d):
             s_j = 0.0
