@@ -42,7 +42,7 @@ def in_plane_curvature(tangents: FloatArray, basis: FloatArray, arclength: Float
 
     Returns
     -------
-    curl : array, shape (N, D - 1)
+    curvature : array, shape (N, D - 1)
         Its length is the curvature 1 / rho; zero where the directrix is straight.
     """
     if tangents.shape[0] < 2:
@@ -55,7 +55,7 @@ def in_plane_curvature(tangents: FloatArray, basis: FloatArray, arclength: Float
     return np.asarray(np.einsum("nkd,nd->nk", basis, kappa), dtype=np.float64)
 
 
-def tube_ratio_caps(reach: FloatArray, direction: FloatArray, curl: FloatArray) -> FloatArray:
+def tube_ratio_caps(reach: FloatArray, direction: FloatArray, curvature: FloatArray) -> FloatArray:
     """The largest ratio (F1) allows on each section, shape (K,) (inf where it allows any).
 
     Parameters
@@ -64,9 +64,9 @@ def tube_ratio_caps(reach: FloatArray, direction: FloatArray, curl: FloatArray) 
         R_k(u) on those sections.
     direction : array, shape (D - 1,) or (K, D - 1)
         u, one for every section or one per section.
-    curl : array, shape (K, D - 1)
+    curvature : array, shape (K, D - 1)
         b_k on those sections (:func:`in_plane_curvature`).
     """
-    bend = reach * np.einsum("kd,kd->k", np.broadcast_to(direction, curl.shape), curl)
+    bend = reach * np.einsum("kd,kd->k", np.broadcast_to(direction, curvature.shape), curvature)
     return np.asarray(np.divide(TUBE_MARGIN, bend, out=np.full_like(bend, np.inf), where=bend > 0.0),
                       dtype=np.float64)
