@@ -5,10 +5,10 @@ Not the envelope of Eqs. 1-2 (the surface a family of spheres sweeps, Eq. 9, whi
 
 The cross-sections are fitted to where the demonstrations cross each plane (paper Section 4.1);
 between the planes the swept canal blends neighbouring sections, and a demonstrated sample can
-fall outside that blend. :func:`enclosing_scales` measures every sample the way
-:meth:`canal_core.Canal.contains` does (:func:`canal_core.reproduce.located_points`) and
-returns the homothety about c_i per section that puts them all inside, so the canal is the
-envelope of its demonstrations by construction (docs/method.md, section 1).
+fall outside that blend. :func:`enclosing_scales` measures every sample on the pairs of
+planes :meth:`canal_core.Canal.contains` weighs and returns the homothety about c_i per
+section that puts them all inside, so the canal is the envelope of its demonstrations by
+construction (docs/method.md, section 1).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 
 from .cross_sections import CrossSections
 from .crossings import WORK_CHUNK, in_row_blocks, sign_changes
-from .reproduce import Location, blended_location, located_points
+from .reproduce import Location, blended_location, growth_locations
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Largest eta at which a demo sample near its own phase enlarges the two sections around it
@@ -126,10 +126,10 @@ def _far_locations(
     basis: FloatArray,
     sections: CrossSections,
 ) -> Location:
-    """:func:`located_points` over blocks of rows, so memory stays bounded for large N."""
+    """:func:`growth_locations` over blocks of rows, so memory stays bounded for large N."""
     n = centres.shape[0]
     parts = in_row_blocks(
-        lambda rows: _location_columns(located_points(samples[rows], centres, tangents, basis, sections)),
+        lambda rows: _location_columns(growth_locations(samples[rows], centres, tangents, basis, sections)),
         samples.shape[0],
         4 * n,
     )
@@ -182,10 +182,12 @@ def enclosing_scales(
        scales by it) puts it back on the boundary. Samples with eta <= ``MAX_STRETCH`` are
        settled here.
     2. Anywhere. The rest (not bracketed near their phase, or far outside there: demos
-       that start far apart and merge late, still ends, lagging demos) are located exactly
-       as :meth:`Canal.contains` locates them (:func:`located_points`: the candidate pair or
-       end section that holds them, else the one they are least outside of), and that
-       candidate is enlarged by their eta; an end candidate also sets the axial depth. One
+       that start far apart and merge late, still ends, lagging demos) are located among the
+       same candidates :meth:`Canal.contains` weighs (every pair of planes around them and the
+       two ends): one that holds them, else the one whose boundary must move least to reach
+       them, in lengths (:func:`growth_locations`; the smallest eta would pick a wide section
+       across a turn, metres away). That candidate is enlarged by their eta there; an end
+       candidate also sets the axial depth. One
        row of N plane distances per such sample: the cost does not depend on how far from
        its phase the sample lies.
 

@@ -283,6 +283,42 @@ def _located_among(m: int, candidates: Candidates, end_depths: FloatArray | None
     return _picked(first, sec, alpha, axial, coords, direction, eta)
 
 
+def growth_locations(
+    points: FloatArray,
+    centres: FloatArray,
+    tangents: FloatArray,
+    basis: FloatArray,
+    sections: CrossSections,
+) -> Location:
+    """Locate points where holding them enlarges the canal least (the fit's envelope).
+
+    Among every pair of planes (and end section) a point lies between, one that holds it
+    (eta <= 1, smallest eta first); else the one whose boundary must move least to reach it,
+    in lengths: hypot(|q| - R(u), axial) with |q| - R(u) = |q| (1 - 1 / eta).
+    :func:`located_points` takes the smallest eta instead, the right question for
+    containment but not for growth: where the planes fan out across a turn, a wide section
+    far away holds a point at a small ratio and would be enlarged by metres to reach it,
+    while the narrow section beside it needs millimetres.
+
+    Parameters
+    ----------
+    points : array, shape (M, D)
+    centres, tangents : arrays, shape (N, D)
+    basis : array, shape (N, D - 1, D)
+    sections : CrossSections
+
+    Returns
+    -------
+    Location
+    """
+    pt, sec, alpha, axial, coords, direction, eta = _candidates(points, centres, tangents, basis, sections)
+    distance = np.sqrt(np.einsum("kd,kd->k", coords, coords))
+    shortfall = np.where(eta > 1.0, distance * (1.0 - 1.0 / np.maximum(eta, 1.0)), 0.0)
+    order = np.lexsort((eta, np.hypot(shortfall, axial), pt))
+    first = order[np.searchsorted(pt[order], np.arange(points.shape[0]))]
+    return _picked(first, sec, alpha, axial, coords, direction, eta)
+
+
 def start_locations(
     points: FloatArray,
     centres: FloatArray,
