@@ -307,7 +307,8 @@ def tracker_step(
             plan_eta, plan_direction, plan_reach = state.eta, state.direction, float(reach6[5])
 
     behind_start = index == 0 and d0 < 0.0
-    past_end = index == n - 2 and d1 > 0.0
+    # On the last plane up to the tolerance "done" allows: a robot on its final target is in.
+    past_end = index == n - 2 and d1 > g.done_tolerance
     inside = bool(eta <= 1.0 + 1e-9 and not behind_start and not past_end)
     target = planned_point(g, target_index, plan_eta, plan_reach, plan_direction)
     last = n - 1

@@ -349,7 +349,7 @@ def batched_tracker_step(
             inside &= ~((index == 0) & (d0 < 0.0))
         if n - 2 in at:  # past the last plane; reached it (d1 is its distance)
             end = index == n - 2
-            inside &= ~(end & (d1 > 0.0))
+            inside &= ~(end & (d1 > g.done_tolerance))
             done = end & (d1 >= -g.done_tolerance)
         new_index = np.maximum(last_index, index)
         new_pending = p

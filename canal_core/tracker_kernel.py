@@ -216,7 +216,7 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             for m in range(k):
                 plan[m] = q[m] / norm if norm > 0.0 else default_direction[m]
         inside = live_eta <= 1.0 + 1e-9 and not (at == 0 and d0 < 0.0) \
-            and not (at == n - 2 and d1 > 0.0) and not held
+            and not (at == n - 2 and d1 > done_tolerance) and not held
         done = at >= n - 2 and d1 >= -done_tolerance and not held
         aim = min(at + lookahead, n - 1)
         # the tube condition (F1) on the target's section and the next (the feed-forward's):

@@ -171,3 +171,33 @@ def test_a_push_replans_from_where_the_robot_is() -> None:
     pushed = x + 0.6 * canal.radii[60] * canal.binormals[60]
     answer = tracker.step(pushed)
     assert tracker.state.eta != planned and abs(tracker.state.eta - min(answer.eta, 0.9)) < 1e-12
+
+
+def test_a_robot_on_its_final_target_is_inside_on_every_tracker_path() -> None:
+    """The last target lies on the last plane up to rounding; a robot that reached it a hair
+    past that plane was answered done but outside (the end's half-space is outside), in the
+    scalar step, the numpy batch and the compiled kernel alike."""
+    from canal_core.tracker_bank import TrackerBank
+    from canal_core.tracker_kernel import compile_step_rows
+
+    canal = canal_core.fit(sleeve_demos(), n_samples=200)
+    tolerance = canal.tracker_geometry().done_tolerance
+    end = canal.directrix[-1] + 0.3 * canal.radii[-1] * canal.normals[-1]
+    poses = [end - 0.5 * tolerance * canal.tangents[-1], end + 0.5 * tolerance * canal.tangents[-1]]
+    compile_step_rows()
+    for pose in poses:
+        walks = {"scalar": canal.tracker(), "numpy": TrackerBank(canal.tracker_geometry(), 1, compiled=False),
+                 "compiled": TrackerBank(canal.tracker_geometry(), 1, compiled=True)}
+        for name, walk in walks.items():
+            if isinstance(walk, TrackerBank):
+                slot = walk.add()
+                for point in canal.directrix[:-1:4]:
+                    walk.step([slot], point[None, :])
+                answer = walk.step([slot], pose[None, :])
+                inside, done = bool(answer.inside[0]), bool(answer.done[0])
+            else:
+                for point in canal.directrix[:-1:4]:
+                    walk.step(point)
+                step = walk.step(pose)
+                inside, done = step.inside, step.done
+            assert done and inside, name
