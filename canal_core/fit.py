@@ -100,9 +100,9 @@ def fit(
     n_samples : int
         N, the number of cross-sections.
     frame_smoothing : float
-        Frames are computed on the directrix smoothed by a Gaussian of this fraction of N
-        (0.02 by default; 0 = the paper's frames of the raw directrix). See
-        :func:`canal_core.frames.smoothed_curve`.
+        Frames are computed on the directrix smoothed by a Gaussian of this fraction of its
+        length (0.02 by default; 0 = the paper's frames of the raw directrix). See
+        :func:`canal_core.frames.length_smoothed_curve`.
     by_time : bool, optional
         True: ``timing="time"``; False: ``timing="arc"`` (the speed profile is kept either
         way); None: ``timing`` decides.

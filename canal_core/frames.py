@@ -15,14 +15,21 @@ Three kinds:
 All return unit, mutually orthogonal vectors; 3-D frames are right-handed
 (``t x n = b``).
 
-Frames are computed on :func:`smoothed_curve` of the directrix, not on the directrix itself
-(``FitOptions.frame_smoothing``, a Gaussian of 2 % of the sections by default). The mean of
+Frames are computed on :func:`length_smoothed_curve` of the directrix, not on the directrix
+itself (``FitOptions.frame_smoothing``, a Gaussian of 2 % of its length by default). The mean of
 noisy demonstrations wiggles from sample to sample; its finite-difference tangents swing,
 and even a rotation-minimising frame accumulates twist from those swings (about 27 degrees
 over one noisy Task I instance). The ratio rule keeps a start's direction fixed in the
 moving frame, so that twist turns straight into reproduction error: on the 3-D benchmark
 sets smoothing took the mean RMSE from 80 to 34 (x1e-3), with LASA (2-D) unchanged. The
 section centres stay on the unsmoothed directrix; only the planes' orientation is smoothed.
+
+The smoothing is over length, not over a count of sections: where sections crowd (demos that
+start apart and slowly, a mean that crawls a fraction of a millimetre over its first
+sections while its direction drifts), a count of sections is almost no length, and the
+planes swung with the drift. The sweep folded over itself there, far tighter than the canal
+was wide: the tube condition (:mod:`canal_core.tube`) then pulled a start well inside the
+canal onto the directrix, and a fit's envelope grew across the fold (docs/method.md, 4c).
 """
 
 from __future__ import annotations
@@ -255,9 +262,38 @@ def planar_frames(points: FloatArray) -> tuple[FloatArray, FloatArray]:
     return tangents, normals
 
 
+def length_smoothed_curve(points: FloatArray, fraction: float) -> FloatArray:
+    """Gaussian-smoothed copy of a curve over its arc length, not its sample count.
+
+    The curve is resampled evenly in arc length, smoothed there by :func:`smoothed_curve`
+    (standard deviation ``fraction`` of its length) and read back at each point's own arc
+    length. Where points crowd (a mean path that crawls), a count of samples is a tiny length
+    and smoothing by count leaves the crawl's drift in the tangents; by length the crowded
+    points share one direction.
+
+    Parameters
+    ----------
+    points : array, shape (N, D)
+    fraction : float
+        Standard deviation, as a fraction of the curve's length; 0 returns the points.
+
+    Returns
+    -------
+    smoothed : array, shape (N, D)
+    """
+    n = points.shape[0]
+    along = np.concatenate([[0.0], np.cumsum(np.sqrt((np.diff(points, axis=0) ** 2).sum(axis=1)))])
+    if fraction <= 0.0 or n < 3 or not along[-1] > 0.0:
+        return points
+    even = np.linspace(0.0, along[-1], n)
+    resampled = np.column_stack([np.interp(even, along, points[:, d]) for d in range(points.shape[1])])
+    smooth = smoothed_curve(resampled, fraction * (n - 1))
+    return np.column_stack([np.interp(along, even, smooth[:, d]) for d in range(points.shape[1])])
+
+
 def canal_frames(centres: FloatArray, options: FitOptions) -> tuple[FloatArray, FloatArray, FloatArray | None]:
     """Tangents, normals and binormals (None in 2-D) of a directrix (N, D), as ``options`` ask."""
-    frame_curve = smoothed_curve(centres, options.frame_smoothing * options.n_samples)
+    frame_curve = length_smoothed_curve(centres, options.frame_smoothing)
     if centres.shape[1] == 2:
         tangents, normals = planar_frames(frame_curve)
         return tangents, normals, None

@@ -240,7 +240,7 @@ class FitRequest(_In):
     frame_smoothing: float = Field(
         options.DEFAULTS.frame_smoothing, ge=0.0, le=options.MAX_FRAME_SMOOTHING,
         description="Frames are computed on the directrix smoothed by a Gaussian of this "
-                    "fraction of n_samples; 0 = the paper's raw frames.")
+                    "fraction of its length; 0 = the paper's raw frames.")
     by_time: bool | None = Field(
         None,
         description="true: align the demonstrations by their time stamps; false: by arc length; "

@@ -55,12 +55,40 @@ def backwards_share(canal: canal_core.Canal, points: np.ndarray, first: int) -> 
     return float(-along[along < 0.0].sum() / canal.arclength[-1])
 
 
-@pytest.mark.parametrize("name", ["JShape", "Khamesh", "LShape"])
-def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards(name: str) -> None:
-    """Held-out starts on the inner side of these shapes' turns: the ratio rule alone carries
-    their offset past the centre of curvature, where neighbouring planes cross, and the path
-    loops back by up to 5 % of the canal's length (F1 of canal_core.tube caps it)."""
-    demos, _ = shape_demos(name)
+def hairpin_demos(n_demos: int = 7, radius: float = 3.0, spread: float = 5.0) -> list[np.ndarray]:
+    """3-D demonstrations of a U-turn of ``radius`` mm, 5 mm in, 20 mm out, each at its own
+    height within +-``spread`` mm and its own pace: a canal wider than its turn is tight."""
+    lead, length = 5.0, 20.0
+    total = lead + np.pi * radius + length
+    demos = []
+    for j in range(n_demos):
+        s = total * np.linspace(0.0, 1.0, 400) ** (1.0 + 0.05 * (j - 3))
+        turn = np.clip((s - lead) / radius, 0.0, np.pi)
+        x = np.where(s < lead, s - lead, np.where(turn < np.pi, radius * np.sin(turn), lead + np.pi * radius - s))
+        y = np.where(s < lead, radius, np.where(turn < np.pi, radius * np.cos(turn), -radius))
+        demos.append(np.column_stack([x, y, np.full(s.size, spread * (j - 3) / 3)]))
+    return demos
+
+
+def inner_ride(canal: canal_core.Canal) -> np.ndarray:
+    """A path at 0.9 of the canal's width on the inner side of its tightest turn."""
+    norms = np.linalg.norm(canal.curvature, axis=1)
+    tightest = int(np.argmax(norms * canal.radii))
+    assert norms[tightest] * canal.radii[tightest] > 1.0  # the turn folds the uncapped sweep
+    inner = canal.curvature[tightest] / norms[tightest]
+    return canal.directrix + 0.9 * canal.radii[:, None] * np.einsum("k,nkd->nd", inner, canal.basis)
+
+
+def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards() -> None:
+    """Starts on the inner side of a turn tighter than the canal is wide: the ratio rule alone
+    carries their offset past the centre of curvature, where neighbouring planes cross, and
+    the path loops back (F1 of canal_core.tube caps it). A U-turn of 3 mm in a 5 mm canal
+    (3.2 % of the length back without the cap), and the one canal of LASA's
+    ``Multi_Models_1`` (its routes forced together: up to 16 %)."""
+    canal = canal_core.fit(hairpin_demos(), n_samples=200)
+    path = canal.reproduce_detailed([-5.0, -1.0, 0.5]).positions[1:]
+    assert backwards_share(canal, path, canal.n_sections - path.shape[0]) < 0.002
+    demos, _ = shape_demos("Multi_Models_1")
     for held in range(len(demos)):
         canal = canal_core.fit([d for j, d in enumerate(demos) if j != held], n_samples=200)
         path = canal.reproduce_detailed(demos[held][0]).positions[1:]
@@ -69,20 +97,16 @@ def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards(n
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_live_targets_on_the_inner_side_of_a_tight_turn_never_run_backwards(dim: int) -> None:
-    """A robot that rides the inner side of JShape's turn at 0.9 of the canal's width: the
+    """A robot that rides the inner side of a tight turn at 0.9 of the canal's width: the
     tracker's targets (one section ahead) keep moving forwards along the directrix, in the
-    scalar step, the numpy batch and the compiled kernel (3-D: JShape lifted off its plane,
-    circle sections)."""
-    demos, _ = shape_demos("JShape")
-    if dim == 3:
-        demos = [np.column_stack([d, 0.3 * (j - 3) * np.sin(np.linspace(0.0, np.pi, d.shape[0]))])
-                 for j, d in enumerate(demos)]
-    canal = canal_core.fit(demos, n_samples=200)
-    norms = np.linalg.norm(canal.curvature, axis=1)
-    tightest = int(np.argmax(norms * canal.radii))
-    assert norms[tightest] * canal.radii[tightest] > 1.0  # the turn folds the uncapped sweep
-    inner = canal.curvature[tightest] / norms[tightest]
-    ride = canal.directrix + 0.9 * canal.radii[:, None] * np.einsum("k,nkd->nd", inner, canal.basis)
+    scalar step, the numpy batch and the compiled kernel. 2-D: LASA's ``WShape`` (1.4 % of
+    the length back without the cap); 3-D: the U-turn (11 %)."""
+    if dim == 2:
+        demos, _ = shape_demos("WShape")
+        canal = canal_core.fit(demos, n_samples=200)
+    else:
+        canal = canal_core.fit(hairpin_demos(), n_samples=200)
+    ride = inner_ride(canal)
     walks = {"scalar": canal.tracker()}
     if dim == 3:
         assert canal.sections.spec.isotropic
@@ -95,7 +119,8 @@ def test_live_targets_on_the_inner_side_of_a_tight_turn_never_run_backwards(dim:
             targets = np.array([walk.step([slot], point[None, :]).target[0] for point in ride[1:-2]])
         else:
             targets = np.array([walk.step(point).target for point in ride[1:-2]])
-        assert backwards_share(canal, targets, 2) < 0.002, name
+        # The robot's own poses lie where the planes cross: a few are located a section back.
+        assert backwards_share(canal, targets, 2) < 0.008, name
 
 
 def local_bulges(radii: np.ndarray, half: int = 10) -> np.ndarray:
@@ -106,17 +131,40 @@ def local_bulges(radii: np.ndarray, half: int = 10) -> np.ndarray:
     return radii / np.median(sliding_window_view(padded, 2 * half + 1), axis=1)
 
 
-@pytest.mark.parametrize("name", ["JShape", "JShape_2"])
-def test_a_sample_held_far_from_its_phase_does_not_balloon_a_section_across_the_turn(name: str) -> None:
-    """The hooks at these shapes' goals leave samples that no pair of planes near their phase
+def test_a_sample_held_far_from_its_phase_does_not_balloon_a_section_across_the_turn() -> None:
+    """The hook at this shape's goal leaves samples that no pair of planes near their phase
     brackets. Across the J's turn the planes fan out and hold such a sample 20 mm away at a
-    small ratio of a wide section; growing that section by the ratio made it 8x its
+    small ratio of a wide section; growing that section by the ratio made it 5x its
     neighbours, a bulb a reproduction jumps into. The fit grows the section it needs to grow
     least, in millimetres: the narrow end near the sample."""
-    demos, _ = shape_demos(name)
+    demos, _ = shape_demos("JShape")
     for held in range(len(demos)):
         train = [d for j, d in enumerate(demos) if j != held]
         canal = canal_core.fit(train, n_samples=200)
         # The last few sections hold the hooks themselves: a real spread at the goal.
         assert local_bulges(canal.radii)[:-5].max() < 2.0, held
         assert all(canal.contains(d).all() for d in train)
+
+
+def test_a_canal_that_starts_slowly_keeps_a_start_where_it_is() -> None:
+    """LASA's ``Line`` demonstrations start apart and slowly: over its first sections the
+    mean path crawls a fraction of a millimetre while its direction drifts. Planes oriented
+    by the section count there swung with that drift, a sweep folded many times over, and a
+    held-out start 6 mm inside the canal was pulled onto the directrix and back out (a jump 11x
+    the demonstrations' largest step); a live robot there was dragged to the directrix and
+    kept it. Frames smoothed over the path's length keep both where the person started."""
+    demos, _ = shape_demos("Line")
+    for held in range(len(demos)):
+        canal = canal_core.fit([d for j, d in enumerate(demos) if j != held], n_samples=200)
+        path = canal.reproduce_detailed(demos[held][0]).positions
+        steps = np.linalg.norm(np.diff(path[1:], axis=0), axis=1)
+        assert steps.max() <= 1.5 * canal.largest_step, held
+    canal = canal_core.fit([d for j, d in enumerate(demos) if j != 3], n_samples=200)
+    start = demos[3][0]
+    offset = float(np.linalg.norm(start - canal.directrix[0]))
+    assert offset > 5.0 and canal.contains(start[None, :])[0]
+    tracker, pose = canal.tracker(), start.copy()
+    for _ in range(30):  # a robot that goes half way to each target
+        pose = pose + 0.5 * (tracker.step(pose).target - pose)
+    nearest = float(np.linalg.norm(canal.directrix - pose, axis=1).min())
+    assert nearest > 0.9 * offset

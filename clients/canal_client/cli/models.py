@@ -58,7 +58,7 @@ def fit(
         help="Sections along the canal.")] = None,
     frame_smoothing: Annotated[float | None, typer.Option(
         "--frame-smoothing", min=SMOOTHING_MIN, max=SMOOTHING_MAX,
-        help="Smooth the curve the frames are computed on (fraction of the sections; "
+        help="Smooth the curve the frames are computed on (fraction of its length; "
              "0 = the paper's raw frames).")] = None,
     by_time: Annotated[bool, typer.Option(
         "--by-time", help="Align by the demos' time stamps instead of arc length.")] = False,
