@@ -283,13 +283,8 @@ def _located_among(m: int, candidates: Candidates, end_depths: FloatArray | None
     return _picked(first, sec, alpha, axial, coords, direction, eta)
 
 
-def growth_locations(
-    points: FloatArray,
-    centres: FloatArray,
-    tangents: FloatArray,
-    basis: FloatArray,
-    sections: CrossSections,
-) -> Location:
+def growth_locations(points: FloatArray, centres: FloatArray, tangents: FloatArray,
+                     basis: FloatArray, sections: CrossSections) -> Location:
     """Locate points where holding them enlarges the canal least (the fit's envelope).
 
     Among every pair of planes (and end section) a point lies between, one that holds it
@@ -298,18 +293,8 @@ def growth_locations(
     :func:`located_points` takes the smallest eta instead, the right question for
     containment but not for growth: where the planes fan out across a turn, a wide section
     far away holds a point at a small ratio and would be enlarged by metres to reach it,
-    while the narrow section beside it needs millimetres.
-
-    Parameters
-    ----------
-    points : array, shape (M, D)
-    centres, tangents : arrays, shape (N, D)
-    basis : array, shape (N, D - 1, D)
-    sections : CrossSections
-
-    Returns
-    -------
-    Location
+    while the narrow section beside it needs millimetres. Parameters and result as
+    :func:`located_points` (without end depths: the fit is still setting them).
     """
     pt, sec, alpha, axial, coords, direction, eta = _candidates(points, centres, tangents, basis, sections)
     distance = np.sqrt(np.einsum("kd,kd->k", coords, coords))
