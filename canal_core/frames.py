@@ -29,7 +29,8 @@ start apart and slowly, a mean that crawls a fraction of a millimetre over its f
 sections while its direction drifts), a count of sections is almost no length, and the
 planes swung with the drift. The sweep folded over itself there, far tighter than the canal
 was wide: the tube condition (:mod:`canal_core.tube`) then pulled a start well inside the
-canal onto the directrix, and a fit's envelope grew across the fold (docs/method.md, 4c).
+canal onto the directrix, and where demonstrations settle slowly into their goal the last
+sections turned into a fan of rings no demonstration swept (docs/method.md, 4c).
 """
 
 from __future__ import annotations

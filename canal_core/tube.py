@@ -4,8 +4,9 @@ Sections are planes normal to the directrix. Where the directrix turns with radi
 curvature rho, two neighbouring planes meet on a line rho from the directrix, on the side the
 curve turns towards. A point kept at the same ratio from plane to plane (the ratio rule) at
 more than rho on that side is carried *backwards* as the planes turn: the swept surface folds
-there, and a reproduction riding the inner side of a tight turn traces a small loop (LASA's
-``JShape``, ``Khamesh`` and ``LShape``, held out: docs/method.md section 4c). A tube of radius
+there, and a reproduction riding the inner side of a tight turn traces a small loop (a U-turn
+tighter than the canal is wide, or LASA's ``Multi_Models_1`` forced into one canal: docs/method.md
+section 4c). A tube of radius
 r is regular exactly when r kappa < 1 (kappa = 1 / rho); the reproduction and the live
 tracker keep every planned point inside that condition by capping its ratio on section k,
 
