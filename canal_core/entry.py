@@ -20,6 +20,21 @@ that keep their offsets in a canal that keeps its width) the fixed blend is used
 path is inside it stays inside, as the live tracker's rules assume:
 
     eta_k <- min(eta_k, 1)   for every k >= the first k with eta_k <= 1                 (E3)
+
+A start *behind* the first plane (the canal's extruded head holds it, or it lies farther
+back) has no section of its own: the ratio rule's first point lies on section 1, one
+section's time away. The straight step there is the distance behind, which can be many times
+the demonstrations' largest step. The reproduction approaches that point along the straight
+line instead, at the pace the demonstrations set off with: with d the distance from the start
+to the first point and s_i the directrix's arc length, approach point i (i = 1 .. m - 1) lies
+at the share
+
+    a_i = s_i / s_m,   m = the section whose s_m is nearest to d (1 .. N - 1)            (E4)
+
+of that line, at the time section i has, and the ratio rule's path follows m - 1 sections'
+time later. The steps are the directrix's own first steps, within a factor 1.5 (the nearest
+count of them): from rest, as the demonstrations started, never one jump. A start a little
+behind the plane, whose first step is about the directrix's, gets none (m = 1).
 """
 
 from __future__ import annotations
@@ -40,6 +55,30 @@ def inside_stays_inside(ratios: FloatArray) -> FloatArray:
     out = np.array(ratios, dtype=np.float64)
     out[entered[0]:] = np.minimum(out[entered[0]:], 1.0)
     return out
+
+
+def approach_shares(arclength: FloatArray, distance: float) -> FloatArray:
+    """a_1 .. a_m of (E4), shape (m,), ending at 1: where a start behind the first plane
+    passes on its straight line to the ratio rule's first point, ``distance`` away.
+
+    Parameters
+    ----------
+    arclength : array, shape (N,)
+        The directrix's arc length at its sections (from 0).
+    distance : float
+        d, from the start to the first point.
+
+    Returns
+    -------
+    shares : array, shape (m,)
+        m = 1 (just [1.0]) when ``distance`` is nearer to the directrix's first step than to
+        its first two; a start farther behind than the whole directrix is long takes all its
+        steps, stretched.
+    """
+    m = 1 + int(np.argmin(np.abs(arclength[1:] - distance)))
+    shares = arclength[1 : m + 1] / max(float(arclength[m]), 1e-300)
+    shares[-1] = 1.0
+    return np.asarray(shares, dtype=np.float64)
 
 
 def entry_fraction(

@@ -10,10 +10,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .entry import entry_fraction
+from .entry import approach_shares, entry_fraction
 from .errors import OutsideCanalError
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
+from .orientation import hemisphere_continuous, slerped
 from .reproduce import (
     CONTAINS_TOLERANCE,
     END_DECAY,
@@ -51,7 +52,9 @@ class Reproduction:
     Attributes
     ----------
     positions : array, shape (N', D)
-        The start, then one point per remaining cross-section, ending on the last one.
+        The start, then one point per remaining cross-section, ending on the last one. A
+        start behind the first plane first approaches the first of them along a straight
+        line, in ``approach`` points (:func:`canal_core.entry.approach_shares`, (E4)).
     start : array, shape (D,)
     inside : bool
         Whether the start lies inside the canal.
@@ -89,6 +92,9 @@ class Reproduction:
         Index in ``positions`` of the first point inside the canal: every later point of
         the ratio rule's path is inside too (0 for a start inside; for a start outside,
         where the learned entry or the entry blend brought the path in).
+    approach : int
+        Points between the start and the ratio rule's first point, on the straight line
+        from a start behind the first plane (0 for any other start).
     """
 
     positions: FloatArray
@@ -106,6 +112,13 @@ class Reproduction:
     detoured: BoolArray | None = None
     start_clearance: float | None = None
     entry_index: int = 0
+    approach: int = 0
+
+    @property
+    def section_path(self) -> FloatArray:
+        """The ratio rule's points, one per section from ``section_index + 1`` on, shape (K, D):
+        ``positions`` without the start and its approach."""
+        return self.positions[1 + self.approach :]
 
 
 def reproduce(
@@ -227,11 +240,27 @@ def reproduce(
         avoided = avoided_path(point, path, first, canal.directrix, canal.basis, canal.sections, scene, largest)
         positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
         start_clearance = avoided.start_clearance
+    shares = np.ones(1)
+    if index == 0 and loc.axial[0] < 0.0 and positions.shape[0] > 1:
+        # (E4): behind the first plane, the first point is a straight line away; the path
+        # takes it in the directrix's own first steps. The line is the one the obstacle
+        # check cleared (a detour starts after it), so its points need no second check.
+        shares = approach_shares(canal.arclength, float(np.linalg.norm(positions[1] - point)))
+        approach = point + shares[:-1, None] * (positions[1] - point)
+        positions = np.vstack([point, approach, positions[1:]])
+        if detoured is not None:
+            detoured = np.concatenate([np.zeros(shares.size - 1, dtype=bool), detoured])
+    n_approach = shares.size - 1
     times = None
     # Seconds from the stamps; a steady logger's pace only once a duration says how long.
     profile = canal.section_times if canal.section_times is not None or seconds is None else canal.section_pace
     if profile is not None:
         times = reproduction_times(profile, index, alpha, path.shape[0] + 1)
+        if n_approach:
+            # The approach points at their sections' times; the path m - 1 sections later.
+            t0 = profile[1] - times[1]
+            times = np.concatenate([times[:1], profile[1 : n_approach + 1] - t0,
+                                    times[1:] + (profile[n_approach + 1] - profile[1])])
         if seconds is not None:
             times = rescaled_times(times, seconds)
         times = times[: positions.shape[0]]  # a blocked path keeps its own times
@@ -240,6 +269,10 @@ def reproduce(
     orientations, orientation_eta = None, None
     if canal.orientation is not None:
         orientations, orientation_eta = canal.orientation.reproduced(index, first, quat)
+        if n_approach:
+            turn = slerped(orientations[0], orientations[1], shares[:-1])
+            orientations = hemisphere_continuous(np.vstack([orientations[:1], turn, orientations[1:]]),
+                                                 orientations[0])
         orientations = orientations[: positions.shape[0]]
     return Reproduction(
         positions=positions,
@@ -256,5 +289,6 @@ def reproduce(
         blocked=blocked,
         detoured=detoured,
         start_clearance=start_clearance,
-        entry_index=0 if inside else 1 + int(np.argmax(np.append(ratios <= 1.0 + CONTAINS_TOLERANCE, True))),
+        entry_index=0 if inside else 1 + n_approach + int(np.argmax(np.append(ratios <= 1.0 + CONTAINS_TOLERANCE, True))),
+        approach=n_approach,
     )

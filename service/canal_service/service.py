@@ -867,7 +867,7 @@ class CanalService:
                 scene_version=scene_version, obstacles=0 if scene is None else len(scene),
                 start_clearance=result.start_clearance,
                 notes=notes + _orientation_notes(canal, result, start_orientation),
-                route=choice.route, route_reason=choice.reason,
+                route=choice.route, route_reason=choice.reason, approach=int(result.approach),
             ))
         if body.start is not None:
             return outs[0]

@@ -37,8 +37,8 @@ def test_leave_one_out(name: str, kind: str) -> None:
         assert canal.contains(path[max(result.entry_index, 1):]).all()
         blended = canal.reproduce_detailed(demos[held][0], entry=0.1)
         entered = np.flatnonzero(canal.arclength >= canal.arclength[result.section_index + 1] + 0.1 * canal.arclength[-1])
-        assert canal.contains(blended.positions[1:][max(entered[0] - result.section_index - 1, 0):]).all()
-        assert canal.contains(canal.reproduce_detailed(demos[held][0], entry=0.0).positions[1:]).all()
+        assert canal.contains(blended.section_path[max(entered[0] - result.section_index - 1, 0):]).all()
+        assert canal.contains(canal.reproduce_detailed(demos[held][0], entry=0.0).section_path).all()
         # The reproduction follows the held-out demo's shape: mean distance well below the
         # shape's size.
         size = np.ptp(np.vstack(demos), axis=0).max()
@@ -86,12 +86,12 @@ def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards()
     (3.2 % of the length back without the cap), and the one canal of LASA's
     ``Multi_Models_1`` (its routes forced together: up to 16 %)."""
     canal = canal_core.fit(hairpin_demos(), n_samples=200)
-    path = canal.reproduce_detailed([-5.0, -1.0, 0.5]).positions[1:]
+    path = canal.reproduce_detailed([-5.0, -1.0, 0.5]).section_path
     assert backwards_share(canal, path, canal.n_sections - path.shape[0]) < 0.002
     demos, _ = shape_demos("Multi_Models_1")
     for held in range(len(demos)):
         canal = canal_core.fit([d for j, d in enumerate(demos) if j != held], n_samples=200)
-        path = canal.reproduce_detailed(demos[held][0]).positions[1:]
+        path = canal.reproduce_detailed(demos[held][0]).section_path
         assert backwards_share(canal, path, canal.n_sections - path.shape[0]) < 0.002, held
 
 
@@ -168,3 +168,32 @@ def test_a_canal_that_starts_slowly_keeps_a_start_where_it_is() -> None:
         pose = pose + 0.5 * (tracker.step(pose).target - pose)
     nearest = float(np.linalg.norm(canal.directrix - pose, axis=1).min())
     assert nearest > 0.9 * offset
+
+
+@pytest.mark.parametrize("name", ["CShape", "Line", "Leaf_1", "Worm"])
+def test_a_start_behind_the_first_plane_approaches_in_the_demonstrations_steps(name: str) -> None:
+    """Held-out starts of these shapes lie behind the canal's first plane (up to 6x the
+    demonstrations' largest step from its first section). The reproduction's first point was
+    on section 1, one section's time away: a robot asked to cover that in one step. The
+    approach takes the straight line in the directrix's own first steps and keeps the pace."""
+    demos, _ = shape_demos(name)
+    approached = 0
+    for held in range(len(demos)):
+        canal = canal_core.fit([d for j, d in enumerate(demos) if j != held], n_samples=200)
+        result = canal.reproduce_detailed(demos[held][0], duration=1.0)
+        path, m = result.positions, result.approach
+        steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        assert steps.max() <= 1.2 * canal.largest_step, (held, steps.max() / canal.largest_step)
+        # The start, its approach, then sections section_index + 1 .. N - 1.
+        assert path.shape[0] == 1 + m + canal.n_sections - 1 - result.section_index
+        assert np.all(np.diff(result.times) > 0.0) and result.times[-1] == pytest.approx(1.0)
+        if m:
+            approached += 1
+            line = path[1 + m] - path[0]
+            along = (path[1 : 1 + m] - path[0]) @ line / (line @ line)
+            across = path[1 : 1 + m] - path[0] - along[:, None] * line
+            assert np.all(np.diff(along) > 0.0) and 0.0 < along[0] and along[-1] < 1.0
+            assert np.abs(across).max() < 1e-9 * np.linalg.norm(line) + 1e-12
+            if result.inside:  # held by the canal's extruded head: the approach stays in it
+                assert canal.contains(path).all()
+    assert approached >= 2

@@ -249,3 +249,18 @@ def test_real_ur5e_demos_with_mixed_quaternion_signs() -> None:
     # The held-out demo stays within the demos' spread of the mean for most of the way.
     spreads = np.degrees(canal.orientation.spreads)
     assert 2.0 < np.median(spreads) < 30.0
+
+
+def test_slerped_matches_scipy_and_takes_the_short_way() -> None:
+    from scipy.spatial.transform import Slerp
+
+    from canal_core.orientation import slerped
+
+    a, b = Rotation.from_euler("xyz", [0.1, 0.4, -0.2]).as_quat(), Rotation.from_euler("z", 1.3).as_quat()
+    shares = np.array([0.0, 0.25, 0.5, 1.0])
+    expected = Slerp([0.0, 1.0], Rotation.from_quat([a, b]))(shares)
+    for q in (b, -b):  # either sign of the end: the same rotations, from a's hemisphere
+        got = slerped(a, q, shares)
+        assert np.degrees(angles_between(got, expected.as_quat())).max() < 1e-9
+        assert np.all(got @ a > 0.0)
+    np.testing.assert_allclose(slerped(a, a, shares), np.tile(a, (4, 1)), atol=1e-15)

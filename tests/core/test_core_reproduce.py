@@ -11,6 +11,7 @@ from core_data import helix_demos, sleeve_demos
 import canal_core
 from canal_core import OutsideCanalError, datasets
 from canal_core.cross_sections import boundary_distance
+from canal_core.entry import approach_shares
 
 KINDS = ("circle", "mec", "ellipse", "spline")
 
@@ -199,3 +200,66 @@ def test_smoothed_frames_do_not_twist_on_noisy_demos() -> None:
     raw, smooth = angle(end_offset(0.0)), angle(end_offset(0.02))
     assert smooth < 10.0, smooth
     assert smooth < raw, (smooth, raw)
+
+
+def test_approach_shares_are_the_directrix_first_steps_to_the_first_point() -> None:
+    s = np.array([0.0, 0.1, 0.3, 0.6, 1.0])
+    np.testing.assert_allclose(approach_shares(s, 0.05), [1.0])  # about one section's step
+    np.testing.assert_allclose(approach_shares(s, 0.19), [1.0])
+    np.testing.assert_allclose(approach_shares(s, 0.3), [1 / 3, 1.0])
+    np.testing.assert_allclose(approach_shares(s, 0.5), [1 / 6, 1 / 2, 1.0])  # nearest: 0.6
+    np.testing.assert_allclose(approach_shares(s, 2.0), [0.1, 0.3, 0.6, 1.0])  # all of them, stretched
+
+
+def _timed_arcs(n_demos: int = 5, n: int = 120) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Quarter circles with time stamps that start slowly and an orientation that turns."""
+    from scipy.spatial.transform import Rotation
+
+    u = np.linspace(0.0, 1.0, n)
+    demos, stamps, quats = [], [], []
+    for j in range(n_demos):
+        theta = (np.pi / 2) * u**2  # from rest
+        off = 0.02 * (j - 2)
+        demos.append(np.column_stack([np.cos(theta) + off, np.sin(theta), 0.01 * np.cos(3 * theta + j)]))
+        stamps.append(np.linspace(0.0, 2.0 + 0.1 * j, n))
+        quats.append(Rotation.from_euler("z", (1.2 * u + 0.05 * j)[:, None]).as_quat())
+    return demos, stamps, quats
+
+
+def test_a_timed_start_behind_the_first_plane_approaches_at_the_section_times_and_turns_smoothly() -> None:
+    demos, stamps, quats = _timed_arcs()
+    canal = canal_core.fit(demos, timestamps=stamps, orientations=quats, n_samples=100)
+    assert canal.section_times is not None and canal.orientation is not None
+    start = canal.directrix[0] - 0.08 * canal.tangents[0]
+    result = canal.reproduce_detailed(start, start_orientation=quats[0][0])
+    m = result.approach
+    assert m >= 3 and result.section_index == 0
+    # Approach point i at section i's time; the ratio rule's path, from section 1 on, m
+    # sections' time later than it would start without the approach.
+    tau = canal.section_times - canal.section_times[0]
+    np.testing.assert_allclose(result.times[1 : m + 1], tau[1 : m + 1], atol=1e-9)
+    np.testing.assert_allclose(result.times[m + 1 :], tau[1:] + tau[m + 1] - tau[1], atol=1e-9)
+    assert np.all(result.velocities[: m + 1] @ canal.tangents[0] > 0.0)
+    # One orientation per position, turning from the start's to the first section's in the
+    # approach's shares (no step larger than the turn itself).
+    q = result.orientations
+    assert q.shape == (result.positions.shape[0], 4)
+    assert np.all(np.einsum("td,td->t", q[1:], q[:-1]) > 0.0)
+    turn = canal_core.orientation.angles_between(q[0], q[m + 1])
+    steps = canal_core.orientation.angles_between(q[1 : m + 2], q[: m + 1])
+    assert steps.max() < turn / 2 + 1e-9
+    # Not inside at first: the first inside point is counted after the approach.
+    assert result.entry_index >= (0 if result.inside else m + 1)
+
+
+def test_a_start_behind_the_first_plane_with_obstacles_flags_no_approach_point_as_a_detour() -> None:
+    demos, stamps, _ = _timed_arcs()
+    canal = canal_core.fit(demos, timestamps=stamps, n_samples=100)
+    start = canal.directrix[0] - 0.08 * canal.tangents[0]
+    ball = {"kind": "sphere", "center": canal.directrix[60].tolist(), "radius": 0.01}
+    result = canal.reproduce_detailed(start, obstacles=[ball])
+    m = result.approach
+    assert m >= 3 and result.detoured is not None
+    assert result.detoured.shape == (result.positions.shape[0] - 1,)
+    assert not result.detoured[:m].any()
+    assert result.times.shape == (result.positions.shape[0],)

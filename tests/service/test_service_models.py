@@ -78,6 +78,28 @@ def test_batch_reproductions_and_versions(client: TestClient, fitted: str) -> No
     assert old.json()["model_version"] == 1 and len(old.json()["positions"]) <= 50
 
 
+def test_a_start_behind_the_first_plane_is_answered_with_its_approach(client: TestClient, fitted: str) -> None:
+    """A start well behind the canal's first plane: the answer's positions reach the first
+    section along a straight line in steps like the demonstrations' first ones (not one
+    jump), counted in ``approach``; a start on the first section has none."""
+    model = client.get(f"/skills/{fitted}/models/latest").json()
+    d = np.asarray(model["directrix"])
+    back = d[0] - 8.0 * (d[1] - d[0])
+    r = client.post(f"/skills/{fitted}/reproductions", json={"starts": [back.tolist(), d[0].tolist()],
+                                                              "duration": 2.0})
+    assert r.status_code == 200, r.text
+    behind, on = r.json()["reproductions"]
+    m = behind["approach"]
+    assert m >= 5 and on["approach"] == 0
+    positions = np.asarray(behind["positions"])
+    assert len(positions) == len(on["positions"]) + m and len(behind["times"]) == len(positions)
+    steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    assert steps.max() < 2.0 * np.linalg.norm(np.diff(d, axis=0), axis=1).max()
+    line = positions[m + 1] - back
+    across = np.cross(positions[1 : m + 1] - back, line) / np.linalg.norm(line)
+    assert np.abs(across).max() < 1e-9 * np.linalg.norm(line)
+
+
 def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> None:
     ids = []
     for j in range(3):
