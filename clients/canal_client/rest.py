@@ -564,7 +564,8 @@ def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
     ``result.notes``. ``obstacles`` are added to the skill's scene for this reproduction
     (``result.blocked`` says where they close the canal). A model of several routes follows
     the route whose entry holds the start (``result.route``, ``result.route_reason``), or
-    ``route`` when given."""
+    ``route`` when given. A start behind the canal's first plane reaches its first section
+    along a straight line in ``result.approach`` positions."""
     return (yield _request(REPRODUCE, name=skill, body={
         "start": _point(start), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),

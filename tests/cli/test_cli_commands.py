@@ -227,6 +227,8 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
             assert doc["inside"] is True and doc["model_version"] == 1
         assert got.shape == expected.shape and np.allclose(got, expected)
 
+    r = run("reproduce", name, "--start", "-0.3,0.01,0")  # behind the first plane
+    assert r.exit_code == 0 and "points approach its first section" in r.stdout, r.output
     r = run("--json", "reproduce", name, "--start", "-0.05,5,0")
     doc = json.loads(r.stdout)
     assert r.exit_code == 0 and doc["projected"] is True and doc["inside"] is False

@@ -186,6 +186,9 @@ def reproduce(
     out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}"
               f"{lasts}; start {state} (eta {r.eta:.3f}, section {r.section_index}); "
               f"ends at ({end})")
+    if r.approach:
+        out.print(f"the start lies behind the canal's first plane: {r.approach} points approach "
+                  "its first section in a straight line, paced like the demonstrations' first steps")
     if r.route is not None or r.route_reason not in (None, "single"):
         which = "the canal of all routes" if r.route is None else f"route {r.route}"
         out.print(f"followed {which} ({r.route_reason})")
