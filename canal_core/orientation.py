@@ -74,15 +74,10 @@ def hemisphere_continuous(quaternions: FloatArray, reference: FloatArray | None 
 def slerped(a: FloatArray, b: FloatArray, shares: FloatArray) -> FloatArray:
     """Unit quaternions from ``a`` (4,) to ``b`` (4,) at ``shares`` (K,) of the shortest
     rotation between them, shape (K, 4), on the hemisphere of ``a``."""
-    b = b if float(a @ b) >= 0.0 else -b
-    cos = min(float(a @ b), 1.0)
-    angle = float(np.arccos(cos))
-    t = np.asarray(shares, dtype=np.float64)[:, None]
-    if angle < 1e-9:  # the same rotation: the chord is the arc
-        out = (1.0 - t) * a + t * b
-    else:
-        out = (np.sin((1.0 - t) * angle) * a + np.sin(t * angle) * b) / np.sin(angle)
-    return np.asarray(out / np.linalg.norm(out, axis=1, keepdims=True), dtype=np.float64)
+    from scipy.spatial.transform import Rotation, Slerp
+
+    turn = Slerp([0.0, 1.0], Rotation.from_quat(np.vstack([a, b])))(np.asarray(shares, dtype=np.float64))
+    return hemisphere_continuous(turn.as_quat(), a)
 
 
 def aligned_orientations(
