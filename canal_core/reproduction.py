@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .entry import approach_shares, entry_fraction
+from .entry import approach_shares, entry_fraction, inside_stays_inside, lone_entry_ratios
 from .errors import OutsideCanalError
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
@@ -160,7 +160,9 @@ def reproduce(
         ``section_pace`` when the logger was steady, else at constant speed along the path).
     entry : float or None
         None (default): a start outside enters the canal over the length in which the
-        demonstrations' own start offsets half faded (:mod:`canal_core.entry`); a fraction
+        demonstrations' own start offsets half faded, or, on a canal of one demonstration,
+        fading in length over all that is left of it (:mod:`canal_core.entry`, (E2) and
+        (E2')); a fraction
         of the canal's length: the entry blend over that length (0 clamps the ratio to 1 at
         once).
     end_decay : float
@@ -227,11 +229,18 @@ def reproduce(
             share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
             if to_end:
                 end_decay = 0.0
+    # (E2'): one demonstration shows no convergence to enter by; its width is borrowed.
+    lone_entry = entry is None and eta > 1.0 and canal.n_demos == 1 and persistence != "constant"
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
     caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
-    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
+    if lone_entry:
+        start_reach = float((1.0 - alpha) * reach[0] + alpha * reach[min(1, reach.size - 1)])
+        ratios = lone_entry_ratios(eta, canal.arclength[first:], s0, start_reach, reach[first - index:])
+        ratios = inside_stays_inside(np.minimum(ratios, caps))
+    else:
+        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
     positions = np.vstack([point, path])
     blocked, detoured, start_clearance = None, None, None

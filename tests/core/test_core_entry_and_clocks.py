@@ -14,7 +14,7 @@ from canal_core.clocks import (
     step_jitter,
     timing_spread,
 )
-from canal_core.entry import entry_fraction, inside_stays_inside
+from canal_core.entry import entry_fraction, inside_stays_inside, lone_entry_ratios
 
 
 def converging_demos(n_demos: int = 6, n: int = 120) -> list[np.ndarray]:
@@ -61,6 +61,44 @@ def test_an_outside_start_enters_where_the_demonstrations_converge_and_stays_in(
     head = slice(0, learned.entry_index)
     assert np.abs(learned.positions[head, 1] - expected[head]).mean() < np.abs(
         blended.positions[head, 1] - expected[head]).mean()
+
+
+def test_one_demonstrations_entry_keeps_the_offsets_length_and_fades_it_over_the_rest() -> None:
+    s = np.linspace(0.0, 1.0, 11)
+    narrowing = np.clip(1.0 - 2 * s, 0.1, 1.0)
+    ratios = lone_entry_ratios(3.0, s, 0.0, 1.0, narrowing)
+    length = ratios * narrowing  # the offset's length, in units of the start's reach
+    assert length[0] == pytest.approx(3.0) and length[-1] == pytest.approx(0.0)
+    assert length[5] == pytest.approx(1.5)  # half faded half way, whatever the narrowing
+    assert np.all(np.diff(length) < 0.0)
+    # From a start a fifth of the way in, it fades over the four fifths left.
+    assert lone_entry_ratios(3.0, s[2:], 0.2, 1.0, np.ones(9))[4] == pytest.approx(1.5)
+
+
+def test_a_start_outside_a_one_demo_route_fades_over_the_motion_not_at_the_donors_pace() -> None:
+    # Four demos over the top whose offsets converge within 15 % of the motion, one below: the
+    # lone route borrows their narrowing sections, which say nothing about how its own
+    # start offsets fade (E2').
+    s = np.linspace(0.0, 1.0, 150)
+    over = [np.column_stack([s, 0.3 * np.sin(np.pi * s) + 0.01 * k * np.clip(1 - s / 0.15, 0.2, 1.0),
+                             np.full_like(s, 0.002 * k)]) for k in range(4)]
+    under = [np.column_stack([s, -0.3 * np.sin(np.pi * s), np.zeros_like(s)])]
+    routes = canal_core.routes.fit_routes(over + under, n_samples=100)
+    lone = next(c for c in routes.every_canal if c.n_demos == 1)
+    start = np.array([0.0, -0.04, 0.0])
+    choice, rep = routes.reproduce_detailed(start)
+    assert routes.canal_for(choice) is lone and not rep.inside
+    offset = rep.positions[:, 1] + 0.3 * np.sin(np.pi * rep.positions[:, 0])
+    fifth = offset.size // 5
+    # Entered at the donors' pace, a fifth of the way in keeps about a tenth of the offset;
+    # by (E2') most of it.
+    assert offset[fifth] / offset[0] > 0.8
+    assert abs(offset[offset.size // 2]) < 0.6 * abs(offset[0])
+    assert np.all(np.diff(np.abs(offset)) <= 1e-12)
+    assert rep.entry_index > 0.4 * lone.n_sections
+    assert lone.contains(rep.positions[rep.entry_index:]).all()
+    steps = np.linalg.norm(np.diff(rep.positions, axis=0), axis=1)
+    assert steps.max() <= 1.05 * np.linalg.norm(np.diff(lone.directrix, axis=0), axis=1).max()
 
 
 def test_an_inside_start_is_unchanged_by_the_learned_entry() -> None:
