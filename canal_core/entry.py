@@ -18,18 +18,9 @@ ratios) or in absolute terms (R_k(u), the boundary distance along the start's di
 a canal that narrows is demonstrations converging). When neither happens (demonstrations
 that keep their offsets in a canal that keeps its width) the fixed blend is used.
 
-A canal of one demonstration shows no convergence at all: its width is borrowed (a route shown
-once takes its sections from the nearest route, L1 of :mod:`canal_core.routes`), so neither its
-width nor its narrowing says how far, or how fast, a start off that one way comes back to it.
-Entered by (E1)-(E2), the start's offset collapses at the donor's pace, in steps up to 4x that
-demonstration's largest. Instead the offset keeps its length and fades over all that is left
-of the motion:
-
-    eta_k = eta (R_0(u) / R_k(u)) (1 - S((s_k - s_0) / (s_{N-1} - s_0)))   (one demonstration)   (E2')
-
-(R_0(u): the boundary distance at the start, between its two sections), so that
-eta_k R_k(u), the offset's length, goes from the start's to 0 at the end, smoothly. Once the
-path is inside it stays inside, as the live tracker's rules assume:
+A canal of one demonstration has no demonstrations converging to enter by: it is reproduced
+by (L2) of :mod:`canal_core.lone`. Once the path is inside it stays inside, as the live
+tracker's rules assume:
 
     eta_k <- min(eta_k, 1)   for every k >= the first k with eta_k <= 1                 (E3)
 
@@ -91,36 +82,6 @@ def approach_shares(arclength: FloatArray, distance: float) -> FloatArray:
     shares = arclength[1 : m + 1] / max(float(arclength[m]), 1e-300)
     shares[-1] = 1.0
     return np.asarray(shares, dtype=np.float64)
-
-
-def lone_entry_ratios(
-    eta: float,
-    arclength: FloatArray,
-    start_arclength: float,
-    start_reach: float,
-    reach: FloatArray,
-) -> FloatArray:
-    """eta_k of (E2'), shape (K,): an outside start's ratio on the remaining sections of a
-    canal of one demonstration, before the tube caps and (E3).
-
-    Parameters
-    ----------
-    eta : float
-        The start's ratio (> 1).
-    arclength : array, shape (K,)
-        Arc length of the directrix at the remaining sections (the last is the canal's length).
-    start_arclength : float
-        s_0.
-    start_reach : float
-        R_0(u), the boundary distance along u at the start.
-    reach : array, shape (K,)
-        R_k(u) on the remaining sections.
-    """
-    from .reproduce import smootherstep  # reproduce imports this module
-
-    left = max(float(arclength[-1]) - start_arclength, 1e-300) if arclength.size else 1e-300
-    kept = np.divide(start_reach, reach, out=np.zeros_like(reach), where=reach > 0.0)
-    return np.asarray(eta * kept * (1.0 - smootherstep((arclength - start_arclength) / left)), dtype=np.float64)
 
 
 def entry_fraction(

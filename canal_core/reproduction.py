@@ -10,8 +10,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .entry import approach_shares, entry_fraction, inside_stays_inside, lone_entry_ratios
+from .cross_sections import boundary_distance
+from .entry import approach_shares, entry_fraction, inside_stays_inside
 from .errors import OutsideCanalError
+from .lone import lone_offsets
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
 from .orientation import hemisphere_continuous, slerped
@@ -121,6 +123,27 @@ class Reproduction:
         return self.positions[1 + self.approach :]
 
 
+def lone_path(
+    canal: Canal, point: FloatArray, index: int, first: int, alpha: float, start_arclength: float,
+    direction: FloatArray, eta: float,
+) -> tuple[FloatArray, FloatArray]:
+    """(L2) on a canal of one demonstration: the path on sections first .. N-1, shape (K, D),
+    and its ratios (K,), capped by (F1) and kept inside by (E3) (inside from the start on
+    when the start is inside)."""
+    centre = (1.0 - alpha) * canal.directrix[index] + alpha * canal.directrix[first]
+    basis = canal.basis[first:]
+    offsets = lone_offsets(point - centre, basis, canal.arclength[first:], start_arclength)
+    length = np.linalg.norm(offsets, axis=1)
+    # Where the offset has faded to nothing, its direction is the start's (any would do).
+    directions = np.where(length[:, None] > 0.0, offsets / np.maximum(length, 1e-300)[:, None], direction)
+    reach = boundary_distance(canal.sections, np.arange(first, canal.n_sections), directions)
+    ratios = np.divide(length, reach, out=np.zeros_like(length), where=reach > 0.0)
+    ratios = np.minimum(ratios, tube_ratio_caps(reach, directions, canal.curvature[first:]))  # (F1)
+    ratios = inside_stays_inside(ratios) if eta > 1.0 else np.minimum(ratios, 1.0)  # (E3)
+    kept = (ratios * reach)[:, None] * directions
+    return canal.directrix[first:] + np.einsum("ka,kad->kd", kept, basis), ratios
+
+
 def reproduce(
     canal: Canal,
     start: Any,
@@ -160,9 +183,9 @@ def reproduce(
         ``section_pace`` when the logger was steady, else at constant speed along the path).
     entry : float or None
         None (default): a start outside enters the canal over the length in which the
-        demonstrations' own start offsets half faded, or, on a canal of one demonstration,
-        fading in length over all that is left of it (:mod:`canal_core.entry`, (E2) and
-        (E2')); a fraction
+        demonstrations' own start offsets half faded (:mod:`canal_core.entry`; on a canal of
+        one demonstration the offset is a translation that fades over the motion instead,
+        (L2) of :mod:`canal_core.lone`); a fraction
         of the canal's length: the entry blend over that length (0 clamps the ratio to 1 at
         once).
     end_decay : float
@@ -229,19 +252,18 @@ def reproduce(
             share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
             if to_end:
                 end_decay = 0.0
-    # (E2'): one demonstration shows no convergence to enter by; its width is borrowed.
-    lone_entry = entry is None and eta > 1.0 and canal.n_demos == 1 and persistence != "constant"
+    # (L2): one demonstration shows no spread to learn a persistence or an entry from.
+    lone = entry is None and canal.n_demos == 1 and persistence != "constant"
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
     caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
-    if lone_entry:
-        start_reach = float((1.0 - alpha) * reach[0] + alpha * reach[min(1, reach.size - 1)])
-        ratios = lone_entry_ratios(eta, canal.arclength[first:], s0, start_reach, reach[first - index:])
-        ratios = inside_stays_inside(np.minimum(ratios, caps))
+    if lone:
+        path, ratios = lone_path(canal, point, index, first, alpha, s0, u, eta)
     else:
         ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
-    path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
+        path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections,
+                                    reach[first - index :])
     positions = np.vstack([point, path])
     blocked, detoured, start_clearance = None, None, None
     if scene is not None:

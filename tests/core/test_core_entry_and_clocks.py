@@ -14,7 +14,8 @@ from canal_core.clocks import (
     step_jitter,
     timing_spread,
 )
-from canal_core.entry import entry_fraction, inside_stays_inside, lone_entry_ratios
+from canal_core.entry import entry_fraction, inside_stays_inside
+from canal_core.lone import lone_offsets
 
 
 def converging_demos(n_demos: int = 6, n: int = 120) -> list[np.ndarray]:
@@ -63,22 +64,26 @@ def test_an_outside_start_enters_where_the_demonstrations_converge_and_stays_in(
         blended.positions[head, 1] - expected[head]).mean()
 
 
-def test_one_demonstrations_entry_keeps_the_offsets_length_and_fades_it_over_the_rest() -> None:
+def test_one_demonstrations_offset_is_a_translation_that_fades_over_the_rest() -> None:
     s = np.linspace(0.0, 1.0, 11)
-    narrowing = np.clip(1.0 - 2 * s, 0.1, 1.0)
-    ratios = lone_entry_ratios(3.0, s, 0.0, 1.0, narrowing)
-    length = ratios * narrowing  # the offset's length, in units of the start's reach
-    assert length[0] == pytest.approx(3.0) and length[-1] == pytest.approx(0.0)
-    assert length[5] == pytest.approx(1.5)  # half faded half way, whatever the narrowing
-    assert np.all(np.diff(length) < 0.0)
+    # Frames that turn a quarter turn about z over the motion: the offset does not turn with them.
+    angle = np.linspace(0.0, np.pi / 2, 11)
+    basis = np.stack([np.column_stack([-np.sin(angle), np.cos(angle), np.zeros(11)]),
+                      np.tile([0.0, 0.0, 1.0], (11, 1))], axis=1)  # (11, 2, 3)
+    d = np.array([0.0, 0.3, 0.1])
+    v = lone_offsets(d, basis, s, 0.0)
+    world = np.einsum("ka,kad->kd", v, basis)
+    np.testing.assert_allclose(world[0], d)
+    np.testing.assert_allclose(v[5], 0.5 * basis[5] @ d)  # half faded half way
+    np.testing.assert_allclose(v[-1], 0.0)
     # From a start a fifth of the way in, it fades over the four fifths left.
-    assert lone_entry_ratios(3.0, s[2:], 0.2, 1.0, np.ones(9))[4] == pytest.approx(1.5)
+    np.testing.assert_allclose(lone_offsets(d, basis[2:], s[2:], 0.2)[4], 0.5 * basis[6] @ d)
 
 
-def test_a_start_outside_a_one_demo_route_fades_over_the_motion_not_at_the_donors_pace() -> None:
+def test_a_start_off_a_one_demo_route_fades_over_the_motion_not_at_the_donors_pace() -> None:
     # Four demos over the top whose offsets converge within 15 % of the motion, one below: the
-    # lone route borrows their narrowing sections, which say nothing about how its own
-    # start offsets fade (E2').
+    # lone route borrows their narrowing sections, which say nothing about how a start off
+    # its own way fades (L2).
     s = np.linspace(0.0, 1.0, 150)
     over = [np.column_stack([s, 0.3 * np.sin(np.pi * s) + 0.01 * k * np.clip(1 - s / 0.15, 0.2, 1.0),
                              np.full_like(s, 0.002 * k)]) for k in range(4)]
@@ -91,14 +96,21 @@ def test_a_start_outside_a_one_demo_route_fades_over_the_motion_not_at_the_donor
     offset = rep.positions[:, 1] + 0.3 * np.sin(np.pi * rep.positions[:, 0])
     fifth = offset.size // 5
     # Entered at the donors' pace, a fifth of the way in keeps about a tenth of the offset;
-    # by (E2') most of it.
-    assert offset[fifth] / offset[0] > 0.8
-    assert abs(offset[offset.size // 2]) < 0.6 * abs(offset[0])
+    # by (L2) most of it, and less than half half way (the translation fades linearly and its
+    # part along the path's later tangents is time, not space).
+    assert 0.6 < offset[fifth] / offset[0] < 0.9
+    assert 0.1 < offset[offset.size // 2] / offset[0] < 0.5
     assert np.all(np.diff(np.abs(offset)) <= 1e-12)
     assert rep.entry_index > 0.4 * lone.n_sections
     assert lone.contains(rep.positions[rep.entry_index:]).all()
     steps = np.linalg.norm(np.diff(rep.positions, axis=0), axis=1)
     assert steps.max() <= 1.05 * np.linalg.norm(np.diff(lone.directrix, axis=0), axis=1).max()
+    # A start inside stays inside, and a fixed entry asked for is the ratio rule's.
+    inner = lone.directrix[0] + 0.5 * (lone.radii[0] / 0.04) * (start - lone.directrix[0])
+    _, near = routes.reproduce_detailed(inner)
+    assert near.inside and lone.contains(near.positions).all()
+    _, fixed = routes.reproduce_detailed(start, entry=0.1)
+    assert fixed.entry_index < 0.15 * lone.n_sections
 
 
 def test_an_inside_start_is_unchanged_by_the_learned_entry() -> None:
