@@ -1,17 +1,16 @@
 """Reproducing from a canal of one demonstration: the start's offset as a fading translation.
 
-A canal of one demonstration has a borrowed width (a route shown once takes its sections
-from the nearest route, (L1) of :mod:`canal_core.routes`; a skill shown once has the width
-the fit gives a single path). Neither that width, nor its narrowing, nor the section frames
-turning with the one path say how a start off that path comes back to it: there is no spread
-to learn a persistence from (:func:`canal_core.reproduce.learned_persistence`) and no
-demonstrations converging to enter by ((E2) of :mod:`canal_core.entry`). Carried by the ratio
-rule, the start's offset turns with the frames and collapses at the donor's pace; the
-held-out demonstrations of a route shown once keep it instead as a shift in the world that
-fades over the motion, which is what DMP from one demonstration and ProMP conditioned on its
-start do too. So on such a canal the offset d = x_0 - c(s_0) of the start from the directrix
-is carried as that translation, fading linearly in arc length to 0 at the end, and placed on
-each later section plane by its in-plane part:
+A canal of one demonstration, a route shown once, has a borrowed width: it takes its
+sections from the nearest route ((L1) of :mod:`canal_core.routes`). Neither that width, nor
+its narrowing, nor the section frames turning with the one path say how a start off that
+path comes back to it: there is no spread to learn a persistence from
+(:func:`canal_core.reproduce.learned_persistence`) and no demonstrations converging to enter
+by ((E2) of :mod:`canal_core.entry`). Carried by the ratio rule, the start's offset turns
+with the frames and collapses at the donor's pace; the held-out demonstrations of a route
+shown once keep it instead as a shift in the world that fades over the motion, much as DMP
+started off its one demonstration does. So on such a canal the offset d = x_0 - c(s_0) of
+the start from the directrix is carried as that translation, fading linearly in arc length
+to 0 at the end, and placed on each later section plane by its in-plane part:
 
     v_k = (1 - (s_k - s_0) / (s_{N-1} - s_0)) B_k d,   p_k = c_k + B_k^T v_k            (L2)
 
