@@ -25,6 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .cross_sections import CrossSections, boundary_distance
+from .entry import inside_stays_inside
+from .tube import tube_ratio_caps
 from .validation import FloatArray
 
 
@@ -55,3 +58,55 @@ def lone_offsets(
     left = max(float(arclength[-1]) - start_arclength, 1e-300) if arclength.size else 1e-300
     kept = np.clip(1.0 - (arclength - start_arclength) / left, 0.0, 1.0)
     return np.asarray(kept[:, None] * np.einsum("kad,d->ka", basis, start_offset), dtype=np.float64)
+
+
+def lone_path(
+    start_offset: FloatArray,
+    start_arclength: float,
+    eta: float,
+    direction: FloatArray,
+    centres: FloatArray,
+    basis: FloatArray,
+    arclength: FloatArray,
+    curvature: FloatArray,
+    sections: CrossSections,
+    first: int,
+) -> tuple[FloatArray, FloatArray]:
+    """The (L2) path on the remaining sections first .. N - 1 and its ratios.
+
+    The ratios are capped by the tube condition (F1) and kept inside by (E3): from the first
+    section inside on for a start outside, everywhere for a start inside.
+
+    Parameters
+    ----------
+    start_offset : array, shape (D,)
+        d = x_0 - c(s_0).
+    start_arclength : float
+        s_0.
+    eta : float
+        The start's ratio (above 1: outside).
+    direction : array, shape (D - 1,)
+        The start's in-plane direction, used where the offset has faded to nothing.
+    centres, basis, arclength, curvature : arrays, shapes (K, D), (K, D - 1, D), (K,), (K, D - 1)
+        The directrix, the in-plane bases, the arc length and the in-plane curvature of
+        sections first .. N - 1.
+    sections : CrossSections
+        All the canal's sections.
+    first : int
+        Index of the first remaining section.
+
+    Returns
+    -------
+    path : array, shape (K, D)
+    ratios : array, shape (K,)
+    """
+    offsets = lone_offsets(start_offset, basis, arclength, start_arclength)
+    length = np.linalg.norm(offsets, axis=1)
+    # Where the offset has faded to nothing its direction does not matter: the start's is taken.
+    directions = np.where(length[:, None] > 0.0, offsets / np.maximum(length, 1e-300)[:, None], direction)
+    reach = boundary_distance(sections, np.arange(first, first + length.size), directions)
+    ratios = np.divide(length, reach, out=np.zeros_like(length), where=reach > 0.0)
+    ratios = np.minimum(ratios, tube_ratio_caps(reach, directions, curvature))  # (F1)
+    ratios = inside_stays_inside(ratios) if eta > 1.0 else np.minimum(ratios, 1.0)  # (E3)
+    kept = (ratios * reach)[:, None] * directions
+    return np.asarray(centres + np.einsum("ka,kad->kd", kept, basis), dtype=np.float64), ratios

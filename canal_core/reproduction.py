@@ -10,10 +10,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .cross_sections import boundary_distance
-from .entry import approach_shares, entry_fraction, inside_stays_inside
+from .entry import approach_shares, entry_fraction
 from .errors import OutsideCanalError
-from .lone import lone_offsets
+from .lone import lone_path
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
 from .options import OUTSIDE_RULES
 from .orientation import hemisphere_continuous, slerped
@@ -121,27 +120,6 @@ class Reproduction:
         """The ratio rule's points, one per section from ``section_index + 1`` on, shape (K, D):
         ``positions`` without the start and its approach."""
         return self.positions[1 + self.approach :]
-
-
-def lone_path(
-    canal: Canal, point: FloatArray, index: int, first: int, alpha: float, start_arclength: float,
-    direction: FloatArray, eta: float,
-) -> tuple[FloatArray, FloatArray]:
-    """(L2) on a canal of one demonstration: the path on sections first .. N-1, shape (K, D),
-    and its ratios (K,), capped by (F1) and kept inside by (E3) (inside from the start on
-    when the start is inside)."""
-    centre = (1.0 - alpha) * canal.directrix[index] + alpha * canal.directrix[first]
-    basis = canal.basis[first:]
-    offsets = lone_offsets(point - centre, basis, canal.arclength[first:], start_arclength)
-    length = np.linalg.norm(offsets, axis=1)
-    # Where the offset has faded to nothing, its direction is the start's (any would do).
-    directions = np.where(length[:, None] > 0.0, offsets / np.maximum(length, 1e-300)[:, None], direction)
-    reach = boundary_distance(canal.sections, np.arange(first, canal.n_sections), directions)
-    ratios = np.divide(length, reach, out=np.zeros_like(length), where=reach > 0.0)
-    ratios = np.minimum(ratios, tube_ratio_caps(reach, directions, canal.curvature[first:]))  # (F1)
-    ratios = inside_stays_inside(ratios) if eta > 1.0 else np.minimum(ratios, 1.0)  # (E3)
-    kept = (ratios * reach)[:, None] * directions
-    return canal.directrix[first:] + np.einsum("ka,kad->kd", kept, basis), ratios
 
 
 def reproduce(
@@ -259,7 +237,9 @@ def reproduce(
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
     caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
     if lone:
-        path, ratios = lone_path(canal, point, index, first, alpha, s0, u, eta)
+        centre = (1.0 - alpha) * canal.directrix[index] + alpha * canal.directrix[first]
+        path, ratios = lone_path(point - centre, s0, eta, u, canal.directrix[first:], canal.basis[first:],
+                                 canal.arclength[first:], canal.curvature[first:], canal.sections, first)
     else:
         ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
         path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections,
