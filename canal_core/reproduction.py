@@ -169,7 +169,7 @@ def reproduce(
     end_decay : float
         Fraction of the canal's length over which the offset fades onto the directrix's end
         (``entry=0, end_decay=0`` with ``persistence="constant"``: the paper's constant,
-        clamped ratio).
+        clamped ratio). Not used by (L2), whose offset fades over all that is left.
     persistence : {"learned", "constant", "learned+end"}
         How much of the start's ratio is kept along the canal before the end decay:
         what the demonstrations themselves kept of their start offsets, section by
@@ -235,12 +235,12 @@ def reproduce(
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
-    caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
     if lone:
         centre = (1.0 - alpha) * canal.directrix[index] + alpha * canal.directrix[first]
         path, ratios = lone_path(point - centre, s0, eta, u, canal.directrix[first:], canal.basis[first:],
                                  canal.arclength[first:], canal.curvature[first:], canal.sections, first)
     else:
+        caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
         ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
         path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections,
                                     reach[first - index :])
