@@ -53,10 +53,12 @@ def lone_offsets(
     Returns
     -------
     offsets : array, shape (K, D - 1)
-        In-plane coordinates; 0 on the last section.
+        In-plane coordinates; 0 on the last section, whatever s_0.
     """
     left = max(float(arclength[-1]) - start_arclength, 1e-300) if arclength.size else 1e-300
     kept = np.clip(1.0 - (arclength - start_arclength) / left, 0.0, 1.0)
+    # The end is reached, also from a start on or beyond the last plane (nothing left to fade over).
+    kept[-1:] = 0.0
     return np.asarray(kept[:, None] * np.einsum("kad,d->ka", basis, start_offset), dtype=np.float64)
 
 

@@ -113,6 +113,19 @@ def test_a_start_off_a_one_demo_route_fades_over_the_motion_not_at_the_donors_pa
     assert fixed.entry_index < 0.15 * lone.n_sections
 
 
+def test_a_start_beyond_the_end_of_a_one_demo_route_ends_on_its_end() -> None:
+    s = np.linspace(0.0, 1.0, 150)
+    over = [np.column_stack([s, 0.3 * np.sin(np.pi * s) + 0.01 * k, np.full_like(s, 0.002 * k)]) for k in range(3)]
+    under = [np.column_stack([s, -0.3 * np.sin(np.pi * s), np.zeros_like(s)])]
+    routes = canal_core.routes.fit_routes(over + under, n_samples=100)
+    lone = next(c for c in routes.every_canal if c.n_demos == 1)
+    choice, rep = routes.reproduce_detailed(np.array([1.2, -0.1, 0.0]))
+    assert routes.canal_for(choice) is lone
+    np.testing.assert_allclose(rep.positions[-1], lone.directrix[-1], atol=1e-12)
+    np.testing.assert_allclose(lone_offsets(np.array([0.2, -0.1, 0.0]), lone.basis[-1:], lone.arclength[-1:],
+                                            float(lone.arclength[-1])), 0.0)
+
+
 def test_an_inside_start_is_unchanged_by_the_learned_entry() -> None:
     canal = canal_core.fit(converging_demos(), n_samples=100)
     start = np.array([0.0, 0.05, 0.0])
