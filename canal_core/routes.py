@@ -19,7 +19,9 @@ demonstration with the envelope of the route nearest to it (average distance), s
 length (:func:`canal_core.fit.fit_lone`, L1). A canal of the lone demonstration joined to its
 nearest route would go between the two ways, where neither went (LASA ``Multi_Models_1``
 held out leave-one-out: a route of two demonstrations leaves one alone in every fold that
-holds the other out). Only when no route has two demonstrations to lend its envelope do lone
+holds the other out). A route whose demonstrations are all the same path (one file uploaded
+twice) shows its way once too: it is fitted as the first of them, with a borrowed envelope.
+Only when no route has two demonstrations to lend its envelope do lone
 demonstrations join the route nearest to them. ``routes=1`` forces one route (one canal).
 
 Route numbers follow the order in which the demonstrations first appear. A correction kept over
@@ -47,12 +49,15 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InvalidInputError, ModelFormatError
+from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError
 from .options import DEFAULT_ROUTE_SEPARATION
-from .validation import FloatArray, IntArray, check_int, check_point
+from .validation import BoolArray, FloatArray, IntArray, check_int, check_point
 
 #: Points per demonstration in the route distance (R1).
 ROUTE_SAMPLES = 50
+#: Demonstrations closer than this by (R1) (a share of the median path length) are the same
+#: path: a route of nothing else shows its way once.
+IDENTICAL = 1e-9
 #: Routes are split where their demonstrations are on average this share of the median path
 #: length apart (average linkage of R1); the fit option's default.
 ROUTE_SEPARATION = DEFAULT_ROUTE_SEPARATION
@@ -171,11 +176,22 @@ def _nearest_route(j: int, among: Any, labels: IntArray, dist: FloatArray) -> in
     return int(min(among, key=lambda k: float(dist[j, labels == k].mean())))
 
 
+def shown_once(labels: IntArray, dist: FloatArray) -> BoolArray:
+    """Per route (R,): True when it shows its way once: one demonstration, or several that
+    are the same path (all within :data:`IDENTICAL` of each other by (R1))."""
+    once = np.ones(int(labels.max(initial=-1)) + 1, dtype=bool)
+    for k in range(once.size):
+        members = np.flatnonzero(labels == k)
+        once[k] = bool(np.all(dist[np.ix_(members, members)] <= IDENTICAL))
+    return once
+
+
 def _lone_routes(labels: IntArray, dist: FloatArray) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """The demonstrations alone in their route, and the route of two or more nearest each."""
-    counts = np.bincount(labels)
-    shared = np.flatnonzero(counts >= 2)
-    lone = tuple(int(j) for j in np.flatnonzero(counts[labels] == 1))
+    """The first demonstration of each route that shows its way once, and the route of two
+    or more different demonstrations nearest each."""
+    once = shown_once(labels, dist)
+    shared = np.flatnonzero(~once)
+    lone = tuple(int(np.flatnonzero(labels == k)[0]) for k in np.flatnonzero(once))
     if not lone or shared.size == 0:
         return (), ()
     return lone, tuple(_nearest_route(j, shared, labels, dist) for j in lone)
@@ -187,16 +203,19 @@ def _donor_routes(labels: IntArray, lone: tuple[int, ...], donors: tuple[int, ..
 
 
 def route_donors(demos: list[FloatArray], labels: IntArray) -> dict[int, int]:
-    """For each route of one demonstration, the route (of two or more) that lends it its
-    envelope: the nearest by (R1), as :func:`route_split` chooses. Raises
-    :class:`InvalidInputError` when a route has one demonstration and none has two."""
-    counts = np.bincount(labels)
-    if not np.any(counts == 1):
+    """For each route that shows its way once (:func:`shown_once`), the route of two or more
+    different demonstrations that lends it its envelope: the nearest by (R1), as
+    :func:`route_split` chooses. Raises :class:`InvalidInputError` when no route has two
+    different demonstrations."""
+    dist = route_distances(demos)
+    once = shown_once(labels, dist)
+    if not np.any(once):
         return {}
-    if not np.any(counts >= 2):
-        raise InvalidInputError(f"expected a route of at least 2 demonstrations to lend its envelope to "
-                                f"the routes of one, got route sizes {counts.tolist()}", field="labels")
-    return _donor_routes(labels, *_lone_routes(labels, route_distances(demos)))
+    if np.all(once):
+        raise InvalidInputError(f"expected a route of at least 2 different demonstrations to lend its "
+                                f"envelope to the routes of one, got route sizes "
+                                f"{np.bincount(labels).tolist()}", field="labels")
+    return _donor_routes(labels, *_lone_routes(labels, dist))
 
 
 @dataclass(frozen=True, eq=False)
@@ -394,8 +413,18 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
                                  still_tolerance=options.get("still_tolerance", STILL_TOLERANCE))
             continue
         member_stamps = [stamps[j] for j in members]
-        canals[k] = fit([demos[j] for j in members],
-                        None if all(s is None for s in member_stamps) else member_stamps,
-                        orientations=None if quats is None else [quats[j] for j in members],
-                        **options)
+        try:
+            canals[k] = fit([demos[j] for j in members],
+                            None if all(s is None for s in member_stamps) else member_stamps,
+                            orientations=None if quats is None else [quats[j] for j in members],
+                            **options)
+        except DegenerateCanalError as exc:
+            if not np.all(route_distances([arrays[j] for j in members]) <= IDENTICAL):
+                raise
+            # Every route repeats one path: none has a width of its own to lend.
+            raise DegenerateCanalError(
+                f"expected a route of at least 2 different demonstrations, got demonstrations "
+                f"{members.tolist()} of route {k} identical and no route with two different ones "
+                f"to lend it a width ({exc.message}); delete the repeats or fit one route",
+                field="demos") from exc
     return Routes(tuple(canals), pooled, labels)

@@ -507,11 +507,18 @@ class CanalService:
                  f"demonstrations to lend it a width, so it joined route {int(labels[j])} (and "
                  "widens it): show that way once more to learn it as a route, or delete it"
                  for j in split.joined]
-        notes += [f"demonstration {demo_ids[j]} goes a way of its own alone: it is route "
-                  f"{int(labels[j])}, with the width of route {donor} in proportion to its "
-                  "length (one demonstration shows a way, not how far it strays): show that way "
-                  "once more to learn its own width, or delete it if it was a slip"
-                  for j, donor in zip(split.lone, split.donors, strict=True)]
+        for j, donor in zip(split.lone, split.donors, strict=True):
+            same = [demo_ids[i] for i in np.flatnonzero(labels == labels[j])]
+            if len(same) > 1:
+                notes.append(f"demonstrations {', '.join(map(str, same[:-1]))} and {same[-1]} are "
+                             f"identical: route {int(labels[j])} shows its way once, with the width "
+                             f"of route {donor} in proportion to its length; show that way again "
+                             "(not the same file) to learn its own width, or delete the repeats")
+                continue
+            notes.append(f"demonstration {demo_ids[j]} goes a way of its own alone: it is route "
+                         f"{int(labels[j])}, with the width of route {donor} in proportion to its "
+                         "length (one demonstration shows a way, not how far it strays): show that way "
+                         "once more to learn its own width, or delete it if it was a slip")
         return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
     def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],

@@ -153,6 +153,25 @@ def test_lone_demonstrations_join_the_nearest_route_when_no_route_has_two() -> N
         canal_core.fit_routes(ways[:2], labels=[0, 1], n_samples=40)
 
 
+def test_a_way_uploaded_twice_is_a_way_shown_once_not_a_degenerate_fit() -> None:
+    from canal_core.routes import route_split
+
+    s = np.linspace(0.0, 1.0, 120)
+    over = np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)])
+    demos = two_route_demos()
+    # The same file twice: a route of two identical demonstrations has no width of its own.
+    split = route_split([*demos, over, over.copy()])
+    assert split.labels.tolist() == [0] * 4 + [1] * 4 + [2, 2]
+    assert split.lone == (8,) and split.donors in ((0,), (1,))
+    routes = canal_core.fit_routes([*demos, over, over.copy()], n_samples=60)
+    assert routes.canals[2].n_demos == 1 and routes.contains(over).all()
+    choice, result = routes.reproduce_detailed(over[0] + np.array([0.0, 0.01, 0.0]))
+    assert choice.route == 2 and np.allclose(result.positions[-1], over[-1], atol=1e-6)
+    # Every route a repeated demonstration: no route has a width to lend; the error says so.
+    with pytest.raises(canal_core.DegenerateCanalError, match="identical"):
+        canal_core.fit_routes([demos[0], demos[0], demos[4], demos[4]], n_samples=40)
+
+
 def test_fit_lone_refuses_a_demonstration_of_another_dimension() -> None:
     from canal_core.fit import fit_lone
 

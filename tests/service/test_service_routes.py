@@ -250,3 +250,16 @@ def test_a_demonstration_that_goes_its_own_way_alone_is_a_route_named_in_the_fit
     assert [c["n_demos"] for c in model["route_canals"]] == [4, 4, 1]
     plain = http.post("/skills/reach/fit", json={"n_samples": 60, "demo_ids": list(range(1, 9))})
     assert plain.status_code == 201 and plain.json()["notes"] == []
+
+
+def test_a_way_uploaded_twice_fits_as_a_way_shown_once_and_the_notes_say_so(http: httpx.Client) -> None:
+    add_two_route_demos(http)
+    s = np.linspace(0.0, 1.0, 120)
+    over = np.column_stack([s, 0.1 * (1 - s), 0.5 * np.sin(np.pi * s)])
+    twice = [http.post("/skills/reach/demonstrations", json={"positions": over.tolist()}).json()["id"]
+             for _ in range(2)]
+    r = http.post("/skills/reach/fit", json={"n_samples": 60})
+    assert r.status_code == 201, r.text
+    assert r.json()["routes"] == 3 and r.json()["demo_routes"][-2:] == [2, 2]
+    (note,) = [n for n in r.json()["notes"] if "identical" in n]
+    assert f"demonstrations {twice[0]} and {twice[1]} are identical" in note and "route 2" in note
