@@ -122,6 +122,42 @@ class Reproduction:
         return self.positions[1 + self.approach :]
 
 
+def ratio_rule_path(
+    canal: Canal, index: int, first: int, alpha: float, start_arclength: float, direction: FloatArray,
+    eta: float, entry: float | None, end_decay: float, persistence: str, has_goal: bool,
+) -> tuple[FloatArray, FloatArray]:
+    """The ratio rule's path on sections first .. N - 1, shape (K, D), and its ratios (K,):
+    the learned persistence, the entry (E1)-(E3) and the tube caps (F1) on the schedule of
+    :func:`canal_core.reproduce.path_ratios` (the arguments as :func:`reproduce` has them)."""
+    s0, u = start_arclength, direction
+    reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
+    share: FloatArray | None = None
+    if persistence in ("learned", "learned+end"):
+        # "learned+end", for a start inside: the end decay is the prior the demonstrations'
+        # own persistence is shrunk towards, not a second fade on top of it: where they kept
+        # their offsets to the end (goals that follow the start), the reproduction keeps its
+        # offset too. A start outside keeps both (the end decay is what brings it in by
+        # mid-motion when the demonstrations' offsets barely fade), and so does a goal asked
+        # for (it is reached exactly).
+        to_end = persistence == "learned+end" and eta <= 1.0 and not has_goal
+        prior = end_faded(canal.arclength[index + 1:], s0, end_decay) if to_end else 1.0
+        kept = learned_persistence(
+            canal.section_points[index:], reach, u, alpha, prior=prior, weight=PERSISTENCE_PRIOR_WEIGHT
+        )
+        if kept is not None:
+            # At most the start's own ratio: an inside start stays inside by construction.
+            share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
+            if to_end:
+                end_decay = 0.0
+    if entry is None:
+        entry = entry_fraction(canal.arclength[first:], s0, share,
+                               np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
+    caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
+    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
+    path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
+    return path, ratios
+
+
 def reproduce(
     canal: Canal,
     start: Any,
@@ -211,39 +247,14 @@ def reproduce(
     first = min(index + 1, canal.n_sections - 1)
     s0 = float(canal.arclength[index] + alpha * (canal.arclength[first] - canal.arclength[index]))
     u = loc.direction[0]
-    reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
-    share: FloatArray | None = None
-    if persistence in ("learned", "learned+end"):
-        # "learned+end", for a start inside: the end decay is the prior the demonstrations'
-        # own persistence is shrunk towards, not a second fade on top of it: where they kept
-        # their offsets to the end (goals that follow the start), the reproduction keeps its
-        # offset too. A start outside keeps both (the end decay is what brings it in by
-        # mid-motion when the demonstrations' offsets barely fade), and so does a goal asked
-        # for (it is reached exactly).
-        to_end = persistence == "learned+end" and eta <= 1.0 and target is None
-        prior = end_faded(canal.arclength[index + 1:], s0, end_decay) if to_end else 1.0
-        kept = learned_persistence(
-            canal.section_points[index:], reach, u, alpha, prior=prior, weight=PERSISTENCE_PRIOR_WEIGHT
-        )
-        if kept is not None:
-            # At most the start's own ratio: an inside start stays inside by construction.
-            share = np.clip(kept[first - index - 1 :], 0.0, 1.0)
-            if to_end:
-                end_decay = 0.0
     # (L2): one demonstration shows no spread to learn a persistence or an entry from.
-    lone = entry is None and canal.n_demos == 1 and persistence != "constant"
-    if entry is None:
-        entry = entry_fraction(canal.arclength[first:], s0, share,
-                               np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
-    if lone:
+    if entry is None and canal.n_demos == 1 and persistence != "constant":
         centre = (1.0 - alpha) * canal.directrix[index] + alpha * canal.directrix[first]
         path, ratios = lone_path(point - centre, s0, eta, u, canal.directrix[first:], canal.basis[first:],
                                  canal.arclength[first:], canal.curvature[first:], canal.sections, first)
     else:
-        caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
-        ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
-        path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections,
-                                    reach[first - index :])
+        path, ratios = ratio_rule_path(canal, index, first, alpha, s0, u, eta, entry, end_decay, persistence,
+                                       target is not None)
     positions = np.vstack([point, path])
     blocked, detoured, start_clearance = None, None, None
     if scene is not None:
