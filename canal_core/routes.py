@@ -176,13 +176,19 @@ def _nearest_route(j: int, among: Any, labels: IntArray, dist: FloatArray) -> in
     return int(min(among, key=lambda k: float(dist[j, labels == k].mean())))
 
 
+def same_path(dist: FloatArray) -> bool:
+    """Whether demonstrations with these (R1) distances (M, M) are all one path: every pair
+    within :data:`IDENTICAL` (one demonstration is one path)."""
+    return bool(np.all(dist <= IDENTICAL))
+
+
 def shown_once(labels: IntArray, dist: FloatArray) -> BoolArray:
     """Per route (R,): True when it shows its way once: one demonstration, or several that
-    are the same path (all within :data:`IDENTICAL` of each other by (R1))."""
+    are the same path (:func:`same_path`)."""
     once = np.ones(int(labels.max(initial=-1)) + 1, dtype=bool)
     for k in range(once.size):
         members = np.flatnonzero(labels == k)
-        once[k] = bool(np.all(dist[np.ix_(members, members)] <= IDENTICAL))
+        once[k] = same_path(dist[np.ix_(members, members)])
     return once
 
 
@@ -419,7 +425,7 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
                             orientations=None if quats is None else [quats[j] for j in members],
                             **options)
         except DegenerateCanalError as exc:
-            if not np.all(route_distances([arrays[j] for j in members]) <= IDENTICAL):
+            if not same_path(route_distances([arrays[j] for j in members])):
                 raise
             # Every route repeats one path: none has a width of its own to lend.
             raise DegenerateCanalError(
