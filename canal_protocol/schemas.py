@@ -44,7 +44,10 @@ T = TypeVar("T")
 
 class _In(BaseModel):
     # Unknown keys are usually typos ("position"); say so instead of ignoring them.
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    # Strict: a JSON value of another type is refused, not coerced. `true` is not route 1,
+    # model version 1 or a 1.0 coordinate, and "no" is not false (an integer still counts
+    # as a number).
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class ErrorDetail(BaseModel):
@@ -476,8 +479,8 @@ class BlockedOut(BaseModel):
 class ReproductionRequest(_In):
     """Reproduce from one ``start`` or from a batch of ``starts`` (exactly one of the two)."""
 
-    start: list[float] | None = Field(None, min_length=2, max_length=3, examples=[[0.0, 0.0, 0.0]])
-    starts: list[list[float]] | None = Field(None, min_length=1, max_length=MAX_BATCH_STARTS)
+    start: list[Coordinate] | None = Field(None, min_length=2, max_length=3, examples=[[0.0, 0.0, 0.0]])
+    starts: list[list[Coordinate]] | None = Field(None, min_length=1, max_length=MAX_BATCH_STARTS)
     model: Literal["latest"] | Id = Field(
         "latest", description="'latest' or a model version number."
     )
@@ -486,7 +489,7 @@ class ReproductionRequest(_In):
         description="A start outside the canal enters it over a short blend (200, inside=false, "
         "projected=true), or is refused with 422 when 'raise'.",
     )
-    goal: list[float] | None = Field(
+    goal: list[Coordinate] | None = Field(
         None, min_length=2, max_length=3,
         description="End the reproduction here: the canal is smoothly deformed so its end moves "
         "to the goal (the start region is untouched).",
@@ -496,7 +499,7 @@ class ReproductionRequest(_In):
         description="Seconds: the times are stretched to end there (evenly paced along the path "
         "when the model has no time stamps).",
     )
-    start_orientation: list[float] | None = Field(
+    start_orientation: list[Coordinate] | None = Field(
         None, min_length=4, max_length=4, examples=[[0.0, 0.0, 0.0, 1.0]],
         description="Unit quaternion qx, qy, qz, qw of the start pose (used for every start of "
                     "a batch). Its offset from the canal's mean orientation is carried along; "

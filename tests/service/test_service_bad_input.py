@@ -211,6 +211,14 @@ def test_fit_with_fewer_than_two_demos(client: TestClient, skill: str) -> None:
     ("n_samples huge", {"n_samples": 10**9}, "n_samples"),
     ("unknown demo id", {"demo_ids": [1, 999]}, "demo_ids"),
     ("unknown option", {"smoothing": 3}, "smoothing"),
+    # A JSON type other than the field's is refused, not coerced: true is not 1 route,
+    # "no" is not false, "100" is not a number of sections.
+    ("true as a number of routes", {"routes": True}, "routes"),
+    ('"100" (a string) as n_samples', {"n_samples": "100"}, "n_samples"),
+    ('"no" (a string) as keep_corrections', {"keep_corrections": "no"}, "keep_corrections"),
+    ("0 as orientation", {"orientation": 0}, "orientation"),
+    ("true as route_separation", {"route_separation": True}, "route_separation"),
+    ("true as a demo id", {"demo_ids": [1, True]}, "demo_ids[1]"),
 ])
 def test_bad_fit_request(client: TestClient, fitted: str, tried: str, body: dict[str, Any],
                          field: str) -> None:
@@ -261,6 +269,22 @@ def test_reproduce_before_any_fit(client: TestClient, skill: str) -> None:
     ("negative duration", {"start": [0, 0, 0], "duration": -2.0}, 422, "duration"),
     ("start orientation of 3 numbers", {"start": [0, 0, 0], "start_orientation": [0, 0, 1]}, 422,
      "start_orientation"),
+    # A JSON type other than the field's is refused, not coerced: a robot must not start from
+    # [1, 0, 0] because a client sent true, nor follow version 1 or route 0 by a boolean.
+    ("true as a start coordinate", {"start": [True, 0, 0]}, 422, "start[0]"),
+    ('"0.5" (a string) as a start coordinate', {"start": [0, "0.5", 0]}, 422, "start[1]"),
+    ("false in a batch start", {"starts": [[0, 0, 0], [0, 0, False]]}, 422, "starts[1][2]"),
+    ("true as a goal coordinate", {"start": [0, 0, 0], "goal": [True, 0, 0]}, 422, "goal[0]"),
+    ("true as a model version", {"start": [0, 0, 0], "model": True}, 422, "model"),
+    ('"1" (a string) as a model version', {"start": [0, 0, 0], "model": "1"}, 422, "model"),
+    ("true as a duration", {"start": [0, 0, 0], "duration": True}, 422, "duration"),
+    ('"2" (a string) as a duration', {"start": [0, 0, 0], "duration": "2"}, 422, "duration"),
+    ("false as a route", {"start": [0, 0, 0], "route": False}, 422, "route"),
+    ("true as a start orientation component",
+     {"start": [0, 0, 0], "start_orientation": [0, 0, 0, True]}, 422, "start_orientation[3]"),
+    ("true as an obstacle's clearance",
+     {"start": [0, 0, 0], "obstacles": [{"kind": "sphere", "center": [5, 5, 5], "radius": 0.1,
+                                         "clearance": True}]}, 422, "obstacles[0].clearance"),
 ])
 def test_bad_reproduction_request(client: TestClient, fitted: str, tried: str, body: Any,
                                   status: int, field: str) -> None:

@@ -127,6 +127,9 @@ def test_a_correction_of_an_older_version_becomes_the_latest(http: httpx.Client)
         ({"kind": "sideways"}, "kind"),
         ({"weight": 0}, "weight"),
         ({"model": 7}, "model"),
+        ({"model": True}, "model"),  # not version 1
+        ({"weight": True}, "weight"),  # not 1.0
+        ({"route": False}, "route"),  # not route 0
     ],
 )
 def test_bad_corrections_are_refused_naming_the_field_and_store_nothing(

@@ -97,6 +97,8 @@ def test_a_wall_across_the_canal_blocks_with_its_section(http: httpx.Client) -> 
         ({"kind": "cube", "center": [0.5, 0, 0], "radius": 0.1}, "obstacles[0].kind"),
         ({"kind": "box", "center": [0.5, 0, 0]}, "obstacles[0].half_extents"),
         ({"kind": "sphere", "center": [0.5, 0, 0], "radius": 0.1, "clearance": -1}, "obstacles[0].clearance"),
+        ({"kind": "sphere", "center": [0.5, 0, 0], "radius": 0.1, "clearance": True}, "obstacles[0].clearance"),
+        ({"kind": "sphere", "center": [0.5, 0, 0], "radius": True}, "obstacles[0].radius"),
     ],
 )
 def test_a_malformed_obstacle_is_refused_naming_it_and_nothing_is_stored(
