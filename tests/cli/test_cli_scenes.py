@@ -69,3 +69,27 @@ def test_scene_commands_and_reproduce_with_an_obstacle(run: Callable[..., Result
     assert r.exit_code == 1 and "obstacles[0].radius" in r.output
     with CanalClient(service.url) as c:
         assert c.get_scene(name).version == 2  # the refused one stored nothing
+
+
+def test_scene_set_with_nothing_to_set_is_a_usage_error_and_keeps_the_scene(
+        run: Callable[..., Result], service: LiveService, tmp_path: Path,
+        unique_name: Callable[[str], str]) -> None:
+    # `canal scene set SKILL` with the file forgotten used to replace the scene with an empty
+    # one: every obstacle gone without a word. Removing them all is `scene clear`.
+    name = unique_name("scene-keep")
+    with CanalClient(service.url) as c:
+        c.create_skill(name)
+        c.set_scene(name, [{"kind": "sphere", "center": [0.5, 0.0, 0.0], "radius": 0.05}])
+    r = run("scene", "set", name)
+    assert r.exit_code == 2, r.output
+    assert "scene clear" in r.output and "--obstacle" in r.output
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps({"obstacles": []}))
+    with CanalClient(service.url) as c:
+        scene = c.get_scene(name)
+        assert scene.version == 1 and len(scene.obstacles) == 1
+    # An empty scene file says so on purpose: it is kept as the explicit way too.
+    r = run("scene", "set", name, str(empty))
+    assert r.exit_code == 0, r.output
+    with CanalClient(service.url) as c:
+        assert c.get_scene(name).obstacles == []

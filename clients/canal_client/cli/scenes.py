@@ -50,6 +50,10 @@ def scene_set(
 ) -> None:
     """Replace the skill's scene: every later reproduction, and every live stream from its
     next pose, goes around these obstacles."""
+    if scene is None and not obstacle:
+        # A forgotten file must not remove every obstacle without a word.
+        raise typer.BadParameter("expected a scene file or --obstacle; to remove every obstacle: "
+                                 "canal scene clear SKILL", param_hint="SCENE")
     items = read_scene_file(scene) if scene is not None else []
     items += [parse_obstacle(o) for o in obstacle or []]
     with connected(ctx) as c:
