@@ -170,6 +170,35 @@ def test_time_unit_for_json_and_where_it_does_not_apply(client: TestClient, skil
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 1
 
 
+
+@pytest.mark.parametrize(("name", "scale"), [
+    ("timestamp_ms", 1e3), ("time_ms", 1e3), ("t_us", 1e6), ("stamp_ns", 1e9), ("time_s", 1.0),
+    ("time [ms]", 1e3), ("time (ms)", 1e3), ("Time[ms]", 1e3), ("time_usec", 1e6),
+    ("timestamp_sec", 1.0)])
+def test_a_time_column_that_names_its_unit_is_read_in_that_unit(client: TestClient, skill: str,
+                                                                 name: str, scale: float) -> None:
+    # A logger's "timestamp_ms" column used to be dropped without a word: the demonstration
+    # was stored untimed although its file said when every sample was taken.
+    p = demo_positions(1, n=12)
+    t = np.arange(12) * 0.1
+    lines = [f"{name},x,y,z"] + [",".join(repr(float(v)) for v in (tt * scale, *row))
+                                 for tt, row in zip(t, p, strict=True)]
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    files={"file": ("log.csv", "\n".join(lines).encode(), "text/csv")})
+    assert r.status_code == 201, r.text
+    back = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+    assert back["timestamps"] is not None, name
+    np.testing.assert_allclose(back["timestamps"], t, atol=1e-9)
+    np.testing.assert_array_equal(back["positions"], p)
+
+
+def test_a_time_column_with_a_unit_and_another_time_column_is_refused(client: TestClient,
+                                                                      skill: str) -> None:
+    body = b"t,time_ms,x,y,z\n0,0,0,0,0\n1,1000,1,0,0\n2,2000,2,1,0\n3,3000,3,1,1\n"
+    error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("log.csv", body)}))
+    assert error["field"] == "file:header" and "t, time_ms" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
+
 def _rostopic_csv(times_s: np.ndarray, positions: np.ndarray, quats: np.ndarray) -> bytes:
     """What `rostopic echo -p /ee_pose > run.csv` writes for a PoseStamped topic."""
     stamp = 1_733_000_000_000_000_000 + np.round(times_s * 1e9).astype(np.int64)

@@ -10,11 +10,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BadUpload, InvalidInput
-from ..validation import FloatArray
+from ..validation import TIME_UNITS, FloatArray
 from .common import Budget, ParsedUpload, UploadLimits, split_time
 
 #: Time columns in seconds (``__time``: PlotJuggler's CSV export)
 _TIME_NAMES = ("t", "time", "timestamp", "stamp", "__time")
+#: The same names with the unit they are in (a key of ``TIME_UNITS``), as loggers write it:
+#: ``timestamp_ms``, ``time [ms]``, ``time(ms)``, ``time_usec`` (MAVLink)
+_UNIT_SPELLINGS = {**{unit: unit for unit in TIME_UNITS},
+                   "sec": "s", "msec": "ms", "usec": "us", "nsec": "ns"}
+_TIME_NAMES_WITH_UNIT = {
+    f"{name}{sep}{spelling}{close}": unit
+    for name in _TIME_NAMES for spelling, unit in _UNIT_SPELLINGS.items()
+    for sep, close in (("_", ""), (" [", "]"), ("[", "]"), (" (", ")"), ("(", ")"))
+}
 
 
 def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUpload:
@@ -229,13 +238,13 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
                                field="file:header")
     if dim == 2 and found["z"]:
         raise InvalidInput("CSV has a z column but the skill is 2-D", field="file:header")
-    times_named = [n for n in _TIME_NAMES if n in header]
+    times_named = [n for n in header if n in _TIME_NAMES or n in _TIME_NAMES_WITH_UNIT]
     if len(times_named) > 1:
         raise InvalidInput(f"CSV header has several time columns ({', '.join(times_named)}); "
                            "expected one", field="file:header")
     time_col, unit = None, None
     if times_named:
-        time_col = header.index(times_named[0])
+        time_col, unit = header.index(times_named[0]), _TIME_NAMES_WITH_UNIT.get(times_named[0])
     else:
         ns = [n for n in _TIME_NAMES_NS if n in header]
         if ns:
