@@ -259,10 +259,18 @@ def _none(_resp: httpx.Response) -> None:
     return None
 
 
+def _numpy_scalar(value: Any) -> Any:
+    # Indices and options computed with numpy (np.int64 from argmin, np.float32) are plain
+    # JSON numbers; a numpy boolean stays a boolean, which the service refuses for a number.
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def _json_body(obj: Any) -> bytes:
     # NaN/inf are sent as written so the service reports them with their field (httpx's own
     # encoder refuses them before anything is sent).
-    return json.dumps(obj, allow_nan=True, separators=(",", ":")).encode()
+    return json.dumps(obj, allow_nan=True, separators=(",", ":"), default=_numpy_scalar).encode()
 
 
 def _body(model: type[BaseModel], fields: dict[str, Any]) -> bytes:

@@ -11,7 +11,7 @@ import canal_client
 import canal_client.rest
 import numpy as np
 import pytest
-from canal_client import AsyncCanalClient, CanalClient, Reproduction
+from canal_client import AsyncCanalClient, CanalClient, InvalidInputError, Reproduction
 from canal_live import RRD_MAGIC, LiveService, demo_positions, write_demo_files
 from mcap.reader import make_reader
 
@@ -214,3 +214,18 @@ def test_reproduction_with_goal_duration_and_timing(client: CanalClient,
     assert all(m.times is not None and abs(m.times[-1] - 1.0) < 1e-9 for m in many)
     noted = client.reproduce(name, start, start_orientation=[0.0, 0.0, 0.0, 1.0])
     assert any("orientation" in n for n in noted.notes) or noted.orientations is not None
+
+
+def test_numpy_numbers_are_sent_as_json_numbers(client: CanalClient, fitted: str) -> None:
+    # Options and indices computed with numpy (np.int64 from argmin, a shape) used to fail in
+    # json.dumps with "Object of type int64 is not JSON serializable", before any request.
+    model = client.fit(fitted, n_samples=np.int64(60), routes=np.int64(1),
+                       frame_smoothing=np.float32(0.02))
+    assert model.n_sections == 60 and model.routes == 1
+    rep = client.reproduce(fitted, start=np.zeros(3, dtype=np.float32), route=np.int64(0),
+                           duration=np.float32(2.0), model=np.int64(model.version))
+    assert rep.route == 0 and rep.times is not None and abs(rep.times[-1] - 2.0) < 1e-6
+    # A numpy boolean is a JSON boolean, which the service refuses where a number is due.
+    with pytest.raises(InvalidInputError) as info:
+        client.reproduce(fitted, start=[0.0, 0.0, 0.0], route=np.bool_(True))
+    assert info.value.field == "route"
