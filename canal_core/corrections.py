@@ -303,6 +303,10 @@ def path_crossings(
 ) -> tuple[BoolArray, FloatArray]:
     """Where a path first crosses each section plane forwards, near the section.
 
+    A path that runs against the canal (more of its crossings near the sections go from the
+    end towards the start) is read reversed: where it lies does not depend on the direction
+    a person moved the arm to show it.
+
     Parameters
     ----------
     path : array, shape (M, D)
@@ -319,14 +323,10 @@ def path_crossings(
     """
     n = centres.shape[0]
     dist = (path @ tangents.T) - np.einsum("nd,nd->n", centres, tangents)[None, :]  # (M, N)
-    # Only the forward sign changes are interpolated: memory grows with the crossings, not M x N.
-    step, section = np.nonzero((dist[:-1] <= 0.0) & (dist[1:] > 0.0))
-    before, after = dist[step, section], dist[step + 1, section]
-    frac = before / (before - after)
-    points = path[step] + frac[:, None] * (path[step + 1] - path[step])
-    coords = np.einsum("ckd,cd->ck", basis[section], points - centres[section])
-    near = np.linalg.norm(coords, axis=1) <= reach[section]
-    step, section, coords = step[near], section[near], coords[near]
+    step, section, coords = _near_crossings(path, dist, centres, basis, reach)
+    if _near_crossings(path, -dist, centres, basis, reach)[0].size > step.size:
+        # More of them backwards: the path read from its last sample to its first.
+        step, section, coords = _near_crossings(path[::-1], dist[::-1], centres, basis, reach)
     # The first forward crossing of each plane, along the path.
     order = np.lexsort((step, section))
     section, coords = section[order], coords[order]
@@ -337,6 +337,20 @@ def path_crossings(
     out = np.zeros((n, basis.shape[1]))
     out[section[keep]] = coords[keep]
     return crossed, out
+
+
+def _near_crossings(path: FloatArray, dist: FloatArray, centres: FloatArray, basis: FloatArray,
+                    reach: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
+    """The forward plane crossings of ``path`` (M, D) within ``reach`` of their section
+    (``dist``: the samples' signed distances to every plane, (M, N); negated, the backward
+    ones): the step before each, its section and its in-plane coordinates (C, D - 1)."""
+    # Only the sign changes are interpolated: memory grows with the crossings, not M x N.
+    step, section = np.nonzero((dist[:-1] <= 0.0) & (dist[1:] > 0.0))
+    before, after = dist[step, section], dist[step + 1, section]
+    points = path[step] + (before / (before - after))[:, None] * (path[step + 1] - path[step])
+    coords = np.einsum("ckd,cd->ck", basis[section], points - centres[section])
+    near = np.linalg.norm(coords, axis=1) <= reach[section]
+    return step[near], section[near], coords[near]
 
 
 def _span(crossed: BoolArray, field: str) -> tuple[int, int]:

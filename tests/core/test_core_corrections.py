@@ -232,3 +232,25 @@ def test_a_planar_canal_is_corrected_too() -> None:
     grown = canal.corrected("include", wide)
     assert grown.contains(wide).all()
     unchanged_outside(canal, grown, grown.corrections[0].lo, grown.corrections[0].hi)
+
+
+def test_a_path_shown_against_the_canals_direction_corrects_it_as_shown_forwards(
+    canal: canal_core.Canal,
+) -> None:
+    # A person who drags the arm back along the canal (end towards start) to say "here too"
+    # used to be told the path was "outside every section": only forward plane crossings
+    # counted. Where a path lies does not depend on which way it was shown.
+    path = include_path(canal)
+    forwards = canal.corrected("include", path)
+    backwards = canal.corrected("include", path[::-1].copy())
+    for name in ("directrix", "arclength", "section_points"):
+        np.testing.assert_allclose(getattr(backwards, name), getattr(forwards, name), atol=1e-12, rtol=0)
+    assert backwards.contains(path).all()
+    # The correction keeps the samples as they were sent.
+    np.testing.assert_array_equal(backwards.corrections[0].correction.samples, path[::-1])
+    # A push shown backwards is the same push.
+    run, pushed = pushed_run(canal)
+    ahead = canal.corrected("exclude", pushed, plan=run)
+    behind = canal.corrected("exclude", pushed[::-1].copy(), plan=run[::-1].copy())
+    np.testing.assert_allclose(behind.directrix, ahead.directrix, atol=1e-12, rtol=0)
+    assert behind.corrections[0].first == ahead.corrections[0].first
