@@ -324,9 +324,10 @@ def path_crossings(
     n = centres.shape[0]
     dist = (path @ tangents.T) - np.einsum("nd,nd->n", centres, tangents)[None, :]  # (M, N)
     step, section, coords = _near_crossings(path, dist, centres, basis, reach)
-    if _near_crossings(path, -dist, centres, basis, reach)[0].size > step.size:
+    backwards = _near_crossings(path[::-1], dist[::-1], centres, basis, reach)
+    if backwards[0].size > step.size:
         # More of them backwards: the path read from its last sample to its first.
-        step, section, coords = _near_crossings(path[::-1], dist[::-1], centres, basis, reach)
+        step, section, coords = backwards
     # The first forward crossing of each plane, along the path.
     order = np.lexsort((step, section))
     section, coords = section[order], coords[order]
@@ -342,8 +343,8 @@ def path_crossings(
 def _near_crossings(path: FloatArray, dist: FloatArray, centres: FloatArray, basis: FloatArray,
                     reach: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
     """The forward plane crossings of ``path`` (M, D) within ``reach`` of their section
-    (``dist``: the samples' signed distances to every plane, (M, N); negated, the backward
-    ones): the step before each, its section and its in-plane coordinates (C, D - 1)."""
+    (``dist``: the samples' signed distances to every plane, (M, N)): the step before each,
+    its section and its in-plane coordinates (C, D - 1)."""
     # Only the sign changes are interpolated: memory grows with the crossings, not M x N.
     step, section = np.nonzero((dist[:-1] <= 0.0) & (dist[1:] > 0.0))
     before, after = dist[step, section], dist[step + 1, section]

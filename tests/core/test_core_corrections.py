@@ -223,6 +223,24 @@ def test_every_section_kind_is_corrected_locally(kind: str) -> None:
         assert grown.contains(demo).all()
 
 
+def test_a_path_that_folds_back_reads_the_same_crossings_either_way(canal: canal_core.Canal) -> None:
+    # A hand shown over the canal wavers: it goes back over a few planes and on again. Read
+    # from either end the same planes are crossed at the same points, and the first crossing
+    # of a plane met three times is the one nearer the path's start as the path is read.
+    idx = np.arange(len(canal.directrix))
+    u = np.linspace(0.0, 1.0, 400)
+    along = np.interp(0.2 + 0.6 * u + 0.05 * np.sin(6 * np.pi * u), np.linspace(0, 1, idx.size), idx)
+    path = np.stack([np.interp(along, idx, canal.directrix[:, k]) for k in range(3)], axis=1)
+    nearest = np.rint(along).astype(int)
+    path = path + (0.3 * np.sin(9 * u) * canal.radii[nearest])[:, None] * canal.basis[nearest, 0]
+    args = (canal.directrix, canal.tangents, canal.basis, 3.0 * canal.radii)
+    crossed, coords = path_crossings(path, *args)
+    crossed_back, coords_back = path_crossings(path[::-1].copy(), *args)
+    assert crossed.sum() > 0.5 * idx.size
+    np.testing.assert_array_equal(crossed_back, crossed)
+    np.testing.assert_allclose(coords_back, coords, atol=1e-12, rtol=0)
+
+
 def test_a_planar_canal_is_corrected_too() -> None:
     x = np.linspace(0.0, 1.0, 80)
     demos = [np.column_stack([x, 0.1 * np.sin(np.pi * x) + dy]) for dy in (-0.05, 0.0, 0.05)]
