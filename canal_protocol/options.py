@@ -66,6 +66,8 @@ CorrectionKind = _core.CorrectionKind
 CORRECTION_KINDS = _core.CORRECTION_KINDS
 MIN_CORRECTION_SAMPLES = _core.MIN_CORRECTION_SAMPLES
 MAX_CORRECTION_SAMPLES = _core.MAX_CORRECTION_SAMPLES
+#: Largest weight of an include correction (in demonstrations), over REST and live.
+MAX_CORRECTION_WEIGHT = 1000.0
 #: The recordings a skill has: Rerun (.rrd) and MCAP.
 RecordingKind = Literal["rrd", "mcap"]
 if TYPE_CHECKING:

@@ -335,7 +335,7 @@ class CorrectionIn(_In):
     model: Literal["latest"] | Id = Field(
         "latest", description="The model version corrected; the result is always the new latest.")
     weight: float = Field(
-        1.0, gt=0.0, le=1000.0,
+        1.0, gt=0.0, le=options.MAX_CORRECTION_WEIGHT,
         description="How much an include counts against one demonstration (exclude ignores it).")
     label: str = Field("", max_length=200, pattern=NO_NUL)
     route: int | None = Field(

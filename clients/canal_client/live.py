@@ -16,6 +16,7 @@ callback threads never run user code); ``on_target`` is called from that thread.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -79,8 +80,25 @@ def _reply_body(reply: Any) -> tuple[bool, Any]:
         return False, {"error": {"type": "unknown", "message": err.payload.to_string()}}
 
 
+def _check_finite(value: Any, where: str) -> None:
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"expected a finite number in {where or 'the body'}, got {value}")
+    if isinstance(value, dict):
+        for name, item in value.items():
+            _check_finite(item, f"{where}.{name}" if where else str(name))
+    elif isinstance(value, list | tuple):
+        for i, item in enumerate(value):
+            _check_finite(item, f"{where}[{i}]")
+
+
 def query_json(session: Any, key: str, body: Any = None, timeout: float = 5.0) -> Any:
-    """One Zenoh query answered with JSON; LiveError on an error reply or no reply."""
+    """One Zenoh query answered with JSON; LiveError on an error reply or no reply.
+
+    Raises ValueError, before anything is sent, when ``body`` holds NaN or infinity: JSON
+    has neither, and orjson would send null, which the bridge reads as "the default".
+    """
+    if body is not None:
+        _check_finite(body, "")
     payload = None if body is None else orjson.dumps(body)
     replies = session.get(key, payload=payload, encoding=_ENC_JSON if payload else None,
                           timeout=timeout)

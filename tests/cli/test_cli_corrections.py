@@ -48,6 +48,9 @@ def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Call
     r = run("correct", name, str(far), "--kind", "exclude")
     assert r.exit_code == 1 and "outside every section" in r.stderr
     assert run("correct", name, str(tmp_path / "missing.csv")).exit_code == 2
+    for weight in ("0", "5000", "nan"):
+        r = run("correct", name, str(path), "--weight", weight)
+        assert r.exit_code == 2 and "(0, 1000]" in r.output, r.output
 
 
 

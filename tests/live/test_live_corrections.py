@@ -136,6 +136,26 @@ def test_live_correction_errors_name_the_field(live: Any, corrected_skill: str) 
             ps.stop_correction()  # too short, and far from the canal
 
 
+def test_a_weight_that_cannot_be_kept_is_refused_before_the_push(live: Any, corrected_skill: str) -> None:
+    # A weight over the service's bound used to be accepted at correction/start and refused
+    # only at stop, after the person had pushed the robot; a NaN weight went over the wire as
+    # null, so steer/keep stored the default weight instead of what was asked.
+    versions = live.client.get(f"/skills/{corrected_skill}/models").json()["total"]
+    with PoseStreamer(corrected_skill, "heavy", endpoint=live.endpoint) as ps:
+        with pytest.raises(LiveError, match=r"weight.*\(0, 1000\].*5000"):
+            ps.start_correction("include", weight=5000.0)
+        with pytest.raises(LiveError, match=r"weight.*got 0"):
+            ps.start_correction("include", weight=0)
+        for bad in (float("nan"), float("inf")):
+            with pytest.raises(ValueError, match=r"expected a finite number in weight, got (nan|inf)"):
+                ps.start_correction("include", weight=bad)
+            with pytest.raises(ValueError, match=r"expected a finite number in weight"):
+                ps.keep_steered(weight=bad)
+        with pytest.raises(LiveError, match="no correction"):
+            ps.stop_correction()  # nothing was started
+    assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

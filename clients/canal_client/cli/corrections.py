@@ -12,6 +12,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from canal_core.validation import FloatArray
+from canal_protocol.options import MAX_CORRECTION_WEIGHT
 
 from .output import out, print_json, time_text
 from .session import connected, options
@@ -68,8 +69,9 @@ def correct(
     """Refine the skill's canal by a correction: a new model version."""
     if model != "latest" and not model.isdigit():
         raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
-    if not weight > 0:
-        raise typer.BadParameter(f"expected a weight > 0, got {weight}", param_hint="--weight")
+    if not 0 < weight <= MAX_CORRECTION_WEIGHT:
+        raise typer.BadParameter(f"expected a weight in (0, {MAX_CORRECTION_WEIGHT:g}], got {weight}",
+                                 param_hint="--weight")
     samples = read_path(file)
     with connected(ctx) as c:
         made = c.correct(skill, samples, kind, model=model, weight=weight, label=label,

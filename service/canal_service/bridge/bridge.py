@@ -73,6 +73,7 @@ from canal_core.options import CORRECTION_KINDS
 from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
+from canal_protocol.options import MAX_CORRECTION_WEIGHT
 from canal_protocol.schemas import CorrectionIn
 
 from ..errors import ServiceError, error_type
@@ -694,8 +695,11 @@ class Bridge:
                          f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {kind!r}", "kind")
             return
         weight = body.get("weight", 1.0)
-        if isinstance(weight, bool) or not isinstance(weight, int | float) or not weight > 0:
-            _reply_error(query, "invalid_input", f"expected weight > 0, got {weight!r}", "weight")
+        if not _weight_valid(weight):
+            # Checked here, not at stop: a weight the correction cannot take must not cost the
+            # person the push.
+            _reply_error(query, "invalid_input",
+                         f"expected weight as {_WEIGHT_EXPECTED}, got {weight!r}", "weight")
             return
         self._capture_start(query, st, body, str(kind), float(weight))
 
@@ -794,6 +798,14 @@ class Bridge:
                 log.exception("bridge housekeeping failed")
 
 
+_WEIGHT_EXPECTED = f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]"
+
+
+def _weight_valid(value: Any) -> bool:
+    """The bound CorrectionIn puts on an include's weight, for a value from a live body."""
+    return type(value) in (int, float) and 0 < value <= MAX_CORRECTION_WEIGHT
+
+
 #: The fields of a demo/ or correction/ start and stop body and of a steer/keep body, with
 #: the check each value must pass
 #: (absent or null: the default) and what it is expected to be.
@@ -810,7 +822,7 @@ _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
     "keep": {
         "label": (lambda v: type(v) is str and len(v) <= 200 and "\x00" not in v,
                   "a text of at most 200 characters"),
-        "weight": (lambda v: type(v) in (int, float) and 0 < v <= 1000, "a number in (0, 1000]"),
+        "weight": (_weight_valid, _WEIGHT_EXPECTED),
     },
 }
 
