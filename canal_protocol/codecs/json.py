@@ -38,12 +38,21 @@ def encode_pose_json(seq: int, position: Any, orientation: Any = None, t: float 
     return orjson.dumps(body)
 
 
+def _shown(value: Any) -> str:
+    """A refused value as the sender wrote it: JSON text, not Python's repr."""
+    if value is None:
+        # What orjson and most encoders make of a NaN, so the likeliest cause.
+        return "null (JSON has no NaN or infinity)"
+    text = orjson.dumps(value).decode()
+    return text if len(text) <= 40 else text[:40] + "..."
+
+
 def _numbers(value: Any, field: str, n: int | None = None) -> tuple[float, ...]:
     if not isinstance(value, list) or (n is not None and len(value) != n):
         raise WireError("bad_payload", f"expected {field} as a list of {n or 'D'} numbers")
     for v in value:
         if type(v) is not float and type(v) is not int:
-            raise WireError("bad_payload", f"expected numbers in {field}, got {v!r}")
+            raise WireError("bad_payload", f"expected numbers in {field}, got {_shown(v)}")
     return tuple(float(v) for v in value)
 
 
@@ -103,7 +112,7 @@ def _checked_pose_json(body: Any) -> Pose:
     if restart is None:  # absent or null, as every optional field
         restart = False
     elif type(restart) is not bool:
-        raise WireError("bad_payload", f"expected 'restart' as true or false, got {restart!r}")
+        raise WireError("bad_payload", f"expected 'restart' as true or false, got {_shown(restart)}")
     return Pose(seq, position, orientation, None if t is None else float(t), restart)
 
 

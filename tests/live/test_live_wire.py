@@ -130,3 +130,15 @@ def test_json_target_round_trips_with_nan_and_inf_as_null(target, eta, extras):
     assert data == wire.target_json(wire.Target(
         2**64 - 1, "outside_canal", tuple(target), 0.5, eta, 7, False, True, 3, None,
         orientation, velocity, 4))
+
+
+@pytest.mark.parametrize(("data", "shown"), [
+    # A Python client that puts NaN through orjson sends null: the answer says why.
+    (b'{"seq": 3, "position": [null, 0.2, 0.3]}', "got null (JSON has no NaN or infinity)"),
+    (b'{"seq": 3, "position": [true, 0.2, 0.3]}', "got true"),
+    (b'{"seq": 3, "position": ["1", 0.2, 0.3]}', 'got "1"'),
+    (b'{"seq": 3, "position": [0.1, 0.2], "restart": "yes"}', 'got "yes"'),
+])
+def test_a_refused_json_pose_shows_the_value_as_json(data, shown):
+    key, message = _outcome(wire.decode_pose_json, data)
+    assert key == "bad_payload" and message.endswith(shown), message
