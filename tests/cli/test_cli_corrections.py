@@ -63,3 +63,19 @@ def test_a_reproduction_file_is_a_correction_path(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_path(path), [[1, 2, 3], [4, 5, 6]])
     path.write_text("1,2,3\n4,5,6\n")  # no header: the numbers are the samples
     np.testing.assert_array_equal(read_path(path), [[1, 2, 3], [4, 5, 6]])
+
+
+def test_numpys_savetxt_file_is_a_correction_path(tmp_path: Path) -> None:
+    # np.savetxt(..., header="t,x,y,z") writes "# t,x,y,z": the '#' hid the names, so the
+    # columns were taken as they came and t, x, y became the samples' x, y, z.
+    from canal_client.cli.corrections import read_path
+
+    t = np.array([0.0, 0.5, 1.0])
+    xyz = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
+    path = tmp_path / "push.csv"
+    np.savetxt(path, np.column_stack([t, xyz]), delimiter=",", header="t,x,y,z")
+    np.testing.assert_array_equal(read_path(path), xyz)
+    path.write_text("# pushed by hand\n# rate 100 Hz\nx,y,z\n1,2,3\n4,5,6\n7,8,9\n")
+    np.testing.assert_array_equal(read_path(path), xyz)
+    path.write_text("# pushed by hand\n1,2,3\n4,5,6\n7,8,9\n")
+    np.testing.assert_array_equal(read_path(path), xyz)

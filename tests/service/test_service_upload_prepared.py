@@ -3,6 +3,8 @@ upload naming it, and raw robot logs (repeats, rounding-level steps, still ends)
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -198,6 +200,45 @@ def test_a_time_column_with_a_unit_and_another_time_column_is_refused(client: Te
     error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("log.csv", body)}))
     assert error["field"] == "file:header" and "t, time_ms" in error["message"]
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
+
+@pytest.mark.parametrize("columns", ["t,x,y,z", "x,y,z", "t,x,y,z,qx,qy,qz,qw"])
+def test_numpys_savetxt_header_is_read(client: TestClient, skill: str, columns: str) -> None:
+    # np.savetxt(path, a, delimiter=",", header="t,x,y,z") writes "# t,x,y,z": numpy's own
+    # default. Its header used to be refused ("got # x, y, z"), and with a time column the
+    # file was stored untimed, "# t" not being a time name.
+    p = demo_positions(1, n=12)
+    t = np.arange(12) * 0.1
+    table = np.column_stack([t, p]) if columns.startswith("t,") else p
+    if columns.endswith("qw"):
+        table = np.column_stack([table, np.tile([0.0, 0.0, 0.0, 1.0], (12, 1))])
+    buf = io.BytesIO()
+    np.savetxt(buf, table, delimiter=",", header=columns)
+    assert buf.getvalue().startswith(f"# {columns}\n".encode())
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    files={"file": ("demo.csv", buf.getvalue(), "text/csv")})
+    assert r.status_code == 201, r.text
+    back = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+    np.testing.assert_allclose(back["positions"], p, rtol=1e-15)
+    assert (back["timestamps"] is not None) == columns.startswith("t,")
+    assert (back["orientations"] is not None) == columns.endswith("qw")
+
+
+def test_comment_lines_before_the_header_or_the_data_are_skipped(client: TestClient, skill: str) -> None:
+    p = demo_positions(1, n=12)
+    rows = "\n".join(",".join(repr(float(v)) for v in row) for row in p)
+    for body in (f"# robot: ur5e\n# rate: 125 Hz\nx,y,z\n{rows}\n",
+                 f"# recorded on the bench\n{rows}\n",          # no header: bare columns
+                 f"# robot: ur5e\n#x,y,z\n{rows}\n"):
+        r = client.post(f"/skills/{skill}/demonstrations",
+                        files={"file": ("demo.csv", body.encode(), "text/csv")})
+        assert r.status_code == 201, (body[:40], r.text)
+        back = client.get(f"/skills/{skill}/demonstrations/{r.json()['id']}").json()
+        np.testing.assert_array_equal(back["positions"], p)
+    # A commented line that names no columns the skill has is a comment, not a header.
+    body = f"# t,u,v,w\n{rows}\n"
+    r = client.post(f"/skills/{skill}/demonstrations", files={"file": ("demo.csv", body.encode())})
+    assert r.status_code == 201, r.text
+
 
 def _rostopic_csv(times_s: np.ndarray, positions: np.ndarray, quats: np.ndarray) -> bytes:
     """What `rostopic echo -p /ee_pose > run.csv` writes for a PoseStamped topic."""

@@ -20,6 +20,14 @@ from .session import connected, options
 app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=True)
 
 
+def _numbers_only(line: str) -> bool:
+    try:
+        [float(cell) for cell in line.split(",")]
+    except ValueError:
+        return False
+    return True
+
+
 def read_path(path: Path) -> FloatArray:
     """A correction's samples (M, D) from .npy, .json (rows, or {"samples": rows}) or .csv
     (numbers, with or without a header line; with x, y[, z] named, only those columns)."""
@@ -31,10 +39,15 @@ def read_path(path: Path) -> FloatArray:
             body = json.loads(path.read_text())
             rows = body["samples"] if isinstance(body, dict) else body
         elif suffix in (".csv", ".txt"):
-            text = path.read_text().splitlines()
-            header = ([c.strip().lower() for c in text[0].split(",")]
-                      if text and any(c.isalpha() for c in text[0]) else [])
-            rows = np.loadtxt(path, delimiter=",", skiprows=1 if header else 0, ndmin=2)
+            lines = [line for line in path.read_text().splitlines() if line.strip()]
+            # Comment lines and a header line come first; numpy.savetxt writes its header as
+            # a comment ("# t,x,y,z"), so the last of them names the columns.
+            leading = 0
+            while leading < len(lines) and not _numbers_only(lines[leading]):
+                leading += 1
+            header = ([c.strip().lower() for c in lines[leading - 1].lstrip("#").split(",")]
+                      if leading else [])
+            rows = np.loadtxt(lines[leading:], delimiter=",", ndmin=2)
             if "x" in header and "y" in header:
                 # named columns: a `canal reproduce --out` file has t first, qx..qw last
                 rows = rows[:, [header.index(a) for a in "xyz" if a in header]]

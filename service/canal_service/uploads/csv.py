@@ -4,6 +4,7 @@ or bare columns, parsed by numpy's C reader and stopped one row past the point c
 from __future__ import annotations
 
 import io
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -12,6 +13,10 @@ import numpy as np
 from ..errors import BadUpload, InvalidInput
 from ..validation import TIME_UNITS, FloatArray
 from .common import Budget, ParsedUpload, UploadLimits, split_time
+
+# numpy says, once per read, that a blank line does not count towards max_rows: blank lines
+# are allowed here, and max_rows is a memory cap, not a count anything relies on.
+warnings.filterwarnings("ignore", message=r"Input line \d+ contained no data", category=UserWarning)
 
 #: Time columns in seconds (``__time``: PlotJuggler's CSV export)
 _TIME_NAMES = ("t", "time", "timestamp", "stamp", "__time")
@@ -41,23 +46,38 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
     start = 3 if data.startswith(b"\xef\xbb\xbf") else 0  # a BOM from spreadsheet exports
     lines = _lines(data, start)
     first = next(lines, None)
+    comments: list[str] = []
+    while first is not None and first[1].lstrip().startswith("#"):
+        comments.append(first[1].lstrip()[1:])
+        first = next(lines, None)
     if first is None:
-        raise BadUpload("the CSV file has no rows", field="file")
+        raise BadUpload("the CSV file has no rows" if not comments
+                        else "the CSV file has only comment lines (#), no rows", field="file")
     first_number, first_text = first
     delimiter = _delimiter(first_text)
-    cells = [c.strip().strip('"').strip() for c in _split(first_text, delimiter)]
+    cells = _cells(first_text, delimiter)
     header: list[str] | None = None
     skip = first_number
-    if not all(_is_number(c) for c in cells):
+    # Delimiters on the lines before the data, for the extra-cells check below.
+    preamble = sum(text.count(delimiter) for text in comments) if delimiter else 0
+    named = _cells(comments[-1], delimiter) if comments else []
+    if (len(named) == len(cells) and not any(_is_number(c) for c in named)
+            and any(_is_number(c) for c in cells)):
+        # numpy.savetxt writes its header as a comment ("# t,x,y,z"): a commented line of
+        # names right before the data, with a name per column, names them.
+        header = [c.lower() for c in named]
+    elif not all(_is_number(c) for c in cells):
         header = [c.lower() for c in cells]
         skip = first_number + 1
+        preamble += first_text.count(delimiter) if delimiter else 0
+    if header is not None:
         seen: set[str] = set()
         for name in header:
             if name in seen:
                 raise InvalidInput(f"CSV header names column {name!r} twice; expected each "
                                    "column once", field="file:header")
             seen.add(name)
-        if next(lines, None) is None:
+        if skip > first_number and next(lines, None) is None:
             raise BadUpload("the CSV file has a header but no data rows", field="file")
     width = len(cells)
     if header is None and width not in (dim, dim + 1):
@@ -95,7 +115,7 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
     if usecols is not None and delimiter is not None and b'"' not in data:
         # Reading some columns does not see a row with extra cells: its delimiters do.
         mark = delimiter.encode()
-        if data.count(mark) - first_text.count(delimiter) != table.shape[0] * (width - 1):
+        if data.count(mark) - preamble != table.shape[0] * (width - 1):
             raise _csv_error(data, start, skip, width, usecols, delimiter)
     if columns is None:
         return split_time(table, dim, "file")
@@ -131,6 +151,10 @@ def _delimiter(line: str) -> str | None:
 
 def _split(line: str, delimiter: str | None) -> list[str]:
     return line.split(delimiter) if delimiter is not None else line.split()
+
+
+def _cells(line: str, delimiter: str | None) -> list[str]:
+    return [c.strip().strip('"').strip() for c in _split(line, delimiter)]
 
 
 def _csv_error(data: bytes, start: int, skip: int, width: int,
