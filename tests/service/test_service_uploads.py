@@ -114,6 +114,26 @@ def test_csv_upload(client: TestClient, skill: str, header: str | None) -> None:
     assert (back["orientations"] is not None) == (header is not None and "qx" in header)
 
 
+def test_an_uploaded_file_without_a_label_is_labelled_by_its_name(client: TestClient, skill: str) -> None:
+    # A folder of demonstrations uploaded file by file used to be stored unlabelled: in the
+    # list and the viewer nothing said which demonstration came from which file.
+    body = "x,y,z\n" + "\n".join(",".join(repr(float(v)) for v in row)
+                                  for row in demo_positions(1, n=12))
+    labels = []
+    for filename, query in (("run_03.csv", ""), ("C:\\logs\\run_04.csv", ""),
+                            ("run_05.csv", "?label=given"), ("x" * 300 + ".csv", "")):
+        r = client.post(f"/skills/{skill}/demonstrations{query}",
+                        files={"file": (filename, body.encode(), "text/csv")})
+        assert r.status_code == 201, r.text
+        labels.append(read_back(client, skill, r.json()["id"])["label"])
+    assert labels[:3] == ["run_03.csv", "run_04.csv", "given"]
+    assert len(labels[3]) == 256 and labels[3].startswith("xxx")
+    # A raw body has no file name, and no label.
+    r = client.post(f"/skills/{skill}/demonstrations", content=body.encode(),
+                    headers={"content-type": "text/csv"})
+    assert read_back(client, skill, r.json()["id"])["label"] in (None, "")
+
+
 def test_csv_raw_body_for_a_2d_skill(client: TestClient) -> None:
     client.post("/skills", json={"name": "wipe", "dim": 2})
     p = demo_positions(0, n=8, dim=2)

@@ -93,7 +93,7 @@ async def add_demonstration(
     if base == "multipart/form-data":
         data, filename, part_type, form_label = await _read_multipart(request)
         if label is None:
-            label = form_label
+            label = form_label if form_label is not None else _label_of(filename)
     elif base in _FILE_TYPES:
         data, filename, part_type = await request.body(), None, base
     else:
@@ -107,6 +107,16 @@ async def add_demonstration(
     fmt = detect_format(format, filename, part_type, data)
     return _created(await lane.run(service.add_file_demonstration, name, fmt, data, topic,
                                    label, limits, time_unit))
+
+
+def _label_of(filename: str | None) -> str | None:
+    """A file's name as its demonstration's label, so the list and the viewer say which
+    file each came from (a browser may send a Windows path; its end is what tells files
+    apart)."""
+    if not filename:
+        return None
+    name = filename.replace("\\", "/").rsplit("/", 1)[-1].replace("\x00", "")
+    return name[-256:] or None
 
 
 def _created(created: DemonstrationCreated) -> Response:
