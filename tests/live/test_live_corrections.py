@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from canal_client.live import LiveError, PoseStreamer
+from canal_client.live import LiveError, PoseStreamer, query_json
 from live_helpers import make_skill, wait_until
 
 import canal_core
@@ -153,6 +153,9 @@ def test_a_weight_that_cannot_be_kept_is_refused_before_the_push(live: Any, corr
                 ps.keep_steered(weight=bad)
         with pytest.raises(LiveError, match="no correction"):
             ps.stop_correction()  # nothing was started
+        # null is the default weight, as for every optional field of a live body
+        started = query_json(ps.session, ps.keys.correction_start, {"kind": "include", "weight": None})
+        assert started["capturing"] is True, started
     assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
 
 

@@ -694,7 +694,9 @@ class Bridge:
             _reply_error(query, "invalid_input", "expected kind "
                          f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {kind!r}", "kind")
             return
-        weight = body.get("weight", 1.0)
+        weight = body.get("weight")
+        if weight is None:  # absent or null: the default, as for every optional field
+            weight = 1.0
         if not _weight_valid(weight):
             # Checked here, not at stop: a weight the correction cannot take must not cost the
             # person the push.
