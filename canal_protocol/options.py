@@ -68,6 +68,9 @@ MIN_CORRECTION_SAMPLES = _core.MIN_CORRECTION_SAMPLES
 MAX_CORRECTION_SAMPLES = _core.MAX_CORRECTION_SAMPLES
 #: Largest weight of an include correction (in demonstrations), over REST and live.
 MAX_CORRECTION_WEIGHT = 1000.0
+#: Longest label of a demonstration and of a correction, over REST and live.
+MAX_DEMO_LABEL = 256
+MAX_CORRECTION_LABEL = 200
 #: The recordings a skill has: Rerun (.rrd) and MCAP.
 RecordingKind = Literal["rrd", "mcap"]
 if TYPE_CHECKING:

@@ -114,7 +114,7 @@ class DemonstrationIn(_In):
     orientations: list[list[Coordinate]] | None = Field(
         None, description="(T, 4) unit quaternions qx, qy, qz, qw, optional."
     )
-    label: str | None = Field(None, max_length=256, pattern=NO_NUL)
+    label: str | None = Field(None, max_length=options.MAX_DEMO_LABEL, pattern=NO_NUL)
 
 
 _DEMO_KEYS = frozenset({"positions", "timestamps", "orientations", "label"})
@@ -146,7 +146,7 @@ def _fast_demonstration(raw: bytes) -> DemonstrationIn | None:
     if not isinstance(data, dict) or "positions" not in data or not data.keys() <= _DEMO_KEYS:
         return None
     label = data.get("label")
-    if label is not None and (not isinstance(label, str) or len(label) > 256):
+    if label is not None and (not isinstance(label, str) or len(label) > options.MAX_DEMO_LABEL):
         return None
     # Delete every byte a number array may hold from the body and from its skeleton (the
     # same object, arrays emptied, written back): equal leftovers mean the arrays added
@@ -337,7 +337,7 @@ class CorrectionIn(_In):
     weight: float = Field(
         1.0, gt=0.0, le=options.MAX_CORRECTION_WEIGHT,
         description="How much an include counts against one demonstration (exclude ignores it).")
-    label: str = Field("", max_length=200, pattern=NO_NUL)
+    label: str = Field("", max_length=options.MAX_CORRECTION_LABEL, pattern=NO_NUL)
     route: int | None = Field(
         None, ge=0, le=options.MAX_ROUTES - 1,
         description="A model of several routes: the route whose canal is corrected (null: every "

@@ -146,6 +146,9 @@ def test_a_weight_that_cannot_be_kept_is_refused_before_the_push(live: Any, corr
             ps.start_correction("include", weight=5000.0)
         with pytest.raises(LiveError, match=r"weight.*got 0"):
             ps.start_correction("include", weight=0)
+        # and a label a correction cannot keep (a demonstration's may be longer)
+        with pytest.raises(LiveError, match=r"label.*at most 200"):
+            ps.start_correction("include", label="x" * 230)
         for bad in (float("nan"), float("inf")):
             with pytest.raises(ValueError, match=r"expected a finite number in weight, got (nan|inf)"):
                 ps.start_correction("include", weight=bad)

@@ -73,7 +73,7 @@ from canal_core.options import CORRECTION_KINDS
 from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
-from canal_protocol.options import MAX_CORRECTION_WEIGHT
+from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_CORRECTION_WEIGHT, MAX_DEMO_LABEL
 from canal_protocol.schemas import CorrectionIn
 
 from ..errors import ServiceError, error_type
@@ -703,6 +703,12 @@ class Bridge:
             _reply_error(query, "invalid_input",
                          f"expected weight as {_WEIGHT_EXPECTED}, got {weight!r}", "weight")
             return
+        label = body.get("label")
+        if label is not None and not _correction_label_valid(label):
+            _reply_error(query, "invalid_input",
+                         f"expected label as {_CORRECTION_LABEL_EXPECTED}, got {_shown(label)}",
+                         "label")
+            return
         self._capture_start(query, st, body, str(kind), float(weight))
 
     def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
@@ -801,6 +807,16 @@ class Bridge:
 
 
 _WEIGHT_EXPECTED = f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]"
+_CORRECTION_LABEL_EXPECTED = f"a text of at most {MAX_CORRECTION_LABEL} characters"
+
+
+def _correction_label_valid(value: Any) -> bool:
+    return type(value) is str and len(value) <= MAX_CORRECTION_LABEL and "\x00" not in value
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "..."
 
 
 def _weight_valid(value: Any) -> bool:
@@ -814,16 +830,15 @@ def _weight_valid(value: Any) -> bool:
 _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
     "start": {
         "from_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
-        "label": (lambda v: type(v) is str and len(v) <= 256 and "\x00" not in v,
-                  "a text of at most 256 characters"),
+        "label": (lambda v: type(v) is str and len(v) <= MAX_DEMO_LABEL and "\x00" not in v,
+                  f"a text of at most {MAX_DEMO_LABEL} characters"),
     },
     "stop": {
         "last_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
     },
     # steer/keep
     "keep": {
-        "label": (lambda v: type(v) is str and len(v) <= 200 and "\x00" not in v,
-                  "a text of at most 200 characters"),
+        "label": (_correction_label_valid, _CORRECTION_LABEL_EXPECTED),
         "weight": (_weight_valid, _WEIGHT_EXPECTED),
     },
 }
@@ -835,8 +850,7 @@ def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None
     for name, (valid, expected) in _DEMO_FIELDS[action].items():
         value = body.get(name)
         if value is not None and not valid(value):
-            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:40] + "..."
-            return name, f"expected {name} as {expected}, got {shown}"
+            return name, f"expected {name} as {expected}, got {_shown(value)}"
     return None
 
 

@@ -10,6 +10,7 @@ from pydantic import ValidationError
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException
 
+from canal_protocol.options import MAX_DEMO_LABEL
 from canal_protocol.schemas import (
     DemonstrationCreated,
     DemonstrationIn,
@@ -44,7 +45,7 @@ _REQUEST_BODY: dict[str, Any] = {
         "multipart/form-data": {
             "schema": {
                 "type": "object",
-                "properties": {"file": _BINARY, "label": {"type": "string", "maxLength": 256}},
+                "properties": {"file": _BINARY, "label": {"type": "string", "maxLength": MAX_DEMO_LABEL}},
                 "required": ["file"],
             }
         },
@@ -61,7 +62,7 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 Format = Annotated[Literal["csv", "npy", "mcap"] | None,
                    Query(description="File format; guessed when omitted.")]
 Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
-Label = Annotated[str | None, Query(max_length=256, pattern=r"^[^\x00]*$",
+Label = Annotated[str | None, Query(max_length=MAX_DEMO_LABEL, pattern=r"^[^\x00]*$",
                                     description="Label for a file upload.")]
 TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(
     description="Unit of the timestamps (JSON) or of the CSV/NPY time column, seconds when "
@@ -116,7 +117,7 @@ def _label_of(filename: str | None) -> str | None:
     if not filename:
         return None
     name = filename.replace("\\", "/").rsplit("/", 1)[-1].replace("\x00", "")
-    return name[-256:] or None
+    return name[-MAX_DEMO_LABEL:] or None
 
 
 def _created(created: DemonstrationCreated) -> Response:
@@ -132,8 +133,8 @@ def _add_json(service: CanalService, name: str, raw: bytes, limits: UploadLimits
     if not raw.strip():
         raise InvalidInput("expected a JSON body with 'positions', got an empty body",
                            field="body")
-    # Each row is one '[' (positions and orientations; a label adds at most 256): refuse
-    # an oversized demo before parsing builds its objects.
+    # Each row is one '[' (positions and orientations; a label adds at most MAX_DEMO_LABEL):
+    # refuse an oversized demo before parsing builds its objects.
     if raw.count(b"[") > 2 * limits.max_points + 300:
         raise _too_many_points(limits)
     try:
@@ -175,8 +176,8 @@ async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | No
             raise InvalidInput("expected a file in the multipart field 'file'", field="file")
         data = await upload.read()
         label = form.get("label")
-        if label is not None and (not isinstance(label, str) or len(label) > 256 or "\x00" in label):
-            raise InvalidInput("expected 'label' as text of at most 256 characters",
+        if label is not None and (not isinstance(label, str) or len(label) > MAX_DEMO_LABEL or "\x00" in label):
+            raise InvalidInput(f"expected 'label' as text of at most {MAX_DEMO_LABEL} characters",
                                field="label")
         return data, upload.filename, upload.content_type, label
     finally:
