@@ -181,6 +181,28 @@ def test_cdr_on_a_2d_skill_carries_z(live):
             robot.close()
 
 
+def test_a_demonstration_captured_from_pose_stamped_on_a_2d_skill_keeps_x_and_y(live):
+    # A PoseStamped always has z; the tracker reads x, y on a 2-D skill, and so must the
+    # capture: it used to store nothing, refusing every row for its third value.
+    from canal_client.live import query_json
+
+    pts = np.column_stack([np.linspace(0, 1, 30), np.linspace(0, 0.5, 30)])
+    with zenoh.open(client_config(live.endpoint)) as session:
+        robot = Robot(session, "arc2", "ros-demo")
+        try:
+            query_json(session, "canal/arc2/ros-demo/demo/start", {"label": "from ROS 2"})
+            for k, p in enumerate(pts):
+                robot.put(pose_stamped(p, sec=100 + k), encoding="application/cdr")
+            robot.wait("targets", len(pts))
+            created = query_json(session, "canal/arc2/ros-demo/demo/stop", {})
+        finally:
+            robot.close()
+    demo = live.client.get(f"/skills/arc2/demonstrations/{created['id']}").json()
+    assert np.array_equal(np.array(demo["positions"]), pts)
+    assert np.allclose(np.diff(demo["timestamps"]), 1.0)  # the messages' stamps
+    live.client.delete(f"/skills/arc2/demonstrations/{created['id']}")
+
+
 @pytest.mark.parametrize("frame", ["", "a", "ab", "abc", "abcd", "base_link", "x" * 300])
 def test_wire_cdr_codec_agrees_with_rosbags(frame):
     for little in (True, False):

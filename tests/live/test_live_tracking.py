@@ -145,6 +145,35 @@ def test_live_demo_capture_json_and_bad_demo(live):
     assert live.client.get("/skills/empty2").json()["n_demonstrations"] == 1
 
 
+def test_a_pose_of_the_wrong_dimension_does_not_cost_the_demonstration(live):
+    # One 2-D pose in a 3-D skill's demonstration (answered wrong_dimension as it came) used
+    # to be captured with the others, and the stop refused the whole demonstration for it.
+    from canal_client.live import LiveError
+
+    pts = np.column_stack([np.linspace(0, 1, 40), np.linspace(0, 0.5, 40), np.zeros(40)])
+    with PoseStreamer("arc3", "glitchy", endpoint=live.endpoint, encoding="json") as ps:
+        ps.start_demo(label="one glitch")
+        for k, p in enumerate(pts):
+            ps.send(p)
+            if k == 20:
+                answer = ps.wait_for(ps.send(p[:2]), 2.0)
+                assert answer is not None and answer.status == "wrong_dimension"
+        created = ps.stop_demo()
+        assert created["n_points"] == 40
+        demo = live.client.get(f"/skills/arc3/demonstrations/{created['id']}").json()
+        assert np.array_equal(np.array(demo["positions"]), pts)
+        live.client.delete(f"/skills/arc3/demonstrations/{created['id']}")
+        # Every pose of the wrong dimension: the stop says so.
+        ps.start_demo()
+        for p in pts:
+            ps.send(p[:2])
+        with pytest.raises(LiveError, match=r"positions with 3 coordinates.*got 40 poses with 2"):
+            ps.stop_demo()
+        ps.start_demo()
+        with pytest.raises(LiveError, match="positions captured between start and stop, got no pose"):
+            ps.stop_demo()
+
+
 def test_live_capture_with_nanosecond_t_is_refused_saying_t_is_seconds(live):
     # a robot stamping its poses with ROS time in ns: the demo would last 317 years
     pts = np.column_stack([np.linspace(0, 1, 20), np.linspace(0, 0.5, 20), np.zeros(20)])

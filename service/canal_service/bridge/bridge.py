@@ -76,7 +76,7 @@ from canal_protocol import keys as keyspace
 from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_CORRECTION_WEIGHT, MAX_DEMO_LABEL
 from canal_protocol.schemas import CorrectionIn
 
-from ..errors import ServiceError, error_type
+from ..errors import InvalidInput, ServiceError, error_type
 from ..memory import release_memory
 from ..record_batches import encode_record_batch
 from ..service import CanalService
@@ -736,8 +736,9 @@ class Bridge:
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
                           weight: float, label: str | None) -> None:
-        times = [p.t for p in poses]
         try:
+            poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
+            times = [p.t for p in poses]
             body = CorrectionIn.model_validate({
                 "kind": kind, "samples": [list(p.position) for p in poses],
                 "timestamps": times if poses and all(t is not None for t in times) else None,
@@ -775,6 +776,7 @@ class Bridge:
 
     def _store_demo(self, skill: str, poses: list[Any], label: str | None) -> dict[str, Any]:
         dim = self.service.skill_dim(skill)
+        poses = poses_of_dim(poses, dim, "positions")
         positions = [p.position for p in poses]
         times = [p.t for p in poses]
         quats = [p.orientation for p in poses]
@@ -842,6 +844,21 @@ _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
         "weight": (_weight_valid, _WEIGHT_EXPECTED),
     },
 }
+
+
+def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
+    """The captured poses with the skill's ``dim`` coordinates. The others were answered
+    ``wrong_dimension`` as they came and never tracked: a glitch does not cost the person the
+    whole capture. InvalidInput on ``field`` when none is left."""
+    kept = [p for p in poses if len(p.position) == dim]
+    if kept:
+        return kept
+    if not poses:
+        raise InvalidInput(f"expected {field} captured between start and stop, got no pose",
+                           field=field)
+    dims = " or ".join(map(str, sorted({len(p.position) for p in poses})))
+    raise InvalidInput(f"expected {field} with {dim} coordinates for this {dim}-D skill, got "
+                       f"{len(poses)} poses with {dims}", field=field)
 
 
 def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None:

@@ -5,6 +5,7 @@ coalesced to its newest pose), each pose decoded by the codecs' format rule
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any
 
 from canal_protocol import wire
@@ -109,9 +110,14 @@ class Decoder(Answers):
             return None
         st.last_seq = pose.seq
         if st.capture is not None:
+            kept = pose
+            if ros is not None and len(pose.position) == 3 and self.models.entry(st.skill).dim == 2:
+                # a PoseStamped always has z: a 2-D skill's capture keeps x, y, as tracking
+                # does (the answer still carries the pose's own z)
+                kept = replace(pose, position=pose.position[:2])
             with st.lock:
                 if st.capture is not None and pose.seq >= st.capture_from:
-                    st.capture.append(pose)
+                    st.capture.append(kept)
         if not answer:
             return None
         return st, pose, fmt, ros
