@@ -818,7 +818,7 @@ class CanalService:
             assert body.starts is not None
             starts, fields = body.starts, [f"starts[{i}]" for i in range(len(body.starts))]
         inputs = check_reproduction_inputs(canal.directrix, canal.radii, starts, fields,
-                                           body.goal, body.duration)
+                                           body.goal, body.duration, body.start_orientation)
         notes = []
         if canal.section_times is None and body.duration is not None:
             # Without a duration the answer's null times say it all; with one, the pacing

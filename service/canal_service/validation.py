@@ -17,7 +17,7 @@ import numpy.typing as npt
 from canal_core import bounds
 from canal_core.errors import CanalError
 from canal_core.preprocess import prepared_demonstration
-from canal_core.validation import check_quaternions
+from canal_core.validation import check_quaternion, check_quaternions
 
 from .errors import InvalidInput
 
@@ -213,17 +213,20 @@ class ReproductionInputs:
     starts: list[FloatArray]
     goal: FloatArray | None
     duration: float | None
+    start_orientation: FloatArray | None = None
 
 
 def check_reproduction_inputs(
     directrix: FloatArray, radii: FloatArray, starts: Sequence[Any], fields: Sequence[str],
-    goal: Any, duration: Any,
+    goal: Any, duration: Any, start_orientation: Any = None,
 ) -> ReproductionInputs:
     """Every number of a reproduction request, checked in one place before any is computed.
 
     Starts and the goal must have the canal's dimension and lie within
     :data:`canal_core.bounds.MAX_REACH` canal sizes of its centre; the duration must be
-    within [:data:`~canal_core.bounds.MIN_DURATION`, :data:`~canal_core.bounds.MAX_DURATION`].
+    within [:data:`~canal_core.bounds.MIN_DURATION`, :data:`~canal_core.bounds.MAX_DURATION`];
+    a start orientation must be a unit quaternion, also where the model has no orientation to
+    use it on (a value that is no rotation is a client's bug either way).
     """
     dim = directrix.shape[1]
     centre, size = bounds.canal_extent(directrix, radii)
@@ -238,7 +241,9 @@ def check_reproduction_inputs(
     goal_ = None if goal is None else point(goal, "goal")
     duration_ = None if duration is None else _core_checked(bounds.check_duration, duration,
                                                            "duration")
-    return ReproductionInputs(checked, goal_, duration_)
+    orientation = None if start_orientation is None else _core_checked(check_quaternion, start_orientation,
+                                                                        "start_orientation")
+    return ReproductionInputs(checked, goal_, duration_, orientation)
 
 
 def check_finite_answer(arrays: dict[str, Any], inputs: str) -> None:

@@ -94,6 +94,13 @@ def test_model_without_orientation_ignores_start_orientation(live_server: LiveSe
         assert rep.status_code == 200, rep.text
         assert rep.json()["orientations"] is None
         assert rep.json()["notes"] == ["model has no orientation: start_orientation ignored"]
+        # Ignored, but still checked: a value that is no rotation is refused, as on a model
+        # with orientation, not answered as if it were one.
+        for bad in ([0, 0, 0, 0], [1e300, 0, 0, 1e300], [0, 0, 0, 3]):
+            r = http.post("/skills/reach/reproductions",
+                          json={"start": demo_positions(0)[0].tolist(), "start_orientation": bad})
+            assert r.status_code == 422, (bad, r.text)
+            assert r.json()["error"]["field"] == "start_orientation", r.text
         off = http.post("/skills/reach/fit", json={"n_samples": 30, "orientation": False})
         assert off.json()["options"]["orientation"] is False
 
