@@ -39,6 +39,18 @@ def _utc(value: datetime | None) -> datetime | None:
 
 UtcDatetime = Annotated[datetime | None, AfterValidator(_utc)]
 
+
+def _distinct(ids: list[int] | None) -> list[int] | None:
+    """A selection names each demonstration once: a repeat would be fitted once, not twice."""
+    if ids is not None:
+        seen: set[int] = set()
+        for i, demo_id in enumerate(ids):
+            if demo_id in seen:
+                raise ValueError(f"expected distinct demonstration ids, got {demo_id} again at "
+                                 f"demo_ids[{i}]")
+            seen.add(demo_id)
+    return ids
+
 T = TypeVar("T")
 
 
@@ -251,8 +263,9 @@ class FitRequest(_In):
                     "sample index, blended with arc length when the demonstrations keep one "
                     "rhythm, else arc length). The model's options say which clock was used "
                     "(clock).")
-    demo_ids: list[Id] | None = Field(
-        None, max_length=10000, description="Fit only these demonstrations (default: all)."
+    demo_ids: Annotated[list[Id] | None, AfterValidator(_distinct)] = Field(
+        None, min_length=2, max_length=10000,
+        description="Fit only these demonstrations, at least 2, each once (default: all)."
     )
     keep_corrections: bool = Field(
         True,

@@ -210,6 +210,11 @@ def test_fit_with_fewer_than_two_demos(client: TestClient, skill: str) -> None:
     ("n_samples 1", {"n_samples": 1}, "n_samples"),
     ("n_samples huge", {"n_samples": 10**9}, "n_samples"),
     ("unknown demo id", {"demo_ids": [1, 999]}, "demo_ids"),
+    # A selection a fit cannot use is the request's fault (422 on demo_ids), not the skill's
+    # state (409); a repeated id would be fitted once, not twice as it reads.
+    ("no demo ids", {"demo_ids": []}, "demo_ids"),
+    ("one demo id", {"demo_ids": [1]}, "demo_ids"),
+    ("a demo id twice", {"demo_ids": [1, 2, 1]}, "demo_ids"),
     ("unknown option", {"smoothing": 3}, "smoothing"),
     # A JSON type other than the field's is refused, not coerced: true is not 1 route,
     # "no" is not false, "100" is not a number of sections.
