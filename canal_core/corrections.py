@@ -66,6 +66,7 @@ from .options import (
     MIN_CORRECTION_SAMPLES,
     CorrectionKind,
 )
+from .preprocess import check_time_order
 from .reproduce import located_points, section_basis, smootherstep
 from .validation import (
     BoolArray,
@@ -285,6 +286,8 @@ def checked_correction(
     if not isinstance(label, str) or len(label) > 200:
         raise InvalidInputError(f"expected label as text of at most 200 characters, got {label!r:.60}", field="label")
     times = None if timestamps is None else check_timestamps(timestamps, points.shape[0], "timestamps")
+    if times is not None:
+        check_time_order(times, "timestamps")
     quats = None if orientations is None else check_quaternions(orientations, points.shape[0], "orientations")
     path = None if plan is None else check_positions(plan, "plan", dim)
     return Correction(str(kind), points, check_positive(weight, "weight"), label, times, quats, path)

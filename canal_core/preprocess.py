@@ -155,15 +155,27 @@ def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> s
     return slice(max(first - 1, 0), min(last + 2, positions.shape[0]))
 
 
+def check_time_order(times: FloatArray, field: str = "timestamps") -> None:
+    """Refuse (:class:`InvalidInputError`, naming ``field``) time stamps that a demonstration
+    would be refused for: no span, or time going back for more than an isolated sample.
+
+    Parameters
+    ----------
+    times : array, shape (T,)
+        Finite seconds.
+    """
+    _time_order_rows(times, field)
+
+
 def _time_order_rows(times: FloatArray, field: str) -> IntArray:
     """Rows whose timestamps, in order, strictly increase (step 2 of the module docstring)."""
     n = times.shape[0]
     span = float(times.max() - times.min())
     if not np.isfinite(span):
-        raise InvalidInputError(f"expected timestamps of {field} with a finite span, got {span}", field=field)
+        raise InvalidInputError(f"expected {field} with a finite span, got {span}", field=field)
     if span <= 0.0:
         raise InvalidInputError(
-            f"expected timestamps of {field} to advance, got {n} equal values {float(times[0])!r}",
+            f"expected {field} to advance, got {n} equal values {float(times[0])!r}",
             field=field,
         )
     rows = np.arange(n)
@@ -192,7 +204,7 @@ def _time_order_rows(times: FloatArray, field: str) -> IntArray:
                 drop.append(k - 1)  # k - 1 jumped ahead
             else:
                 raise InvalidInputError(
-                    f"expected increasing timestamps in {field}, got {float(t[k])!r} after "
+                    f"expected increasing {field}, got {float(t[k])!r} after "
                     f"{float(t[k - 1])!r} at sample {int(rows[k])}: time goes back for more "
                     "than one sample (a clock reset or logs joined together)",
                     field=field,
@@ -201,7 +213,7 @@ def _time_order_rows(times: FloatArray, field: str) -> IntArray:
         if repaired > budget:
             k = int(back[0])
             raise InvalidInputError(
-                f"expected increasing timestamps in {field}, got {repaired} samples out of order "
+                f"expected increasing {field}, got {repaired} samples out of order "
                 f"(first {float(t[k])!r} after {float(t[k - 1])!r} at sample {int(rows[k])}); "
                 f"at most {budget} are repaired by dropping them",
                 field=field,
@@ -211,7 +223,7 @@ def _time_order_rows(times: FloatArray, field: str) -> IntArray:
     if np.any(np.diff(t) <= eps):
         k = int(np.argmax(np.diff(t) <= eps)) + 1
         raise InvalidInputError(
-            f"expected increasing timestamps in {field}, got {float(t[k])!r} after "
+            f"expected increasing {field}, got {float(t[k])!r} after "
             f"{float(t[k - 1])!r} at sample {int(rows[k])}",
             field=field,
         )

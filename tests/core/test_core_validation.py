@@ -45,7 +45,7 @@ def test_inf_is_rejected_with_row() -> None:
     ("timestamps", "words", "field"),
     [
         ("bad-length", "shape", "timestamps[1]"),
-        ("decreasing", "increasing timestamps", "timestamps[1]"),
+        ("decreasing", "increasing timestamps\\[1\\]", "timestamps[1]"),
         ("reset", "time goes back for more than one sample", "timestamps[1]"),
         ("count", "one per demo", "timestamps"),
     ],

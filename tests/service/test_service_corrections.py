@@ -130,6 +130,10 @@ def test_a_correction_of_an_older_version_becomes_the_latest(http: httpx.Client)
         ({"model": True}, "model"),  # not version 1
         ({"weight": True}, "weight"),  # not 1.0
         ({"route": False}, "route"),  # not route 0
+        # Time stamps a demonstration would be refused for: they never advance, or go back
+        # for good (a clock reset) half-way.
+        ({"timestamps": [1.0] * 21}, "timestamps"),
+        ({"timestamps": [0.1 * i for i in range(11)] + [0.1 * i for i in range(10)]}, "timestamps"),
     ],
 )
 def test_bad_corrections_are_refused_naming_the_field_and_store_nothing(
