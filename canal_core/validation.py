@@ -28,11 +28,63 @@ def _as_float_array(value: Any, field: str) -> FloatArray:
     try:
         array = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
+        # Only a failure pays for the walk; numpy's own text ("inhomogeneous shape after 1
+        # dimensions") names neither the row nor what was wrong with it.
+        named = _malformed_entry(value, field)
+        if named is not None:
+            raise named from exc
         raise InvalidInputError(
             f"expected {field} as an array of numbers, got {type(value).__name__} ({exc})",
             field=field,
         ) from exc
     return array
+
+
+def _kind(value: Any) -> str:
+    """What came, in the words of the JSON it most likely came from."""
+    if value is None:
+        return "null"
+    if isinstance(value, str | bytes):
+        return f"text {value!r:.24}"
+    if isinstance(value, dict):
+        return "an object"
+    return type(value).__name__
+
+
+def _is_row(value: Any) -> bool:
+    return isinstance(value, Sequence | np.ndarray) and not isinstance(value, str | bytes)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float | np.number)
+
+
+def _malformed_entry(value: Any, field: str) -> InvalidInputError | None:
+    """The first entry of a list of numbers, or of rows of numbers, that numpy could not
+    read, named by index (``field[i]`` or ``field[i][j]``); None when it is not such a list."""
+    if not _is_row(value) or len(value) == 0:
+        return None
+    if not _is_row(value[0]):
+        for i, x in enumerate(value):
+            if not _is_number(x):
+                return InvalidInputError(f"expected a number at {field}[{i}], got {_kind(x)}",
+                                         field=f"{field}[{i}]")
+        return None
+    width = len(value[0])
+    for i, row in enumerate(value):
+        if not _is_row(row):
+            return InvalidInputError(f"expected {field}[{i}] as a row of {width} numbers, got {_kind(row)}",
+                                     field=f"{field}[{i}]")
+        if len(row) != width:
+            return InvalidInputError(
+                f"expected {width} values per row of {field} (as row 0 has), got {len(row)} values at row {i}",
+                field=f"{field}[{i}]",
+            )
+        for j, x in enumerate(row):
+            if not _is_number(x):
+                return InvalidInputError(f"expected a number at {field}[{i}][{j}], got {_kind(x)}",
+                                         field=f"{field}[{i}][{j}]")
+    return None
 
 
 def check_finite(array: FloatArray, field: str) -> None:

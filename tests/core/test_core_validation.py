@@ -22,7 +22,7 @@ def good() -> list[np.ndarray]:
         ([np.ones((10, 3)), np.ones((10, 2))], {}, "demos", "same dimension"),
         ([np.ones((10, 4)), np.ones((10, 4))], {}, "demos[0]", "shape (T, D)"),
         ([np.full((10, 3), np.nan), np.ones((10, 3))], {}, "demos[0]", "NaN or Inf"),
-        ([[[0, 0, 0], [1, 1]], [[0, 0, 0]]], {}, "demos[0]", "array of numbers"),
+        ([[[0, 0, 0], [1, 1]], [[0, 0, 0]]], {}, "demos[0][1]", "got 2 values at row 1"),
         ("abc", {}, "demos", "list of (T_j, D) arrays"),
     ],
 )
@@ -31,6 +31,29 @@ def test_malformed_demonstrations_are_rejected(demos, kwargs, field, words) -> N
         canal_core.fit(demos, **kwargs)
     assert err.value.field == field
     assert words in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("row", "field", "words"),
+    [
+        ([1.0, 1.0], "positions[1]", "expected 3 values per row of positions (as row 0 has), got 2 values at row 1"),
+        (None, "positions[1]", "expected positions[1] as a row of 3 numbers, got null"),
+        ([1.0, [1.0], 1.0], "positions[1][1]", "expected a number at positions[1][1], got list"),
+        ([1.0, {}, 1.0], "positions[1][1]", "got an object"),
+    ],
+)
+def test_a_malformed_row_is_named_by_index_not_by_numpy(row: object, field: str, words: str) -> None:
+    rows: list[object] = [[0.0, 0.0, 0.0], row, [2.0, 2.0, 2.0], [3.0, 3.0, 3.0]]
+    with pytest.raises(InvalidInputError) as err:
+        validation.check_positions(rows)
+    assert err.value.field == field and words in str(err.value)
+    assert "inhomogeneous" not in str(err.value)
+
+
+def test_a_malformed_time_stamp_is_named_by_index() -> None:
+    with pytest.raises(InvalidInputError) as err:
+        validation.check_timestamps([0.0, 0.1, [0.2], 0.3], 4)
+    assert err.value.field == "timestamps[2]" and "expected a number at timestamps[2], got list" in str(err.value)
 
 
 def test_inf_is_rejected_with_row() -> None:
@@ -147,7 +170,9 @@ VALIDATOR_CASES = [
     ("check_positions", lambda: validation.check_positions(np.ones((6, 2)), "positions", dim=3),
      "positions", "expected positions of shape (T, 3)", "got (6, 2)"),
     ("check_positions", lambda: validation.check_positions([[0, 1, 2], [3, 4]], "demos[0]"),
-     "demos[0]", "expected demos[0] as an array of numbers", "got list"),
+     "demos[0][1]", "expected 3 values per row of demos[0]", "got 2 values at row 1"),
+    ("check_positions", lambda: validation.check_positions({"x": 1}, "demos[0]"),
+     "demos[0]", "expected demos[0] as an array of numbers", "got dict"),
     ("check_timestamps", lambda: validation.check_timestamps(np.arange(4.0), 5, "timestamps[1]"),
      "timestamps[1]", "expected timestamps[1] of shape (5,)", "got (4,)"),
     ("check_timestamps", lambda: validation.check_timestamps([0, 1, np.inf], 3, "timestamps[0]"),

@@ -155,3 +155,17 @@ def test_a_correction_that_would_close_the_canal_is_refused(http: httpx.Client) 
     error = r.json()["error"]
     assert error["field"] == "kind" and "close the canal" in error["message"]
     assert http.get("/skills/pour/models").json()["total"] == 1
+
+
+
+def test_a_sample_row_a_value_short_is_named_in_words_not_numpy_s(http: httpx.Client) -> None:
+    # Null rows and non-numbers are refused by the schema; a row of the wrong length reached
+    # numpy and came back as "inhomogeneous shape after 1 dimensions".
+    samples = wider_path(served_canal(http))
+    samples[1] = samples[1][:2]
+    r = http.post("/skills/pour/corrections", json={"kind": "include", "samples": samples})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"] == "samples[1]" and "got 2 values at row 1" in error["message"], error
+    assert "inhomogeneous" not in error["message"]
+    assert http.get("/skills/pour/corrections").json()["total"] == 0
