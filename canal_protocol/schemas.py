@@ -3,13 +3,25 @@
 from __future__ import annotations
 
 import itertools
+import json
 from datetime import UTC, datetime
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 import orjson
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationError,
+    ValidatorFunctionWrapHandler,
+    WrapValidator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
 from canal_core import obstacles as canal_obstacles
 
@@ -25,6 +37,24 @@ MAX_ID = 2**31 - 1
 NO_NUL = r"^[^\x00]*$"
 
 Id = Annotated[int, Field(ge=1, le=MAX_ID)]
+
+
+def _model_ref(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+    # The union's own errors name its branch ("model.literal['latest']: Input should be
+    # 'latest'") whatever was sent, which reads as if no number were allowed.
+    try:
+        return handler(value)
+    except ValidationError:
+        # json, not orjson: a JSON integer past 64 bits is still what came.
+        got = json.dumps(value) if isinstance(value, str | int | float | bool | None) else type(value).__name__
+        raise PydanticCustomError(
+            "model_version", "expected 'latest' or a model version from 1 to {largest}, got {got}",
+            {"largest": MAX_ID, "got": got[:40]},
+        ) from None
+
+
+#: 'latest' or a model version (a JSON number, not a string of one).
+ModelRef = Annotated[Literal["latest"] | Id, WrapValidator(_model_ref)]
 # A coordinate is a JSON number: strict, so `true` or "1" is refused instead of becoming 1.0
 # (integers still count as numbers).
 Coordinate = Annotated[float, Strict()]
@@ -345,7 +375,7 @@ class CorrectionIn(_In):
         None, max_length=options.MAX_CORRECTION_SAMPLES,
         description="exclude only, optional: (P, D) the path the robot was on before the push "
                     "(default: the model's reproduction from the first sample).")
-    model: Literal["latest"] | Id = Field(
+    model: ModelRef = Field(
         "latest", description="The model version corrected; the result is always the new latest.")
     weight: float = Field(
         1.0, gt=0.0, le=options.MAX_CORRECTION_WEIGHT,
@@ -494,7 +524,7 @@ class ReproductionRequest(_In):
 
     start: list[Coordinate] | None = Field(None, min_length=2, max_length=3, examples=[[0.0, 0.0, 0.0]])
     starts: list[list[Coordinate]] | None = Field(None, min_length=1, max_length=MAX_BATCH_STARTS)
-    model: Literal["latest"] | Id = Field(
+    model: ModelRef = Field(
         "latest", description="'latest' or a model version number."
     )
     outside: OutsideRule = Field(

@@ -301,6 +301,20 @@ def test_bad_reproduction_request(client: TestClient, fitted: str, tried: str, b
     assert stored(client) == (4, 1), tried
 
 
+@pytest.mark.parametrize("model", [0, -1, 2**31, 10**20, 1.5, "newest", True, "1", None, [1], {"v": 1}])
+@pytest.mark.parametrize("route", ["reproductions", "corrections"])
+def test_a_bad_model_version_is_named_model_with_what_is_expected(
+    client: TestClient, fitted: str, model: Any, route: str
+) -> None:
+    # Named "model.literal['latest']" with "Input should be 'latest'" before, whatever was
+    # sent: the reader was told a number is not allowed.
+    body = {"start": [0, 0, 0]} if route == "reproductions" else {"kind": "include", "samples": [[0, 0, 0]] * 8}
+    error = assert_error(client.post(f"/skills/{fitted}/{route}", json={**body, "model": model}), 422, "model")
+    assert error["field"] == "model", error
+    assert f"expected 'latest' or a model version from 1 to {2**31 - 1}, got" in error["message"], error
+    assert stored(client) == (4, 1)
+
+
 def test_start_outside_the_canal(client: TestClient, fitted: str) -> None:
     far = [0.0, 5.0, 0.0]
     r = client.post(f"/skills/{fitted}/reproductions", json={"start": far})
