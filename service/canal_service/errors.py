@@ -258,9 +258,21 @@ def loc_to_field(loc: tuple[Any, ...] | list[Any]) -> str:
     return field or "body"
 
 
+def _unreadable_json(error: dict[str, Any]) -> dict[str, Any]:
+    """A body FastAPI could not decode as JSON: its loc is ('body', character), which is no
+    field, and its message ("JSON decode error") does not say where or what."""
+    loc = list(error.get("loc", ()))
+    at = loc[-1] if loc and isinstance(loc[-1], int) else None
+    why = str((error.get("ctx") or {}).get("error", "")).strip()
+    where = "" if at is None else f" at character {at}"
+    return {"field": "body", "message": f"expected a JSON object, got invalid JSON{where}"
+            + (f" ({why})" if why else ""), "type": "json_invalid"}
+
+
 def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
     """Envelope for pydantic errors: the first one names the field, all are in details."""
     details = [
+        _unreadable_json(e) if e.get("type") == "json_invalid" else
         {"field": loc_to_field(e.get("loc", ())), "message": str(e.get("msg", "")),
          "type": str(e.get("type", ""))}
         for e in errors

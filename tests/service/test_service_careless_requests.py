@@ -71,6 +71,10 @@ def test_fit_with_a_null_body_is_refused_and_fits_nothing(http: httpx.Client) ->
     (b'{"start": [0, 0, \xff]}', "UTF-8"),
     (b"[" * 100_000 + b"]" * 100_000, "nested too deep"),
     (b'{"start": [' + b"9" * 5000 + b", 0, 0]}", "too many digits"),
+    # Cut short, a trailing comma, a bare word: named "[26]" with "JSON decode error" before.
+    (b'{"start": [0, 0.05, 0.025]', "invalid JSON at character 26"),
+    (b'{"start": [0, 0, 0],}', "invalid JSON at character 20"),
+    (b"start=0,0,0", "invalid JSON at character 0"),
 ])
 def test_a_json_body_that_cannot_be_parsed_gets_a_type_from_the_error_table(
         http: httpx.Client, body: bytes, said: str) -> None:
