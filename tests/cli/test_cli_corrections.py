@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 from canal_client import CanalClient
 from canal_live import LiveService, demo_positions
 from click.testing import Result
@@ -79,3 +80,14 @@ def test_numpys_savetxt_file_is_a_correction_path(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_path(path), xyz)
     path.write_text("# pushed by hand\n1,2,3\n4,5,6\n7,8,9\n")
     np.testing.assert_array_equal(read_path(path), xyz)
+
+
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16"])
+def test_a_spreadsheet_export_with_a_byte_order_mark_is_a_correction_path(tmp_path: Path, encoding: str) -> None:
+    # With a UTF-8 mark the first name read "\ufeffx" and the t column became x; UTF-16 was
+    # not read at all. The service reads both as uploads.
+    from canal_client.cli.corrections import read_path
+
+    path = tmp_path / "push.csv"
+    path.write_bytes("t,x,y,z\r\n0,1,2,3\r\n0.5,4,5,6\r\n".encode(encoding))
+    np.testing.assert_array_equal(read_path(path), [[1, 2, 3], [4, 5, 6]])

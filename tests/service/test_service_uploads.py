@@ -114,6 +114,29 @@ def test_csv_upload(client: TestClient, skill: str, header: str | None) -> None:
     assert (back["orientations"] is not None) == (header is not None and "qx" in header)
 
 
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16", "utf-16-be", "utf-16-le"])
+def test_a_csv_with_a_byte_order_mark_is_read_in_its_encoding(client: TestClient, skill: str, encoding: str) -> None:
+    # Spreadsheets and Windows tools save "Unicode text" as UTF-16 with a byte-order mark;
+    # it was refused as "CSV must be text; found NUL bytes".
+    p = demo_positions(1, n=12)
+    text = "x,y,z\r\n" + "\r\n".join(",".join(repr(float(v)) for v in row) for row in p)
+    data = text.encode(encoding)
+    if encoding in ("utf-16-be", "utf-16-le"):  # these codecs write no mark: add it
+        data = "\ufeff".encode(encoding) + data
+    r = client.post(f"/skills/{skill}/demonstrations", files={"file": ("demo.csv", data, "text/csv")})
+    assert r.status_code == 201, r.text
+    assert np.array_equal(read_back(client, skill, r.json()["id"])["positions"], p)
+
+
+def test_a_csv_that_is_not_the_utf_16_its_mark_says_is_refused(client: TestClient, skill: str) -> None:
+    r = client.post(f"/skills/{skill}/demonstrations",
+                    files={"file": ("demo.csv", b"\xff\xfex\x00,\x00\x00\xd8", "text/csv")})
+    assert r.status_code == 400, r.text
+    error = r.json()["error"]
+    assert error["field"] == "file" and "expected UTF-16 text after its byte-order mark" in error["message"]
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
+
+
 def test_an_uploaded_file_without_a_label_is_labelled_by_its_name(client: TestClient, skill: str) -> None:
     # A folder of demonstrations uploaded file by file used to be stored unlabelled: in the
     # list and the viewer nothing said which demonstration came from which file.

@@ -39,7 +39,11 @@ def read_path(path: Path) -> FloatArray:
             body = json.loads(path.read_text())
             rows = body["samples"] if isinstance(body, dict) else body
         elif suffix in (".csv", ".txt"):
-            lines = [line for line in path.read_text().splitlines() if line.strip()]
+            raw = path.read_bytes()
+            # A byte-order mark says the encoding: spreadsheets write UTF-8 with one, Windows
+            # tools' "Unicode text" is UTF-16 (as the service reads uploads).
+            text = raw.decode("utf-16" if raw.startswith((b"\xff\xfe", b"\xfe\xff")) else "utf-8-sig")
+            lines = [line for line in text.splitlines() if line.strip()]
             # Comment lines and a header line come first; numpy.savetxt writes its header as
             # a comment ("# t,x,y,z"), so the last of them names the columns.
             leading = 0

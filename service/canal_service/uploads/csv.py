@@ -31,6 +31,16 @@ _TIME_NAMES_WITH_UNIT = {
 }
 
 
+def _utf8_from_utf16(data: bytes) -> bytes:
+    """UTF-16 text with its byte-order mark (spreadsheets' and Windows tools' "Unicode
+    text") as UTF-8, which the reader below parses; the mark says the byte order."""
+    try:
+        return data.decode("utf-16").encode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BadUpload(f"expected UTF-16 text after its byte-order mark, got {exc.reason} at byte "
+                        f"{exc.start + 2}", field="file") from exc
+
+
 def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUpload:
     """CSV with or without a header (see module docstring).
 
@@ -39,6 +49,8 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
     costs at most that much.
     """
     budget = budget or Budget(UploadLimits())
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        data = _utf8_from_utf16(data)
     if b"\x00" in data:
         raise BadUpload("CSV must be text; found NUL bytes", field="file")
     if b"\n" not in data and b"\r" in data:
