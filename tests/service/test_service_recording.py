@@ -43,6 +43,29 @@ def test_recording_exports(tmp_path: Path) -> None:
     assert settings.resolved_recordings_dir.exists()
 
 
+def test_a_download_tool_can_ask_the_size_and_resume(tmp_path: Path) -> None:
+    # HEAD (curl -I, wget --spider, download managers) was 405; a Range header the file
+    # cannot answer was a 400 in plain text. A Range in a unit other than bytes, or one
+    # that does not parse, is ignored (RFC 9110, 14.2): the whole file comes.
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
+    with TestClient(create_app(settings)) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        for j in range(3):
+            c.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+        for kind in ("rrd", "mcap"):
+            url = f"/skills/pour/recording.{kind}"
+            head = c.head(url)
+            assert head.status_code == 200 and head.content == b"", head.text
+            assert int(head.headers["content-length"]) > 0
+            assert c.head("/skills/nope/recording.rrd").status_code == 404
+            whole = c.get(url).content
+            part = c.get(url, headers={"range": "bytes=0-9"})
+            assert part.status_code == 206 and part.content == whole[:10]
+            for odd in ("bytes=5-2", "bytes=abc", "lines=0-1", "bytes", "bytes=-"):
+                r = c.get(url, headers={"range": odd})
+                assert r.status_code == 200 and len(r.content) == len(whole), (odd, r.status_code, r.text[:80])
+
+
 def test_rebuild_regenerates_the_recording_from_the_database(tmp_path: Path) -> None:
     import shutil
 

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any, Literal
 
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 from starlette.background import BackgroundTask
+from starlette.types import Receive, Scope, Send
 
 from canal_protocol.options import RecordingKind
 from canal_protocol.schemas import ErrorResponse
@@ -22,11 +24,39 @@ _RESPONSES: dict[int | str, dict[str, Any]] = {
 _MEDIA = {"rrd": "application/octet-stream", "mcap": "application/octet-stream"}
 
 
+#: A byte-range set (RFC 9110, 14.1.2): "bytes=0-9", "bytes=100-", "bytes=-500", several by commas.
+_BYTE_RANGES = re.compile(r"\s*bytes\s*=\s*(\d+-\d*|-\d+)(\s*,\s*(\d+-\d*|-\d+))*\s*", re.IGNORECASE)
+
+
+def _answerable(value: str) -> bool:
+    """Whether a Range header is byte ranges that each start at or before their end."""
+    if not _BYTE_RANGES.fullmatch(value):
+        return False
+    for part in value.split("=", 1)[1].split(","):
+        first, _, last = part.strip().partition("-")
+        if first and last and int(first) > int(last):
+            return False
+    return True
+
+
+class _Download(FileResponse):
+    """A snapshot file, with a Range header it cannot answer ignored (RFC 9110, 14.2 lets a
+    server do so) instead of Starlette's plain-text 400: a download tool that sent one gets
+    the whole file, as from a server without ranges."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        headers = scope.get("headers", [])
+        asked = next((v for k, v in headers if k == b"range"), None)
+        if asked is not None and not _answerable(asked.decode("latin-1")):
+            scope = {**scope, "headers": [(k, v) for k, v in headers if k != b"range"]}
+        await super().__call__(scope, receive, send)
+
+
 async def _export(service: CanalService, name: str, kind: RecordingKind,
                   profile: Literal["foxglove", "ros2"] = "foxglove") -> FileResponse:
     path = await run_in_threadpool(service.export_recording, name, kind, profile)
     # The snapshot is ours to delete once sent (Recorder contract).
-    return FileResponse(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
+    return _Download(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
                         headers=service.recording_provenance(),
                         background=BackgroundTask(path.unlink, missing_ok=True))
 
@@ -53,6 +83,12 @@ async def recording_mcap(
 ) -> FileResponse:
     """An MCAP snapshot of the same recording (Foxglove JSON, or ROS 2 with ?profile=ros2)."""
     return await _export(service, name, "mcap", profile)
+
+
+# HEAD as GET: download tools ask a file's size before fetching or resuming it. Left out of
+# the schema, where it would repeat GET's operation (HTTP gives every GET a HEAD).
+router.add_api_route("/recording.rrd", recording_rrd, methods=["HEAD"], include_in_schema=False)
+router.add_api_route("/recording.mcap", recording_mcap, methods=["HEAD"], include_in_schema=False)
 
 
 @router.post("/recording/rebuild", responses={**_RESPONSES, 409: {"model": ErrorResponse}})
