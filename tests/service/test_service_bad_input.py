@@ -198,6 +198,17 @@ def test_duplicate_skill_is_a_conflict(client: TestClient, skill: str) -> None:
     assert client.get(f"/skills/{skill}").json()["dim"] == 3
 
 
+def test_a_name_that_differs_only_in_letter_case_is_a_conflict(client: TestClient, skill: str) -> None:
+    # "Pour" beside "pour" was a second skill, and on a case-insensitive file system (macOS,
+    # Windows) both recorded into one folder.
+    for other in (skill.upper(), skill.capitalize(), skill.swapcase()):
+        r = client.post("/skills", json={"name": other, "dim": 3})
+        error = assert_error(r, 409, "name", "conflict")
+        assert repr(skill) in error["message"] and "letter case" in error["message"], error
+        assert client.get(f"/skills/{other}").status_code == 404
+    assert client.post("/skills", json={"name": skill + "-2", "dim": 3}).status_code == 201
+
+
 def test_fit_with_fewer_than_two_demos(client: TestClient, skill: str) -> None:
     assert_error(client.post(f"/skills/{skill}/fit", json={}), 409, "demonstrations")
     client.post(f"/skills/{skill}/demonstrations", json={"positions": GOOD})

@@ -50,7 +50,16 @@ class SkillStats:
 
 
 def create_skill(session: Session, name: str, description: str, dim: int) -> Skill:
-    """Insert a skill; a name already taken is :class:`SkillExists`."""
+    """Insert a skill; a name already taken, also in another letter case, is :class:`SkillExists`."""
+    # A skill's recordings live in a folder named after it: on a case-insensitive file
+    # system (macOS, Windows) "Pour" and "pour" would record into one.
+    taken = session.scalars(
+        select(Skill.name).where(func.lower(Skill.name) == name.lower(), Skill.name != name).limit(1)
+    ).first()
+    if taken is not None:
+        raise SkillExists(
+            f"skill {taken!r} already exists: expected a name that differs from it by more than "
+            f"letter case, got {name!r}", field="name")
     skill = Skill(name=name, description=description, dim=dim)
     session.add(skill)
     try:
