@@ -30,7 +30,7 @@ def _as_float_array(value: Any, field: str) -> FloatArray:
     except (TypeError, ValueError) as exc:
         # Only a failure pays for the walk; numpy's own text ("inhomogeneous shape after 1
         # dimensions") names neither the row nor what was wrong with it.
-        named = _malformed_entry(value, field)
+        named = malformed_entry(value, field)
         if named is not None:
             raise named from exc
         raise InvalidInputError(
@@ -59,25 +59,38 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float | np.number)
 
 
-def _malformed_entry(value: Any, field: str) -> InvalidInputError | None:
-    """The first entry of a list of numbers, or of rows of numbers, that numpy could not
-    read, named by index (``field[i]`` or ``field[i][j]``); None when it is not such a list."""
+def malformed_entry(value: Any, field: str, width: int | None = None, what: str = "") -> InvalidInputError | None:
+    """The first entry of a list of numbers, or of rows of numbers, that cannot be read as
+    one array, named by index (``field[i]`` or ``field[i][j]``); None when there is none or
+    ``value`` is not a list.
+
+    Parameters
+    ----------
+    value : list of numbers, or list of rows of numbers
+    field : str
+        Name used in the error.
+    width : int, optional
+        The values every row must have (rows are expected then); as the first row has when None.
+    what : str
+        What a row's values are, for the message ("x, y, z for a 3-D skill").
+    """
     if not _is_row(value) or len(value) == 0:
         return None
-    if not _is_row(value[0]):
+    if width is None and not _is_row(value[0]):
         for i, x in enumerate(value):
             if not _is_number(x):
                 return InvalidInputError(f"expected a number at {field}[{i}], got {_kind(x)}",
                                          field=f"{field}[{i}]")
         return None
-    width = len(value[0])
+    width = len(value[0]) if width is None else width
+    said = f"({what})" if what else "(as row 0 has)"
     for i, row in enumerate(value):
         if not _is_row(row):
             return InvalidInputError(f"expected {field}[{i}] as a row of {width} numbers, got {_kind(row)}",
                                      field=f"{field}[{i}]")
         if len(row) != width:
             return InvalidInputError(
-                f"expected {width} values per row of {field} (as row 0 has), got {len(row)} values at row {i}",
+                f"expected {width} values per row of {field} {said}, got {len(row)} values at row {i}",
                 field=f"{field}[{i}]",
             )
         for j, x in enumerate(row):

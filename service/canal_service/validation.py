@@ -17,7 +17,7 @@ import numpy.typing as npt
 from canal_core import bounds
 from canal_core.errors import CanalError
 from canal_core.preprocess import prepared_demonstration
-from canal_core.validation import check_quaternion, check_quaternions
+from canal_core.validation import check_quaternion, check_quaternions, malformed_entry
 
 from .errors import InvalidInput
 
@@ -62,15 +62,9 @@ def _matrix(value: Any, field: str, columns: int, what: str) -> FloatArray:
         if not isinstance(value, Sequence) or isinstance(value, str | bytes):
             raise InvalidInput(f"expected {field} as a list of rows, got {type(value).__name__}",
                                field=field)
-        for i, row in enumerate(value):
-            if not isinstance(row, Sequence) or isinstance(row, str | bytes):
-                raise InvalidInput(f"expected {field}[{i}] to be a row of {columns} numbers",
-                                   field=f"{field}[{i}]")
-            if len(row) != columns:
-                raise InvalidInput(
-                    f"expected {columns} values per row ({what}), got {len(row)} at row {i}",
-                    field=f"{field}[{i}]",
-                )
+        named = malformed_entry(value, field, columns, what)
+        if named is not None:
+            raise InvalidInput(named.message, field=named.field)
         try:
             array = np.asarray(value, dtype=np.float64)
         except (TypeError, ValueError) as exc:
