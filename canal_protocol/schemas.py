@@ -16,6 +16,7 @@ from pydantic import (
     ConfigDict,
     Field,
     Strict,
+    TypeAdapter,
     ValidationError,
     ValidatorFunctionWrapHandler,
     WrapValidator,
@@ -45,12 +46,20 @@ def _model_ref(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
     try:
         return handler(value)
     except ValidationError:
-        # json, not orjson: a JSON integer past 64 bits is still what came.
-        got = json.dumps(value) if isinstance(value, str | int | float | bool | None) else type(value).__name__
         raise PydanticCustomError(
             "model_version", "expected 'latest' or a model version from 1 to {largest}, got {got}",
-            {"largest": MAX_ID, "got": got[:40]},
+            {"largest": MAX_ID, "got": _got(value)},
         ) from None
+
+
+def _got(value: Any) -> str:
+    """What a client sent, for an error message: a JSON scalar as written, else its kind."""
+    # json, not orjson: a JSON integer past 64 bits is still what came.
+    if isinstance(value, str | int | float | bool | None):
+        return json.dumps(value)[:40]
+    if isinstance(value, dict):
+        return "an object"
+    return "a list" if isinstance(value, list) else type(value).__name__
 
 
 #: 'latest' or a model version (a JSON number, not a string of one).
@@ -461,6 +470,28 @@ ObstacleKind = canal_obstacles.ObstacleKind
 PositiveLength = Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)]
 
 
+_QUATERNION = TypeAdapter(list[Coordinate], config=ConfigDict(strict=True, allow_inf_nan=False))
+
+
+def _rotation(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+    # A list is a quaternion: its own errors name the component at fault. Anything else is
+    # an angle or wrong; the union's errors would name both branches ("Input should be a
+    # valid list", "rotation.float: ..."), which read as if an angle were not allowed.
+    if isinstance(value, list):
+        return _QUATERNION.validate_python(value)
+    try:
+        return handler(value)
+    except ValidationError:
+        raise PydanticCustomError(
+            "rotation", "expected [qx, qy, qz, qw] (3-D) or a finite angle in radians (2-D), "
+                        "got {got}", {"got": _got(value)},
+        ) from None
+
+
+#: A box's orientation: a quaternion [qx, qy, qz, qw] in 3-D, an angle in radians in 2-D.
+Rotation = Annotated[list[Coordinate] | Coordinate, WrapValidator(_rotation)]
+
+
 class ObstacleIn(_In):
     """One obstacle; which keys it takes depends on ``kind`` (checked against the skill's
     dimension by the service, naming the key at fault)::
@@ -477,7 +508,7 @@ class ObstacleIn(_In):
     center: list[Coordinate] | None = Field(None, min_length=2, max_length=3, examples=[[0.4, 0.0, 0.3]])
     radius: PositiveLength | None = Field(None, examples=[0.05])
     half_extents: list[PositiveLength] | None = Field(None, min_length=2, max_length=3)
-    rotation: list[Coordinate] | Coordinate | None = Field(
+    rotation: Rotation | None = Field(
         None, description="Box orientation: [qx, qy, qz, qw] (3-D) or radians (2-D).")
     a: list[Coordinate] | None = Field(None, min_length=2, max_length=3)
     b: list[Coordinate] | None = Field(None, min_length=2, max_length=3)

@@ -3,6 +3,7 @@ whole when an obstacle is malformed."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 
 import httpx
@@ -114,6 +115,29 @@ def test_a_malformed_obstacle_is_refused_naming_it_and_nothing_is_stored(
         assert r.json()["error"]["field"] == field, r.json()
     scene = http.get("/skills/reach/scene").json()
     assert scene["version"] == 1 and scene["obstacles"][0]["name"] == "cup"
+
+
+@pytest.mark.parametrize("rotation", ["abc", True, {"qw": 1}, [[0, 0, 0, 1]], "1e400"])
+def test_a_rotation_that_is_neither_a_quaternion_nor_an_angle_says_what_it_takes(
+    http: httpx.Client, rotation: object
+) -> None:
+    # Answered "Input should be a valid list" before, with a second detail on a field named
+    # "rotation.float": a 2-D user read that an angle was not allowed.
+    box = {"kind": "box", "center": [0.5, 0, 0], "half_extents": [0.1, 0.1, 0.1]}
+    text = json.dumps({"obstacles": [{**box, "rotation": "ROT"}]}).replace(
+        '"ROT"', rotation if rotation == "1e400" else json.dumps(rotation))
+    r = http.put("/skills/reach/scene", content=text, headers={"content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"].startswith("obstacles[0].rotation"), error
+    assert [d["field"] for d in error.get("details", [error])] == [error["field"]], error
+    if rotation == [[0, 0, 0, 1]]:
+        assert error["field"] == "obstacles[0].rotation[0]", error
+    else:
+        assert error["field"] == "obstacles[0].rotation", error
+        assert "[qx, qy, qz, qw]" in error["message"] and "radians" in error["message"], error
+        assert "got" in error["message"], error
+    assert http.get("/skills/reach/scene").json()["version"] == 0
 
 
 def test_nan_in_an_obstacle_is_refused(http: httpx.Client) -> None:
