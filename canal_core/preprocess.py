@@ -54,6 +54,7 @@ only moves at rounding level is refused, not fitted.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -128,6 +129,30 @@ def mask_of_new_samples(positions: FloatArray) -> np.ndarray:
         changed |= positions[1:, axis] != positions[:-1, axis]
     keep[1:] = changed
     return keep
+
+
+def size_ratios(positions: Sequence[FloatArray]) -> FloatArray:
+    """Return each demonstration's size over the median demonstration's size.
+
+    A demonstration's size is the diagonal of its bounding box. Demonstrations of one skill
+    differ in size by a few times at most; a ratio near 1000 or 1/1000 is a log in
+    millimetres among logs in metres (or the other way), which the fit cannot tell from a
+    way of its own.
+
+    Parameters
+    ----------
+    positions : sequence of arrays, each shape (T_j, D)
+
+    Returns
+    -------
+    ratios : array, shape (N,)
+        1 for every demonstration when the median size is 0.
+    """
+    sizes = np.array([float(np.linalg.norm(np.ptp(p, axis=0))) for p in positions])
+    median = float(np.median(sizes)) if sizes.size else 0.0
+    if not median > 0.0:
+        return np.ones(sizes.shape[0])
+    return np.asarray(sizes / median, dtype=np.float64)
 
 
 def moving_range(positions: FloatArray, tolerance: float = STILL_TOLERANCE) -> slice:

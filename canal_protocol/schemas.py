@@ -48,11 +48,11 @@ def _model_ref(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
     except ValidationError:
         raise PydanticCustomError(
             "model_version", "expected 'latest' or a model version from 1 to {largest}, got {got}",
-            {"largest": MAX_ID, "got": _got(value)},
+            {"largest": MAX_ID, "got": shown_value(value)},
         ) from None
 
 
-def _got(value: Any) -> str:
+def shown_value(value: Any) -> str:
     """What a client sent, for an error message: a JSON scalar as written, else its kind."""
     # json, not orjson: a JSON integer past 64 bits is still what came.
     if isinstance(value, str | int | float | bool | None):
@@ -484,7 +484,7 @@ def _rotation(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
     except ValidationError:
         raise PydanticCustomError(
             "rotation", "expected [qx, qy, qz, qw] (3-D) or a finite angle in radians (2-D), "
-                        "got {got}", {"got": _got(value)},
+                        "got {got}", {"got": shown_value(value)},
         ) from None
 
 

@@ -37,6 +37,7 @@ from canal_core.errors import (
     ModelFormatError,
     OutsideCanalError,
 )
+from canal_protocol.schemas import shown_value
 
 log = logging.getLogger("canal_service")
 
@@ -269,14 +270,29 @@ def _unreadable_json(error: dict[str, Any]) -> dict[str, Any]:
             + (f" ({why})" if why else ""), "type": "json_invalid"}
 
 
+# Errors whose input is not the value at fault: a missing key has none, an unknown key's
+# value is not what was wrong with it.
+_NO_VALUE_SHOWN = frozenset({"missing", "extra_forbidden"})
+
+
+def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
+    """One pydantic error as {field, message, type}: the message says what was expected and,
+    when it does not already, what came (pydantic's own messages leave the value out)."""
+    if error.get("type") == "json_invalid":
+        return _unreadable_json(dict(error))
+    field = loc_to_field(error.get("loc", ()))
+    message = str(error.get("msg", ""))
+    kind = str(error.get("type", ""))
+    value = error.get("input")
+    if ("input" in error and kind not in _NO_VALUE_SHOWN and " got " not in f" {message} "
+            and not (field == "body" and isinstance(value, dict))):
+        message = f"{message}, got {shown_value(value)}"
+    return {"field": field, "message": message, "type": kind}
+
+
 def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
     """Envelope for pydantic errors: the first one names the field, all are in details."""
-    details = [
-        _unreadable_json(e) if e.get("type") == "json_invalid" else
-        {"field": loc_to_field(e.get("loc", ())), "message": str(e.get("msg", "")),
-         "type": str(e.get("type", ""))}
-        for e in errors
-    ]
+    details = [pydantic_detail(e) for e in errors]
     if not details:
         return error_body("invalid_input", "invalid request", "body", [])
     first = details[0]

@@ -226,6 +226,34 @@ def _tolist(value: Any) -> Any:
     return None if value is None else np.asarray(value, dtype=np.float64).tolist()
 
 
+# A demonstration this many times larger or smaller than the median one is named in the fit's
+# notes: people's demonstrations of one skill differ by a few times, units by 10 to 1000.
+UNIT_SUSPECT_RATIO = 20.0
+_UNIT_PAIRS = ((1000.0, "millimetres among metres"), (100.0, "centimetres among metres"),
+               (10.0, "millimetres among centimetres"))
+
+
+def unit_notes(positions: list[arrays.FloatArray], demo_ids: list[int]) -> list[str]:
+    """A note for each demonstration whose size is far from the median's: its units are
+    likely not the others' (a fit cannot tell that from a way of its own)."""
+    notes = []
+    for demo_id, ratio in zip(demo_ids, canal_core.preprocess.size_ratios(positions), strict=True):
+        if 1.0 / UNIT_SUSPECT_RATIO < ratio < UNIT_SUSPECT_RATIO:
+            continue
+        larger = ratio >= 1.0
+        factor = ratio if larger else 1.0 / ratio
+        hint = next((pair for scale, pair in _UNIT_PAIRS if 0.8 * scale <= factor <= 1.25 * scale), None)
+        if hint is not None and not larger:
+            small, big = hint.split(" among ")
+            hint = f"{big} among {small}"
+        size = (f"{factor:.0f} times the size of" if larger
+                else f"1/{factor:.0f} of the size of")
+        notes.append(f"demonstration {demo_id} is {size} the median demonstration: check its "
+                     "units" + (f" ({hint}?)" if hint else "")
+                     + ", or delete it if it was a slip")
+    return notes
+
+
 class CanalService:
     """Use cases of the REST API, independent of HTTP.
 
@@ -438,6 +466,7 @@ class CanalService:
         started = time.perf_counter()
         labels, route_notes = self._route_labels(positions, body.routes, body.route_separation,
                                                  demo_ids)
+        route_notes = unit_notes(positions, demo_ids) + route_notes
         job = FitJob(positions, stamped, body.by_time, orientations, options, labels)
         try:
             fitted = self.fits.run(name, job, cancel)

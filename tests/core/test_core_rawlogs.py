@@ -13,7 +13,7 @@ import canal_core
 from canal_core import CanalError, InvalidInputError
 from canal_core.alignment import demonstration_spline, dtw_aligned_demonstrations
 from canal_core.crossings import plane_crossings
-from canal_core.preprocess import prepared_demonstration, prepared_rows, prepared_samples
+from canal_core.preprocess import prepared_demonstration, prepared_rows, prepared_samples, size_ratios
 
 NON_LASA = ["task1", "task2", "helix"]
 
@@ -319,3 +319,15 @@ def test_a_demo_and_its_reverse_are_refused_naming_the_demos() -> None:
     with pytest.raises(canal_core.DegenerateCanalError) as info:
         canal_core.fit([demo, demo[::-1].copy()], n_samples=20)
     assert info.value.field == "demos"
+
+
+def test_size_ratios_single_out_a_demonstration_in_other_units() -> None:
+    demos = arc_demos()
+    assert np.allclose(size_ratios(demos), 1.0, atol=0.05)
+    ratios = size_ratios([*demos, demos[0] * 1000.0])
+    assert ratios[-1] == pytest.approx(1000.0, rel=0.05) and np.all(ratios[:-1] < 1.05)
+    # the UR5e demos differ in size, not in units
+    ur5e = size_ratios(ur5e_demos()[0])
+    assert np.all((ur5e > 0.2) & (ur5e < 5.0)), ur5e
+    # still demonstrations have no size; nothing is singled out
+    assert size_ratios([np.zeros((5, 3)), np.zeros((5, 3))]).tolist() == [1.0, 1.0]

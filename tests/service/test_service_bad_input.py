@@ -347,3 +347,33 @@ def test_bad_ids_and_versions_in_paths(client: TestClient, fitted: str) -> None:
     assert_error(client.get(f"/skills/{fitted}/models/1/mesh?format=stl"), 422, "format")
     assert_error(client.get(f"/skills/{fitted}/demonstrations?limit=0"), 422, "limit")
     assert stored(client) == (4, 1)
+
+
+@pytest.mark.parametrize(("path", "body", "field", "got"), [
+    ("/skills/pour/reproductions", {"start": [0, 0, 0], "route": "a"}, "route", 'got "a"'),
+    ("/skills/pour/reproductions", {"start": [0, 0, 0], "route": -1}, "route", "got -1"),
+    ("/skills/pour/reproductions", {"start": [0, 0, 0], "duration": True}, "duration", "got true"),
+    ("/skills/pour/reproductions", {"start": [0, 0, "x"]}, "start[2]", 'got "x"'),
+    ("/skills/pour/reproductions", {"start": [0, 0, 0], "outside": "skip"}, "outside", 'got "skip"'),
+    ("/skills/pour/fit", {"n_samples": 1.5}, "n_samples", "got 1.5"),
+    ("/skills/pour/fit", {"n_samples": [200]}, "n_samples", "got a list"),
+    ("/skills", {"name": "a name", "dim": 3}, "name", 'got "a name"'),
+    ("/skills", {"name": "arm", "dim": {"d": 3}}, "dim", "got an object"),
+])
+def test_a_refused_value_is_shown_beside_what_was_expected(
+    client: TestClient, fitted: str, path: str, body: dict[str, Any], field: str, got: str
+) -> None:
+    # The answer said what was expected ("Input should be a valid integer") but not what came,
+    # so a client building its body by code could not see which value it had sent.
+    error = assert_error(client.post(path, json=body), 422, field)
+    assert error["field"] == field, error
+    assert error["message"].endswith(got), error
+    assert error["details"][0]["message"].endswith(got), error
+    assert stored(client) == (4, 1)
+
+
+def test_a_missing_field_says_so_without_a_value(client: TestClient, skill: str) -> None:
+    error = assert_error(client.post("/skills/pour/reproductions", json={"outside": "raise"}), 422, "")
+    assert "got" not in error["message"], error
+    error = assert_error(client.post("/skills", json={"dim": 3}), 422, "name")
+    assert error["message"] == "name: Field required", error

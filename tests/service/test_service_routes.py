@@ -263,3 +263,29 @@ def test_a_way_uploaded_twice_fits_as_a_way_shown_once_and_the_notes_say_so(http
     assert r.json()["routes"] == 3 and r.json()["demo_routes"][-2:] == [2, 2]
     (note,) = [n for n in r.json()["notes"] if "identical" in n]
     assert f"demonstrations {twice[0]} and {twice[1]} are identical" in note and "route 2" in note
+
+
+@pytest.mark.parametrize(("factor", "hint"), [(1000.0, "millimetres among metres"),
+                                             (0.001, "metres among millimetres"),
+                                             (30.0, None)])
+def test_a_demonstration_in_other_units_is_named_in_the_fit_notes(
+        http: httpx.Client, factor: float, hint: str | None) -> None:
+    # A UR log in millimetres among demonstrations in metres was fitted without a word: it
+    # became a route of its own, or (with routes 1) a canal a thousand times too wide.
+    assert http.post("/skills", json={"name": "units", "dim": 3}).status_code == 201
+    s = np.linspace(0.0, 1.0, 120)
+    ids = []
+    for j in range(4):
+        demo = np.column_stack([0.4 * s, 0.1 * np.sin(np.pi * s) + 0.01 * j, 0.2 + 0.05 * s])
+        if j == 3:
+            demo = demo * factor
+        ids.append(http.post("/skills/units/demonstrations", json={"positions": demo.tolist()}).json()["id"])
+    for routes in (None, 1):
+        r = http.post("/skills/units/fit", json={"n_samples": 60, "routes": routes})
+        assert r.status_code == 201, r.text
+        notes = [n for n in r.json()["notes"] if "units" in n]
+        assert len(notes) == 1, r.json()["notes"]
+        assert notes[0].startswith(f"demonstration {ids[3]} is "), notes
+        assert (hint in notes[0]) if hint else ("among" not in notes[0]), notes
+    same = http.post("/skills/units/fit", json={"n_samples": 60, "demo_ids": ids[:3]})
+    assert same.status_code == 201 and same.json()["notes"] == [], same.json()

@@ -76,7 +76,7 @@ from canal_protocol import keys as keyspace
 from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_CORRECTION_WEIGHT, MAX_DEMO_LABEL
 from canal_protocol.schemas import CorrectionIn
 
-from ..errors import InvalidInput, ServiceError, error_type
+from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
 from ..memory import release_memory
 from ..record_batches import encode_record_batch
 from ..service import CanalService
@@ -748,9 +748,8 @@ class Bridge:
                 "route": self.stream_route(st)})
             made = self.service.correct(st.skill, body)
         except ValidationError as exc:
-            first = exc.errors()[0]
-            _reply_error(query, "invalid_input", str(first.get("msg")),
-                         ".".join(str(x) for x in first.get("loc", ())))
+            first = pydantic_detail(exc.errors(include_url=False)[0])
+            _reply_error(query, "invalid_input", first["message"], first["field"])
             return
         except ServiceError as exc:
             _reply_error(query, error_type(exc), exc.message, exc.field)
