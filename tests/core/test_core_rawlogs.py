@@ -13,7 +13,12 @@ import canal_core
 from canal_core import CanalError, InvalidInputError
 from canal_core.alignment import demonstration_spline, dtw_aligned_demonstrations
 from canal_core.crossings import plane_crossings
-from canal_core.preprocess import prepared_demonstration, prepared_rows, prepared_samples, size_ratios
+from canal_core.preprocess import (
+    prepared_demonstration,
+    prepared_rows,
+    prepared_samples,
+    size_ratios,
+)
 
 NON_LASA = ["task1", "task2", "helix"]
 
