@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
 import subprocess
 import sys
 import time
@@ -421,6 +422,23 @@ def test_serve_forwards_the_service_flags(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "python -m canal_service" in p.stderr
     assert "--port" in p.stderr and "eighty" in p.stderr
+
+
+def test_serve_on_a_port_in_use_exits_saying_so(tmp_path: Path) -> None:
+    # It printed "address already in use" and then hung for good, waiting for an app that
+    # waited for the port: `make run` beside a running service looked like a service.
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        cmd = [sys.executable, "-m", "canal_client.cli", "serve", "--port", str(port),
+               "--data-dir", str(tmp_path / "data"), "--no-recordings", "--no-zenoh"]
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=60,
+                           env={**os.environ, "CANAL_TOKEN": ""})
+    assert p.returncode != 0, p.stderr[-2000:]
+    assert "address already in use" in p.stderr and str(port) in p.stderr, p.stderr[-2000:]
+    assert "stop what uses that port, or pass --port" in p.stderr, p.stderr[-2000:]
+    assert "Traceback" not in p.stderr, p.stderr[-2000:]
 
 
 def test_usage_errors_exit_2(run: Run) -> None:

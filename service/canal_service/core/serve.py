@@ -47,6 +47,7 @@ class Bootstrap:
         self.server: uvicorn.Server | None = None  # told to exit when loading fails
         self._ready: asyncio.Event | None = None
         self._lifespan: AbstractAsyncContextManager[Any] | None = None
+        self._stopping = False  # lifespan shutdown asked for
         self._t0 = time.perf_counter()
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -103,6 +104,9 @@ class Bootstrap:
         loading = asyncio.create_task(self._load())
         await send({"type": "lifespan.startup.complete"})
         message = await receive()  # lifespan.shutdown
+        # Uvicorn shuts down without ever starting when it cannot bind (port in use): the
+        # load, still waiting for the bind, must stop waiting or neither ends.
+        self._stopping = True
         await loading
         if self._lifespan is not None:
             try:
@@ -117,6 +121,8 @@ class Bootstrap:
             # Bind first, import after: the imports hold the GIL for seconds.
             while self.server is not None and not self.server.started and \
                     not self.server.should_exit:
+                if self._stopping:
+                    return
                 await asyncio.sleep(0.005)
             app = await asyncio.to_thread(self.build or _create_app, self.settings)
             lifespan = app.router.lifespan_context(app)
@@ -191,6 +197,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     listeners = write_logs_off_the_loop()  # uvicorn.Config configured the loggers
     try:
         server.run()
+    except SystemExit:
+        # uvicorn exits this way when it cannot listen (the port is taken, the address is
+        # not this machine's); its log line says why, not what to do.
+        if server.started or bootstrap.error is not None:
+            raise
+        sys.exit(f"canal service: could not listen on http://{settings.host}:{settings.port} "
+                 "(the error above says why): stop what uses that port, or pass --port")
     finally:
         for listener in listeners:
             listener.stop()
