@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from canal_protocol import wire
 
@@ -180,6 +181,42 @@ def _last_progress(result: SimResult) -> float:
     return float(result.targets[-1].progress) if result.targets else 0.0
 
 
+class SimInputError(ValueError):
+    """An argument of :func:`run_sim` that cannot drive a robot (on this skill); ``param``
+    names it."""
+
+    def __init__(self, param: str, message: str) -> None:
+        super().__init__(message)
+        self.param = param
+
+
+def _check_positive(param: str, value: float, what: str) -> None:
+    if not (math.isfinite(value) and value > 0):
+        raise SimInputError(param, f"expected {what} > 0 (a finite number), got {value:g}")
+
+
+def check_run(rate_hz: float = 100.0, timeout_s: float = 60.0, gain: float | None = None) -> None:
+    """Raise :class:`SimInputError` for a rate, timeout or gain that cannot drive a robot
+    (each finite and > 0)."""
+    _check_positive("rate_hz", rate_hz, "a rate")
+    _check_positive("timeout_s", timeout_s, "a timeout")
+    if gain is not None:
+        _check_positive("gain", gain, "a gain")
+
+
+def check_points(dim: int, start: ArrayLike | None = None,
+                 pushes: Sequence[tuple[float | str, ArrayLike]] = (),
+                 keep_out: tuple[ArrayLike, float] | None = None) -> None:
+    """Raise :class:`SimInputError` unless the start, every push offset and the keep-out
+    centre have ``dim`` coordinates (numpy would broadcast them or fail mid-run)."""
+    shown = ("start", start), *(("pushes", offset) for _, offset in pushes), \
+        ("keep_out", None if keep_out is None else keep_out[0])
+    for param, value in shown:
+        if value is not None and np.size(value) != dim:
+            raise SimInputError(param, f"expected {dim} coordinates (the skill is {dim}-D), "
+                                       f"got {np.size(value)}")
+
+
 def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = None,
             rate_hz: float = 100.0, lag: str = "first-order", gain: float | None = None,
             pushes: Sequence[Push] = (), timeout_s: float = 60.0,
@@ -195,18 +232,18 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
     """
     if lag not in ("first-order", "pd"):
         raise ValueError(f"expected lag 'first-order' or 'pd', got {lag!r}")
-    if rate_hz <= 0:
-        raise ValueError(f"expected rate_hz > 0, got {rate_hz}")
+    check_run(rate_hz, timeout_s, gain)
     dt = 1.0 / rate_hz
     if gain is None:
         gain = 0.5 * rate_hz if lag == "first-order" else (0.2 * rate_hz) ** 2
     rng = np.random.default_rng(seed)
     pending = [(when, np.asarray(offset, dtype=np.float64)) for when, offset in pushes]
+    given = None if start is None else np.asarray(start, dtype=np.float64)
     with PoseStreamer(skill, robot, endpoint=endpoint, zenoh_config=zenoh_config,
                       prefix=prefix, encoding=encoding, session=session, token=token) as ps:
-        model = ps.model() if start is None else None
-        x = random_interior_start(model, rng) if model is not None else np.asarray(
-            start, dtype=np.float64)
+        model = ps.model()
+        check_points(int(model["dim"]), given, pushes, keep_out)
+        x = random_interior_start(model, rng) if given is None else given
         x0 = x.copy()
         person = None if keep_out is None else _Person(ps, keep_out[0], keep_out[1])
         v = np.zeros_like(x)

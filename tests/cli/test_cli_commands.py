@@ -542,6 +542,24 @@ def test_sim_drives_a_robot_to_the_end(unique_name: Callable[[str], str], tmp_pa
         r = CliRunner().invoke(app, ["sim", name, "--endpoint", endpoint, "--push", "x"],
                                env=env)
         assert r.exit_code == 2 and "--push" in r.output
+        # Each of these ran before: a 2-D point on a 3-D skill ended in numpy's "operands
+        # could not be broadcast" or in a run of unanswered poses; a gain of 0, -1 or nan
+        # stood still or drove the robot away; a timeout of 0 reported "left the canal".
+        for flags, option, said in (
+            (["--start", "0,0.01"], "--start", "3 coordinates"),
+            (["--push", "0.2:0,0.01"], "--push", "3 coordinates"),
+            (["--keep-out", "0.5,0:0.02"], "--keep-out", "3 coordinates"),
+            (["--gain", "0"], "--gain", "> 0"),
+            (["--gain", "-1"], "--gain", "> 0"),
+            (["--gain", "nan"], "--gain", "> 0"),
+            (["--timeout", "0"], "--timeout", "> 0"),
+            (["--timeout", "inf"], "--timeout", "> 0"),
+        ):
+            r = CliRunner().invoke(app, ["sim", name, "--endpoint", endpoint, "--timeout", "5",
+                                         *flags], env=env)
+            assert r.exit_code == 2, (flags, r.output)
+            assert option in r.output and said in r.output, (flags, r.output)
+            assert "broadcast" not in r.output and "steps in" not in r.output, (flags, r.output)
 
 
 def test_view_opens_the_viewer_when_there_is_a_display(

@@ -93,6 +93,11 @@ def parse_keep_out(text: str) -> tuple[FloatArray, float]:
     return parse_point(centre, "--keep-out"), r
 
 
+#: run_sim's parameters as this command's flags, for the errors it raises.
+_FLAGS = {"start": "--start", "pushes": "--push", "keep_out": "--keep-out", "gain": "--gain",
+          "timeout_s": "--timeout", "rate_hz": "--rate"}
+
+
 def _eta(result: Any, which: str) -> float:
     value = getattr(result, f"{which}_eta", None)
     return float("nan") if value is None else float(value)
@@ -159,6 +164,15 @@ def sim(
         if endpoint is None and zenoh_config is None:
             endpoint = ",".join(found)
         prefix = prefix or found_prefix
+    try:
+        # before the scene is set: a run refused afterwards would have changed it
+        sim_module.check_run(**{k: v for k, v in (("rate_hz", rate), ("timeout_s", timeout),
+                                                   ("gain", gain)) if v is not None})
+        if obstacles:
+            with connected(ctx) as c:
+                sim_module.check_points(c.get_skill(skill).dim, point, pushes, sphere)
+    except sim_module.SimInputError as exc:
+        raise typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param)) from None
     if obstacles:
         with connected(ctx) as c:
             scene = c.set_scene(skill, obstacles)
@@ -176,6 +190,8 @@ def sim(
             kwargs[key] = value
     try:
         result = sim_module.run_sim(skill, **kwargs)
+    except sim_module.SimInputError as exc:
+        raise typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param)) from None
     except ApiError as exc:
         error(str(exc))
         raise typer.Exit(EXIT_REFUSED) from None
