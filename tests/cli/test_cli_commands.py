@@ -320,6 +320,22 @@ def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[
     assert json.loads(r.stdout) == {"rrd": f"{name}.rrd", "mcap": f"{name}.mcap"}
     assert (tmp_path / f"{name}.rrd").stat().st_size > 0
 
+    # A folder is where the files go, named after the skill (as cp does); it was a traceback
+    # ("IsADirectoryError") after the whole download.
+    folder = tmp_path / "out"
+    folder.mkdir()
+    r = run("export", name, "--rrd", str(folder), "--mcap", str(folder))
+    assert r.exit_code == 0, r.output
+    assert (folder / f"{name}.rrd").read_bytes().startswith(RRD_MAGIC)
+    assert (folder / f"{name}.mcap").read_bytes().startswith(MCAP_MAGIC)
+    # a path that cannot be written: the reason, no traceback, nothing left behind
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    r = run("export", name, "--rrd", str(blocker / "x.rrd"))
+    assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+    assert f"cannot write {blocker / 'x.rrd'}" in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".part")) == []
+
     r = run("view", name, "--no-open")
     assert r.exit_code == 0, r.output
     cached = tmp_path / "cache" / f"{name}.rrd"

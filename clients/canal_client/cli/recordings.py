@@ -11,7 +11,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.markup import escape
@@ -38,17 +38,22 @@ def export(
     if rrd is None and mcap is None:
         rrd, mcap = Path(f"{skill}.rrd"), Path(f"{skill}.mcap")
     written: dict[str, str] = {}
+    wanted: tuple[tuple[Literal["rrd", "mcap"], Path | None], ...] = (("rrd", rrd), ("mcap", mcap))
     with connected(ctx) as c:
-        if rrd is not None:
-            c.download_recording(skill, "rrd", rrd)
-            written["rrd"] = str(rrd)
+        for kind, path in wanted:
+            if path is None:
+                continue
+            if path.is_dir():  # a folder is where the file goes, as for cp
+                path = path / f"{skill}.{kind}"
+            try:
+                c.download_recording(skill, kind, path,
+                                     profile="ros2" if ros2 and kind == "mcap" else None)
+            except OSError as exc:
+                error(f"cannot write {path}: {exc.strerror or exc}")
+                raise typer.Exit(EXIT_REFUSED) from None
+            written[kind] = str(path)
             if not options(ctx).json:
-                out.print(f"wrote {escape(str(rrd))} ({rrd.stat().st_size} bytes)")
-        if mcap is not None:
-            c.download_recording(skill, "mcap", mcap, profile="ros2" if ros2 else None)
-            written["mcap"] = str(mcap)
-            if not options(ctx).json:
-                out.print(f"wrote {escape(str(mcap))} ({mcap.stat().st_size} bytes)")
+                out.print(f"wrote {escape(str(path))} ({path.stat().st_size} bytes)")
     if options(ctx).json:
         print_json(written)
 
