@@ -240,6 +240,14 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
         assert r.exit_code == (1 if bad == "1,2" else 2), r.output  # 1,2: the service's 422
     r = run("reproduce", name, "--start", "0,0,0", "--out", str(tmp_path / "t.txt"))
     assert r.exit_code == 2 and ".csv, .npy or .json" in r.output
+    # a path that cannot be written (its parent is a file; a folder named like a file) was a
+    # traceback ("FileExistsError", "IsADirectoryError")
+    (tmp_path / "a-file").write_text("")
+    (tmp_path / "folder.csv").mkdir()
+    for blocked in (tmp_path / "a-file" / "t.csv", tmp_path / "folder.csv"):
+        r = run("reproduce", name, "--start", "0,0.01,0", "--out", str(blocked))
+        assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+        assert f"cannot write {blocked}" in r.output, r.output
 
     # --goal deforms the canal to end there, --duration times the path
     r = run("--json", "reproduce", name, "--start", "0,0.01,0", "--model", "1",

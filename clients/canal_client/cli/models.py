@@ -24,7 +24,7 @@ from canal_protocol.options import OUTSIDE_RULES, Alignment, CrossSection, Direc
 from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
-from .output import err, out, plain, print_json
+from .output import EXIT_REFUSED, err, error, out, plain, print_json
 from .parsing import parse_obstacle, parse_point, parse_quaternion
 from .session import connected, options
 
@@ -173,7 +173,11 @@ def reproduce(
                         duration=duration, start_orientation=quat, obstacles=obstacles,
                         route=route)
     if out_path is not None:
-        write_trajectory(out_path, r.positions, r, r.orientations, r.times)
+        try:
+            write_trajectory(out_path, r.positions, r, r.orientations, r.times)
+        except OSError as exc:
+            error(f"cannot write {out_path}: {exc.strerror or exc}")
+            raise typer.Exit(EXIT_REFUSED) from None
     if options(ctx).json:
         print_json({**plain(r), "out": None if out_path is None else str(out_path)})
         return
