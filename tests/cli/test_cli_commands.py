@@ -606,3 +606,13 @@ def test_view_opens_the_viewer_when_there_is_a_display(
     r = run("view", name, env={"DISPLAY": ":0"})
     assert len(spawned) == 1 and "pip install rerun-sdk" in r.stdout
     assert f"open it with: rerun {cached}" in r.stdout
+
+
+def test_a_url_without_a_scheme_is_http(run: Run, service: LiveService) -> None:
+    # `--url localhost:8000`, as curl takes it, was "unsupported protocol 'localhost://'".
+    bare = service.url.removeprefix("http://")
+    r = run("--json", "skill", "list", url=bare)
+    assert r.exit_code == 0, r.output
+    assert isinstance(json.loads(r.stdout), list)
+    r = run("skill", "list", url="ftp://" + bare)
+    assert r.exit_code == 2 and "expected an http:// or https:// URL" in r.output, r.output

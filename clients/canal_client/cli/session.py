@@ -35,7 +35,19 @@ def global_options(
                                               help="Machine-readable JSON on stdout.")] = False,
 ) -> None:
     """The root command's callback: keeps the global options for the command that follows."""
-    ctx.obj = Options(url=url, token=token or None, json=json_output)
+    ctx.obj = Options(url=service_url(url), token=token or None, json=json_output)
+
+
+def service_url(text: str) -> str:
+    """``--url`` as a base URL: ``host:port`` (as curl takes it) is ``http://host:port``."""
+    text = text.strip()
+    scheme, sep, _ = text.partition("://")
+    if not sep:
+        return f"http://{text}"
+    if scheme.lower() not in ("http", "https"):
+        raise typer.BadParameter(f"expected an http:// or https:// URL like {DEFAULT_URL}, "
+                                 f"got {text!r}", param_hint="--url (or CANAL_URL)")
+    return text
 
 
 def options(ctx: typer.Context) -> Options:
