@@ -1,4 +1,4 @@
-"""Attacks on the open live path (issue 15): each of these was possible on the old bridge."""
+"""Attacks on the open live path: each of these was possible on an earlier bridge."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """No 5xx leaks as a reset: unexpected errors are JSON 500s on a connection that stays usable,
-database clashes are 409/503 with Retry-After (issue 12, item 3)."""
+database clashes are 409/503 with Retry-After."""
 
 from __future__ import annotations
 
@@ -107,7 +107,7 @@ def test_failing_fits_keep_the_connection_and_answer_json(tmp_path: Path) -> Non
 def test_forty_concurrent_fits_on_two_replicas_never_collide(
     request: pytest.FixtureRequest, tmp_path: Path, backend: str
 ) -> None:
-    """Issue 12: on PostgreSQL with two replicas, 23 of 40 fits were UniqueViolation 500s."""
+    """On PostgreSQL with two replicas, 23 of 40 fits were UniqueViolation 500s before."""
     import threading
 
     import httpx
