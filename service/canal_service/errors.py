@@ -333,13 +333,22 @@ def install_error_handlers(app: FastAPI) -> None:
         return JSONResponse(validation_error_body(list(exc.errors())), 422)
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http_error(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         field = "body" if exc.status_code in (400, 413) else None
         if exc.status_code == 401:
             field = "Authorization"
         message = str(exc.detail)
         if exc.status_code == 400 and exc.__cause__ is not None:
             message = _unparsable_body(exc.__cause__)
+        # The router's own 404 and 405 say only "Not Found" / "Method Not Allowed": name the
+        # request's method and path, and what the path takes.
+        path = request.url.path[:200]
+        if exc.status_code == 404 and exc.detail == "Not Found":
+            field, message = "path", f"no route {request.method} {path} (the routes are listed at /docs)"
+        elif exc.status_code == 405:
+            allow = (exc.headers or {}).get("Allow", "")
+            field = "method"
+            message = f"{request.method} is not allowed on {path}" + (f"; allowed: {allow}" if allow else "")
         body = error_body(_HTTP_TYPES.get(exc.status_code, "http_error"), message, field)
         return JSONResponse(body, exc.status_code, headers=getattr(exc, "headers", None))
 

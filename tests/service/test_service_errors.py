@@ -155,3 +155,25 @@ def test_forty_concurrent_fits_on_two_replicas_never_collide(
     assert sorted(m["version"] for m in stored["items"]) == versions
     # Allocation cannot collide, so nothing needs a retry on a healthy database.
     assert versions == list(range(1, 41))
+
+
+def test_an_unknown_path_or_method_says_which_and_what_there_is(tmp_path: Path) -> None:
+    # Answered "Not Found" and "Method Not Allowed": a client with a mistyped path or a
+    # wrong method could not tell which part of its request was wrong.
+    with LiveServer(create_app(_settings(tmp_path))) as server:
+        conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+        try:
+            assert _request(conn, "POST", "/skills", {"name": "arm", "dim": 3})[0] == 201
+            status, _, body = _request(conn, "GET", "/skill/arm")
+            assert status == 404, body
+            assert body == {"error": {"type": "not_found", "field": "path", "message":
+                                      "no route GET /skill/arm (the routes are listed at /docs)"}}
+            status, headers, body = _request(conn, "GET", "/skills/arm/fit")
+            assert status == 405 and headers["allow"] == "POST", (headers, body)
+            assert body == {"error": {"type": "method_not_allowed", "field": "method", "message":
+                                      "GET is not allowed on /skills/arm/fit; allowed: POST"}}
+            # a skill or model that is not there keeps its own message
+            status, _, body = _request(conn, "GET", "/skills/nope")
+            assert status == 404 and body["error"]["message"] == "no skill named 'nope'", body
+        finally:
+            conn.close()
