@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from canal_service.app import create_app
 from canal_service.core.config import Settings
+from canal_service.errors import SkillExists
 from canal_service.storage import Database
 from canal_service.storage import repository as repo
 from canal_service.storage.db import alembic_config
@@ -70,3 +72,45 @@ def test_migrations_are_idempotent(postgres_server: PostgresServer) -> None:
     with db.read() as s:
         assert repo.get_skill(s, "kept").dim == 3
     db.dispose()
+
+
+def test_two_replicas_creating_one_name_in_two_letter_cases_make_one_skill(
+        postgres_server: PostgresServer) -> None:
+    # The letter-case check is a query: two replicas creating "Pour" and "pour" at once both
+    # passed it before either committed, and two skills shared one recording folder.
+    url = postgres_server.new_database()
+    first, second = Database(url), Database(url)
+    first.migrate()
+    created = threading.Event()
+    entered = threading.Event()
+    outcome: dict[str, str] = {}
+
+    def create_first() -> None:
+        with first.write() as s:
+            repo.create_skill(s, "Pour", "", 3)
+            created.set()
+            entered.wait(10)
+            time.sleep(0.5)  # the second replica is inside its check by now
+        outcome["Pour"] = "created"
+
+    def create_second() -> None:
+        created.wait(10)
+        entered.set()
+        try:
+            with second.write() as s:
+                repo.create_skill(s, "pour", "", 3)
+            outcome["pour"] = "created"
+        except SkillExists as exc:
+            outcome["pour"] = exc.message
+
+    threads = [threading.Thread(target=create_first), threading.Thread(target=create_second)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert outcome["Pour"] == "created"
+    assert "differs from it by more than letter case" in outcome["pour"], outcome
+    with first.read() as s:
+        assert [k.name for k in repo.list_skills(s, 0, 10)[0]] == ["Pour"]
+    first.dispose()
+    second.dispose()

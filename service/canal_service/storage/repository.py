@@ -49,10 +49,19 @@ class SkillStats:
     latest_model_version: int | None
 
 
+#: PostgreSQL advisory lock key under which skills are created ("canal" in ASCII).
+_SKILL_NAMES_LOCK = 0x63616E616C
+
+
 def create_skill(session: Session, name: str, description: str, dim: int) -> Skill:
     """Insert a skill; a name already taken, also in another letter case, is :class:`SkillExists`."""
     # A skill's recordings live in a folder named after it: on a case-insensitive file
     # system (macOS, Windows) "Pour" and "pour" would record into one.
+    if session.get_bind().dialect.name == "postgresql":
+        # The check below is a query, and replicas share the database: without this lock two
+        # of them creating "Pour" and "pour" at once both pass it. (SQLite writes one
+        # transaction at a time already.) Held to the end of the transaction.
+        session.execute(select(func.pg_advisory_xact_lock(_SKILL_NAMES_LOCK)))
     taken = session.scalars(
         select(Skill.name).where(func.lower(Skill.name) == name.lower(), Skill.name != name).limit(1)
     ).first()
