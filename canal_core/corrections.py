@@ -357,8 +357,17 @@ def _near_crossings(path: FloatArray, dist: FloatArray, centres: FloatArray, bas
     return step[near], section[near], coords[near]
 
 
-def _span(crossed: BoolArray, field: str) -> tuple[int, int]:
+def _span(crossed: BoolArray, field: str, path: FloatArray | None = None,
+          spacing: float = 0.0) -> tuple[int, int]:
     hit = np.flatnonzero(crossed)
+    if hit.size == 0 and path is not None:
+        spread = float(np.max(np.linalg.norm(path - path[0], axis=1)))
+        if spread < spacing:
+            # No plane is crossed because the path does not move, wherever it is.
+            raise InvalidInputError(
+                "expected samples that move along the canal (across at least "
+                f"{MIN_SPAN_SECTIONS} sections), got samples within {spread:.3g} of one point, "
+                f"less than one section's spacing ({spacing:.3g})", field=field)
     if hit.size == 0:
         raise InvalidInputError(
             "expected samples over the canal (crossing section planes within "
@@ -626,7 +635,7 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
     samples = check_positions(correction.samples, "samples", canal.dim)
     reach = REACH * canal.radii
     crossed, coords = path_crossings(samples, canal.directrix, canal.tangents, canal.basis, reach)
-    first, last = _span(crossed, "samples")
+    first, last = _span(crossed, "samples", samples, float(np.median(np.diff(canal.arclength))))
     blend = blend_width(canal.n_sections)
     if correction.kind == "include":
         pushed = _filled(crossed, coords, first, last)

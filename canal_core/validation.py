@@ -126,8 +126,9 @@ def check_positions(value: Any, field: str = "positions", dim: int | None = None
     if array.ndim != 2 or array.shape[1] not in DIMENSIONS or (
         dim is not None and array.shape[1] != dim
     ):
+        within = " with D in {2, 3}" if dim is None else ""
         raise InvalidInputError(
-            f"expected {field} of shape (T, {expected_dim}) with D in {{2, 3}}, got {array.shape}",
+            f"expected {field} of shape (T, {expected_dim}){within}, got {array.shape}",
             field=field,
         )
     if array.shape[0] < MIN_POINTS:

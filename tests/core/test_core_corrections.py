@@ -173,6 +173,11 @@ def test_short_far_and_weightless_corrections_are_refused(canal: canal_core.Cana
     with pytest.raises(InvalidInputError, match="outside every section") as err:
         canal.corrected("include", path + np.array([0.0, 0.0, 5.0]))
     assert err.value.field == "samples"
+    # a robot held still on the canal was told its path was "outside every section"
+    with pytest.raises(InvalidInputError, match=r"samples that move along the canal.*within 0 of "
+                                                r"one point") as err:
+        canal.corrected("include", np.repeat(canal.directrix[60:61], 30, axis=0))
+    assert err.value.field == "samples"
     with pytest.raises(InvalidInputError) as err:
         canal.corrected("include", path, weight=0.0)
     assert err.value.field == "weight"

@@ -168,7 +168,7 @@ VALIDATOR_CASES = [
     ("check_positions", lambda: validation.check_positions(np.ones((3, 3)), "demos[1]"),
      "demos[1]", "expected at least 4 points in demos[1]", "got 3"),
     ("check_positions", lambda: validation.check_positions(np.ones((6, 2)), "positions", dim=3),
-     "positions", "expected positions of shape (T, 3)", "got (6, 2)"),
+     "positions", "expected positions of shape (T, 3), got (6, 2)", "got (6, 2)"),
     ("check_positions", lambda: validation.check_positions([[0, 1, 2], [3, 4]], "demos[0]"),
      "demos[0][1]", "expected 3 values per row of demos[0]", "got 2 values at row 1"),
     ("check_positions", lambda: validation.check_positions({"x": 1}, "demos[0]"),
