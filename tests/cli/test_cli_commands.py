@@ -465,6 +465,18 @@ def test_serve_on_a_port_in_use_exits_saying_so(tmp_path: Path) -> None:
     assert "Traceback" not in p.stderr, p.stderr[-2000:]
 
 
+def test_serve_with_a_data_dir_that_is_a_file_says_so(tmp_path: Path) -> None:
+    # It was a traceback ending in "FileExistsError" from pathlib.
+    data = tmp_path / "data"
+    data.write_text("")
+    cmd = [sys.executable, "-m", "canal_client.cli", "serve", "--port", str(free_port()),
+           "--data-dir", str(data), "--no-recordings", "--no-zenoh"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60,
+                       env={**os.environ, "CANAL_TOKEN": ""})
+    assert p.returncode != 0 and "Traceback" not in p.stderr, p.stderr[-2000:]
+    assert f"canal service: cannot use --data-dir {data}: " in p.stderr, p.stderr[-2000:]
+
+
 def test_usage_errors_exit_2(run: Run) -> None:
     r = run("skill", "create")
     assert r.exit_code == 2

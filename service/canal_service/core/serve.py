@@ -187,7 +187,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     import uvicorn
 
     settings = settings_from_args(argv)
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file of that name, no permission, a read-only disk
+        sys.exit(f"canal service: cannot use --data-dir {settings.data_dir}: "
+                 f"{exc.strerror or exc}")
     bootstrap = Bootstrap(settings)
     server = uvicorn.Server(uvicorn.Config(bootstrap, host=settings.host, port=settings.port,
                                            log_level=settings.log_level, proxy_headers=False))
