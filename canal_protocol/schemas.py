@@ -30,6 +30,9 @@ from . import options
 from .options import Alignment, CorrectionKind, CrossSection, Directrix, FrameKind, OutsideRule
 
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+#: :data:`SKILL_NAME_PATTERN` in words, for error messages.
+SKILL_NAME_WORDS = ("expected a skill name of 1 to 64 letters, digits, '.', '_' or '-', "
+                    "starting with a letter or digit")
 MAX_BATCH_STARTS = 1000
 # Ids and versions fit a 32-bit SQL integer; larger numbers cannot name anything we stored,
 # and would overflow the database driver instead of giving a clean 404.
@@ -56,7 +59,8 @@ def shown_value(value: Any) -> str:
     """What a client sent, for an error message: a JSON scalar as written, else its kind."""
     # json, not orjson: a JSON integer past 64 bits is still what came.
     if isinstance(value, str | int | float | bool | None):
-        return json.dumps(value)[:40]
+        text = json.dumps(value)
+        return text if len(text) <= 40 else text[:37] + "..."
     if isinstance(value, dict):
         return "an object"
     return "a list" if isinstance(value, list) else type(value).__name__

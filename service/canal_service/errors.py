@@ -37,7 +37,7 @@ from canal_core.errors import (
     ModelFormatError,
     OutsideCanalError,
 )
-from canal_protocol.schemas import shown_value
+from canal_protocol.schemas import SKILL_NAME_PATTERN, SKILL_NAME_WORDS, shown_value
 
 log = logging.getLogger("canal_service")
 
@@ -283,6 +283,8 @@ def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     field = loc_to_field(error.get("loc", ()))
     message = str(error.get("msg", ""))
     kind = str(error.get("type", ""))
+    if kind == "string_pattern_mismatch" and (error.get("ctx") or {}).get("pattern") == SKILL_NAME_PATTERN:
+        message = SKILL_NAME_WORDS  # not the regular expression
     value = error.get("input")
     if ("input" in error and kind not in _NO_VALUE_SHOWN and " got " not in f" {message} "
             and not (field == "body" and isinstance(value, dict))):

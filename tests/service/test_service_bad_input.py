@@ -377,3 +377,15 @@ def test_a_missing_field_says_so_without_a_value(client: TestClient, skill: str)
     assert "got" not in error["message"], error
     error = assert_error(client.post("/skills", json={"dim": 3}), 422, "name")
     assert error["message"] == "name: Field required", error
+
+
+@pytest.mark.parametrize("name", ["a name", "-lead", "x" * 65, "é"])
+def test_a_bad_skill_name_says_which_names_are_allowed_in_words(client: TestClient, name: str) -> None:
+    # The message quoted the regular expression ("String should match pattern
+    # '^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$'"), in the body and in the path alike.
+    words = "expected a skill name of 1 to 64 letters, digits, '.', '_' or '-', starting with a letter or digit"
+    error = assert_error(client.post("/skills", json={"name": name, "dim": 3}), 422, "name")
+    shown = json.dumps(name) if len(name) < 30 else json.dumps(name)[:37] + "..."
+    assert error["message"] == f"name: {words}, got {shown}", error
+    error = assert_error(client.get(f"/skills/{name}"), 422, "name")
+    assert error["message"].startswith(f"name: {words}, got "), error
