@@ -285,6 +285,12 @@ def test_ros_csv_exports_upload_as_they_are(client: TestClient, skill: str) -> N
             + b"\n".join(f"{k},0,0,0,0,0".encode() for k in range(6)))
     error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("t.csv", no_w)}))
     assert error["field"] == "file:header" and "orientation" in error["message"]
+    # what came is named: the columns found, and the one missing
+    assert error["message"].endswith("got pose.orientation.x, pose.orientation.y, "
+                                     "pose.orientation.z (no qw)"), error
+    twice = b"x,y,z,qx,qy,qz,qw,pose.orientation.w\n" + b"0,0,0,0,0,0,1,1\n" * 5
+    error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("t.csv", twice)}))
+    assert error["message"].endswith("got qx, qy, qz, qw, pose.orientation.w (qw twice)"), error
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 3
 
 

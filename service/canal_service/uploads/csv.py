@@ -292,9 +292,12 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
     quaternion = None
     if any(quats.values()):
         if not all(len(q) == 1 for q in quats.values()):
+            named = ", ".join(header[i] for c in "xyzw" for i in quats[c])
+            wrong = [f"no q{c}" for c in "xyzw" if not quats[c]] + \
+                [f"q{c} twice" for c in "xyzw" if len(quats[c]) > 1]
             raise InvalidInput("expected all of qx, qy, qz, qw (or ROS-style ...orientation.x "
-                               "to .w) once each in the CSV header, or none",
-                               field="file:header")
+                               f"to .w) once each in the CSV header, or none, got {named} "
+                               f"({', '.join(wrong)})", field="file:header")
         quaternion = [quats[c][0] for c in "xyzw"]
     return _CsvColumns([found[a][0] for a in axes], time_col, unit, quaternion)
 
