@@ -47,9 +47,16 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 40 else text[:40] + "..."
 
 
+def _kind(value: Any) -> str:
+    """A JSON value's kind, for a message about a body that is not an object."""
+    kinds = {list: "a list", str: "a string", bool: "a boolean", int: "a number", float: "a number"}
+    return "null" if value is None else kinds.get(type(value), type(value).__name__)
+
+
 def _numbers(value: Any, field: str, n: int | None = None) -> tuple[float, ...]:
     if not isinstance(value, list) or (n is not None and len(value) != n):
-        raise WireError("bad_payload", f"expected {field} as a list of {n or 'D'} numbers")
+        raise WireError("bad_payload", f"expected {field} as a list of {n or 'D'} numbers, "
+                                       f"got {_shown(value)}")
     for v in value:
         if type(v) is not float and type(v) is not int:
             raise WireError("bad_payload", f"expected numbers in {field}, got {_shown(v)}")
@@ -87,15 +94,18 @@ def decode_pose_json(data: bytes) -> Pose:
 def _checked_pose_json(body: Any) -> Pose:
     """A decoded JSON pose, every field checked."""
     if not isinstance(body, dict):
-        raise WireError("bad_payload", "expected a JSON object")
+        raise WireError("bad_payload", f"expected a JSON object, got {_kind(body)}")
     seq = body.get("seq")
     if type(seq) is not int or not 0 <= seq <= SEQ_MAX:
-        raise WireError("bad_payload", "expected 'seq', an integer in [0, 2**64)")
+        came = "no 'seq'" if "seq" not in body else _shown(seq)
+        raise WireError("bad_payload", f"expected 'seq', an integer in [0, 2**64), got {came}")
     if "position" not in body:
-        raise WireError("bad_payload", "expected 'position'")
+        raise WireError("bad_payload", "expected 'position', got the keys "
+                                       f"{', '.join(map(str, body))[:80]}")
     position = _numbers(body["position"], "position")
     if not 1 <= len(position) <= MAX_DIM:
-        raise WireError("bad_payload", f"expected 1..{MAX_DIM} coordinates in 'position'")
+        raise WireError("bad_payload", f"expected 1..{MAX_DIM} coordinates in 'position', "
+                                       f"got {len(position)}")
     raw_orientation = body.get("orientation")
     orientation: tuple[float, float, float, float] | None = None
     if raw_orientation is not None:
@@ -103,7 +113,7 @@ def _checked_pose_json(body: Any) -> Pose:
         orientation = (qx, qy, qz, qw)
     t = body.get("t")
     if t is not None and type(t) is not float and type(t) is not int:
-        raise WireError("bad_payload", "expected 't' as a number of seconds")
+        raise WireError("bad_payload", f"expected 't' as a number of seconds, got {_shown(t)}")
     if not all_finite(position) or (orientation is not None and not all_finite(orientation)) or (
             t is not None and not _isfinite(t)):
         raise WireError("non_finite", "expected finite numbers, got NaN or infinity")

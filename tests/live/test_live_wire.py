@@ -138,6 +138,16 @@ def test_json_target_round_trips_with_nan_and_inf_as_null(target, eta, extras):
     (b'{"seq": 3, "position": [true, 0.2, 0.3]}', "got true"),
     (b'{"seq": 3, "position": ["1", 0.2, 0.3]}', 'got "1"'),
     (b'{"seq": 3, "position": [0.1, 0.2], "restart": "yes"}', 'got "yes"'),
+    # the rest of a pose's fields say what came too
+    (b'[1, 2, 3]', "expected a JSON object, got a list"),
+    (b'{"seq": -1, "position": [0.1, 0.2]}', "got -1"),
+    (b'{"seq": "3", "position": [0.1, 0.2]}', 'got "3"'),
+    (b'{"position": [0.1, 0.2]}', "got no 'seq'"),
+    (b'{"seq": 3, "pos": [0.1, 0.2]}', "expected 'position', got the keys seq, pos"),
+    (b'{"seq": 3, "position": 0.5}', "got 0.5"),
+    (b'{"seq": 3, "position": []}', "got 0"),
+    (b'{"seq": 3, "position": [0.1, 0.2], "orientation": [0, 0, 1]}', "got [0,0,1]"),
+    (b'{"seq": 3, "position": [0.1, 0.2], "t": "now"}', 'got "now"'),
 ])
 def test_a_refused_json_pose_shows_the_value_as_json(data, shown):
     key, message = _outcome(wire.decode_pose_json, data)
