@@ -155,6 +155,12 @@ def test_an_uploaded_file_without_a_label_is_labelled_by_its_name(client: TestCl
     r = client.post(f"/skills/{skill}/demonstrations", content=body.encode(),
                     headers={"content-type": "text/csv"})
     assert read_back(client, skill, r.json()["id"])["label"] in (None, "")
+    # a multipart label too long says how long it was; one with NUL says that
+    for label, came in (("y" * 300, "got 300 characters"), ("a\x00b", "got text with a NUL character")):
+        r = client.post(f"/skills/{skill}/demonstrations", data={"label": label},
+                        files={"file": ("run.csv", body.encode(), "text/csv")})
+        assert r.status_code == 422 and r.json()["error"]["field"] == "label", r.text
+        assert r.json()["error"]["message"].endswith(came), r.text
 
 
 def test_csv_raw_body_for_a_2d_skill(client: TestClient) -> None:

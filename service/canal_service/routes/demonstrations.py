@@ -177,8 +177,10 @@ async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | No
         data = await upload.read()
         label = form.get("label")
         if label is not None and (not isinstance(label, str) or len(label) > MAX_DEMO_LABEL or "\x00" in label):
-            raise InvalidInput(f"expected 'label' as text of at most {MAX_DEMO_LABEL} characters",
-                               field="label")
+            came = ("a file" if not isinstance(label, str) else "text with a NUL character"
+                    if "\x00" in label else f"{len(label)} characters")
+            raise InvalidInput(f"expected 'label' as text of at most {MAX_DEMO_LABEL} characters "
+                               f"without NUL, got {came}", field="label")
         return data, upload.filename, upload.content_type, label
     finally:
         await form.close()
