@@ -275,6 +275,20 @@ def _unreadable_json(error: dict[str, Any]) -> dict[str, Any]:
 _NO_VALUE_SHOWN = frozenset({"missing", "extra_forbidden"})
 
 
+def _query_number(error: Mapping[str, Any]) -> str | None:
+    """A number sent in a query or path as it was typed (``got 2``, not ``got "2"``: every
+    query value is text, and the quotes would read as if a string had been sent)."""
+    value = error.get("input")
+    loc = error.get("loc", ())
+    if not (loc and loc[0] in ("query", "path") and isinstance(value, str) and value.strip()):
+        return None
+    try:
+        float(value)
+    except ValueError:
+        return None
+    return value[:40]
+
+
 def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     """One pydantic error as {field, message, type}: the message says what was expected and,
     when it does not already, what came (pydantic's own messages leave the value out)."""
@@ -288,7 +302,7 @@ def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     value = error.get("input")
     if ("input" in error and kind not in _NO_VALUE_SHOWN and " got " not in f" {message} "
             and not (field == "body" and isinstance(value, dict))):
-        message = f"{message}, got {shown_value(value)}"
+        message = f"{message}, got {_query_number(error) or shown_value(value)}"
     return {"field": field, "message": message, "type": kind}
 
 

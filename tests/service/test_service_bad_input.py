@@ -389,3 +389,12 @@ def test_a_bad_skill_name_says_which_names_are_allowed_in_words(client: TestClie
     assert error["message"] == f"name: {words}, got {shown}", error
     error = assert_error(client.get(f"/skills/{name}"), 422, "name")
     assert error["message"].startswith(f"name: {words}, got "), error
+
+
+def test_a_number_in_a_query_is_shown_as_typed(client: TestClient, fitted: str) -> None:
+    error = assert_error(client.get("/skills/pour/models/1/mesh?n_angles=2"), 422, "n_angles")
+    assert error["message"].endswith(", got 2"), error
+    error = assert_error(client.get("/skills/pour/models/1/mesh?format=stl"), 422, "format")
+    assert error["message"].endswith(', got "stl"'), error
+    error = assert_error(client.get("/skills?limit=0"), 422, "limit")
+    assert error["message"].endswith(", got 0"), error
