@@ -297,6 +297,8 @@ def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     field = loc_to_field(error.get("loc", ()))
     message = str(error.get("msg", ""))
     kind = str(error.get("type", ""))
+    if kind == "value_error":
+        message = message.removeprefix("Value error, ")  # how the check was written
     if kind == "string_pattern_mismatch" and (error.get("ctx") or {}).get("pattern") == SKILL_NAME_PATTERN:
         message = SKILL_NAME_WORDS  # not the regular expression
     value = error.get("input")

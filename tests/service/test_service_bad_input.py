@@ -375,6 +375,8 @@ def test_a_refused_value_is_shown_beside_what_was_expected(
 def test_a_missing_field_says_so_without_a_value(client: TestClient, skill: str) -> None:
     error = assert_error(client.post("/skills/pour/reproductions", json={"outside": "raise"}), 422, "")
     assert "got" not in error["message"], error
+    # pydantic's "Value error, " prefix is how the check was written, not what was wrong
+    assert error["message"] == "body: give exactly one of 'start' or 'starts'", error
     error = assert_error(client.post("/skills", json={"dim": 3}), 422, "name")
     assert error["message"] == "name: Field required", error
 
