@@ -142,6 +142,13 @@ def test_live_demo_capture_json_and_bad_demo(live):
         assert err.value.body["error"]["type"] == "invalid_input"
         with pytest.raises(LiveError):
             ps.stop_demo()  # nothing being captured
+        # a body that is JSON but not an object said "expected a JSON object: expected a
+        # JSON object"
+        from canal_client.live import query_json
+
+        with pytest.raises(LiveError) as err:
+            query_json(ps.session, ps.keys.demo_start, [1, 2])
+        assert err.value.body["error"]["message"] == "expected a JSON object, got a list"
     assert live.client.get("/skills/empty2").json()["n_demonstrations"] == 1
 
 

@@ -74,7 +74,7 @@ from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
 from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_CORRECTION_WEIGHT, MAX_DEMO_LABEL
-from canal_protocol.schemas import CorrectionIn
+from canal_protocol.schemas import CorrectionIn, shown_value
 
 from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
 from ..memory import release_memory
@@ -598,10 +598,12 @@ class Bridge:
             payload = query.payload
             try:
                 body = orjson.loads(payload.to_bytes()) if payload is not None else {}
-                if not isinstance(body, dict):
-                    raise ValueError("expected a JSON object")
-            except (ValueError, orjson.JSONDecodeError) as exc:
-                _reply_error(query, "bad_payload", f"expected a JSON object: {exc}")
+            except orjson.JSONDecodeError as exc:
+                _reply_error(query, "bad_payload", f"expected a JSON object, got invalid JSON ({exc})")
+                return
+            if not isinstance(body, dict):
+                _reply_error(query, "bad_payload",
+                             f"expected a JSON object, got {shown_value(body)}")
                 return
             refused = demo_body_error(body, parts[3])
             if refused is not None:
