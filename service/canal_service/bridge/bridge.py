@@ -694,7 +694,7 @@ class Bridge:
         kind = body.get("kind")
         if kind not in CORRECTION_KINDS:
             _reply_error(query, "invalid_input", "expected kind "
-                         f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {kind!r}", "kind")
+                         f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {shown_value(kind)}", "kind")
             return
         weight = body.get("weight")
         if weight is None:  # absent or null: the default, as for every optional field
@@ -703,12 +703,12 @@ class Bridge:
             # Checked here, not at stop: a weight the correction cannot take must not cost the
             # person the push.
             _reply_error(query, "invalid_input",
-                         f"expected weight as {_WEIGHT_EXPECTED}, got {weight!r}", "weight")
+                         f"expected weight as {_WEIGHT_EXPECTED}, got {shown_value(weight)}", "weight")
             return
         label = body.get("label")
         if label is not None and not _correction_label_valid(label):
             _reply_error(query, "invalid_input",
-                         f"expected label as {_CORRECTION_LABEL_EXPECTED}, got {_shown(label)}",
+                         f"expected label as {_CORRECTION_LABEL_EXPECTED}, got {shown_value(label)}",
                          "label")
             return
         self._capture_start(query, st, body, str(kind), float(weight))
@@ -817,11 +817,6 @@ def _correction_label_valid(value: Any) -> bool:
     return type(value) is str and len(value) <= MAX_CORRECTION_LABEL and "\x00" not in value
 
 
-def _shown(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:40] + "..."
-
-
 def _weight_valid(value: Any) -> bool:
     """The bound CorrectionIn puts on an include's weight, for a value from a live body."""
     return type(value) in (int, float) and 0 < value <= MAX_CORRECTION_WEIGHT
@@ -868,7 +863,7 @@ def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None
     for name, (valid, expected) in _DEMO_FIELDS[action].items():
         value = body.get(name)
         if value is not None and not valid(value):
-            return name, f"expected {name} as {expected}, got {_shown(value)}"
+            return name, f"expected {name} as {expected}, got {shown_value(value)}"
     return None
 
 
