@@ -125,7 +125,7 @@ def test_a_push_captured_live_becomes_an_exclude_and_streams_switch_in_place(
 
 def test_live_correction_errors_name_the_field(live: Any, corrected_skill: str) -> None:
     with PoseStreamer(corrected_skill, "careless", endpoint=live.endpoint) as ps:
-        with pytest.raises(LiveError, match='kind.*got "sideways"'):  # as JSON, as over REST
+        with pytest.raises(LiveError, match=r'kind.*got "sideways"'):  # as JSON, as over REST
             ps.start_correction("sideways")
         with pytest.raises(LiveError, match="no correction"):
             ps.stop_correction()
