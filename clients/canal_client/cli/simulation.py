@@ -98,6 +98,11 @@ _FLAGS = {"start": "--start", "pushes": "--push", "keep_out": "--keep-out", "gai
           "timeout_s": "--timeout", "rate_hz": "--rate"}
 
 
+def _flag_error(exc: Any) -> typer.BadParameter:
+    """A ``SimInputError`` as the usage error of the flag that gave the value."""
+    return typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param))
+
+
 def _eta(result: Any, which: str) -> float:
     value = getattr(result, f"{which}_eta", None)
     return float("nan") if value is None else float(value)
@@ -172,7 +177,7 @@ def sim(
             with connected(ctx) as c:
                 sim_module.check_points(c.get_skill(skill).dim, point, pushes, sphere)
     except sim_module.SimInputError as exc:
-        raise typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param)) from None
+        raise _flag_error(exc) from None
     if obstacles:
         with connected(ctx) as c:
             scene = c.set_scene(skill, obstacles)
@@ -191,7 +196,7 @@ def sim(
     try:
         result = sim_module.run_sim(skill, **kwargs)
     except sim_module.SimInputError as exc:
-        raise typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param)) from None
+        raise _flag_error(exc) from None
     except ApiError as exc:
         error(str(exc))
         raise typer.Exit(EXIT_REFUSED) from None
