@@ -229,8 +229,9 @@ def _tolist(value: Any) -> Any:
 # A demonstration this many times larger or smaller than the median one is named in the fit's
 # notes: people's demonstrations of one skill differ by a few times, units by 10 to 1000.
 UNIT_SUSPECT_RATIO = 20.0
-_UNIT_PAIRS = ((1000.0, "millimetres among metres"), (100.0, "centimetres among metres"),
-               (10.0, "millimetres among centimetres"))
+#: (ratio, smaller unit, larger unit) of the unit mix-ups a size ratio points to.
+_UNIT_PAIRS = ((1000.0, "millimetres", "metres"), (100.0, "centimetres", "metres"),
+               (10.0, "millimetres", "centimetres"))
 
 
 def unit_notes(positions: list[arrays.FloatArray], demo_ids: list[int]) -> list[str]:
@@ -242,10 +243,9 @@ def unit_notes(positions: list[arrays.FloatArray], demo_ids: list[int]) -> list[
             continue
         larger = ratio >= 1.0
         factor = ratio if larger else 1.0 / ratio
-        hint = next((pair for scale, pair in _UNIT_PAIRS if 0.8 * scale <= factor <= 1.25 * scale), None)
-        if hint is not None and not larger:
-            small, big = hint.split(" among ")
-            hint = f"{big} among {small}"
+        hint = next((f"{small} among {big}" if larger else f"{big} among {small}"
+                     for scale, small, big in _UNIT_PAIRS
+                     if 0.8 * scale <= factor <= 1.25 * scale), None)
         size = (f"{factor:.0f} times the size of" if larger
                 else f"1/{factor:.0f} of the size of")
         notes.append(f"demonstration {demo_id} is {size} the median demonstration: check its "
