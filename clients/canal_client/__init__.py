@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 from .errors import (
     ApiError,
+    ArgumentError,
     BadRequestError,
     CanalClientError,
     ConflictError,
@@ -53,6 +54,7 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_URL",
     "ApiError",
+    "ArgumentError",
     "AsyncCanalClient",
     "BadRequestError",
     "CanalClient",

@@ -6,7 +6,9 @@ Everything raised on purpose is a :class:`CanalClientError`:
   It carries the service's JSON error fields ``type``, ``field`` and ``message``
   (``{"error": {"type", "field", "message"}}``) and the HTTP ``status``;
 - :class:`ConnectionFailedError` when the service cannot be reached (the message names the URL);
-- :class:`RequestTimeoutError` when it was reached but did not answer in time.
+- :class:`RequestTimeoutError` when it was reached but did not answer in time;
+- :class:`ArgumentError` (also a ``ValueError``) when an argument is refused before anything
+  is sent (the message names it, what was expected and what came).
 
 ``str(error)`` is the service's message, followed by ``(field: ...)`` when a field is named.
 """
@@ -23,6 +25,7 @@ from canal_protocol.schemas import ErrorDetail, ErrorResponse
 
 __all__ = [
     "ApiError",
+    "ArgumentError",
     "BadRequestError",
     "CanalClientError",
     "ConflictError",
@@ -42,6 +45,17 @@ __all__ = [
 
 class CanalClientError(Exception):
     """Base of every error the client raises on purpose."""
+
+
+class ArgumentError(CanalClientError, ValueError):
+    """An argument refused before anything is sent: not numbers where numbers go, the wrong
+    shape, a choice that does not exist. ``argument`` names it."""
+
+    def __init__(self, argument: str, expected: str, got: str) -> None:
+        self.argument = argument
+        self.expected = expected
+        self.got = got
+        super().__init__(f"{argument}: expected {expected}, got {got}")
 
 
 class ConnectionFailedError(CanalClientError):

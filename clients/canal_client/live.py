@@ -30,11 +30,13 @@ from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
 from canal_protocol.credentials import insert_credentials
 
+from .errors import ArgumentError, CanalClientError
+
 _ENC_JSON = zenoh.Encoding.APPLICATION_JSON
 _ENC_BINARY = zenoh.Encoding.APPLICATION_OCTET_STREAM
 
 
-class LiveError(RuntimeError):
+class LiveError(CanalClientError, RuntimeError):
     """The bridge could not be reached or refused a request; ``body`` is its JSON error."""
 
     def __init__(self, message: str, body: Any = None) -> None:
@@ -82,7 +84,7 @@ def _reply_body(reply: Any) -> tuple[bool, Any]:
 
 def _check_finite(value: Any, where: str) -> None:
     if isinstance(value, float) and not math.isfinite(value):
-        raise ValueError(f"expected a finite number in {where or 'the body'}, got {value}")
+        raise ArgumentError(where or "the body", "a finite number", str(value))
     if isinstance(value, dict):
         for name, item in value.items():
             _check_finite(item, f"{where}.{name}" if where else str(name))
@@ -142,7 +144,7 @@ class PoseStreamer:
                  session: Any = None, connect_timeout: float = 5.0,
                  token: str | None = None) -> None:
         if encoding not in ("binary", "json"):
-            raise ValueError(f"expected encoding 'binary' or 'json', got {encoding!r}")
+            raise ArgumentError("encoding", "'binary' or 'json'", repr(encoding))
         self.keys = keyspace.keys(skill, robot, prefix)
         self.encoding = encoding
         self.on_target = on_target

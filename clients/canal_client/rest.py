@@ -69,6 +69,7 @@ from canal_protocol.schemas import (
 )
 
 from .errors import (
+    ArgumentError,
     CanalClientError,
     ConnectionFailedError,
     RequestTimeoutError,
@@ -78,6 +79,7 @@ from .resources import (
     DemoCreated,
     Demonstration,
     DemoSummary,
+    FloatArray,
     Health,
     Model,
     ModelSummary,
@@ -307,37 +309,76 @@ def _all_pages(endpoint: Endpoint, **path: object) -> _Steps[list[Any]]:
             return items
 
 
+def shown_argument(value: Any, limit: int = 60) -> str:
+    """An argument as a person wrote it, cut to ``limit`` characters: a string or a list in
+    Python's spelling, anything else with its type's name."""
+    text = repr(value) if isinstance(value, (str, list, tuple, int, float)) else (
+        f"{type(value).__name__} {value!r}")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _numbers(value: Any, name: str, expected: str) -> FloatArray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        # numpy names neither the argument nor what it holds ("could not convert string to
+        # float", "inhomogeneous shape").
+        raise ArgumentError(name, expected, shown_argument(value)) from None
+
+
 def _rows(value: ArrayLike, name: str) -> list[Any]:
-    rows = np.asarray(value, dtype=np.float64)
+    rows = _numbers(value, name, "rows of numbers, each of one length")
     if rows.ndim != 2:
-        raise ValueError(f"{name}: expected a 2-D array of rows, got shape {rows.shape}")
+        raise ArgumentError(name, "a 2-D array of rows", f"shape {rows.shape}")
     return rows.tolist()  # type: ignore[no-any-return]
 
 
 def _point(value: ArrayLike | None, name: str = "start") -> list[float] | None:
     if value is None:
         return None
-    p = np.asarray(value, dtype=np.float64)
+    p = _numbers(value, name, "one point: a list of numbers")
     if p.ndim != 1:
-        raise ValueError(f"{name}: expected one point (D,), got shape {p.shape}")
+        raise ArgumentError(name, "one point (D,)", f"shape {p.shape}")
     return p.tolist()  # type: ignore[no-any-return]
 
 
-def _vector(value: ArrayLike | None) -> list[float] | None:
-    return None if value is None else np.asarray(value, dtype=np.float64).ravel().tolist()
+def _vector(value: ArrayLike | None, name: str) -> list[float] | None:
+    return None if value is None else _numbers(value, name, "a list of numbers").ravel().tolist()
+
+
+def _number(value: Any, name: str) -> float | None:
+    if value is None:
+        return None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ArgumentError(name, "a number", shown_argument(value)) from None
 
 
 def _model_ref(model: Version) -> int | str:
-    return model if model == "latest" else int(model)
+    if model == "latest":
+        return model
+    try:
+        return int(model)
+    except (TypeError, ValueError):
+        raise ArgumentError("model", "'latest' or a version number", shown_argument(model)) from None
+
+
+_FORMATS = ("csv", "npy", "mcap", "json")
 
 
 def guess_format(path: str | os.PathLike[str], format: str | None = None) -> str:
     """``csv``, ``npy``, ``mcap`` or ``json`` for a demonstration file: ``format`` when given,
-    else from the file's suffix. Raises ``ValueError`` for anything else."""
-    fmt = (format or _SUFFIXES.get(Path(path).suffix.lower(), "")).lower()
-    if fmt not in ("csv", "npy", "mcap", "json"):
-        raise ValueError(f"{Path(path).name}: unsupported demonstration file type "
-                         f"(expected .csv, .npy, .mcap or .json, or pass format=)")
+    else from the file's suffix. Raises :class:`ArgumentError` for anything else."""
+    if format is not None:
+        fmt = str(format).lower()
+        if fmt not in _FORMATS:
+            raise ArgumentError("format", "'csv', 'npy', 'mcap' or 'json'", shown_argument(format))
+        return fmt
+    fmt = _SUFFIXES.get(Path(path).suffix.lower(), "")
+    if fmt not in _FORMATS:
+        raise ArgumentError("path", "a .csv, .npy, .mcap or .json file (or format=)",
+                            shown_argument(Path(path).name))
     return fmt
 
 
@@ -395,7 +436,7 @@ def _add_demo(skill: str, positions: ArrayLike, timestamps: ArrayLike | None = N
     (``"ms"``, ``"us"``, ``"ns"``; seconds by default) is the timestamps' unit."""
     params = None if time_unit is None else {"time_unit": time_unit}
     return (yield _request(ADD_DEMO, name=skill, params=params, body={
-        "positions": _rows(positions, "positions"), "timestamps": _vector(timestamps),
+        "positions": _rows(positions, "positions"), "timestamps": _vector(timestamps, "timestamps"),
         "orientations": None if orientations is None else _rows(orientations, "orientations"),
         "label": label}))
 
@@ -472,7 +513,7 @@ def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"]
     return (yield _request(CORRECT, name=skill, body={
         "kind": kind, "samples": _rows(samples, "samples"), "model": _model_ref(model),
         "weight": float(weight), "label": label, "route": route,
-        "timestamps": None if timestamps is None else _vector(timestamps)}))
+        "timestamps": _vector(timestamps, "timestamps")}))
 
 
 def _list_corrections(skill: str) -> _Steps[list[CorrectionOut]]:
@@ -576,7 +617,7 @@ def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
     along a straight line in ``result.approach`` positions."""
     return (yield _request(REPRODUCE, name=skill, body={
         "start": _point(start), "model": _model_ref(model), "outside": outside,
-        "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
+        "goal": _point(goal, "goal"), "duration": _number(duration, "duration"),
         "start_orientation": _point(start_orientation, "start_orientation"),
         "obstacles": _obstacles(obstacles), "route": route}))
 
@@ -590,7 +631,7 @@ def _reproduce_many(skill: str, starts: ArrayLike, *, model: Version = "latest",
     (``start_orientation``, ``obstacles`` and ``route`` are used for every start)."""
     batch: ReproductionBatch = yield _request(REPRODUCE_MANY, name=skill, body={
         "starts": _rows(starts, "starts"), "model": _model_ref(model), "outside": outside,
-        "goal": _point(goal, "goal"), "duration": None if duration is None else float(duration),
+        "goal": _point(goal, "goal"), "duration": _number(duration, "duration"),
         "start_orientation": _point(start_orientation, "start_orientation"),
         "obstacles": _obstacles(obstacles), "route": route})
     return batch.reproductions
@@ -603,7 +644,7 @@ def _download_recording(skill: str, kind: RecordingKind, path: str | os.PathLike
     ``profile="ros2"`` (mcap only): a rosbag2-compatible CDR file instead of Foxglove JSON."""
     endpoint = _RECORDINGS.get(kind)
     if endpoint is None:
-        raise ValueError(f"kind: expected 'rrd' or 'mcap', got {kind!r}")
+        raise ArgumentError("kind", "'rrd' or 'mcap'", shown_argument(kind))
     target = Path(path)
     yield _Download(endpoint.url(name=skill), None if profile is None else {"profile": profile},
                     target)

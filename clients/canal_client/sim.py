@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike
 
 from canal_protocol import wire
 
+from .errors import CanalClientError
 from .live import LiveError, PoseStreamer
 
 Push = tuple[float | str, Sequence[float]]
@@ -181,7 +182,7 @@ def _last_progress(result: SimResult) -> float:
     return float(result.targets[-1].progress) if result.targets else 0.0
 
 
-class SimInputError(ValueError):
+class SimInputError(CanalClientError, ValueError):
     """An argument of :func:`run_sim` that cannot drive a robot (on this skill); ``param``
     names it."""
 
@@ -231,7 +232,7 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
     ``(0.2 * rate_hz) ** 2`` (1/s^2) for the PD lag.
     """
     if lag not in ("first-order", "pd"):
-        raise ValueError(f"expected lag 'first-order' or 'pd', got {lag!r}")
+        raise SimInputError("lag", f"expected lag 'first-order' or 'pd', got {lag!r}")
     check_run(rate_hz, timeout_s, gain)
     dt = 1.0 / rate_hz
     if gain is None:

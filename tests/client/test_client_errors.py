@@ -6,14 +6,17 @@ import asyncio
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from canal_client import (
     ApiError,
+    ArgumentError,
     AsyncCanalClient,
     BadRequestError,
     CanalClient,
+    CanalClientError,
     ConflictError,
     ConnectionFailedError,
     InvalidInputError,
@@ -156,6 +159,31 @@ def test_numpy_arguments_are_checked_locally(client: CanalClient) -> None:
         client.reproduce("anything", np.zeros((2, 3)))
 
 
+@pytest.mark.parametrize(("call", "words"), [
+    (lambda c: c.reproduce("s", "0,0,0"), ["start", "numbers", "'0,0,0'"]),
+    (lambda c: c.reproduce("s", [0, "a", 0]), ["start", "numbers", "'a'"]),
+    (lambda c: c.reproduce("s", {"x": 1}), ["start", "numbers", "dict"]),
+    (lambda c: c.reproduce("s", [0, 0, 0], goal="1 2 3"), ["goal", "numbers", "'1 2 3'"]),
+    (lambda c: c.reproduce_many("s", [[0, 0, 0], [1, 1]]), ["starts", "numbers"]),
+    (lambda c: c.add_demo("s", [[0, 0, "x"]]), ["positions", "numbers", "'x'"]),
+    (lambda c: c.add_demo("s", np.zeros((3, 3)), timestamps="fast"), ["timestamps", "'fast'"]),
+    (lambda c: c.correct("s", "all of them"), ["samples", "numbers", "'all of them'"]),
+    (lambda c: c.reproduce("s", [0, 0, 0], duration="2 s"), ["duration", "a number", "'2 s'"]),
+    (lambda c: c.reproduce("s", [0, 0, 0], model="v2"), ["model", "version number", "'v2'"]),
+    (lambda c: c.download_recording("s", "zip", "/tmp/x"), ["kind", "'rrd' or 'mcap'", "'zip'"]),
+])
+def test_arguments_that_are_not_numbers_name_themselves(client: CanalClient, call: Callable[[CanalClient], Any],
+                                                        words: list[str]) -> None:
+    """An argument refused before anything is sent is a CanalClientError (and a ValueError)
+    naming the argument, what it expected and what came, not numpy's conversion message."""
+    with pytest.raises(CanalClientError) as info:
+        call(client)
+    assert isinstance(info.value, ValueError)
+    message = str(info.value)
+    assert all(w in message for w in words), message
+    assert "could not convert" not in message and "float() argument" not in message
+
+
 def test_error_bodies_are_read_as_the_protocols_error_response() -> None:
     """The protocol's ErrorResponse shape (``field`` optional) gives the typed error; any
     other body becomes the message of the status's class."""
@@ -170,3 +198,17 @@ def test_error_bodies_are_read_as_the_protocols_error_response() -> None:
                                                                                 "Not Found")
     html = error_from_response(502, b"<html>bad gateway</html>")
     assert isinstance(html, ServerError) and html.message == "<html>bad gateway</html>"
+
+
+def test_live_and_simulation_refusals_are_client_errors() -> None:
+    """One base class for everything the client raises on purpose: the live streamer's and the
+    simulated robot's refusals too, each naming the argument before any session opens."""
+    from canal_client.live import LiveError, PoseStreamer
+    from canal_client.sim import SimInputError, run_sim
+
+    assert issubclass(LiveError, CanalClientError) and issubclass(SimInputError, CanalClientError)
+    with pytest.raises(ArgumentError, match=r"^encoding: expected 'binary' or 'json', got 'xml'$"):
+        PoseStreamer("s", "r", encoding="xml")
+    with pytest.raises(SimInputError, match=r"expected lag 'first-order' or 'pd', got 'pid'") as info:
+        run_sim("s", lag="pid")  # type: ignore[arg-type]
+    assert info.value.param == "lag"

@@ -11,7 +11,13 @@ import canal_client
 import canal_client.rest
 import numpy as np
 import pytest
-from canal_client import AsyncCanalClient, CanalClient, InvalidInputError, Reproduction
+from canal_client import (
+    ArgumentError,
+    AsyncCanalClient,
+    CanalClient,
+    InvalidInputError,
+    Reproduction,
+)
 from canal_live import RRD_MAGIC, LiveService, demo_positions, write_demo_files
 from mcap.reader import make_reader
 
@@ -100,8 +106,10 @@ def test_upload_every_file_format(client: CanalClient, unique_name: Callable[[st
     odd = tmp_path / "demo.dat"
     odd.write_bytes(files["npy"].read_bytes())
     assert client.upload_demo_file(name, odd, format="npy").n_points == 40
-    with pytest.raises(ValueError, match="unsupported"):
+    with pytest.raises(ArgumentError, match=r"path: expected a \.csv, .*got 'demo\.dat'"):
         client.upload_demo_file(name, odd)
+    with pytest.raises(ArgumentError, match="format: expected 'csv', 'npy', 'mcap' or 'json', got 'xls'"):
+        client.upload_demo_file(name, odd, format="xls")
 
 
 def test_untimed_model_gives_times_only_for_a_duration(client: CanalClient, fitted: str) -> None:

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from canal_client import ArgumentError
 from canal_client.live import LiveError, PoseStreamer, query_json
 from live_helpers import make_skill, wait_until
 
@@ -150,9 +151,9 @@ def test_a_weight_that_cannot_be_kept_is_refused_before_the_push(live: Any, corr
         with pytest.raises(LiveError, match=r"label.*at most 200"):
             ps.start_correction("include", label="x" * 230)
         for bad in (float("nan"), float("inf")):
-            with pytest.raises(ValueError, match=r"expected a finite number in weight, got (nan|inf)"):
+            with pytest.raises(ArgumentError, match=r"^weight: expected a finite number, got (nan|inf)$"):
                 ps.start_correction("include", weight=bad)
-            with pytest.raises(ValueError, match=r"expected a finite number in weight"):
+            with pytest.raises(ArgumentError, match=r"^weight: expected a finite number"):
                 ps.keep_steered(weight=bad)
         with pytest.raises(LiveError, match="no correction"):
             ps.stop_correction()  # nothing was started
