@@ -515,10 +515,29 @@ def test_every_fit_choice_is_sent_and_others_are_usage_errors(run: Run) -> None:
             assert r.exit_code == 3, (option, value, r.output)
         r = run("fit", "x", option, "no-such-choice", url=url)
         assert r.exit_code == 2 and "no-such-choice" in r.output, (option, r.output)
+        said = " ".join(r.output.replace("│", " ").split())
+        assert "expected one of " + ", ".join(map(repr, choices)) in said, (option, said)
     assert run("fit", "x", "--samples", str(high), url=url).exit_code == 3
     for bad in (high + 1, low - 1):
         r = run("fit", "x", "--samples", str(bad), url=url)
         assert r.exit_code == 2 and "--samples" in r.output, r.output
+
+
+def test_a_choice_not_offered_is_named_with_the_choices(run: Run) -> None:
+    # typer's own check words it as a pydantic "Value error, 'x' is not one of ...".
+    url = closed_port_url()
+    outside = typing.get_args(ReproductionRequest.model_fields["outside"].annotation)
+    for args, choices in (
+        (["reproduce", "x", "--start", "0,0,0", "--outside", "bogus"], outside),
+        (["correct", "x", "missing.csv", "--kind", "bogus"], ("include", "exclude")),
+        (["sim", "x", "--lag", "bogus"], ("first-order", "pd")),
+        (["sim", "x", "--encoding", "bogus"], ("binary", "json")),
+    ):
+        r = run(*args, url=url)
+        said = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2, (args, said)
+        assert "Value error" not in said, (args, said)
+        assert f"expected one of {', '.join(map(repr, choices))}, got 'bogus'" in said, (args, said)
 
 
 def test_cli_runs_without_the_service_package(service: LiveService, tmp_path: Path) -> None:

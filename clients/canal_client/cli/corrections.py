@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -12,9 +12,10 @@ from rich.markup import escape
 from rich.table import Table
 
 from canal_core.validation import FloatArray
-from canal_protocol.options import MAX_CORRECTION_WEIGHT
+from canal_protocol.options import CORRECTION_KINDS, MAX_CORRECTION_WEIGHT, CorrectionKind
 
 from .output import out, print_json, time_text
+from .parsing import choice_parser
 from .session import connected, options
 
 app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=True)
@@ -70,8 +71,8 @@ def correct(
     ctx: typer.Context,
     skill: str,
     file: Annotated[Path, typer.Argument(help="The corrected path: .csv (x,y[,z]), .npy or .json.")],
-    kind: Annotated[Literal["include", "exclude"], typer.Option(
-        "--kind", "-k", help="include: this path is right too; exclude: the robot was pushed "
+    kind: Annotated[CorrectionKind, typer.Option(
+        "--kind", "-k", parser=choice_parser(CORRECTION_KINDS), help="include: this path is right too; exclude: the robot was pushed "
         "away from where it went (the canal narrows on that side).")] = "include",
     weight: Annotated[float, typer.Option(
         "--weight", "-w", help="How much an include counts against one demonstration (> 0).")

@@ -19,17 +19,18 @@ import typer
 from pydantic import BaseModel
 from rich.markup import escape
 
+from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
 from canal_core.validation import FloatArray
 from canal_protocol.options import OUTSIDE_RULES, Alignment, CrossSection, Directrix, FrameKind
 from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
 from .output import EXIT_REFUSED, err, error, out, plain, print_json
-from .parsing import parse_obstacle, parse_point, parse_quaternion
+from .parsing import choice_parser, parse_obstacle, parse_point, parse_quaternion
 from .session import connected, options
 
-# typer shows and checks each Literal's values as choices (canal_protocol's aliases of
-# canal_core's names: never written out here).
+# typer shows each Literal's values as choices and choice_parser checks them (canal_protocol's
+# aliases of canal_core's names: never written out here).
 
 
 def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
@@ -49,10 +50,14 @@ ROUTES_MIN, ROUTES_MAX = field_bounds(FitRequest, "routes")
 def fit(
     ctx: typer.Context,
     skill: str,
-    cross_section: Annotated[CrossSection | None, typer.Option("--cross-section", "-c")] = None,
-    frames: Annotated[FrameKind | None, typer.Option("--frames")] = None,
-    alignment: Annotated[Alignment | None, typer.Option("--alignment")] = None,
-    directrix: Annotated[Directrix | None, typer.Option("--directrix")] = None,
+    cross_section: Annotated[CrossSection | None, typer.Option(
+        "--cross-section", "-c", parser=choice_parser(CROSS_SECTIONS))] = None,
+    frames: Annotated[FrameKind | None, typer.Option(
+        "--frames", parser=choice_parser(FRAMES))] = None,
+    alignment: Annotated[Alignment | None, typer.Option(
+        "--alignment", parser=choice_parser(ALIGNMENTS))] = None,
+    directrix: Annotated[Directrix | None, typer.Option(
+        "--directrix", parser=choice_parser(DIRECTRICES))] = None,
     samples: Annotated[int | None, typer.Option(
         "--samples", "-n", min=SAMPLES_MIN, max=SAMPLES_MAX,
         help="Sections along the canal.")] = None,
@@ -137,7 +142,7 @@ def reproduce(
         "model is timed), .npy (N, D positions) or .json (with times and velocities).")
     ] = None,
     outside: Annotated[Outside, typer.Option(
-        "--outside", help="A start outside the canal: enter the canal over a short blend, or refuse.")
+        "--outside", parser=choice_parser(OUTSIDE_RULES), help="A start outside the canal: enter the canal over a short blend, or refuse.")
     ] = OUTSIDE_RULES[0],
     start_orientation: Annotated[str | None, typer.Option(
         "--start-orientation", "-q",

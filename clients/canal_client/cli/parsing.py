@@ -3,10 +3,30 @@ error (exit code 2) naming the option."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import TypeVar
+
 import numpy as np
 import typer
 
 from canal_core.validation import FloatArray
+
+T = TypeVar("T")
+
+
+def choice_parser(choices: Sequence[T]) -> Callable[[object], T]:
+    """A parser for an option of fixed choices (strings or ``StrEnum`` members): the choice
+    typed, or a usage error listing the choices and what came. typer's own check of a
+    ``Literal`` or an enum words the refusal as a pydantic ``Value error, ...``."""
+    by_text = {str(c): c for c in choices}
+    listed = ", ".join(map(repr, by_text))
+
+    def parse(text: object) -> T:
+        if str(text) not in by_text:
+            raise typer.BadParameter(f"expected one of {listed}, got {str(text)!r}")
+        return by_text[str(text)]
+
+    return parse
 
 
 def _numbers(text: str) -> list[float]:

@@ -17,7 +17,7 @@ from canal_core.validation import FloatArray
 
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
 from .output import EXIT_REFUSED, err, error, out, print_json
-from .parsing import parse_obstacle, parse_point
+from .parsing import choice_parser, parse_obstacle, parse_point
 from .session import connected, fail_unreachable, health_document, options
 
 #: What ``canal sim`` needs beyond the REST client, and how to get it.
@@ -115,7 +115,8 @@ def sim(
     rate: Annotated[float | None, typer.Option("--rate", min=0.1, help="Control rate, Hz.")
                     ] = None,
     start: Annotated[str | None, typer.Option("--start", help="x,y[,z] start point.")] = None,
-    lag: Annotated[Lag | None, typer.Option("--lag", help="Simulated robot dynamics.")] = None,
+    lag: Annotated[Lag | None, typer.Option(
+        "--lag", parser=choice_parser(list(Lag)), help="Simulated robot dynamics.")] = None,
     gain: Annotated[float | None, typer.Option("--gain", help="Dynamics gain.")] = None,
     push: Annotated[list[str] | None, typer.Option(
         "--push", help="T:dx,dy,dz pushes the robot by (dx,dy,dz) at T s (repeat).")] = None,
@@ -128,7 +129,8 @@ def sim(
         "--prefix", help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
     zenoh_config: Annotated[Path | None, typer.Option("--zenoh-config",
                                                       help="Zenoh config file.")] = None,
-    encoding: Annotated[Encoding | None, typer.Option("--encoding")] = None,
+    encoding: Annotated[Encoding | None, typer.Option(
+        "--encoding", parser=choice_parser(list(Encoding)))] = None,
     seed: Annotated[int | None, typer.Option(
         "--seed", help="Seed of the random start (same seed, same start).")] = None,
     obstacle: Annotated[list[str] | None, typer.Option(
