@@ -31,6 +31,10 @@ DIRECTRICES: tuple[DirectrixKind, ...] = get_args(DirectrixKind)
 #: What a reproduction does with a start outside the canal (:meth:`Canal.reproduce_detailed`).
 OutsideRule = Literal["project", "raise"]
 OUTSIDE_RULES: tuple[OutsideRule, ...] = get_args(OutsideRule)
+#: How a reproduction carries the start's offset along the canal
+#: (:func:`canal_core.reproduce.learned_persistence`; docs/method.md section 4b).
+Persistence = Literal["learned", "constant", "learned+end"]
+PERSISTENCES: tuple[Persistence, ...] = get_args(Persistence)
 #: Bounds of ``n_samples`` (N, the number of cross-sections) and of ``frame_smoothing``; the
 #: service's limits are these. A fit's cost grows faster than N (5 demos of 1,000 points:
 #: about 1 s at N = 5,000, 38 s at 20,000, over 7 min at 100,000, on a busy 2-core machine),

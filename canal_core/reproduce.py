@@ -43,8 +43,6 @@ ENTRY_FRACTION = 0.1
 #: demonstrator's offset at the start says less and less about where they are later (docs/method.md
 #: section 4; BENCHMARKS.md's quality row "canal, end decay over the last fifth" is 0.2).
 END_DECAY = 1.0
-#: How the ratio is carried along the canal (see :func:`learned_persistence`).
-PERSISTENCES = ("learned", "constant", "learned+end")
 #: Weight of the paper's constant ratio in the learned persistence, in demonstrations: one
 #: pseudo-demonstration that keeps its whole start offset. It keeps a profile regressed on a
 #: few demos from following their noise where they barely spread (docs/method.md section 4b).

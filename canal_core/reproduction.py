@@ -14,14 +14,13 @@ from .entry import approach_shares, entry_fraction
 from .errors import OutsideCanalError
 from .lone import lone_path
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
-from .options import OUTSIDE_RULES
+from .options import OUTSIDE_RULES, PERSISTENCES
 from .orientation import hemisphere_continuous, slerped
 from .reproduce import (
     CONTAINS_TOLERANCE,
     END_DECAY,
     ENTRY_FRACTION,
     PERSISTENCE_PRIOR_WEIGHT,
-    PERSISTENCES,
     end_faded,
     learned_persistence,
     located_inside,

@@ -29,6 +29,7 @@ __all__ = [
     "MIN_CORRECTION_SAMPLES",
     "MIN_SAMPLES",
     "OUTSIDE_RULES",
+    "PERSISTENCES",
     "ROUTE_SEPARATION",
     "Alignment",
     "CorrectionKind",
@@ -36,6 +37,7 @@ __all__ = [
     "Directrix",
     "FrameKind",
     "OutsideRule",
+    "Persistence",
     "RecordingKind",
 ]
 
@@ -46,6 +48,7 @@ FRAMES = _core.FRAMES
 ALIGNMENTS = _core.ALIGNMENTS
 DIRECTRICES = _core.DIRECTRICES
 OUTSIDE_RULES = _core.OUTSIDE_RULES
+PERSISTENCES = _core.PERSISTENCES
 MIN_SAMPLES = _core.MIN_SAMPLES
 #: The service accepts every N the core fits: one limit (docs/CONTRACTS.md says why 5,000).
 MAX_SAMPLES = _core.MAX_SAMPLES
@@ -61,6 +64,7 @@ FrameKind = _core.FrameKind
 Alignment = _core.AlignmentKind
 Directrix = _core.DirectrixKind
 OutsideRule = _core.OutsideRule
+Persistence = _core.Persistence
 #: Corrections: the kinds a person may send and the sizes canal_core accepts.
 CorrectionKind = _core.CorrectionKind
 CORRECTION_KINDS = _core.CORRECTION_KINDS

@@ -27,7 +27,15 @@ from pydantic_core import PydanticCustomError
 from canal_core import obstacles as canal_obstacles
 
 from . import options
-from .options import Alignment, CorrectionKind, CrossSection, Directrix, FrameKind, OutsideRule
+from .options import (
+    Alignment,
+    CorrectionKind,
+    CrossSection,
+    Directrix,
+    FrameKind,
+    OutsideRule,
+    Persistence,
+)
 
 SKILL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 #: :data:`SKILL_NAME_PATTERN` in words, for error messages.
@@ -571,6 +579,14 @@ class ReproductionRequest(_In):
         None, min_length=2, max_length=3,
         description="End the reproduction here: the canal is smoothly deformed so its end moves "
         "to the goal (the start region is untouched).",
+    )
+    persistence: Persistence = Field(
+        "learned",
+        description="How the start's offset from the canal's centre is carried: 'learned', "
+        "what the demonstrations kept of their own start offsets, faded onto the canal's end; "
+        "'constant', all of it until the end fades it (the paper's ratio rule); 'learned+end', "
+        "for a start inside and no goal, kept to the end: the reproduction ends where the "
+        "demonstrations' ends follow their starts (docs/method.md section 4b).",
     )
     duration: float | None = Field(
         None, gt=0, allow_inf_nan=False,

@@ -53,6 +53,7 @@ from canal_protocol.options import (
     Directrix,
     FrameKind,
     OutsideRule,
+    Persistence,
     RecordingKind,
 )
 from canal_protocol.schemas import (
@@ -602,7 +603,8 @@ def _clear_scene(skill: str) -> _Steps[None]:
 def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
                outside: Outside = "project", goal: ArrayLike | None = None,
                duration: float | None = None, start_orientation: ArrayLike | None = None,
-               obstacles: Iterable[Any] | None = None, route: int | None = None
+               obstacles: Iterable[Any] | None = None, route: int | None = None,
+               persistence: Persistence = "learned"
                ) -> _Steps[Reproduction]:
     """Reproduce from ``start`` (D,). A start outside the canal enters it over a short blend
     (``outside="project"``) or is refused with :class:`~canal_client.errors.OutsideCanalError`
@@ -614,26 +616,30 @@ def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
     (``result.blocked`` says where they close the canal). A model of several routes follows
     the route whose entry holds the start (``result.route``, ``result.route_reason``), or
     ``route`` when given. A start behind the canal's first plane reaches its first section
-    along a straight line in ``result.approach`` positions."""
+    along a straight line in ``result.approach`` positions. ``persistence``: how the start's
+    offset is carried ("learned", "constant", or "learned+end" to end where the
+    demonstrations' ends follow their starts; docs/method.md section 4b)."""
     return (yield _request(REPRODUCE, name=skill, body={
         "start": _point(start), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": _number(duration, "duration"),
         "start_orientation": _point(start_orientation, "start_orientation"),
-        "obstacles": _obstacles(obstacles), "route": route}))
+        "obstacles": _obstacles(obstacles), "route": route, "persistence": persistence}))
 
 
 def _reproduce_many(skill: str, starts: ArrayLike, *, model: Version = "latest",
                     outside: Outside = "project", goal: ArrayLike | None = None,
                     duration: float | None = None, start_orientation: ArrayLike | None = None,
-                    obstacles: Iterable[Any] | None = None, route: int | None = None
+                    obstacles: Iterable[Any] | None = None, route: int | None = None,
+                    persistence: Persistence = "learned"
                     ) -> _Steps[list[Reproduction]]:
     """Reproduce from each start (at most 1000) in one request, in order
-    (``start_orientation``, ``obstacles`` and ``route`` are used for every start)."""
+    (``start_orientation``, ``obstacles``, ``route`` and ``persistence`` are used for every
+    start)."""
     batch: ReproductionBatch = yield _request(REPRODUCE_MANY, name=skill, body={
         "starts": _rows(starts, "starts"), "model": _model_ref(model), "outside": outside,
         "goal": _point(goal, "goal"), "duration": _number(duration, "duration"),
         "start_orientation": _point(start_orientation, "start_orientation"),
-        "obstacles": _obstacles(obstacles), "route": route})
+        "obstacles": _obstacles(obstacles), "route": route, "persistence": persistence})
     return batch.reproductions
 
 

@@ -874,7 +874,8 @@ class CanalService:
             try:
                 result = routes.canal_for(choice).reproduce_detailed(
                     start, outside=body.outside, goal=inputs.goal, duration=inputs.duration,
-                    start_orientation=start_orientation, obstacles=scene)
+                    start_orientation=start_orientation, obstacles=scene,
+                    persistence=body.persistence)
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field

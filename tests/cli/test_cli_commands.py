@@ -32,7 +32,7 @@ from canal_testing import ROUTE_STARTS, two_route_demo
 from click.testing import Result
 from mcap.reader import make_reader
 
-from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
+from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES, PERSISTENCES
 from canal_protocol.schemas import FitRequest, ReproductionRequest
 
 Run = Callable[..., Result]  # the `run` fixture (conftest.py)
@@ -235,6 +235,11 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
     assert r.exit_code == 0 and doc["projected"] is True and doc["inside"] is False
     r = run("reproduce", name, "--start", "0,5,0", "--outside", "raise")
     assert r.exit_code == 1 and "(field: start)" in r.stderr
+    with CanalClient(service.url) as c:
+        kept = c.reproduce(name, [0.0, 0.01, 0.0], model=1, persistence="learned+end")
+    r = run("--json", "reproduce", name, "--start", "0,0.01,0", "--model", "1",
+            "--persistence", "learned+end")
+    assert r.exit_code == 0 and np.allclose(json.loads(r.stdout)["positions"], kept.positions)
     for bad in ("1,2", "a,b,c", "1,2,3,4"):
         r = run("reproduce", name, "--start", bad)
         assert r.exit_code == (1 if bad == "1,2" else 2), r.output  # 1,2: the service's 422
@@ -498,6 +503,7 @@ def test_help_offers_the_contracts_choices(run: Run) -> None:
     outside = typing.get_args(ReproductionRequest.model_fields["outside"].annotation)
     r = run("reproduce", "--help", url=closed_port_url())
     assert r.exit_code == 0 and "<" + "|".join(outside) + ">" in r.stdout
+    assert "<" + "|".join(PERSISTENCES) + ">" in r.stdout
     r = run("demo", "add", "s", "--help", url=closed_port_url())
     assert r.exit_code == 0 and "--topic" in r.stdout and ".mcap" in r.stdout
     r = run("sim", "--help", url=closed_port_url())
@@ -529,6 +535,7 @@ def test_a_choice_not_offered_is_named_with_the_choices(run: Run) -> None:
     outside = typing.get_args(ReproductionRequest.model_fields["outside"].annotation)
     for args, choices in (
         (["reproduce", "x", "--start", "0,0,0", "--outside", "bogus"], outside),
+        (["reproduce", "x", "--start", "0,0,0", "--persistence", "bogus"], PERSISTENCES),
         (["correct", "x", "missing.csv", "--kind", "bogus"], ("include", "exclude")),
         (["sim", "x", "--lag", "bogus"], ("first-order", "pd")),
         (["sim", "x", "--encoding", "bogus"], ("binary", "json")),

@@ -137,6 +137,12 @@ def test_canal_mesh_and_reproductions(client: CanalClient, fitted: str) -> None:
     assert not far.inside and far.projected
     many = client.reproduce_many(fitted, np.array([[0.0, 0.0, 0.0], [0.0, 0.02, 0.0]]))
     assert len(many) == 2 and all(m.positions.shape[1] == 3 for m in many)
+    for persistence in ("constant", "learned+end"):
+        r = client.reproduce(fitted, start, persistence=persistence)
+        assert np.allclose(canal.reproduce_detailed(start, persistence=persistence).positions,
+                           r.positions), persistence
+        m = client.reproduce_many(fitted, [start], persistence=persistence)
+        assert np.allclose(m[0].positions, r.positions), persistence
 
     ply = client.mesh(fitted, format="ply", n_angles=8)
     assert ply.startswith(b"ply")

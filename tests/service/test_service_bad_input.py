@@ -279,6 +279,7 @@ def test_reproduce_before_any_fit(client: TestClient, skill: str) -> None:
     ("unknown model version", {"start": [0, 0, 0], "model": 7}, 404, "model"),
     ("model as a word", {"start": [0, 0, 0], "model": "newest"}, 422, "model"),
     ("unknown outside policy", {"start": [0, 0, 0], "outside": "clamp"}, 422, "outside"),
+    ("unknown persistence", {"start": [0, 0, 0], "persistence": "forever"}, 422, "persistence"),
     ("goal with 2 coordinates on a 3-D skill", {"start": [0, 0, 0], "goal": [1, 0]}, 422, "goal"),
     ("goal with 4 coordinates", {"start": [0, 0, 0], "goal": [1, 0, 0, 0]}, 422, "goal"),
     ("zero duration", {"start": [0, 0, 0], "duration": 0}, 422, "duration"),

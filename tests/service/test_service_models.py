@@ -78,6 +78,33 @@ def test_batch_reproductions_and_versions(client: TestClient, fitted: str) -> No
     assert old.json()["model_version"] == 1 and len(old.json()["positions"]) <= 50
 
 
+def test_persistence_chooses_how_the_starts_offset_is_carried(client: TestClient, fitted: str) -> None:
+    import canal_core
+
+    # The four demonstrations are one arc shifted by 0.02 each, their ends off the mean as
+    # their starts are. From the last one's start, "learned+end" ends off the canal's end,
+    # towards its own; the default lands on the canal's end; every choice is canal_core's own
+    # reproduction of the model.
+    serialized = client.get(f"/skills/{fitted}/models/1?serialized=true").json()["serialized"]
+    canal = canal_core.Canal.from_dict(serialized)
+    start = demo_positions(3)[0]
+    ends = {}
+    for persistence in ("learned", "constant", "learned+end"):
+        r = client.post(f"/skills/{fitted}/reproductions",
+                        json={"start": start.tolist(), "persistence": persistence})
+        assert r.status_code == 200, r.text
+        path = np.asarray(r.json()["positions"])
+        expected = canal.reproduce_detailed(start, persistence=persistence).positions
+        assert np.allclose(path, expected), persistence
+        ends[persistence] = path[-1]
+    default = client.post(f"/skills/{fitted}/reproductions", json={"start": start.tolist()}).json()
+    assert np.allclose(default["positions"][-1], ends["learned"])
+    assert np.allclose(ends["learned"], canal.directrix[-1], atol=1e-9)
+    own_end = demo_positions(3)[-1]
+    assert np.linalg.norm(ends["learned+end"] - canal.directrix[-1]) > 0.005
+    assert np.linalg.norm(ends["learned+end"] - own_end) < np.linalg.norm(ends["learned"] - own_end)
+
+
 def test_a_start_behind_the_first_plane_is_answered_with_its_approach(client: TestClient, fitted: str) -> None:
     """A start well behind the canal's first plane: the answer's positions reach the first
     section along a straight line in steps like the demonstrations' first ones (not one

@@ -21,7 +21,15 @@ from rich.markup import escape
 
 from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
 from canal_core.validation import FloatArray
-from canal_protocol.options import OUTSIDE_RULES, Alignment, CrossSection, Directrix, FrameKind
+from canal_protocol.options import (
+    OUTSIDE_RULES,
+    PERSISTENCES,
+    Alignment,
+    CrossSection,
+    Directrix,
+    FrameKind,
+    Persistence,
+)
 from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
@@ -160,6 +168,11 @@ def reproduce(
     route: Annotated[int | None, typer.Option(
         "--route", min=0, help="A model of several routes: follow this route (default: the "
                                "route whose entry holds the start).")] = None,
+    persistence: Annotated[Persistence, typer.Option(
+        "--persistence", parser=choice_parser(PERSISTENCES),
+        help="How the start's offset is carried: learned (what the demonstrations kept, faded "
+             "onto the canal's end), constant (the paper's rule), learned+end (kept to the end: "
+             "end where the demonstrations' ends follow their starts).")] = PERSISTENCES[0],
 ) -> None:
     """Reproduce a trajectory from a new start (optionally to a new goal, in a given time,
     around obstacles)."""
@@ -176,7 +189,7 @@ def reproduce(
     with connected(ctx) as c:
         r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
                         duration=duration, start_orientation=quat, obstacles=obstacles,
-                        route=route)
+                        route=route, persistence=persistence)
     if out_path is not None:
         try:
             write_trajectory(out_path, r.positions, r, r.orientations, r.times)
