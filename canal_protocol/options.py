@@ -31,6 +31,7 @@ __all__ = [
     "OUTSIDE_RULES",
     "PERSISTENCES",
     "ROUTE_SEPARATION",
+    "TIME_UNITS",
     "Alignment",
     "CorrectionKind",
     "CrossSection",
@@ -75,6 +76,8 @@ MAX_CORRECTION_WEIGHT = 1000.0
 #: Longest label of a demonstration and of a correction, over REST and live.
 MAX_DEMO_LABEL = 256
 MAX_CORRECTION_LABEL = 200
+#: Seconds per unit of a demonstration's ``time_unit`` (a CSV/NPY time column, JSON timestamps).
+TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: The recordings a skill has: Rerun (.rrd) and MCAP.
 RecordingKind = Literal["rrd", "mcap"]
 if TYPE_CHECKING:

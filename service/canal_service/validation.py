@@ -18,14 +18,13 @@ from canal_core import bounds
 from canal_core.errors import CanalError
 from canal_core.preprocess import prepared_demonstration
 from canal_core.validation import check_quaternion, check_quaternions, malformed_entry
+from canal_protocol.options import TIME_UNITS
 
 from .errors import InvalidInput
 
 FloatArray = npt.NDArray[np.float64]
 
 MIN_POINTS = 4
-#: Seconds per unit of an upload's ``time_unit`` (a CSV/NPY time column, JSON timestamps)
-TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: Longest demonstration, in seconds: a longer span is almost always stamps in ms, us or ns
 #: read as seconds (a ROS log's nanoseconds made a 10 s demo last 317 years)
 MAX_DEMO_SECONDS = 3600.0

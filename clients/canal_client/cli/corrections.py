@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 from typing import Annotated
@@ -12,6 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from canal_core.validation import FloatArray
+from canal_protocol.codecs.csv_table import CsvError, csv_table
 from canal_protocol.options import CORRECTION_KINDS, MAX_CORRECTION_WEIGHT, CorrectionKind
 
 from .output import out, print_json, time_text
@@ -21,56 +23,54 @@ from .session import connected, options
 app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=True)
 
 
-def _numbers_only(line: str) -> bool:
+def read_path(path: Path, dim: int) -> FloatArray:
+    """A correction's samples (M, dim) from .csv/.txt (read as the service reads a
+    demonstration upload: :mod:`canal_protocol.codecs.csv_table`), .npy ((M, dim), or
+    (M, dim + 1) with time first, as an upload) or .json (rows, or {"samples": rows})."""
+    return samples_of(file_bytes(path), path, dim)
+
+
+def file_bytes(path: Path) -> bytes:
+    """A correction file's bytes, or a usage error naming FILE (before any request)."""
+    if path.suffix.lower() not in (".csv", ".txt", ".npy", ".json"):
+        raise typer.BadParameter(f"expected a .csv, .npy or .json file, got {path.name!r}",
+                                 param_hint="FILE")
     try:
-        [float(cell) for cell in line.split(",")]
-    except ValueError:
-        return False
-    return True
+        return path.read_bytes()
+    except OSError as exc:
+        raise typer.BadParameter(f"cannot read {path}: {exc.strerror or exc}",
+                                 param_hint="FILE") from exc
 
 
-def read_path(path: Path) -> FloatArray:
-    """A correction's samples (M, D) from .npy, .json (rows, or {"samples": rows}) or .csv
-    (numbers, with or without a header line; with x, y[, z] named, only those columns)."""
+def samples_of(data: bytes, path: Path, dim: int) -> FloatArray:
+    """The samples (M, dim) of a correction file's bytes (see :func:`read_path`)."""
     suffix = path.suffix.lower()
     try:
+        if suffix in (".csv", ".txt"):
+            return csv_table(data, dim).positions
         if suffix == ".npy":
-            rows = np.load(path, allow_pickle=False)
-        elif suffix == ".json":
-            body = json.loads(path.read_text())
-            rows = body["samples"] if isinstance(body, dict) else body
-        elif suffix in (".csv", ".txt"):
-            raw = path.read_bytes()
-            # A byte-order mark says the encoding: spreadsheets write UTF-8 with one, Windows
-            # tools' "Unicode text" is UTF-16 (as the service reads uploads).
-            text = raw.decode("utf-16" if raw.startswith((b"\xff\xfe", b"\xfe\xff")) else "utf-8-sig")
-            lines = [line for line in text.splitlines() if line.strip()]
-            # Comment lines and a header line come first; numpy.savetxt writes its header as
-            # a comment ("# t,x,y,z"), so the last of them names the columns.
-            leading = 0
-            while leading < len(lines) and not _numbers_only(lines[leading]):
-                leading += 1
-            header = ([c.strip().lower() for c in lines[leading - 1].lstrip("#").split(",")]
-                      if leading else [])
-            rows = np.loadtxt(lines[leading:], delimiter=",", ndmin=2)
-            if "x" in header and "y" in header:
-                # named columns: a `canal reproduce --out` file has t first, qx..qw last
-                rows = rows[:, [header.index(a) for a in "xyz" if a in header]]
+            rows = np.load(io.BytesIO(data), allow_pickle=False)
         else:
-            raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="FILE")
+            body = json.loads(data)
+            rows = body["samples"] if isinstance(body, dict) else body
         samples = np.asarray(rows, dtype=np.float64)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except CsvError as exc:
+        raise typer.BadParameter(f"cannot read {path}: {exc.message}", param_hint="FILE") from exc
+    except (ValueError, KeyError, TypeError) as exc:
         raise typer.BadParameter(f"cannot read {path}: {exc}", param_hint="FILE") from exc
-    if samples.ndim != 2 or samples.shape[1] not in (2, 3):
-        raise typer.BadParameter(f"expected rows of x,y[,z], got shape {samples.shape}",
-                                 param_hint="FILE")
-    return samples[:, :3]
+    if suffix == ".npy" and samples.ndim == 2 and samples.shape[1] == dim + 1:
+        samples = samples[:, 1:]  # time first, as in a demonstration upload
+    if samples.ndim != 2 or samples.shape[1] != dim:
+        raise typer.BadParameter(
+            f"expected rows of {'x,y' if dim == 2 else 'x,y,z'} for a {dim}-D skill, got shape "
+            f"{samples.shape}", param_hint="FILE")
+    return samples
 
 
 def correct(
     ctx: typer.Context,
     skill: str,
-    file: Annotated[Path, typer.Argument(help="The corrected path: .csv (x,y[,z]), .npy or .json.")],
+    file: Annotated[Path, typer.Argument(help="The corrected path: .csv (as `canal demo add` reads it), .npy or .json.")],
     kind: Annotated[CorrectionKind, typer.Option(
         "--kind", "-k", parser=choice_parser(CORRECTION_KINDS), help="include: this path is right too; exclude: the robot was pushed "
         "away from where it went (the canal narrows on that side).")] = "include",
@@ -90,8 +90,10 @@ def correct(
     if not 0 < weight <= MAX_CORRECTION_WEIGHT:
         raise typer.BadParameter(f"expected a weight in (0, {MAX_CORRECTION_WEIGHT:g}], got {weight}",
                                  param_hint="--weight")
-    samples = read_path(file)
+    data = file_bytes(file)
     with connected(ctx) as c:
+        # The columns a CSV is read by (x, y or x, y, z) are the skill's.
+        samples = samples_of(data, file, c.get_skill(skill).dim)
         made = c.correct(skill, samples, kind, model=model, weight=weight, label=label,
                          route=route)
     if options(ctx).json:
