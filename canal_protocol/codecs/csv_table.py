@@ -64,7 +64,8 @@ class InvalidCsv(CsvError):
 
 @dataclass(frozen=True)
 class CsvTable:
-    """The arrays a CSV file holds, not yet checked as a demonstration."""
+    """The arrays of one demonstration file, not yet checked (the service's NumPy and MCAP
+    uploads give the same four)."""
 
     positions: FloatArray
     timestamps: FloatArray | None = None

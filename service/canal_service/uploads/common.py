@@ -9,8 +9,14 @@ from typing import Literal
 
 import numpy as np
 
+from canal_protocol.codecs.csv_table import CsvTable
+
 from ..errors import InvalidInput, TooLarge
 from ..validation import FloatArray
+
+#: Raw arrays from a file, not yet checked (see ``validation.check_demonstration``): the
+#: same four a CSV table gives, whatever the format.
+ParsedUpload = CsvTable
 
 UploadFormat = Literal["csv", "npy", "mcap"]
 FORMATS: tuple[str, ...] = ("csv", "npy", "mcap")
@@ -69,17 +75,6 @@ class Budget:
                 "CANAL_UPLOAD_MAX_POINTS); downsample it or split it",
                 field="file",
             )
-
-
-@dataclass(frozen=True)
-class ParsedUpload:
-    """Raw arrays from a file, not yet checked (see ``validation.check_demonstration``)."""
-
-    positions: FloatArray
-    timestamps: FloatArray | None = None
-    orientations: FloatArray | None = None
-    #: the timestamps' unit when the file says it (a ROS CSV's nanosecond stamp columns)
-    time_unit: str | None = None
 
 
 def split_time(table: FloatArray, dim: int, field: str) -> ParsedUpload:

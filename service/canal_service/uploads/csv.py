@@ -21,4 +21,4 @@ def parse_csv(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
         raise InvalidInput(exc.message, field=exc.field) from exc
     budget.tick()
     budget.points(table.positions.shape[0], "the CSV file")
-    return ParsedUpload(table.positions, table.timestamps, table.orientations, table.time_unit)
+    return table
