@@ -3,6 +3,8 @@ free loopback ports, a real uvicorn serving an app on 127.0.0.1, and arc demonst
 
 from __future__ import annotations
 
+import io
+import json
 import socket
 import threading
 import time
@@ -10,6 +12,7 @@ from typing import Any
 
 import numpy as np
 import uvicorn
+from mcap.writer import CompressionType, Writer
 
 ZENOH_DEFAULT_PORT = 7447
 
@@ -97,3 +100,20 @@ def path_distance(path: Any, demo: Any) -> float:
     """The mean distance from each point of ``path`` to the nearest point of ``demo``."""
     a, b = np.asarray(path, dtype=np.float64), np.asarray(demo, dtype=np.float64)
     return float(np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2).min(axis=1).mean())
+
+
+def foxglove_pose_mcap(positions: np.ndarray, topic: str = "/ee_pose") -> bytes:
+    """An MCAP file with one foxglove.PoseInFrame (JSON) message per sample."""
+    buf = io.BytesIO()
+    writer = Writer(buf, compression=CompressionType.ZSTD)
+    writer.start()
+    schema_id = writer.register_schema(name="foxglove.PoseInFrame", encoding="jsonschema",
+                                       data=json.dumps({"type": "object"}).encode())
+    channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
+    for i, p in enumerate(positions):
+        pos = {"x": float(p[0]), "y": float(p[1]), "z": float(p[2]) if len(p) > 2 else 0.0}
+        payload = {"timestamp": {"sec": 100 + i, "nsec": 0}, "frame_id": "base",
+                   "pose": {"position": pos, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}
+        writer.add_message(channel, log_time=i, publish_time=i, data=json.dumps(payload).encode())
+    writer.finish()
+    return buf.getvalue()

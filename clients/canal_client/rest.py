@@ -183,6 +183,10 @@ GET_SCENE = Endpoint("GET", "/skills/{name}/scene", response=SceneOut)
 PUT_SCENE = Endpoint("PUT", "/skills/{name}/scene", SceneIn, SceneOut)
 DELETE_SCENE = Endpoint("DELETE", "/skills/{name}/scene", status=204)
 CORRECT = Endpoint("POST", "/skills/{name}/corrections", CorrectionIn, CorrectedModel, status=201)
+# A correction's path as a file (its other fields travel in the query string).
+CORRECT_FILE = Endpoint("POST", "/skills/{name}/corrections/file", None, CorrectedModel,
+                        query=("kind", "weight", "label", "model", "route", "format", "topic"),
+                        status=201, media_type="multipart/form-data")
 LIST_CORRECTIONS = Endpoint("GET", "/skills/{name}/corrections", response=Page[CorrectionOut],
                             query=_PAGED)
 UNDO_CORRECTION = Endpoint("DELETE", "/skills/{name}/corrections/{correction_id}",
@@ -399,6 +403,22 @@ def _json_file_body(path: Path, data: bytes, label: str | None) -> dict[str, Any
     return doc
 
 
+def _json_correction_file(path: Path, data: bytes) -> tuple[Any, Any]:
+    """(samples, timestamps or None) of a JSON correction file: rows, or an object with
+    ``samples`` (and ``timestamps``)."""
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise CanalClientError(f"{path.name}: not valid JSON: {exc}") from exc
+    if isinstance(doc, list):
+        return doc, None
+    if not isinstance(doc, dict) or "samples" not in doc:
+        raise CanalClientError(f"{path.name}: expected a JSON object with 'samples' or a list "
+                               f"of rows, got {type(doc).__name__}"
+                               + (" without 'samples'" if isinstance(doc, dict) else ""))
+    return doc["samples"], doc.get("timestamps")
+
+
 # ---- the operations: each method of both clients, described once ----------------------------
 # A generator of steps returning the method's result; its docstring is the method's.
 
@@ -515,6 +535,31 @@ def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"]
         "kind": kind, "samples": _rows(samples, "samples"), "model": _model_ref(model),
         "weight": float(weight), "label": label, "route": route,
         "timestamps": _vector(timestamps, "timestamps")}))
+
+
+def _correct_file(skill: str, path: str | os.PathLike[str],
+                  kind: Literal["include", "exclude"] = "include", *, model: Version = "latest",
+                  weight: float = 1.0, label: str | None = None, route: int | None = None,
+                  format: str | None = None, topic: str | None = None) -> _Steps[CorrectedModel]:
+    """:meth:`correct` by a path recorded in a file: CSV, NPY or MCAP (``topic`` picks the pose
+    topic) are uploaded as they are and read as a demonstration file is (the label defaults
+    to the file's name); a JSON file (rows, or ``{"samples": rows, "timestamps"?: ...}``) is
+    read here and sent as :meth:`correct` sends it."""
+    p = Path(path)
+    fmt = guess_format(p, format)
+    data: bytes = yield _ReadFile(p)
+    if fmt == "json":
+        rows, times = _json_correction_file(p, data)
+        return (yield from _correct(skill, rows, kind, model=model, weight=weight,
+                                    label=p.name if label is None else label, route=route,
+                                    timestamps=times))
+    params = {k: v for k, v in (("kind", kind), ("weight", _number(weight, "weight")),
+                                ("label", label), ("model", _model_ref(model)),
+                                ("route", route), ("format", fmt), ("topic", topic))
+              if v is not None}
+    return (yield _Request(CORRECT_FILE.method, CORRECT_FILE.url(name=skill),
+                           _read(CorrectedModel), params=params,
+                           files={"file": (p.name, data, _FILE_TYPES[fmt])}))
 
 
 def _list_corrections(skill: str) -> _Steps[list[CorrectionOut]]:
@@ -717,6 +762,7 @@ class _Operations:
     set_scene = _operation(_set_scene)
     clear_scene = _operation(_clear_scene)
     correct = _operation(_correct)
+    correct_file = _operation(_correct_file)
     list_corrections = _operation(_list_corrections)
     undo_correction = _operation(_undo_correction)
     download_recording = _operation(_download_recording)

@@ -369,11 +369,18 @@ class CanalService:
         if fmt == "mcap" and time_unit is not None:
             raise InvalidInput("time_unit applies to a CSV or NPY time column; an MCAP "
                                "file's times are read from its message stamps", field="time_unit")
+        demo = self.read_file(name, fmt, data, topic, limits, time_unit)
+        return self.add_demonstration(name, demo, label, fmt)
+
+    def read_file(self, name: str, fmt: uploads.UploadFormat, data: bytes, topic: str | None,
+                  limits: uploads.UploadLimits | None = None, time_unit: str | None = None,
+                  ) -> DemoArrays:
+        """The checked arrays of a file sent for the skill (a demonstration or a correction's
+        path), parsed within ``limits`` for the skill's dimension."""
         dim = self.skill_dim(name)
         parsed = uploads.parse_upload(fmt, data, dim, topic, limits)
-        demo = check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
+        return check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
                                    time_unit if time_unit is not None else parsed.time_unit)
-        return self.add_demonstration(name, demo, label, fmt)
 
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,
                           source: str) -> schemas.DemonstrationCreated:

@@ -7,9 +7,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-import pytest
 from canal_client import CanalClient
-from canal_live import LiveService, demo_positions
+from canal_live import LiveService, demo_positions, foxglove_pose_mcap
 from click.testing import Result
 
 import canal_core
@@ -55,44 +54,6 @@ def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Call
 
 
 
-def test_a_reproduction_file_is_a_correction_path(tmp_path: Path) -> None:
-    """`canal reproduce --out x.csv` writes t,x,y,z (and qx..qw): `canal correct` reads x,y,z."""
-    from canal_client.cli.corrections import read_path
-
-    path = tmp_path / "traj.csv"
-    path.write_text("t,x,y,z,qx,qy,qz,qw\n0,1,2,3,0,0,0,1\n0.5,4,5,6,0,0,0,1\n")
-    np.testing.assert_array_equal(read_path(path, 3), [[1, 2, 3], [4, 5, 6]])
-    path.write_text("1,2,3\n4,5,6\n")  # no header: the numbers are the samples
-    np.testing.assert_array_equal(read_path(path, 3), [[1, 2, 3], [4, 5, 6]])
-
-
-def test_numpys_savetxt_file_is_a_correction_path(tmp_path: Path) -> None:
-    # np.savetxt(..., header="t,x,y,z") writes "# t,x,y,z": the '#' hid the names, so the
-    # columns were taken as they came and t, x, y became the samples' x, y, z.
-    from canal_client.cli.corrections import read_path
-
-    t = np.array([0.0, 0.5, 1.0])
-    xyz = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]])
-    path = tmp_path / "push.csv"
-    np.savetxt(path, np.column_stack([t, xyz]), delimiter=",", header="t,x,y,z")
-    np.testing.assert_array_equal(read_path(path, 3), xyz)
-    path.write_text("# pushed by hand\n# rate 100 Hz\nx,y,z\n1,2,3\n4,5,6\n7,8,9\n")
-    np.testing.assert_array_equal(read_path(path, 3), xyz)
-    path.write_text("# pushed by hand\n1,2,3\n4,5,6\n7,8,9\n")
-    np.testing.assert_array_equal(read_path(path, 3), xyz)
-
-
-@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16"])
-def test_a_spreadsheet_export_with_a_byte_order_mark_is_a_correction_path(tmp_path: Path, encoding: str) -> None:
-    # With a UTF-8 mark the first name read "\ufeffx" and the t column became x; UTF-16 was
-    # not read at all. The service reads both as uploads.
-    from canal_client.cli.corrections import read_path
-
-    path = tmp_path / "push.csv"
-    path.write_bytes("t,x,y,z\r\n0,1,2,3\r\n0.5,4,5,6\r\n".encode(encoding))
-    np.testing.assert_array_equal(read_path(path, 3), [[1, 2, 3], [4, 5, 6]])
-
-
 def _dialects(xyz: np.ndarray) -> dict[str, bytes]:
     """The same samples as the loggers people record with write them."""
     t = np.arange(len(xyz)) * 0.01
@@ -113,23 +74,31 @@ def _dialects(xyz: np.ndarray) -> dict[str, bytes]:
 def test_every_file_a_demonstration_is_read_from_is_read_as_a_correction_too(
         run: Run, service: LiveService, unique_name: Callable[[str], str], tmp_path: Path) -> None:
     # `canal correct` had a CSV reader of its own: commas and x, y, z names only, so an RTDE
-    # log, a PlotJuggler export or a semicolon file `canal demo add` takes was refused.
+    # log, a PlotJuggler export or a semicolon file `canal demo add` takes was refused, and a
+    # ROS 2 bag could not be a correction at all.
     name = unique_name("dialects")
     run("skill", "create", name)
-    xyz = demo_positions(0)[:30]
-    for file_name, data in _dialects(xyz).items():
-        path = tmp_path / file_name
-        path.write_bytes(data)
-        r = run("--json", "demo", "add", name, str(path))
-        assert r.exit_code == 0, (file_name, r.output)
+    for j in range(4):
+        np.save(tmp_path / f"d{j}.npy", demo_positions(j))
+    assert run("demo", "add", name, *(str(tmp_path / f"d{j}.npy") for j in range(4))).exit_code == 0
+    assert run("fit", name, "--samples", "60").exit_code == 0
     with CanalClient(service.url) as client:
-        stored = [client.get_demo(name, d.id).positions for d in client.list_demos(name)]
-    assert len(stored) == len(_dialects(xyz))
-    from canal_client.cli.corrections import read_path
-
-    for (file_name, _), positions in zip(_dialects(xyz).items(), stored, strict=True):
-        np.testing.assert_allclose(read_path(tmp_path / file_name, 3), positions, err_msg=file_name)
+        canal: canal_core.Canal = client.get_canal(name)
+    idx = np.arange(20, 36)
+    wider = canal.directrix[idx] + 1.2 * canal.radii[idx, None] * canal.normals[idx]
+    files = _dialects(wider)
+    (tmp_path / "pushed.mcap").write_bytes(foxglove_pose_mcap(wider))
+    for file_name in [*files, "pushed.mcap"]:
+        path = tmp_path / file_name
+        if file_name in files:
+            path.write_bytes(files[file_name])
+        r = run("--json", "correct", name, str(path))
+        assert r.exit_code == 0, (file_name, r.output)
+        made = json.loads(r.stdout)["correction"]
+        assert made["n_points"] == len(wider) and made["label"] == file_name, (file_name, made)
     bad = tmp_path / "bad.csv"
     bad.write_text("x,y,z\n1,2,3\n4,oops,6\n")
     r = run("correct", name, str(bad))
-    assert r.exit_code == 2 and "expected numbers on CSV line 3, got 'oops'" in r.output, r.output
+    assert r.exit_code == 1 and "expected numbers on CSV line 3, got 'oops'" in r.stderr, r.output
+    r = run("correct", name, str(tmp_path / "pushed.xls"))
+    assert r.exit_code == 2 and ".csv, .npy, .mcap or .json" in r.output, r.output

@@ -3,7 +3,6 @@ loopback port, and demonstration files in every accepted format."""
 
 from __future__ import annotations
 
-import io
 import json
 import os
 from pathlib import Path
@@ -12,8 +11,7 @@ from typing import Any
 import numpy as np
 from canal_service.app import create_app
 from canal_service.core.config import Settings
-from canal_testing import LiveServer, arc_demo, free_port
-from mcap.writer import CompressionType, Writer
+from canal_testing import LiveServer, arc_demo, foxglove_pose_mcap, free_port
 
 os.environ.setdefault("RERUN_TELEMETRY_ENABLED", "false")
 
@@ -44,23 +42,6 @@ class LiveService(LiveServer):
 def demo_positions(j: int, n: int = 40, dim: int = 3) -> np.ndarray:
     """A smooth arc shifted by 0.02 per demonstration (its own noise seeds)."""
     return arc_demo(j, n, dim, seed=100, spread=0.02)
-
-
-def foxglove_pose_mcap(positions: np.ndarray, topic: str = "/ee_pose") -> bytes:
-    """An MCAP file with one foxglove.PoseInFrame (JSON) message per sample."""
-    buf = io.BytesIO()
-    writer = Writer(buf, compression=CompressionType.ZSTD)
-    writer.start()
-    schema_id = writer.register_schema(name="foxglove.PoseInFrame", encoding="jsonschema",
-                                       data=json.dumps({"type": "object"}).encode())
-    channel = writer.register_channel(topic=topic, message_encoding="json", schema_id=schema_id)
-    for i, p in enumerate(positions):
-        pos = {"x": float(p[0]), "y": float(p[1]), "z": float(p[2]) if len(p) > 2 else 0.0}
-        payload = {"timestamp": {"sec": 100 + i, "nsec": 0}, "frame_id": "base",
-                   "pose": {"position": pos, "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}
-        writer.add_message(channel, log_time=i, publish_time=i, data=json.dumps(payload).encode())
-    writer.finish()
-    return buf.getvalue()
 
 
 def write_demo_files(folder: Path, dim: int = 3) -> dict[str, Path]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -243,3 +244,29 @@ def test_numpy_numbers_are_sent_as_json_numbers(client: CanalClient, fitted: str
     with pytest.raises(InvalidInputError) as info:
         client.reproduce(fitted, start=[0.0, 0.0, 0.0], route=np.bool_(True))
     assert info.value.field == "route"
+
+
+def test_a_correction_from_a_file(client: CanalClient, service: LiveService, fitted: str,
+                                  tmp_path: Path) -> None:
+    canal = client.get_canal(fitted)
+    idx = np.arange(8, 20)
+    wider = canal.directrix[idx] + 1.2 * canal.radii[idx, None] * canal.normals[idx]
+    csv = tmp_path / "wider.csv"
+    csv.write_text("x;y;z\n" + "".join(";".join(map(repr, row)) + "\n" for row in wider.tolist()))
+    made = client.correct_file(fitted, csv, weight=2.0, model=1)
+    assert made.correction.label == "wider.csv" and made.correction.n_points == len(wider)
+    assert made.correction.weight == 2.0 and made.parent_version == 1
+    doc = tmp_path / "wider.json"
+    doc.write_text(json.dumps({"samples": wider.tolist()}))
+    by_json = client.correct_file(fitted, doc, "include", label="by json", model=1, weight=2.0)
+    assert by_json.correction.label == "by json" and by_json.correction.n_points == len(wider)
+    np.testing.assert_allclose(client.get_canal(fitted, by_json.version).radii,
+                               client.get_canal(fitted, made.version).radii)
+
+    async def by_async() -> int:
+        async with AsyncCanalClient(service.url) as ac:
+            return (await ac.correct_file(fitted, csv, model=1)).correction.n_points
+
+    assert asyncio.run(by_async()) == len(wider)
+    with pytest.raises(ArgumentError, match=r"expected a \.csv, \.npy, \.mcap or \.json file"):
+        client.correct_file(fitted, tmp_path / "wider.xls")

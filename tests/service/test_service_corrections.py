@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import httpx
 import numpy as np
 import pytest
-from canal_testing import LiveServer
+from canal_testing import LiveServer, foxglove_pose_mcap
 from service_helpers import demo_positions
 
 import canal_core
@@ -168,4 +168,62 @@ def test_a_sample_row_a_value_short_is_named_in_words_not_numpy_s(http: httpx.Cl
     error = r.json()["error"]
     assert error["field"] == "samples[1]" and "got 2 values at row 1" in error["message"], error
     assert "inhomogeneous" not in error["message"]
+    assert http.get("/skills/pour/corrections").json()["total"] == 0
+
+
+def test_a_correction_sent_as_a_file_is_read_as_a_demonstration_upload(http: httpx.Client) -> None:
+    # A person's corrected path comes from the logger they record demonstrations with: a UR
+    # RTDE log, a ROS 2 bag. The same samples as JSON and as files make the same canal.
+    fitted = served_canal(http)
+    samples = np.asarray(wider_path(fitted))
+    by_json = http.post("/skills/pour/corrections", json={"kind": "include", "samples": samples.tolist(),
+                                                          "weight": 2.0, "label": "wider"})
+    assert by_json.status_code == 201, by_json.text
+    expected = served_canal(http)
+    undone = http.delete(f"/skills/pour/corrections/{by_json.json()['correction']['id']}")
+    assert undone.status_code == 200, undone.text
+    t = np.arange(len(samples)) * 0.008
+    rtde = "timestamp " + " ".join(f"actual_TCP_pose_{k}" for k in range(6)) + "\n" + "".join(
+        " ".join(f"{v:.17g}" for v in (t[i], *samples[i], 0.0, 0.0, 0.0)) + "\n"
+        for i in range(len(samples)))
+    r = http.post("/skills/pour/corrections/file",
+                  params={"kind": "include", "weight": 2, "label": "wider", "model": 1},
+                  content=rtde.encode(), headers={"content-type": "text/csv"})
+    assert r.status_code == 201, r.text
+    made = r.json()
+    assert made["correction"]["n_points"] == len(samples) and made["correction"]["label"] == "wider"
+    assert made["correction"]["weight"] == 2.0 and made["parent_version"] == 1
+    got = served_canal(http)
+    np.testing.assert_allclose(got.directrix, expected.directrix)
+    np.testing.assert_allclose(got.radii, expected.radii)
+    # A ROS 2 / Foxglove bag as a multipart upload; its file name is the label.
+    bag = foxglove_pose_mcap(samples)
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include"},
+                  files={"file": ("pushed.mcap", bag, "application/octet-stream")})
+    assert r.status_code == 201, r.text
+    assert r.json()["correction"]["label"] == "pushed.mcap"
+    assert r.json()["correction"]["n_points"] == len(samples)
+
+
+@pytest.mark.parametrize(("params", "content", "status", "field", "said"), [
+    ({}, b"x,y,z\n0,0,0\n", 422, "kind", "Field required"),
+    ({"kind": "widen"}, b"x,y,z\n0,0,0\n", 422, "kind", "'include' or 'exclude'"),
+    ({"kind": "include", "weight": 0}, b"x,y,z\n0,0,0\n", 422, "weight", "greater than 0"),
+    ({"kind": "include", "model": "newest"}, b"x,y,z\n0,0,0\n", 422, "model", "'latest'"),
+    ({"kind": "include", "model": 9}, b"x,y,z\n0,0,0\n1,0,0\n2,0,0\n3,0,0\n", 404, "model", "9"),
+    ({"kind": "include"}, b"x,y\n0,0\n1,1\n2,2\n3,3\n", 422, "file:header", "x, y, z"),
+    ({"kind": "include"}, b"x,y,z\n0,0,0\n1,oops,1\n", 422, "file:line 3", "'oops'"),
+    ({"kind": "include", "format": "npy"}, b"x,y,z\n0,0,0\n", 400, "file", "npy"),
+    ({"kind": "include"}, b"", 400, "file", "empty"),
+])
+def test_a_file_correction_refused_names_the_part_and_changes_nothing(
+        http: httpx.Client, params: dict[str, object], content: bytes, status: int, field: str,
+        said: str) -> None:
+    before = http.get("/skills/pour/models").json()["total"]
+    r = http.post("/skills/pour/corrections/file", params=params, content=content,
+                  headers={"content-type": "text/csv"})
+    assert r.status_code == status, r.text
+    error = r.json()["error"]
+    assert error["field"] == field and said in error["message"], error
+    assert http.get("/skills/pour/models").json()["total"] == before
     assert http.get("/skills/pour/corrections").json()["total"] == 0

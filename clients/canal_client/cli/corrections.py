@@ -2,20 +2,17 @@
 
 from __future__ import annotations
 
-import io
-import json
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
 
-from canal_core.validation import FloatArray
-from canal_protocol.codecs.csv_table import CsvError, csv_table
 from canal_protocol.options import CORRECTION_KINDS, MAX_CORRECTION_WEIGHT, CorrectionKind
 
+from ..errors import ArgumentError
+from ..rest import guess_format
 from .output import out, print_json, time_text
 from .parsing import choice_parser
 from .session import connected, options
@@ -23,66 +20,26 @@ from .session import connected, options
 app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=True)
 
 
-def read_path(path: Path, dim: int) -> FloatArray:
-    """A correction's samples (M, dim) from .csv/.txt (read as the service reads a
-    demonstration upload: :mod:`canal_protocol.codecs.csv_table`), .npy ((M, dim), or
-    (M, dim + 1) with time first, as an upload) or .json (rows, or {"samples": rows})."""
-    return samples_of(file_bytes(path), path, dim)
-
-
-def file_bytes(path: Path) -> bytes:
-    """A correction file's bytes, or a usage error naming FILE (before any request)."""
-    if path.suffix.lower() not in (".csv", ".txt", ".npy", ".json"):
-        raise typer.BadParameter(f"expected a .csv, .npy or .json file, got {path.name!r}",
-                                 param_hint="FILE")
-    try:
-        return path.read_bytes()
-    except OSError as exc:
-        raise typer.BadParameter(f"cannot read {path}: {exc.strerror or exc}",
-                                 param_hint="FILE") from exc
-
-
-def samples_of(data: bytes, path: Path, dim: int) -> FloatArray:
-    """The samples (M, dim) of a correction file's bytes (see :func:`read_path`)."""
-    suffix = path.suffix.lower()
-    try:
-        if suffix in (".csv", ".txt"):
-            return csv_table(data, dim).positions
-        if suffix == ".npy":
-            rows = np.load(io.BytesIO(data), allow_pickle=False)
-        else:
-            body = json.loads(data)
-            rows = body["samples"] if isinstance(body, dict) else body
-        samples = np.asarray(rows, dtype=np.float64)
-    except CsvError as exc:
-        raise typer.BadParameter(f"cannot read {path}: {exc.message}", param_hint="FILE") from exc
-    except (ValueError, KeyError, TypeError) as exc:
-        raise typer.BadParameter(f"cannot read {path}: {exc}", param_hint="FILE") from exc
-    if suffix == ".npy" and samples.ndim == 2 and samples.shape[1] == dim + 1:
-        samples = samples[:, 1:]  # time first, as in a demonstration upload
-    if samples.ndim != 2 or samples.shape[1] != dim:
-        raise typer.BadParameter(
-            f"expected rows of {'x,y' if dim == 2 else 'x,y,z'} for a {dim}-D skill, got shape "
-            f"{samples.shape}", param_hint="FILE")
-    return samples
-
-
 def correct(
     ctx: typer.Context,
     skill: str,
-    file: Annotated[Path, typer.Argument(help="The corrected path: .csv (as `canal demo add` reads it), .npy or .json.")],
+    file: Annotated[Path, typer.Argument(
+        help="The corrected path: .csv, .npy or .mcap (read as `canal demo add` reads a "
+             "demonstration) or .json (rows, or {\"samples\": rows}).")],
     kind: Annotated[CorrectionKind, typer.Option(
         "--kind", "-k", parser=choice_parser(CORRECTION_KINDS), help="include: this path is right too; exclude: the robot was pushed "
         "away from where it went (the canal narrows on that side).")] = "include",
     weight: Annotated[float, typer.Option(
         "--weight", "-w", help="How much an include counts against one demonstration (> 0).")
     ] = 1.0,
-    label: Annotated[str, typer.Option("--label", "-l")] = "",
+    label: Annotated[str, typer.Option("--label", "-l", help="Default: the file's name.")] = "",
     model: Annotated[str, typer.Option("--model", "-m",
                                        help="Model version corrected, or 'latest'.")] = "latest",
     route: Annotated[int | None, typer.Option(
         "--route", min=0, help="A model of several routes: correct this route's canal "
                                "(default: every route the path passes through).")] = None,
+    topic: Annotated[str | None, typer.Option(
+        "--topic", help="The pose topic of an .mcap file that has several.")] = None,
 ) -> None:
     """Refine the skill's canal by a correction: a new model version."""
     if model != "latest" and not model.isdigit():
@@ -90,12 +47,15 @@ def correct(
     if not 0 < weight <= MAX_CORRECTION_WEIGHT:
         raise typer.BadParameter(f"expected a weight in (0, {MAX_CORRECTION_WEIGHT:g}], got {weight}",
                                  param_hint="--weight")
-    data = file_bytes(file)
+    try:
+        guess_format(file)
+    except ArgumentError as exc:
+        raise typer.BadParameter(f"expected {exc.expected}, got {exc.got}", param_hint="FILE") from None
+    if not file.is_file():
+        raise typer.BadParameter(f"no file {str(file)!r}", param_hint="FILE")
     with connected(ctx) as c:
-        # The columns a CSV is read by (x, y or x, y, z) are the skill's.
-        samples = samples_of(data, file, c.get_skill(skill).dim)
-        made = c.correct(skill, samples, kind, model=model, weight=weight, label=label,
-                         route=route)
+        made = c.correct_file(skill, file, kind, model=model, weight=weight,
+                              label=label or None, route=route, topic=topic)
     if options(ctx).json:
         print_json(made)
         return

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Path, status
+from fastapi import APIRouter, Path, Query, Request, status
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
 
+from canal_protocol.options import (
+    MAX_CORRECTION_LABEL,
+    MAX_CORRECTION_WEIGHT,
+    MAX_ROUTES,
+    CorrectionKind,
+)
 from canal_protocol.schemas import (
     MAX_ID,
     CorrectedModel,
@@ -15,13 +23,42 @@ from canal_protocol.schemas import (
     Page,
 )
 
-from ..deps import Limit, Offset, ServiceDep, SkillName
+from ..deps import Limit, Offset, ServiceDep, SkillName, parse_version
+from ..service import CanalService
+from ..uploads import UploadFormat, UploadLimits, detect_format
+from .file_bodies import BINARY, file_body, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/corrections", tags=["corrections"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (404, 409, 422)
 }
 CorrectionId = Annotated[int, Path(ge=1, le=MAX_ID)]
+_FILE_ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse} for code in (400, 404, 409, 413, 415, 422, 503)
+}
+_FILE_BODY: dict[str, Any] = {
+    "required": True,
+    "description": (
+        "The corrected path as a file, read as a demonstration upload is (CSV by column "
+        "names, NumPy .npy, MCAP with ?topic=): as a multipart upload (field `file`, "
+        "optional field `label`) or as the raw body. Its positions are the samples; time "
+        "stamps and orientations, when the file has them, are kept with the correction."
+    ),
+    "content": {
+        "multipart/form-data": {
+            "schema": {
+                "type": "object",
+                "properties": {"file": BINARY,
+                               "label": {"type": "string", "maxLength": MAX_CORRECTION_LABEL}},
+                "required": ["file"],
+            }
+        },
+        "text/csv": {"schema": {"type": "string"}},
+        "application/x-npy": {"schema": BINARY},
+        "application/x-mcap": {"schema": BINARY},
+        "application/octet-stream": {"schema": BINARY},
+    },
+}
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=CorrectedModel,
@@ -46,3 +83,52 @@ def undo_correction(name: SkillName, correction_id: CorrectionId,
     """Undo one correction: a new latest version with the skill's other corrections
     re-applied to the fit they were made on."""
     return service.undo_correction(name, correction_id)
+
+
+@router.post("/file", status_code=status.HTTP_201_CREATED, response_model=CorrectedModel,
+             responses=_FILE_ERRORS, openapi_extra={"requestBody": _FILE_BODY})
+async def correct_from_file(
+    name: SkillName,
+    request: Request,
+    service: ServiceDep,
+    kind: Annotated[CorrectionKind, Query(description="include or exclude (as in the JSON body).")],
+    weight: Annotated[float, Query(gt=0.0, le=MAX_CORRECTION_WEIGHT, allow_inf_nan=False,
+                                   description="How much an include counts against one "
+                                               "demonstration.")] = 1.0,
+    label: Annotated[str | None, Query(max_length=MAX_CORRECTION_LABEL, pattern=r"^[^\x00]*$",
+                                       description="Default: the uploaded file's name.")] = None,
+    model: Annotated[str, Query(max_length=12, description="A version number or 'latest'.")
+                     ] = "latest",
+    route: Annotated[int | None, Query(ge=0, le=MAX_ROUTES - 1,
+                                       description="The route whose canal is corrected.")] = None,
+    format: Annotated[Literal["csv", "npy", "mcap"] | None,
+                      Query(description="File format; guessed when omitted.")] = None,
+    topic: Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")] = None,
+) -> CorrectedModel:
+    """The same correction as ``POST /corrections``, its path sent as a file (a logger's CSV,
+    a ROS 2 bag) and read as a demonstration upload is; the other fields are query
+    parameters. Nothing is stored unless every check passes."""
+    version = parse_version(model, "model")
+    upload = await file_body(request)
+    fmt = detect_format(format, upload.filename, upload.content_type, upload.data)
+    fields = {"kind": kind, "weight": weight, "route": route,
+              "model": "latest" if version is None else version,
+              "label": label if label is not None else (upload.label or "")[-MAX_CORRECTION_LABEL:]}
+    return await upload_lane(request).run(_correct_from_file, service, name, fmt, upload.data,
+                                          topic, upload_limits(request), fields)
+
+
+def _correct_from_file(service: CanalService, name: str, fmt: UploadFormat, data: bytes,
+                       topic: str | None, limits: UploadLimits, fields: dict[str, Any],
+                       ) -> CorrectedModel:
+    """Parse the file (on the upload lane, as a demonstration upload) and correct by it."""
+    path = service.read_file(name, fmt, data, topic, limits)
+    try:
+        body = CorrectionIn(
+            samples=path.positions.tolist(),
+            timestamps=None if path.timestamps is None else path.timestamps.tolist(),
+            orientations=None if path.orientations is None else path.orientations.tolist(),
+            **fields)
+    except ValidationError as exc:
+        raise RequestValidationError(exc.errors(include_url=False)) from exc
+    return service.correct(name, body)

@@ -7,8 +7,6 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
-from starlette.datastructures import UploadFile
-from starlette.exceptions import HTTPException
 
 from canal_protocol.options import MAX_DEMO_LABEL
 from canal_protocol.schemas import (
@@ -22,16 +20,13 @@ from canal_protocol.schemas import (
 )
 
 from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
-from ..errors import BadUpload, InvalidInput, PayloadTooLarge, TooLarge, UnsupportedMediaType
-from ..lanes import Lane
+from ..errors import InvalidInput, TooLarge
 from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
+from .file_bodies import BINARY, file_body, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
 
-_FILE_TYPES = ("text/csv", "application/csv", "application/x-npy", "application/npy",
-               "application/x-mcap", "application/mcap", "application/octet-stream")
-_BINARY = {"type": "string", "format": "binary"}
 _REQUEST_BODY: dict[str, Any] = {
     "required": True,
     "description": (
@@ -45,14 +40,14 @@ _REQUEST_BODY: dict[str, Any] = {
         "multipart/form-data": {
             "schema": {
                 "type": "object",
-                "properties": {"file": _BINARY, "label": {"type": "string", "maxLength": MAX_DEMO_LABEL}},
+                "properties": {"file": BINARY, "label": {"type": "string", "maxLength": MAX_DEMO_LABEL}},
                 "required": ["file"],
             }
         },
         "text/csv": {"schema": {"type": "string"}},
-        "application/x-npy": {"schema": _BINARY},
-        "application/x-mcap": {"schema": _BINARY},
-        "application/octet-stream": {"schema": _BINARY},
+        "application/x-npy": {"schema": BINARY},
+        "application/x-mcap": {"schema": BINARY},
+        "application/octet-stream": {"schema": BINARY},
     },
 }
 _ERRORS: dict[int | str, dict[str, Any]] = {
@@ -91,33 +86,12 @@ async def add_demonstration(
         # Parsing too runs on the lane: on the event loop it would hold every other
         # request (and the bytes of the next upload) for its millisecond.
         return _created(await lane.run(_add_json, service, name, raw, limits, time_unit))
-    if base == "multipart/form-data":
-        data, filename, part_type, form_label = await _read_multipart(request)
-        if label is None:
-            label = form_label if form_label is not None else _label_of(filename)
-    elif base in _FILE_TYPES:
-        data, filename, part_type = await request.body(), None, base
-    else:
-        raise UnsupportedMediaType(
-            f"expected Content-Type application/json, multipart/form-data or one of "
-            f"{', '.join(_FILE_TYPES)}, got {content_type or 'none'!r}",
-            field="Content-Type",
-        )
-    if not data:
-        raise BadUpload("the uploaded file is empty", field="file")
-    fmt = detect_format(format, filename, part_type, data)
-    return _created(await lane.run(service.add_file_demonstration, name, fmt, data, topic,
+    upload = await file_body(request, "application/json, ")
+    if label is None:
+        label = upload.label
+    fmt = detect_format(format, upload.filename, upload.content_type, upload.data)
+    return _created(await lane.run(service.add_file_demonstration, name, fmt, upload.data, topic,
                                    label, limits, time_unit))
-
-
-def _label_of(filename: str | None) -> str | None:
-    """A file's name as its demonstration's label, so the list and the viewer say which
-    file each came from (a browser may send a Windows path; its end is what tells files
-    apart)."""
-    if not filename:
-        return None
-    name = filename.replace("\\", "/").rsplit("/", 1)[-1].replace("\x00", "")
-    return name[-MAX_DEMO_LABEL:] or None
 
 
 def _created(created: DemonstrationCreated) -> Response:
@@ -146,44 +120,9 @@ def _add_json(service: CanalService, name: str, raw: bytes, limits: UploadLimits
     return service.add_json_demonstration(name, body, time_unit)
 
 
-def upload_lane(request: Request) -> Lane:
-    """The app's upload lane (``CANAL_UPLOAD_WORKERS`` threads)."""
-    lane: Lane = request.app.state.upload_lane
-    return lane
-
-
-def upload_limits(request: Request) -> UploadLimits:
-    """The deployment's per-upload limits (``CANAL_UPLOAD_*``), built once with the app."""
-    limits: UploadLimits = request.app.state.upload_limits
-    return limits
-
-
 def _too_many_points(limits: UploadLimits) -> TooLarge:
     return TooLarge(f"a demonstration may have at most {limits.max_points} samples (limit "
                     "CANAL_UPLOAD_MAX_POINTS); downsample it or split it", field="positions")
-
-
-async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | None, str | None]:
-    try:
-        form = await request.form(max_files=1, max_fields=8)
-    except PayloadTooLarge:
-        raise
-    except HTTPException as exc:
-        raise BadUpload(f"unreadable multipart body: {exc.detail}", field="body") from exc
-    try:
-        upload = form.get("file")
-        if not isinstance(upload, UploadFile):
-            raise InvalidInput("expected a file in the multipart field 'file'", field="file")
-        data = await upload.read()
-        label = form.get("label")
-        if label is not None and (not isinstance(label, str) or len(label) > MAX_DEMO_LABEL or "\x00" in label):
-            came = ("a file" if not isinstance(label, str) else "text with a NUL character"
-                    if "\x00" in label else f"{len(label)} characters")
-            raise InvalidInput(f"expected 'label' as text of at most {MAX_DEMO_LABEL} characters "
-                               f"without NUL, got {came}", field="label")
-        return data, upload.filename, upload.content_type, label
-    finally:
-        await form.close()
 
 
 @router.get("", response_model=Page[DemonstrationSummary], responses=_ERRORS)
