@@ -374,13 +374,14 @@ class CanalService:
 
     def read_file(self, name: str, fmt: uploads.UploadFormat, data: bytes, topic: str | None,
                   limits: uploads.UploadLimits | None = None, time_unit: str | None = None,
-                  ) -> DemoArrays:
-        """The checked arrays of a file sent for the skill (a demonstration or a correction's
-        path), parsed within ``limits`` for the skill's dimension."""
+                  fittable: bool = True) -> DemoArrays:
+        """The checked arrays of a file sent for the skill, parsed within ``limits`` for the
+        skill's dimension: a demonstration, or (``fittable=False``) a correction's path."""
         dim = self.skill_dim(name)
         parsed = uploads.parse_upload(fmt, data, dim, topic, limits)
         return check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
-                                   time_unit if time_unit is not None else parsed.time_unit)
+                                   time_unit if time_unit is not None else parsed.time_unit,
+                                   fittable)
 
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,
                           source: str) -> schemas.DemonstrationCreated:

@@ -171,13 +171,14 @@ def check_fittable(positions: FloatArray, timestamps: FloatArray | None) -> None
 
 def check_demonstration(
     positions: Any, dim: int, timestamps: Any = None, orientations: Any = None,
-    time_unit: str | None = None,
+    time_unit: str | None = None, fittable: bool = True,
 ) -> DemoArrays:
     """Run every check; the first failure raises :class:`InvalidInput`.
 
     After the per-field checks, the demo goes through canal_core's preparation stage
     (:func:`check_fittable`): identical points, coordinates beyond +-1e15 or a demo that
-    only stands still are refused here with a 422, never found out at fit time.
+    only stands still are refused here with a 422, never found out at fit time. A
+    correction's path (``fittable=False``) is not fitted: its own checks say what it needs.
     ``time_unit`` is the unit of ``timestamps`` (:func:`check_timestamps`; None: seconds).
     """
     checked = check_positions(positions, dim)
@@ -187,7 +188,8 @@ def check_demonstration(
                            "timestamps (no time column)", field="time_unit")
     times = None if timestamps is None else check_timestamps(timestamps, n, time_unit)
     quats = None if orientations is None else check_orientations(orientations, n)
-    check_fittable(checked, times)
+    if fittable:
+        check_fittable(checked, times)
     return DemoArrays(checked, times, quats)
 
 

@@ -215,6 +215,8 @@ def test_a_correction_sent_as_a_file_is_read_as_a_demonstration_upload(http: htt
     ({"kind": "include"}, b"x,y,z\n0,0,0\n1,oops,1\n", 422, "file:line 3", "'oops'"),
     ({"kind": "include", "format": "npy"}, b"x,y,z\n0,0,0\n", 400, "file", "npy"),
     ({"kind": "include"}, b"", 400, "file", "empty"),
+    # a robot held still: the correction's own rule, not a demonstration's "cannot be fitted"
+    ({"kind": "include"}, b"x,y,z\n" + b"0.4,0.1,0.01\n" * 5, 422, "samples", "move along the canal"),
 ])
 def test_a_file_correction_refused_names_the_part_and_changes_nothing(
         http: httpx.Client, params: dict[str, object], content: bytes, status: int, field: str,
@@ -227,3 +229,10 @@ def test_a_file_correction_refused_names_the_part_and_changes_nothing(
     assert error["field"] == field and said in error["message"], error
     assert http.get("/skills/pour/models").json()["total"] == before
     assert http.get("/skills/pour/corrections").json()["total"] == 0
+
+
+def test_a_json_body_sent_to_the_file_route_is_told_where_it_goes(http: httpx.Client) -> None:
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include"},
+                  json={"kind": "include", "samples": [[0, 0, 0]] * 4})
+    assert r.status_code == 415, r.text
+    assert "a JSON correction goes to POST /skills/pour/corrections" in r.json()["error"]["message"]

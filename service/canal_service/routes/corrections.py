@@ -109,7 +109,7 @@ async def correct_from_file(
     a ROS 2 bag) and read as a demonstration upload is; the other fields are query
     parameters. Nothing is stored unless every check passes."""
     version = parse_version(model, "model")
-    upload = await file_body(request)
+    upload = await file_body(request, hint=f"; a JSON correction goes to POST /skills/{name}/corrections")
     fmt = detect_format(format, upload.filename, upload.content_type, upload.data)
     fields = {"kind": kind, "weight": weight, "route": route,
               "model": "latest" if version is None else version,
@@ -122,7 +122,7 @@ def _correct_from_file(service: CanalService, name: str, fmt: UploadFormat, data
                        topic: str | None, limits: UploadLimits, fields: dict[str, Any],
                        ) -> CorrectedModel:
     """Parse the file (on the upload lane, as a demonstration upload) and correct by it."""
-    path = service.read_file(name, fmt, data, topic, limits)
+    path = service.read_file(name, fmt, data, topic, limits, fittable=False)
     try:
         body = CorrectionIn(
             samples=path.positions.tolist(),

@@ -34,9 +34,9 @@ class FileBody:
     label: str | None
 
 
-async def file_body(request: Request, also: str = "") -> FileBody:
+async def file_body(request: Request, also: str = "", hint: str = "") -> FileBody:
     """The file of a multipart or raw-body request; ``also`` names the other content types
-    the route takes, for the 415 that lists what is accepted."""
+    the route takes and ``hint`` where else to go, for the 415 that lists what is accepted."""
     content_type = request.headers.get("content-type", "")
     base = content_type.split(";", 1)[0].strip().lower()
     if base == "multipart/form-data":
@@ -48,7 +48,7 @@ async def file_body(request: Request, also: str = "") -> FileBody:
     else:
         raise UnsupportedMediaType(
             f"expected Content-Type {also}multipart/form-data or one of "
-            f"{', '.join(FILE_TYPES)}, got {content_type or 'none'!r}",
+            f"{', '.join(FILE_TYPES)}, got {content_type or 'none'!r}{hint}",
             field="Content-Type",
         )
     if not upload.data:
