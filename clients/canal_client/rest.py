@@ -404,19 +404,21 @@ def _json_file_body(path: Path, data: bytes, label: str | None) -> dict[str, Any
 
 
 def _json_correction_file(path: Path, data: bytes) -> tuple[Any, Any]:
-    """(samples, timestamps or None) of a JSON correction file: rows, or an object with
-    ``samples`` (and ``timestamps``)."""
+    """(samples, timestamps or None) of a JSON correction file: rows, an object with
+    ``samples`` (and ``timestamps``), or a demonstration's own with ``positions``."""
     try:
         doc = json.loads(data)
     except ValueError as exc:
         raise CanalClientError(f"{path.name}: not valid JSON: {exc}") from exc
     if isinstance(doc, list):
         return doc, None
-    if not isinstance(doc, dict) or "samples" not in doc:
-        raise CanalClientError(f"{path.name}: expected a JSON object with 'samples' or a list "
-                               f"of rows, got {type(doc).__name__}"
-                               + (" without 'samples'" if isinstance(doc, dict) else ""))
-    return doc["samples"], doc.get("timestamps")
+    key = next((k for k in ("samples", "positions") if isinstance(doc, dict) and k in doc), None)
+    if key is None:
+        got = (f"an object with {', '.join(map(repr, list(doc)[:5])) or 'no keys'}"
+               if isinstance(doc, dict) else type(doc).__name__)
+        raise CanalClientError(f"{path.name}: expected a list of rows or an object with "
+                               f"'samples' (or a demonstration's 'positions'), got {got}")
+    return doc[key], doc.get("timestamps")
 
 
 # ---- the operations: each method of both clients, described once ----------------------------
@@ -543,8 +545,9 @@ def _correct_file(skill: str, path: str | os.PathLike[str],
                   format: str | None = None, topic: str | None = None) -> _Steps[CorrectedModel]:
     """:meth:`correct` by a path recorded in a file: CSV, NPY or MCAP (``topic`` picks the pose
     topic) are uploaded as they are and read as a demonstration file is (the label defaults
-    to the file's name); a JSON file (rows, or ``{"samples": rows, "timestamps"?: ...}``) is
-    read here and sent as :meth:`correct` sends it."""
+    to the file's name); a JSON file (rows, ``{"samples": rows, "timestamps"?: ...}`` or a
+    demonstration's ``{"positions": rows, ...}``) is read here and sent as :meth:`correct`
+    sends it."""
     p = Path(path)
     fmt = guess_format(p, format)
     data: bytes = yield _ReadFile(p)

@@ -100,5 +100,12 @@ def test_every_file_a_demonstration_is_read_from_is_read_as_a_correction_too(
     bad.write_text("x,y,z\n1,2,3\n4,oops,6\n")
     r = run("correct", name, str(bad))
     assert r.exit_code == 1 and "expected numbers on CSV line 3, got 'oops'" in r.stderr, r.output
+    # A demonstration's own JSON file ({"positions": ...}) is a path too.
+    demo_json = tmp_path / "demo.json"
+    demo_json.write_text(json.dumps({"positions": wider.tolist()}))
+    r = run("--json", "correct", name, str(demo_json))
+    assert r.exit_code == 0 and json.loads(r.stdout)["correction"]["n_points"] == len(wider), r.output
     r = run("correct", name, str(tmp_path / "pushed.xls"))
-    assert r.exit_code == 2 and ".csv, .npy, .mcap or .json" in r.output, r.output
+    said = " ".join(r.output.replace("\u2502", " ").split())
+    assert r.exit_code == 2 and "expected a .csv, .npy, .mcap or .json file, got 'pushed.xls'" in said, said
+    assert "format=" not in said, said  # the command has no such option

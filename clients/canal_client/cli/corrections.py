@@ -25,7 +25,8 @@ def correct(
     skill: str,
     file: Annotated[Path, typer.Argument(
         help="The corrected path: .csv, .npy or .mcap (read as `canal demo add` reads a "
-             "demonstration) or .json (rows, or {\"samples\": rows}).")],
+             "demonstration) or .json (rows, {\"samples\": rows} or a demonstration's "
+             "{\"positions\": rows}).")],
     kind: Annotated[CorrectionKind, typer.Option(
         "--kind", "-k", parser=choice_parser(CORRECTION_KINDS), help="include: this path is right too; exclude: the robot was pushed "
         "away from where it went (the canal narrows on that side).")] = "include",
@@ -49,8 +50,9 @@ def correct(
                                  param_hint="--weight")
     try:
         guess_format(file)
-    except ArgumentError as exc:
-        raise typer.BadParameter(f"expected {exc.expected}, got {exc.got}", param_hint="FILE") from None
+    except ArgumentError:
+        raise typer.BadParameter(f"expected a .csv, .npy, .mcap or .json file, got {file.name!r}",
+                                 param_hint="FILE") from None
     if not file.is_file():
         raise typer.BadParameter(f"no file {str(file)!r}", param_hint="FILE")
     with connected(ctx) as c:
