@@ -231,6 +231,22 @@ def test_a_file_correction_refused_names_the_part_and_changes_nothing(
     assert http.get("/skills/pour/corrections").json()["total"] == 0
 
 
+def test_a_file_corrections_label_is_held_to_a_corrections_length(http: httpx.Client) -> None:
+    # A multipart label of 201 characters was cut to 200 without a word; a long file name
+    # is cut to its last 200 characters, as a demonstration's to its last 256.
+    fitted = served_canal(http)
+    rows = "x,y,z\n" + "".join(",".join(map(repr, r)) + "\n" for r in wider_path(fitted))
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include"},
+                  files={"file": ("a.csv", rows.encode(), "text/csv"), "label": (None, "l" * 201)})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"] == "label" and "at most 200 characters without NUL, got 201 characters" in error["message"]
+    long_name = "n" * 300 + ".csv"
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include"},
+                  files={"file": (long_name, rows.encode(), "text/csv")})
+    assert r.status_code == 201 and r.json()["correction"]["label"] == long_name[-200:], r.text
+
+
 def test_a_json_body_sent_to_the_file_route_is_told_where_it_goes(http: httpx.Client) -> None:
     r = http.post("/skills/pour/corrections/file", params={"kind": "include"},
                   json={"kind": "include", "samples": [[0, 0, 0]] * 4})

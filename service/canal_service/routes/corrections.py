@@ -109,11 +109,12 @@ async def correct_from_file(
     a ROS 2 bag) and read as a demonstration upload is; the other fields are query
     parameters. Nothing is stored unless every check passes."""
     version = parse_version(model, "model")
-    upload = await file_body(request, hint=f"; a JSON correction goes to POST /skills/{name}/corrections")
+    upload = await file_body(request, hint=f"; a JSON correction goes to POST /skills/{name}/corrections",
+                             max_label=MAX_CORRECTION_LABEL)
     fmt = detect_format(format, upload.filename, upload.content_type, upload.data)
     fields = {"kind": kind, "weight": weight, "route": route,
               "model": "latest" if version is None else version,
-              "label": label if label is not None else (upload.label or "")[-MAX_CORRECTION_LABEL:]}
+              "label": label if label is not None else upload.label or ""}
     return await upload_lane(request).run(_correct_from_file, service, name, fmt, upload.data,
                                           topic, upload_limits(request), fields)
 

@@ -34,14 +34,16 @@ class FileBody:
     label: str | None
 
 
-async def file_body(request: Request, also: str = "", hint: str = "") -> FileBody:
+async def file_body(request: Request, also: str = "", hint: str = "",
+                    max_label: int = MAX_DEMO_LABEL) -> FileBody:
     """The file of a multipart or raw-body request; ``also`` names the other content types
-    the route takes and ``hint`` where else to go, for the 415 that lists what is accepted."""
+    the route takes and ``hint`` where else to go, for the 415 that lists what is accepted.
+    A multipart label longer than ``max_label`` is refused; a file name is cut to its end."""
     content_type = request.headers.get("content-type", "")
     base = content_type.split(";", 1)[0].strip().lower()
     if base == "multipart/form-data":
-        data, filename, part_type, form_label = await _read_multipart(request)
-        label = form_label if form_label is not None else _label_of(filename)
+        data, filename, part_type, form_label = await _read_multipart(request, max_label)
+        label = form_label if form_label is not None else _label_of(filename, max_label)
         upload = FileBody(data, filename, part_type, label)
     elif base in FILE_TYPES:
         upload = FileBody(await request.body(), None, base, None)
@@ -56,13 +58,13 @@ async def file_body(request: Request, also: str = "", hint: str = "") -> FileBod
     return upload
 
 
-def _label_of(filename: str | None) -> str | None:
+def _label_of(filename: str | None, max_label: int) -> str | None:
     """A file's name as its label, so lists and the viewer say which file each came from
     (a browser may send a Windows path; its end is what tells files apart)."""
     if not filename:
         return None
     name = filename.replace("\\", "/").rsplit("/", 1)[-1].replace("\x00", "")
-    return name[-MAX_DEMO_LABEL:] or None
+    return name[-max_label:] or None
 
 
 def upload_lane(request: Request) -> Lane:
@@ -77,7 +79,8 @@ def upload_limits(request: Request) -> UploadLimits:
     return limits
 
 
-async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | None, str | None]:
+async def _read_multipart(request: Request, max_label: int,
+                          ) -> tuple[bytes, str | None, str | None, str | None]:
     try:
         form = await request.form(max_files=1, max_fields=8)
     except PayloadTooLarge:
@@ -90,10 +93,10 @@ async def _read_multipart(request: Request) -> tuple[bytes, str | None, str | No
             raise InvalidInput("expected a file in the multipart field 'file'", field="file")
         data = await upload.read()
         label = form.get("label")
-        if label is not None and (not isinstance(label, str) or len(label) > MAX_DEMO_LABEL or "\x00" in label):
+        if label is not None and (not isinstance(label, str) or len(label) > max_label or "\x00" in label):
             came = ("a file" if not isinstance(label, str) else "text with a NUL character"
                     if "\x00" in label else f"{len(label)} characters")
-            raise InvalidInput(f"expected 'label' as text of at most {MAX_DEMO_LABEL} characters "
+            raise InvalidInput(f"expected 'label' as text of at most {max_label} characters "
                                f"without NUL, got {came}", field="label")
         return data, upload.filename, upload.content_type, label
     finally:
