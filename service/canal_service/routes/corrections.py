@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Query, Request, status
 from fastapi.exceptions import RequestValidationError
@@ -26,7 +26,7 @@ from canal_protocol.schemas import (
 from ..deps import Limit, Offset, ServiceDep, SkillName, parse_version
 from ..service import CanalService
 from ..uploads import UploadFormat, UploadLimits, detect_format
-from .file_bodies import BINARY, file_body, upload_lane, upload_limits
+from .file_bodies import BINARY, Format, Topic, file_body, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/corrections", tags=["corrections"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
@@ -101,9 +101,8 @@ async def correct_from_file(
                      ] = "latest",
     route: Annotated[int | None, Query(ge=0, le=MAX_ROUTES - 1,
                                        description="The route whose canal is corrected.")] = None,
-    format: Annotated[Literal["csv", "npy", "mcap"] | None,
-                      Query(description="File format; guessed when omitted.")] = None,
-    topic: Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")] = None,
+    format: Format = None,
+    topic: Topic = None,
 ) -> CorrectedModel:
     """The same correction as ``POST /corrections``, its path sent as a file (a logger's CSV,
     a ROS 2 bag) and read as a demonstration upload is; the other fields are query

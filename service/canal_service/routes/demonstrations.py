@@ -23,7 +23,7 @@ from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
 from ..errors import InvalidInput, TooLarge
 from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
-from .file_bodies import BINARY, file_body, upload_lane, upload_limits
+from .file_bodies import BINARY, Format, Topic, file_body, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
 
@@ -54,9 +54,6 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 404, 413, 415, 422, 503)
 }
 
-Format = Annotated[Literal["csv", "npy", "mcap"] | None,
-                   Query(description="File format; guessed when omitted.")]
-Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
 Label = Annotated[str | None, Query(max_length=MAX_DEMO_LABEL, pattern=r"^[^\x00]*$",
                                     description="Label for a file upload.")]
 TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(

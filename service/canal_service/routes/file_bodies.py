@@ -4,9 +4,9 @@ as the raw request body: what demonstrations and corrections read the same way."
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any, Literal
 
-from fastapi import Request
+from fastapi import Query, Request
 from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException
 
@@ -21,6 +21,10 @@ from ..uploads import UploadLimits
 FILE_TYPES = ("text/csv", "application/csv", "application/x-npy", "application/npy",
               "application/x-mcap", "application/mcap", "application/octet-stream")
 BINARY: dict[str, Any] = {"type": "string", "format": "binary"}
+
+Format = Annotated[Literal["csv", "npy", "mcap"] | None,
+                   Query(description="File format; guessed when omitted.")]
+Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
 
 
 @dataclass(frozen=True)
