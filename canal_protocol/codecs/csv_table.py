@@ -1,5 +1,6 @@
-"""Demonstrations as text tables: the one CSV reader the service's uploads and the
-command line's corrections share, so a file one takes the other takes too.
+"""Demonstrations as text tables: the one CSV reader of the service's uploads, demonstrations
+and corrections alike (``canal correct`` sends its file for the service to read), so a file
+one takes the other takes too.
 
 A header is read by name (ROS exports, PlotJuggler, UR RTDE files as they are), or the
 columns are bare: D columns are positions, D + 1 are ``t`` followed by positions (the
@@ -74,8 +75,9 @@ class CsvTable:
     time_unit: str | None = None
 
 
-def _table_split_by_time(table: FloatArray, dim: int) -> CsvTable:
-    """A (T, D) table as positions, a (T, D + 1) one as times then positions."""
+def table_split_by_time(table: FloatArray, dim: int) -> CsvTable:
+    """A (T, D) table as positions, a (T, D + 1) one as times then positions (a headerless
+    CSV, a NumPy upload)."""
     if table.ndim != 2 or table.shape[1] not in (dim, dim + 1):
         raise InvalidCsv(
             f"expected {dim} columns (positions) or {dim + 1} (t then positions) for a {dim}-D "
@@ -188,7 +190,7 @@ def csv_table(data: bytes, dim: int, max_rows: int | None = None) -> CsvTable:
         if data.count(mark) - preamble != table.shape[0] * (width - 1):
             raise _csv_error(data, start, skip, width, usecols, delimiter)
     if columns is None:
-        return _table_split_by_time(table, dim)
+        return table_split_by_time(table, dim)
     return columns.read(table, usecols)
 
 

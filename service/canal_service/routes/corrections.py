@@ -26,7 +26,7 @@ from canal_protocol.schemas import (
 from ..deps import Limit, Offset, ServiceDep, SkillName, parse_version
 from ..service import CanalService
 from ..uploads import UploadFormat, UploadLimits, detect_format
-from .file_bodies import BINARY, Format, Topic, file_body, upload_lane, upload_limits
+from .file_bodies import Format, Topic, file_body, file_content, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/corrections", tags=["corrections"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
@@ -44,20 +44,7 @@ _FILE_BODY: dict[str, Any] = {
         "optional field `label`) or as the raw body. Its positions are the samples; time "
         "stamps and orientations, when the file has them, are kept with the correction."
     ),
-    "content": {
-        "multipart/form-data": {
-            "schema": {
-                "type": "object",
-                "properties": {"file": BINARY,
-                               "label": {"type": "string", "maxLength": MAX_CORRECTION_LABEL}},
-                "required": ["file"],
-            }
-        },
-        "text/csv": {"schema": {"type": "string"}},
-        "application/x-npy": {"schema": BINARY},
-        "application/x-mcap": {"schema": BINARY},
-        "application/octet-stream": {"schema": BINARY},
-    },
+    "content": file_content(MAX_CORRECTION_LABEL),
 }
 
 

@@ -23,7 +23,7 @@ from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
 from ..errors import InvalidInput, TooLarge
 from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
-from .file_bodies import BINARY, Format, Topic, file_body, upload_lane, upload_limits
+from .file_bodies import Format, Topic, file_body, file_content, upload_lane, upload_limits
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
 
@@ -37,17 +37,7 @@ _REQUEST_BODY: dict[str, Any] = {
     ),
     "content": {
         "application/json": {"schema": DemonstrationIn.model_json_schema()},
-        "multipart/form-data": {
-            "schema": {
-                "type": "object",
-                "properties": {"file": BINARY, "label": {"type": "string", "maxLength": MAX_DEMO_LABEL}},
-                "required": ["file"],
-            }
-        },
-        "text/csv": {"schema": {"type": "string"}},
-        "application/x-npy": {"schema": BINARY},
-        "application/x-mcap": {"schema": BINARY},
-        "application/octet-stream": {"schema": BINARY},
+        **file_content(MAX_DEMO_LABEL),
     },
 }
 _ERRORS: dict[int | str, dict[str, Any]] = {

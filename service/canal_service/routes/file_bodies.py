@@ -27,6 +27,24 @@ Format = Annotated[Literal["csv", "npy", "mcap"] | None,
 Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
 
 
+def file_content(max_label: int) -> dict[str, Any]:
+    """The OpenAPI ``content`` of a file body: multipart (``file``, ``label`` of at most
+    ``max_label`` characters) and the raw file types."""
+    return {
+        "multipart/form-data": {
+            "schema": {
+                "type": "object",
+                "properties": {"file": BINARY, "label": {"type": "string", "maxLength": max_label}},
+                "required": ["file"],
+            }
+        },
+        "text/csv": {"schema": {"type": "string"}},
+        "application/x-npy": {"schema": BINARY},
+        "application/x-mcap": {"schema": BINARY},
+        "application/octet-stream": {"schema": BINARY},
+    }
+
+
 @dataclass(frozen=True)
 class FileBody:
     """A file's bytes and what the request said of it."""

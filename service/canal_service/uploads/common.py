@@ -7,12 +7,9 @@ import time
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-
 from canal_protocol.codecs.csv_table import CsvTable
 
-from ..errors import InvalidInput, TooLarge
-from ..validation import FloatArray
+from ..errors import TooLarge
 
 #: Raw arrays from a file, not yet checked (see ``validation.check_demonstration``): the
 #: same four a CSV table gives, whatever the format.
@@ -75,17 +72,3 @@ class Budget:
                 "CANAL_UPLOAD_MAX_POINTS); downsample it or split it",
                 field="file",
             )
-
-
-def split_time(table: FloatArray, dim: int, field: str) -> ParsedUpload:
-    """A (T, D) table as positions, a (T, D + 1) one as times then positions."""
-    if table.ndim != 2 or table.shape[1] not in (dim, dim + 1):
-        raise InvalidInput(
-            f"expected {dim} columns (positions) or {dim + 1} (t then positions) for a {dim}-D "
-            f"skill, got shape {tuple(table.shape)}",
-            field=field,
-        )
-    if table.shape[1] == dim + 1:
-        return ParsedUpload(np.ascontiguousarray(table[:, 1:]), np.ascontiguousarray(table[:, 0]))
-    return ParsedUpload(np.ascontiguousarray(table))
-

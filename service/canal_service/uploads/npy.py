@@ -6,8 +6,10 @@ import io
 
 import numpy as np
 
-from ..errors import BadUpload
-from .common import NPY_MAGIC, Budget, ParsedUpload, UploadLimits, split_time
+from canal_protocol.codecs.csv_table import InvalidCsv, table_split_by_time
+
+from ..errors import BadUpload, InvalidInput
+from .common import NPY_MAGIC, Budget, ParsedUpload, UploadLimits
 
 
 def parse_npy(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUpload:
@@ -45,4 +47,7 @@ def parse_npy(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
         array = np.load(io.BytesIO(data), allow_pickle=False)
     except Exception as exc:  # same reason as above
         raise BadUpload(f"unreadable .npy data: {exc}", field="file") from exc
-    return split_time(np.asarray(array, dtype=np.float64), dim, "file")
+    try:
+        return table_split_by_time(np.asarray(array, dtype=np.float64), dim)
+    except InvalidCsv as exc:  # the shape rule a headerless CSV follows too
+        raise InvalidInput(exc.message, field=exc.field) from exc
