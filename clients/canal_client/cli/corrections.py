@@ -28,8 +28,9 @@ def correct(
              "demonstration) or .json (rows, {\"samples\": rows} or a demonstration's "
              "{\"positions\": rows}).")],
     kind: Annotated[CorrectionKind, typer.Option(
-        "--kind", "-k", parser=choice_parser(CORRECTION_KINDS), help="include: this path is right too; exclude: the robot was pushed "
-        "away from where it went (the canal narrows on that side).")] = "include",
+        "--kind", "-k", parser=choice_parser(CORRECTION_KINDS),
+        help="include: this path is right too; exclude: the robot was pushed away from where "
+             "it went (the canal narrows on that side).")] = "include",
     weight: Annotated[float, typer.Option(
         "--weight", "-w", help="How much an include counts against one demonstration (> 0).")
     ] = 1.0,

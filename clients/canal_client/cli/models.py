@@ -150,7 +150,8 @@ def reproduce(
         "model is timed), .npy (N, D positions) or .json (with times and velocities).")
     ] = None,
     outside: Annotated[Outside, typer.Option(
-        "--outside", parser=choice_parser(OUTSIDE_RULES), help="A start outside the canal: enter the canal over a short blend, or refuse.")
+        "--outside", parser=choice_parser(OUTSIDE_RULES),
+        help="A start outside the canal: enter the canal over a short blend, or refuse.")
     ] = OUTSIDE_RULES[0],
     start_orientation: Annotated[str | None, typer.Option(
         "--start-orientation", "-q",
