@@ -32,9 +32,10 @@ more than :data:`FAR_ETA` local radii before the first plane or beyond the last)
 pose changes nothing: it is answered from the stream's last plausible state (the target
 ``lookahead`` sections past the section reached, on the kept plan), as outside the canal,
 with its own live ratio. :data:`SUSTAIN` consecutive suspect poses that agree (each within
-:data:`FAR_ETA` local radii of the one before) are a real displacement (a push, a robot
-moved by hand): the last of them is taken as any pose is, as if it had come first, and so
-is every next one that agrees. A stream with no
+:data:`FAR_ETA` local radii of the one before, or near the canal and ahead of the one
+before along its section's tangent) are a real displacement (a push, a robot moved by
+hand along the canal): the last of them is taken as any pose is, as if it had come first,
+and so is every next one that agrees. A stream with no
 plan yet (a new stream, a restart) has no plausible state to hold: a pose near the canal is
 taken wherever it is located, a far one is answered with the entry the canal gives it (the
 located section ahead, at :data:`MAX_PLAN_ETA` in its direction) and leaves the stream
@@ -285,11 +286,14 @@ def tracker_step(
     # plausible steps (module docstring): a suspect pose of a stream with a plan is held
     unplaced = False
     pending, strikes = None, 0
-    if is_far(eta, d0, d1, reach) or (planned and index - last_index > MAX_ADVANCE):
+    far = is_far(eta, d0, d1, reach)
+    if far or (planned and index - last_index > MAX_ADVANCE):
         if not planned:  # nothing plausible to hold: the entry, the stream left unplaced
             unplaced = True
         else:
-            strikes = suspect_strikes(state.pending, state.strikes, position, reach)
+            onward = not far and state.pending is not None and float(
+                g.tangents[index] @ (position - state.pending)) > 0.0
+            strikes = suspect_strikes(state.pending, state.strikes, position, reach, onward)
             pending = np.array(position, dtype=np.float64)
             if strikes < SUSTAIN or not math.isfinite(eta):  # an overflow is never followed
                 return _held_answer(g, state, eta, lookahead), \
@@ -357,13 +361,17 @@ def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
 
 
 def suspect_strikes(pending: FloatArray | None, strikes: int, position: FloatArray,
-                    reach: float) -> int:
+                    reach: float, onward: bool = False) -> int:
     """Consecutive agreeing suspect poses once a suspect pose at ``position`` (D,) has come:
     the streak goes on when the previous pose was suspect too (``strikes`` > 0, at
-    ``pending``) and lies within :data:`FAR_ETA` local reaches of it, else it starts over
-    at 1. At most :data:`SUSTAIN` (a followed displacement stays followed while its poses
-    agree)."""
+    ``pending``) and either lies within :data:`FAR_ETA` local reaches of it or ``onward``
+    holds (the pose is near the canal, suspect only for its advance, and lies ahead of the
+    previous one along its section's tangent: an arm moved along the canal faster than a
+    slow stream's poses keep up with); else it starts over at 1. At most :data:`SUSTAIN`
+    (a followed displacement stays followed while its poses agree)."""
     if strikes > 0 and pending is not None:
+        if onward:
+            return min(strikes + 1, SUSTAIN)
         gap = position - pending
         if math.sqrt(float(gap @ gap)) <= FAR_ETA * reach:
             return min(strikes + 1, SUSTAIN)

@@ -77,7 +77,7 @@ class TrackerBank:
         self.eta = np.full(cap, np.nan)
         #: planned unit in-plane direction per slot, shape (capacity, D - 1)
         self.direction = np.zeros((cap, k))
-        #: section of the slot's last suspect pose (-1: none) and the streak's length
+        #: the slot's last suspect pose and the streak's length (0: none)
         self.pending = np.zeros((cap, k + 1))
         self.strikes = np.zeros(cap, dtype=np.intp)
         self._free = list(range(cap - 1, -1, -1))

@@ -339,11 +339,11 @@ def batched_tracker_step(
         done = np.zeros(b, dtype=bool)
         # plausible steps (tracker_step's rule): far from the canal, or too far ahead
         planned = old_eta == old_eta  # NaN: no plan
-        suspect = eta > FAR_ETA
-        suspect |= eta != eta
-        suspect |= planned & (index - last_index > MAX_ADVANCE)
-        suspect |= d0 < -FAR_ETA * reach
-        suspect |= d1 > FAR_ETA * reach
+        far = eta > FAR_ETA
+        far |= eta != eta
+        far |= d0 < -FAR_ETA * reach
+        far |= d1 > FAR_ETA * reach
+        suspect = far | (planned & (index - last_index > MAX_ADVANCE))
         at = index.tolist()
         if 0 in at:  # behind the first plane
             inside &= ~((index == 0) & (d0 < 0.0))
@@ -358,10 +358,11 @@ def batched_tracker_step(
         if True in suspect.tolist():
             new_pending = p.copy()
             unplaced, index = _suspect_rows(
-                suspect, planned, last_index, index, eta, alpha, inside, done, plan_eta,
+                suspect, planned, far, last_index, index, eta, alpha, inside, done, plan_eta,
                 plan_dir, old_eta, old_dir, new_index, new_pending, new_strikes,
                 p if pending is None else pending,
-                np.zeros(b, dtype=np.intp) if strikes is None else strikes, p, reach, n)
+                np.zeros(b, dtype=np.intp) if strikes is None else strikes, p, reach, n,
+                g.tangents)
         target_index = index + max(int(lookahead), 1)
         np.minimum(target_index, n - 1, out=target_index)
         target = _planned_points(t, target_index, plan_eta, plan_dir)
@@ -380,13 +381,15 @@ def batched_tracker_step(
 
 
 def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
+                  far: NDArray[np.bool_],
                   last_index: NDArray[np.intp], index: NDArray[np.intp], eta: FloatArray,
                   alpha: FloatArray, inside: NDArray[np.bool_], done: NDArray[np.bool_],
                   plan_eta: FloatArray, plan_dir: FloatArray, old_eta: FloatArray,
                   old_dir: FloatArray, new_index: NDArray[np.intp],
                   new_pending: FloatArray, new_strikes: NDArray[np.intp],
                   pending: FloatArray, strikes: NDArray[np.intp], p: FloatArray,
-                  reach: FloatArray, n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+                  reach: FloatArray, n: int,
+                  tangents: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """:func:`batched_tracker_step`'s suspect rows by :func:`tracker_step`'s rules, written
     into its arrays in place: a held row answers from its last plausible state (section,
     plan) and keeps its state but the streak; a row with no plan is answered as located
@@ -398,7 +401,10 @@ def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
     new_strikes[unplaced] = strikes[unplaced]
     rows = np.flatnonzero(suspect & planned)
     if rows.size:
-        agree = _row_norms(p[rows] - pending[rows]) <= FAR_ETA * reach[rows]
+        moved = p[rows] - pending[rows]
+        agree = _row_norms(moved) <= FAR_ETA * reach[rows]
+        # near the canal and ahead of the last suspect pose: an arm moved along it
+        agree |= ~far[rows] & (_row_dots(moved, tangents[index[rows]]) > 0.0)
         agree &= strikes[rows] > 0
         streak = np.where(agree, np.minimum(strikes[rows] + 1, SUSTAIN), 1)
         new_strikes[rows] = streak
@@ -427,6 +433,14 @@ def _planned_points(t: StepTables, index: NDArray[np.intp], eta: FloatArray,
     np.multiply(direction, eta[:, None], out=scaled[:, 0, :k])
     scaled[:, 0, k] = 1.0
     return (scaled @ t.frame[index])[:, 0]
+
+
+def _row_dots(x: FloatArray, y: FloatArray) -> FloatArray:
+    """Dot product of each row of ``x`` and ``y`` (B, K), summed in column order."""
+    out = x[:, 0] * y[:, 0]
+    for j in range(1, x.shape[1]):
+        out += x[:, j] * y[:, j]
+    return out
 
 
 def _row_norms(x: FloatArray) -> FloatArray:

@@ -180,18 +180,20 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         unplaced = False
         held = False
         streak = 0
-        if not live_eta <= far_eta or d0 < -far_eta * reach or d1 > far_eta * reach \
-                or (planned and at - last > max_advance):
+        far = not live_eta <= far_eta or d0 < -far_eta * reach or d1 > far_eta * reach
+        if far or (planned and at - last > max_advance):
             if not planned:
                 unplaced = True
             else:
                 streak = 1
                 if strikes[slot] > 0:
                     gap = 0.0
+                    onward = 0.0
                     for j in range(d):
                         e = p[r, j] - pending[slot, j]
                         gap += e * e
-                    if math.sqrt(gap) <= far_eta * reach:
+                        onward += tangents[at, j] * e
+                    if (not far and onward > 0.0) or math.sqrt(gap) <= far_eta * reach:
                         streak = min(strikes[slot] + 1, sustain)
                 held = streak < sustain or not math.isfinite(live_eta)
         if held:

@@ -155,6 +155,43 @@ def test_a_sustained_jump_is_followed_at_its_sustain_th_pose(tube: canal_core.Ca
 
 
 @pytest.mark.parametrize("path", PATHS)
+def test_a_coarse_stream_moved_faster_than_the_rule_allows_is_followed(
+        tube: canal_core.Canal, path: str) -> None:
+    """A slow stream (a 10 Hz topic) of an arm moved by hand: every pose is more than
+    MAX_ADVANCE sections past the one before and more than FAR_ETA radii from it, but each
+    lies in the canal ahead of the last. The SUSTAIN-th such pose is followed, and so is
+    every next one: the stream does not stay answered from where it was."""
+    step = stream(tube, path)
+    _, before = walk(tube, step, 1, 3)
+    spacing = float(np.linalg.norm(tube.directrix[1] - tube.directrix[0]))
+    stride = MAX_ADVANCE + 2
+    assert stride * spacing > FAR_ETA * float(tube.radii.max())  # too far apart to agree by distance
+    sections = [before.section_index + stride * (k + 1) for k in range(SUSTAIN + 1)]
+    assert sections[-1] < len(tube.directrix) - 2
+    answers = [step(tube.directrix[s] + 0.3 * float(tube.radii[s]) * tube.normals[s])
+               for s in sections]
+    assert all(a.section_index <= before.section_index + 1 for a in answers[:SUSTAIN - 1])
+    for a, s in zip(answers[SUSTAIN - 1:], sections[SUSTAIN - 1:], strict=True):
+        assert s - 1 <= a.section_index <= s  # a pose on plane s lies between s - 1 and s
+    assert all(a.inside for a in answers[SUSTAIN - 1:])
+
+
+@pytest.mark.parametrize("path", PATHS)
+def test_poses_in_the_canal_that_jump_back_and_forth_never_add_up_to_a_push(
+        tube: canal_core.Canal, path: str) -> None:
+    """Suspect poses in the canal count as a moved arm only while each is ahead of the
+    last: spikes alternating between two places ahead never move the robot."""
+    clean, glitched = stream(tube, path), stream(tube, path)
+    x, before = walk(tube, clean, 5, 10)
+    walk(tube, glitched, 5, 10)
+    far, near = tube.directrix[50], tube.directrix[30]
+    for k in range(3 * SUSTAIN):
+        a = glitched(far if k % 2 else near)
+        assert a.section_index <= before.section_index + 1 and not a.inside
+    same_answer(glitched(x), clean(x))
+
+
+@pytest.mark.parametrize("path", PATHS)
 def test_a_robot_pushed_far_out_beside_its_section_is_followed(tube: canal_core.Canal,
                                                               path: str) -> None:
     step = stream(tube, path)
