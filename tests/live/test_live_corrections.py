@@ -163,6 +163,30 @@ def test_a_weight_that_cannot_be_kept_is_refused_before_the_push(live: Any, corr
     assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
 
 
+def test_a_live_body_with_a_field_it_does_not_take_is_refused(live: Any, corrected_skill: str) -> None:
+    # A misspelt field ("wieght") used to be left alone: the correction was captured with
+    # the default weight and the person never told. Over REST the same body is a 422.
+    versions = live.client.get(f"/skills/{corrected_skill}/models").json()["total"]
+    with PoseStreamer(corrected_skill, "typist", endpoint=live.endpoint) as ps:
+        for key, body, allowed in (
+                (ps.keys.correction_start, {"kind": "include", "wieght": 5},
+                 "kind, weight, label, from_seq"),
+                (ps.keys.demo_start, {"lable": "pour"}, "from_seq, label"),
+                (ps.keys.demo_stop, {"last": 3}, "last_seq"),
+                (ps.keys.correction_stop, {"last_seq": 3, "kind": "include"}, "last_seq"),
+                (ps.keys.steer_keep, {"label": "ok", "weight": 2, "kind": "include"},
+                 "label, weight")):
+            bad = next(k for k in body if k not in allowed.split(", "))
+            with pytest.raises(LiveError, match=rf"expected only {allowed}, got \"{bad}\""):
+                query_json(ps.session, key, body)
+        # a label with a NUL is refused as that, not as too long
+        with pytest.raises(LiveError, match=r"label.*without NUL"):
+            query_json(ps.session, ps.keys.demo_start, {"label": "a\x00b"})
+        with pytest.raises(LiveError, match="no correction"):
+            ps.stop_correction()  # nothing was started
+    assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

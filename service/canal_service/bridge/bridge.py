@@ -95,8 +95,14 @@ _BEHIND_S = 1.0
 RECORDER_WAIT_S = 10.0
 SWITCH_INTERVAL_S = 0.0005
 #: The per-stream queries: (chunk, chunk) after {prefix}/{skill}/{robot}/.
-_STREAM_QUERIES = frozenset({("demo", "start"), ("demo", "stop"), ("correction", "start"),
-                             ("correction", "stop"), ("steer", "keep")})
+#: The stream queries and the fields each body takes, in the order their refusal names them.
+_STREAM_QUERIES: dict[tuple[str, str], tuple[str, ...]] = {
+    ("demo", "start"): ("from_seq", "label"),
+    ("demo", "stop"): ("last_seq",),
+    ("correction", "start"): ("kind", "weight", "label", "from_seq"),
+    ("correction", "stop"): ("last_seq",),
+    ("steer", "keep"): ("label", "weight"),
+}
 
 
 class Bridge:
@@ -605,7 +611,7 @@ class Bridge:
                 _reply_error(query, "bad_payload",
                              f"expected a JSON object, got {shown_value(body)}")
                 return
-            refused = demo_body_error(body, parts[3])
+            refused = demo_body_error(body, (parts[2], parts[3]))
             if refused is not None:
                 _reply_error(query, "bad_payload", refused[1], refused[0])
                 return
@@ -810,7 +816,7 @@ class Bridge:
 
 
 _WEIGHT_EXPECTED = f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]"
-_CORRECTION_LABEL_EXPECTED = f"a text of at most {MAX_CORRECTION_LABEL} characters"
+_CORRECTION_LABEL_EXPECTED = f"a text of at most {MAX_CORRECTION_LABEL} characters, without NUL"
 
 
 def _correction_label_valid(value: Any) -> bool:
@@ -829,7 +835,7 @@ _DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
     "start": {
         "from_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
         "label": (lambda v: type(v) is str and len(v) <= MAX_DEMO_LABEL and "\x00" not in v,
-                  f"a text of at most {MAX_DEMO_LABEL} characters"),
+                  f"a text of at most {MAX_DEMO_LABEL} characters, without NUL"),
     },
     "stop": {
         "last_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
@@ -857,10 +863,16 @@ def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
                        f"{len(poses)} poses with {dims}", field=field)
 
 
-def demo_body_error(body: dict[str, Any], action: str) -> tuple[str, str] | None:
-    """(field, message) of the first field of a demo/``action`` body whose value is not what
-    it must be, else None. Fields the action does not know are left alone."""
-    for name, (valid, expected) in _DEMO_FIELDS[action].items():
+def demo_body_error(body: dict[str, Any], query: tuple[str, str]) -> tuple[str, str] | None:
+    """(field, message) of the first field of a stream ``query``'s body (("demo", "start"),
+    ("steer", "keep"), ...) that it does not take or whose value is not what it must be,
+    else None. A field it does not take is refused, as over REST: a misspelt ``weight``
+    would otherwise leave the default in its place without a word."""
+    allowed = _STREAM_QUERIES[query]
+    for name in body:
+        if name not in allowed:
+            return name, f"expected only {', '.join(allowed)}, got {shown_value(name)}"
+    for name, (valid, expected) in _DEMO_FIELDS[query[1]].items():
         value = body.get(name)
         if value is not None and not valid(value):
             return name, f"expected {name} as {expected}, got {shown_value(value)}"
