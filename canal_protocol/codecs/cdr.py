@@ -37,12 +37,21 @@ def decode_pose_cdr(data: bytes, seq: int = 0) -> tuple[Pose, RosStamp]:
             raise WireError("bad_payload", f"expected a frame_id of 1..{_CDR_MAX_FRAME} bytes "
                             f"with its NUL, got length {n}")
         end = 12 + n
-        frame_id = bytes(body[12 : end - 1]).decode("utf-8")
+        frame = bytes(body[12:end])
         at = (end + 7) & ~7
         values = struct.unpack_from(order + "7d", body, at)
+        # A CDR string is its bytes and one NUL. Cutting one that lacks it would answer the
+        # robot in a frame its TF tree does not know.
+        if frame.find(b"\x00") != n - 1:
+            raise WireError("bad_payload", "expected a frame_id ending in NUL, with no NUL "
+                            f"before it, got {frame[:64]!r}")
+        frame_id = frame[:-1].decode("utf-8")
     except (struct.error, UnicodeDecodeError):
         raise WireError("bad_payload", "expected a geometry_msgs/msg/PoseStamped in CDR, "
                         f"got {len(data)} bytes that are not one") from None
+    if nanosec >= 1_000_000_000:  # builtin_interfaces/msg/Time
+        raise WireError("bad_payload", "expected header.stamp.nanosec in [0, 1000000000), "
+                        f"got {nanosec}")
     if len(body) - (at + 56) > 7:
         raise WireError("bad_payload", "expected a geometry_msgs/msg/PoseStamped in CDR, "
                         f"got {len(body) - (at + 56)} bytes too many")

@@ -5,6 +5,8 @@ cases over a real Zenoh session."""
 
 from __future__ import annotations
 
+import re
+import struct
 import sys
 
 import numpy as np
@@ -82,6 +84,31 @@ def test_binary_and_cdr_poses_out_of_range_are_refused(position, orientation, t,
         with pytest.raises(wire.WireError) as caught:
             messages.check_pose_numbers(pose.position, pose.orientation, None)
         assert caught.value.key == "bad_payload"
+
+
+def _pose_stamped(frame: bytes, sec: int = 1, nanosec: int = 0) -> bytes:
+    """A little-endian PoseStamped CDR body with ``frame`` as frame_id's bytes, as sent."""
+    end = 12 + len(frame)
+    pad = ((end + 7) & ~7) - end
+    return (bytes((0, 1, 0, 0)) + struct.pack("<iII", sec, nanosec, len(frame)) + frame
+            + b"\x00" * pad + struct.pack("<7d", 0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 1.0))
+
+
+@pytest.mark.parametrize("frame,sec,nanosec,expected", [
+    # a CDR string ends in NUL: "base" without it was read as "bas", and the target went
+    # back in a frame the robot's TF tree does not know
+    (b"base", 1, 0, "frame_id ending in NUL"),
+    (b"ba\x00e\x00", 1, 0, "frame_id ending in NUL"),
+    # builtin_interfaces/Time: nanosec in [0, 1e9); 2e9 was taken as two more seconds
+    (b"base\x00", 1, 2_000_000_000, "nanosec in [0, 1000000000)"),
+])
+def test_a_pose_stamped_that_breaks_its_message_definition_is_refused(
+        frame: bytes, sec: int, nanosec: int, expected: str) -> None:
+    with pytest.raises(wire.WireError, match=re.escape(expected)) as caught:
+        decode_pose_cdr(_pose_stamped(frame, sec, nanosec))
+    assert caught.value.key == "bad_payload"
+    pose, stamp = decode_pose_cdr(_pose_stamped(b"base\x00", -5, 999_999_999))
+    assert stamp.frame_id == "base" and pose.t == pytest.approx(-5 + 0.999999999)
 
 
 def test_poses_at_the_bounds_are_taken() -> None:
