@@ -18,6 +18,7 @@ expected and what came, and which part of the file (``field``).
 from __future__ import annotations
 
 import io
+import re
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -246,12 +247,14 @@ def _csv_error(data: bytes, start: int, skip: int, width: int,
     return InvalidCsv("unreadable CSV rows")
 
 
+#: A number as numpy's CSV reader reads it. Python's float() also takes "1_000" and
+#: non-ASCII digits, which numpy refuses: a cell float() takes would go unnamed.
+_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                     r"|inf(?:inity)?|nan)", re.IGNORECASE)
+
+
 def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
+    return _NUMBER.fullmatch(cell) is not None
 
 
 #: Time columns in nanoseconds, in order of preference: a ROS 1 ``rostopic echo -p``

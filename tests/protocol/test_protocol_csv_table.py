@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canal_protocol.codecs.csv_table import csv_table
+from canal_protocol.codecs.csv_table import InvalidCsv, csv_table
 
 
 def _read(path: Path) -> np.ndarray:
@@ -44,3 +44,14 @@ def test_a_spreadsheet_export_with_a_byte_order_mark_is_a_correction_path(tmp_pa
     path = tmp_path / "push.csv"
     path.write_bytes("t,x,y,z\r\n0,1,2,3\r\n0.5,4,5,6\r\n".encode(encoding))
     np.testing.assert_array_equal(_read(path), [[1, 2, 3], [4, 5, 6]])
+
+
+@pytest.mark.parametrize("cell", ["1_000", "١٢٣", "0x1p0", "1,5"])
+def test_a_cell_numpy_cannot_read_is_named_with_its_line(cell: str) -> None:
+    # Python's float() reads "1_000" and Arabic-Indic digits, numpy's reader does not: the
+    # refusal said only "unreadable CSV rows", naming neither the line nor the cell.
+    data = f"x;y;z\n0;0;0\n1;2;3\n{cell};3;4\n".encode()
+    with pytest.raises(InvalidCsv) as caught:
+        csv_table(data, 3)
+    assert caught.value.field == "file:line 4"
+    assert str(caught.value) == f"expected numbers on CSV line 4, got {cell!r}"
