@@ -547,6 +547,24 @@ def test_a_choice_not_offered_is_named_with_the_choices(run: Run) -> None:
         assert f"expected one of {', '.join(map(repr, choices))}, got 'bogus'" in said, (args, said)
 
 
+def test_a_number_option_refused_says_what_came(run: Run) -> None:
+    # typer's own conversion said "Input should be a valid integer, unable to parse string
+    # as an integer", naming the option but not what was typed.
+    url = closed_port_url()
+    for args, got in (
+        (["demo", "rm", "x", "abc"], "got 'abc'"),
+        (["demo", "rm", "x", "0"], "got '0'"),
+        (["corrections", "undo", "x", "abc"], "got 'abc'"),
+        (["fit", "x", "--demo", "two"], "got 'two'"),
+        (["fit", "x", "--samples", "many"], "got 'many'"),
+        (["sim", "x", "--rate", "fast"], "got 'fast'"),
+    ):
+        r = run(*args, url=url)
+        said = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2, (args, said)
+        assert "Invalid value for" in said and said.rstrip(".").endswith(got), (args, said)
+
+
 def test_cli_runs_without_the_service_package(service: LiveService, tmp_path: Path) -> None:
     # The client must not depend on the service: with canal_service and the service's own
     # dependencies made unimportable, the CLI still talks to a service, and `canal serve`

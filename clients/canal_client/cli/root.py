@@ -3,7 +3,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
+import pydantic
 import typer
+from typer.core import TyperGroup
 
 from . import corrections, demos, models, recordings, scenes, serve, simulation, skills
 from .session import global_options
@@ -32,8 +36,33 @@ Exit codes: 0 success; 1 the service refused something (its message is printed) 
 simulation that did not end inside the canal; 2 bad usage; 3 the service cannot be reached.
 """
 
+
+
+def refusal_with_what_came(exc: typer.BadParameter) -> typer.BadParameter:
+    """typer's conversion of a typed value (a number, a path) words its refusal as pydantic
+    does, without the value: "Input should be a valid integer, unable to parse string as an
+    integer". The same refusal with ", got 'abc'", as the service words one over REST."""
+    cause = exc.__cause__
+    if not isinstance(cause, pydantic.ValidationError) or not cause.errors():
+        return exc
+    got = cause.errors()[0].get("input")
+    shown = repr(got) if isinstance(got, str) else str(got)
+    return typer.BadParameter(f"{exc.message}, got {shown}", ctx=exc.ctx, param=exc.param,
+                              param_hint=exc.param_hint)
+
+
+class CanalGroup(TyperGroup):
+    """The root command: every subcommand's usage error says what was typed."""
+
+    def invoke(self, ctx: Any) -> Any:  # typer's vendored click Context
+        try:
+            return super().invoke(ctx)
+        except typer.BadParameter as exc:
+            raise refusal_with_what_came(exc) from exc.__cause__
+
+
 app = typer.Typer(name="canal", help=HELP, no_args_is_help=True, add_completion=False,
-                  rich_markup_mode=None, pretty_exceptions_enable=False)
+                  rich_markup_mode=None, pretty_exceptions_enable=False, cls=CanalGroup)
 app.callback()(global_options)
 # serve hands every argument, --help included, to the service's own parser
 app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True,
