@@ -35,7 +35,7 @@ import functools
 import json
 import os
 import tempfile
-from collections.abc import Callable, Coroutine, Generator, Iterable, Iterator
+from collections.abc import Callable, Coroutine, Generator, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -324,11 +324,16 @@ def shown_argument(value: Any, limit: int = 60) -> str:
 
 def _numbers(value: Any, name: str, expected: str) -> FloatArray:
     try:
-        return np.asarray(value, dtype=np.float64)
+        # numpy would cast complex numbers to real, dropping their imaginary parts with no
+        # more than a warning
+        complex_dtype = np.asarray(value).dtype if np.iscomplexobj(value) else None
+        if complex_dtype is None:
+            return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         # numpy names neither the argument nor what it holds ("could not convert string to
         # float", "inhomogeneous shape").
         raise ArgumentError(name, expected, shown_argument(value)) from None
+    raise ArgumentError(name, "real numbers", f"complex numbers ({complex_dtype})")
 
 
 def _rows(value: ArrayLike, name: str) -> list[Any]:
@@ -628,8 +633,23 @@ def _obstacles(value: Iterable[Any] | None) -> list[dict[str, Any]] | None:
     ``to_dict()`` (:class:`canal_core.obstacles.Obstacle`), or a ``Scene``."""
     if value is None:
         return None
-    items = value.to_list() if hasattr(value, "to_list") else list(value)
-    return [o.to_dict() if hasattr(o, "to_dict") else dict(o) for o in items]
+    if hasattr(value, "to_list"):
+        items = value.to_list()
+    elif isinstance(value, Iterable) and not isinstance(value, (Mapping, str, bytes)):
+        items = list(value)
+    else:
+        raise ArgumentError("obstacles", "a list of obstacles", shown_argument(value))
+    obstacles = []
+    for i, o in enumerate(items):
+        if hasattr(o, "to_dict"):
+            obstacles.append(o.to_dict())
+        elif isinstance(o, Mapping):
+            obstacles.append(dict(o))
+        else:
+            raise ArgumentError(f"obstacles[{i}]", "an obstacle: a dict such as "
+                                "{'kind': 'sphere', 'center': [x, y, z], 'radius': r}",
+                                shown_argument(o))
+    return obstacles
 
 
 def _get_scene(skill: str) -> _Steps[SceneOut]:

@@ -171,6 +171,14 @@ def test_numpy_arguments_are_checked_locally(client: CanalClient) -> None:
     (lambda c: c.reproduce("s", [0, 0, 0], duration="2 s"), ["duration", "a number", "'2 s'"]),
     (lambda c: c.reproduce("s", [0, 0, 0], model="v2"), ["model", "version number", "'v2'"]),
     (lambda c: c.download_recording("s", "zip", "/tmp/x"), ["kind", "'rrd' or 'mcap'", "'zip'"]),
+    # numpy cast complex numbers to real, dropping the imaginary parts with a warning only
+    (lambda c: c.add_demo("s", np.ones((5, 3)) * (1 + 2j)), ["positions", "real numbers", "complex"]),
+    (lambda c: c.reproduce("s", np.array([0, 1j, 0])), ["start", "real numbers", "complex"]),
+    # a lone obstacle where a list of them goes: Python's "dictionary update sequence" error
+    (lambda c: c.set_scene("s", {"kind": "sphere", "center": [0, 0, 0], "radius": 0.1}),
+     ["obstacles", "a list of obstacles", "dict"]),
+    (lambda c: c.set_scene("s", ["sphere"]), ["obstacles[0]", "an obstacle", "'sphere'"]),
+    (lambda c: c.reproduce("s", [0, 0, 0], obstacles=[1.5]), ["obstacles[0]", "an obstacle", "1.5"]),
 ])
 def test_arguments_that_are_not_numbers_name_themselves(client: CanalClient, call: Callable[[CanalClient], Any],
                                                         words: list[str]) -> None:
