@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import reproduction
+from .bounds import canal_extent, check_reach
 from .clocks import Clock
 from .corrections import (
     AppliedCorrection,
@@ -168,6 +169,13 @@ class Canal:
         return section_radii(self.sections)
 
     @cached_property
+    def extent(self) -> tuple[FloatArray, float]:
+        """(centre (D,), size) of the canal: the box around its directrix widened by its
+        largest radius, and that box's diagonal (:func:`canal_core.bounds.canal_extent`).
+        Starts and goals are held within :data:`canal_core.bounds.MAX_REACH` sizes of it."""
+        return canal_extent(self.directrix, self.radii)
+
+    @cached_property
     def bounds(self) -> FloatArray:
         """Axis-aligned bounding box of the canal, shape (2, D): min corner, max corner."""
         if self.dim == 2:
@@ -316,7 +324,7 @@ class Canal:
         The start region is untouched; frames are recomputed on the displaced directrix and
         every section keeps its shape in its new plane (and its orientation, when learned).
         """
-        target = check_point(goal, self.dim, "goal")
+        target = check_reach(check_point(goal, self.dim, "goal"), *self.extent, "goal")
         centres = self.directrix + goal_displacements(self.arclength, target - self.directrix[-1])
         tangents, normals, binormals = canal_frames(centres, self.options)
         steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .bounds import check_duration, check_reach
 from .entry import approach_shares, entry_fraction
 from .errors import OutsideCanalError
 from .lone import lone_path
@@ -37,7 +38,6 @@ from .validation import (
     check_choice,
     check_fraction,
     check_point,
-    check_positive,
     check_quaternion,
 )
 
@@ -219,15 +219,16 @@ def reproduce(
         demonstrations' largest step, and stops short, saying ``blocked``, where the
         obstacles close the canal.
     """
-    point = check_point(start, canal.dim, "start")
+    point = check_reach(check_point(start, canal.dim, "start"), *canal.extent, "start")
     scene = None if obstacles is None else scene_from_list(obstacles, canal.dim)
     check_choice(outside, OUTSIDE_RULES, "outside")
     quat = None if start_orientation is None else check_quaternion(start_orientation)
     entry = None if entry is None else check_fraction(entry, "entry", maximum=1.0)
     end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
     check_choice(persistence, PERSISTENCES, "persistence")
-    seconds = None if duration is None else check_positive(duration, "duration")
-    target = None if goal is None else check_point(goal, canal.dim, "goal")
+    seconds = None if duration is None else check_duration(duration)
+    target = None if goal is None else check_reach(check_point(goal, canal.dim, "goal"),
+                                                   *canal.extent, "goal")
     if target is not None:
         canal = canal.with_goal(target)
     loc, held = start_and_located_points(

@@ -3,6 +3,8 @@ degenerate-but-valid input does not crash."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -280,3 +282,23 @@ def test_bad_points_for_queries() -> None:
         canal.contains(np.ones((5, 2)))
     with pytest.raises(InvalidInputError, match="outside"):
         canal.reproduce_detailed([0.0, 0.0, 0.0], outside="ignore")
+
+
+@pytest.mark.parametrize("kwargs,field,words", [
+    # the library drew a two-point path from 1e200 (or 1e7) straight to the canal's end,
+    # which the service refuses: the bounds of canal_core.bounds hold for every caller
+    ({"start": [1e200, 0.0, 0.0]}, "start", "within +-1e+15"),
+    ({"start": [1e7, 0.0, 0.0]}, "start", "canal sizes"),
+    ({"start": [0.0, 1.0, 0.0], "goal": [0.0, 1e9, 0.0]}, "goal", "canal sizes"),
+    ({"start": [0.0, 1.0, 0.0], "duration": 1e-6}, "duration", "between 0.001 s and 1e+06 s"),
+    ({"start": [0.0, 1.0, 0.0], "duration": 1e9}, "duration", "between 0.001 s and 1e+06 s"),
+])
+def test_a_query_beyond_the_canal_s_bounds_is_refused_by_the_library_too(
+        kwargs: dict, field: str, words: str) -> None:
+    canal = canal_core.fit(good())
+    with pytest.raises(InvalidInputError, match=re.escape(words)) as caught:
+        canal.reproduce_detailed(**kwargs)
+    assert caught.value.field == field
+    routes = canal_core.routes.fit_routes(good())
+    with pytest.raises(InvalidInputError, match=re.escape(words)):
+        routes.reproduce_detailed(**kwargs)
