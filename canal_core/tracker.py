@@ -53,7 +53,7 @@ import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance, section_radii
 from .tube import TUBE_MARGIN, in_plane_curvature
-from .validation import FloatArray
+from .validation import FloatArray, check_point
 
 WINDOW = 16
 #: The plan is kept while the live position is within this fraction of the local section's
@@ -216,7 +216,8 @@ def tracker_step(
     state : TrackerState
         The stream's state after the previous step (``TrackerState(index)`` to start).
     position : array, shape (D,)
-        Live position.
+        Live position, finite (not checked here: :meth:`Tracker.step` and the bridge's
+        decoding refuse a NaN, which this step would locate on the directrix).
     lookahead : int
         Sections ahead of the located one to aim at (>= 1).
     replan_tolerance : float
@@ -450,11 +451,14 @@ class Tracker:
         return self.state.index
 
     def step(self, position: FloatArray) -> TrackerTarget:
-        """Next target for the live ``position``, shape (D,)."""
+        """Next target for the live ``position``, shape (D,), finite (else
+        InvalidInputError on ``position``, and the stream is left as it was: a NaN has no
+        place to locate, and :func:`tracker_step` would read it as the directrix). A
+        finite pose however far, even one whose squares overflow, is the rule's to hold."""
         target, self.state = tracker_step(
             self.geometry,
             self.state,
-            np.asarray(position, dtype=np.float64),
+            check_point(position, self.geometry.centres.shape[1], "position"),
             self.lookahead,
             self.replan_tolerance,
         )

@@ -302,3 +302,19 @@ def test_a_query_beyond_the_canal_s_bounds_is_refused_by_the_library_too(
     routes = canal_core.routes.fit_routes(good())
     with pytest.raises(InvalidInputError, match=re.escape(words)):
         routes.reproduce_detailed(**kwargs)
+
+
+@pytest.mark.parametrize("pose,words", [
+    # a NaN first pose was answered inside the canal, at eta 0 and progress NaN
+    ([np.nan, 0.0, 0.0], "finite"),
+    ([np.inf, 0.0, 0.0], "finite"),
+    # and a 2-D pose of a 3-D canal was numpy's "matmul: Input operand 1 has a mismatch"
+    ([0.0, 0.0], "shape (3,)"),
+])
+def test_a_tracker_refuses_a_pose_that_is_no_point_of_its_space(pose: list, words: str) -> None:
+    canal = canal_core.fit(good())
+    tracker = canal.tracker()
+    with pytest.raises(InvalidInputError, match=re.escape(words)) as caught:
+        tracker.step(np.array(pose))
+    assert caught.value.field == "position"
+    assert tracker.state.index == 0 and tracker.state.eta is None  # nothing changed
