@@ -92,6 +92,18 @@ def canal_fields(data: dict[str, Any]) -> dict[str, Any]:
         for key, shape in expected.items():
             if arr[key].shape != shape:
                 raise ModelFormatError(f"expected {key} of shape {shape}, got {arr[key].shape}", field=key)
+        if binormals is not None and binormals.shape != (n, dim):
+            raise ModelFormatError(f"expected binormals of shape {(n, dim)}, got {binormals.shape}",
+                                   field="binormals")
+        crossings = arr["section_points"]
+        if crossings.ndim != 3 or crossings.shape[0] != n or crossings.shape[2] != dim - 1:
+            raise ModelFormatError(f"expected section_points of shape ({n}, demos, {dim - 1}), "
+                                   f"got {crossings.shape}", field="section_points")
+        # a NaN in a stored array reaches every answer as NaN (null over JSON)
+        for key, values in (*arr.items(), ("binormals", binormals), *params.items()):
+            if values is not None and not np.isfinite(values).all():
+                raise ModelFormatError(f"expected finite numbers in {key}, got NaN or Inf",
+                                       field="sections" if key in params else key)
         if any(v.shape[0] != n for v in params.values()):
             raise ModelFormatError(f"expected {n} cross-sections in every parameter", field="sections")
         raw_orientation = data.get("orientation")

@@ -318,3 +318,19 @@ def test_a_tracker_refuses_a_pose_that_is_no_point_of_its_space(pose: list, word
         tracker.step(np.array(pose))
     assert caught.value.field == "position"
     assert tracker.state.index == 0 and tracker.state.eta is None  # nothing changed
+
+
+@pytest.mark.parametrize("key,value", [
+    # numpy's "all input arrays must have the same shape" when the model was built
+    ("binormals", lambda d: d["binormals"][:3]),
+    # numpy's "operands could not be broadcast together" at the first reproduction
+    ("section_points", lambda d: d["section_points"][:3]),
+    ("directrix", lambda d: [[float("nan")] * len(d["directrix"][0])] + d["directrix"][1:]),
+    ("section_points", lambda d: [[[float("inf")] * 2] * len(d["section_points"][0])]
+     + d["section_points"][1:]),
+])
+def test_a_model_file_with_arrays_that_do_not_fit_is_refused_naming_them(key: str, value) -> None:
+    data = canal_core.fit(good()).to_dict()
+    with pytest.raises(canal_core.ModelFormatError) as caught:
+        canal_core.Canal.from_dict({**data, key: value(data)})
+    assert caught.value.field == key
