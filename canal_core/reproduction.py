@@ -227,9 +227,8 @@ def reproduce(
     end_decay = check_fraction(end_decay, "end_decay", maximum=1.0)
     check_choice(persistence, PERSISTENCES, "persistence")
     seconds = None if duration is None else check_duration(duration)
-    target = None if goal is None else check_reach(check_point(goal, canal.dim, "goal"),
-                                                   *canal.extent, "goal")
-    if target is not None:
+    target = None if goal is None else check_point(goal, canal.dim, "goal")
+    if target is not None:  # with_goal holds it within the canal's reach
         canal = canal.with_goal(target)
     loc, held = start_and_located_points(
         point[None, :], canal.directrix, canal.tangents, canal.basis, canal.sections, canal.plane_offsets,

@@ -37,7 +37,6 @@ simulation that did not end inside the canal; 2 bad usage; 3 the service cannot 
 """
 
 
-
 def refusal_with_what_came(exc: typer.BadParameter) -> typer.BadParameter:
     """typer's conversion of a typed value (a number, a path) words its refusal as pydantic
     does, without the value: "Input should be a valid integer, unable to parse string as an

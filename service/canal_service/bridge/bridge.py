@@ -94,8 +94,8 @@ _BEHIND_S = 1.0
 #: service's recorder connects with retries, possibly after the first robots).
 RECORDER_WAIT_S = 10.0
 SWITCH_INTERVAL_S = 0.0005
-#: The per-stream queries: (chunk, chunk) after {prefix}/{skill}/{robot}/.
-#: The stream queries and the fields each body takes, in the order their refusal names them.
+#: The per-stream queries, (chunk, chunk) after {prefix}/{skill}/{robot}/, and the fields
+#: each body takes, in the order their refusal names them.
 _STREAM_QUERIES: dict[tuple[str, str], tuple[str, ...]] = {
     ("demo", "start"): ("from_seq", "label"),
     ("demo", "stop"): ("last_seq",),
