@@ -21,12 +21,14 @@ from . import __version__
 from .core.config import Settings
 from .errors import install_error_handlers
 from .fitting import FitRunner
+from .health import ServiceHealth
 from .lanes import Lane
+from .listeners import FitListeners
 from .memory import MemoryReleaser, ReleaseMemoryWhenIdle
 from .metrics import Metrics
 from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, JsonNewline, RequestMetrics
 from .routes import api_router, docs, health, view
-from .service import CanalService, FitListeners, RecorderLike, ServiceHealth
+from .service import CanalService, RecorderLike
 from .storage import Database
 from .uploads import UploadLimits
 

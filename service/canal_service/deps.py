@@ -15,7 +15,8 @@ from canal_protocol.schemas import MAX_ID, SKILL_NAME_PATTERN
 
 from .core.config import Settings
 from .errors import InvalidInput
-from .service import CanalService, ServiceHealth
+from .health import ServiceHealth
+from .service import CanalService
 
 
 async def get_service(request: Request) -> CanalService:

@@ -13,10 +13,8 @@ import re
 import socket
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
 from typing import Any, Literal, Protocol
@@ -32,7 +30,7 @@ from canal_core.routes import RouteChoice, Routes, routes_from_dict, served_mode
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
 
-from . import __version__, uploads
+from . import uploads
 from .errors import (
     CanalRejected,
     CorrectionNotInLatest,
@@ -44,7 +42,9 @@ from .errors import (
     VersionConflict,
 )
 from .fitting import FitJob, FitRunner
+from .listeners import FitListeners, SceneListeners
 from .metrics import Metrics
+from .model_cache import CacheKey, CanalCache, model_cache_key
 from .storage import Correction, Database, Demonstration, ModelVersion, Skill, arrays
 from .storage import repository as repo
 from .validation import (
@@ -89,137 +89,6 @@ class RecorderLike(Protocol):
     def rebuild(self, skill: str, timeout_s: float | None = None) -> dict[str, Any]: ...
     def health(self) -> dict[str, Any]: ...
     def close(self) -> None: ...
-
-
-class BridgeHealthSource(Protocol):
-    """The live bridge (in this process or supervising bridge processes), as /healthz sees it."""
-
-    def health(self) -> dict[str, Any]: ...
-
-
-#: ``listener(skill, version, model)``: the model is the canal, or :class:`Routes` when it
-#: has several routes.
-FitListener = Callable[[str, int, "canal_core.Canal | Routes"], None]
-
-
-class FitListeners:
-    """Who hears of each committed fit, as ``listener(skill, version, canal)`` (the bridge).
-
-    Built by ``create_app`` and handed to both the service (which notifies) and the bridge
-    (which subscribes when it starts and unsubscribes when it stops). Thread-safe.
-    """
-
-    def __init__(self, listeners: Sequence[FitListener] = ()) -> None:
-        self._listeners: list[FitListener] = list(listeners)
-        self._lock = threading.Lock()
-
-    def append(self, listener: FitListener) -> None:
-        """Subscribe ``listener``."""
-        with self._lock:
-            self._listeners.append(listener)
-
-    def remove(self, listener: FitListener) -> None:
-        """Unsubscribe ``listener`` (ValueError when it was not subscribed, as list.remove)."""
-        with self._lock:
-            self._listeners.remove(listener)
-
-    def __contains__(self, listener: object) -> bool:
-        with self._lock:
-            return listener in self._listeners
-
-    def __iter__(self) -> Iterator[FitListener]:
-        with self._lock:
-            return iter(list(self._listeners))
-
-    def __len__(self) -> int:
-        with self._lock:
-            return len(self._listeners)
-
-    def notify(self, skill: str, version: int, canal: canal_core.Canal | Routes) -> None:
-        """Call every listener; one that raises is logged and does not stop the others."""
-        for listener in self:
-            try:
-                listener(skill, version, canal)
-            except Exception:
-                log.exception("fit listener failed")
-
-
-CacheKey = tuple[int, str]
-
-
-SceneListener = Callable[[str, int, "canal_core.obstacles.Scene"], None]
-
-
-class SceneListeners:
-    """Who hears of each committed scene change, as ``listener(skill, version, scene)``."""
-
-    def __init__(self) -> None:
-        self._listeners: list[SceneListener] = []
-        self._lock = threading.Lock()
-
-    def append(self, listener: SceneListener) -> None:
-        with self._lock:
-            self._listeners.append(listener)
-
-    def remove(self, listener: SceneListener) -> None:
-        with self._lock:
-            self._listeners.remove(listener)
-
-    def notify(self, skill: str, version: int, scene: canal_core.obstacles.Scene) -> None:
-        """Call every listener; one that raises is logged and does not stop the others."""
-        with self._lock:
-            listeners = list(self._listeners)
-        for listener in listeners:
-            try:
-                listener(skill, version, scene)
-            except Exception:
-                log.exception("scene listener failed")
-
-
-def model_cache_key(model_id: int, skill_created_at: datetime) -> CacheKey:
-    """The key of a model row's decoded canal: its id with its skill's creation time (UTC).
-
-    The id alone is not enough: SQLite gives a new row the id of a deleted last row, so a
-    skill deleted, re-created and fitted again (here or in another process on the same
-    file) can store its new version 1 under the id the old version 1 had. Model rows are
-    deleted only with their skill, and a re-created skill has another creation time, so
-    the pair names one row for ever. (The model row's own time would do too, but it is
-    stored after the canal: reading it costs a walk through the canal's bytes.) Naive
-    times are UTC (SQLite returns them so); aware ones are converted.
-    """
-    created_at = skill_created_at
-    if created_at.tzinfo is not None:
-        created_at = created_at.astimezone(UTC).replace(tzinfo=None)
-    return model_id, created_at.isoformat()
-
-
-class CanalCache:
-    """Decoded models (as :class:`Routes`: one route for a single canal) by
-    :func:`model_cache_key`. A model row never changes, and a key names one row for ever, so
-    entries never go stale; they only age out (least recently used)."""
-
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self._items: OrderedDict[CacheKey, Routes] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: CacheKey) -> Routes | None:
-        """The cached canal, marked recently used, or None."""
-        with self._lock:
-            canal = self._items.get(key)
-            if canal is not None:
-                self._items.move_to_end(key)
-            return canal
-
-    def put(self, key: CacheKey, canal: Routes) -> None:
-        """Keep ``canal``, evicting the least recently used beyond ``size``."""
-        if self.size <= 0:
-            return
-        with self._lock:
-            self._items[key] = canal
-            self._items.move_to_end(key)
-            while len(self._items) > self.size:
-                self._items.popitem(last=False)
 
 
 def _tolist(value: Any) -> Any:
@@ -1023,51 +892,6 @@ class CanalService:
         return {"skill": name, **result}
 
 
-class ServiceHealth:
-    """What ``GET /healthz`` reports: database, recorder and live bridge.
-
-    Separate from :class:`CanalService` because the bridge is built from the service: both
-    exist before this is, so every part is given to the constructor.
-    """
-
-    def __init__(self, db: Database, recorder: RecorderLike | None,
-                 bridge: BridgeHealthSource | None) -> None:
-        self.db = db
-        self.recorder = recorder
-        self.bridge = bridge
-
-    def __call__(self) -> schemas.HealthOut:
-        """Database, recorder and bridge state; degraded when any is unwell."""
-        status: Literal["ok", "degraded"] = "ok"
-        try:
-            self.db.ping()
-            database = "ok"
-        except Exception as exc:  # health must report, not raise
-            database = f"error: {type(exc).__name__}"
-            status = "degraded"
-        if self.recorder is None:
-            recorder: dict[str, Any] = {"status": "disabled", "detail": None}
-        else:
-            try:
-                recorder = dict(self.recorder.health())
-            except Exception as exc:
-                recorder = {"status": "degraded", "detail": f"health() failed: {exc}"}
-            if recorder.get("status") != "ok":
-                status = "degraded"
-        bridge: dict[str, Any] = {"status": "disabled"}
-        if self.bridge is not None:
-            try:
-                bridge = dict(self.bridge.health())
-            except Exception as exc:
-                bridge = {"status": "down", "detail": f"health() failed: {exc}"}
-            # The REST API still serves without the live path, but the service is not whole:
-            # a bridge that is down or behind its queue makes the service "degraded".
-            if bridge.get("status") in ("down", "behind"):
-                status = "degraded"
-        return schemas.HealthOut(status=status, database=database, recorder=recorder,
-                                 bridge=bridge, version=__version__)
-
-
 @dataclass(frozen=True)
 class StoredCorrection:
     """A stored correction as canal_core takes it."""
@@ -1201,5 +1025,4 @@ def _demo_arrays(row: Demonstration) -> tuple[arrays.FloatArray, arrays.FloatArr
     return positions, times, quats
 
 
-__all__: Sequence[str] = ["BridgeHealthSource", "CanalCache", "CanalService", "FitListener",
-                          "FitListeners", "RecorderLike", "ServiceHealth"]
+__all__: Sequence[str] = ["CanalService", "RecorderLike"]

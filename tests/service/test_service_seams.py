@@ -25,8 +25,9 @@ from canal_service.errors import (
     SkillNotFound,
     http_status,
 )
+from canal_service.listeners import FitListeners
 from canal_service.metrics import Metrics
-from canal_service.service import CanalService, FitListeners
+from canal_service.service import CanalService
 from canal_service.storage import Database
 from canal_service.validation import check_demonstration
 from fastapi.testclient import TestClient
