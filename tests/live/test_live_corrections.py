@@ -187,6 +187,29 @@ def test_a_live_body_with_a_field_it_does_not_take_is_refused(live: Any, correct
     assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
 
 
+def test_a_correction_field_is_refused_alike_by_every_query_that_takes_it(
+        live: Any, corrected_skill: str) -> None:
+    # correction/start checked a label twice (as a demonstration's at 256 characters with
+    # bad_payload, then as a correction's at 200 with invalid_input) and steer/keep refused
+    # the same label and weight as bad_payload: one value, three answers.
+    versions = live.client.get(f"/skills/{corrected_skill}/models").json()["total"]
+    with PoseStreamer(corrected_skill, "alike", endpoint=live.endpoint) as ps:
+        for key, body, field in (
+                (ps.keys.correction_start, {"kind": "include", "label": "x" * 230}, "label"),
+                (ps.keys.correction_start, {"kind": "include", "label": "x" * 300}, "label"),
+                (ps.keys.steer_keep, {"label": "x" * 300}, "label"),
+                (ps.keys.correction_start, {"kind": "include", "weight": 5000}, "weight"),
+                (ps.keys.steer_keep, {"weight": 5000}, "weight"),
+                (ps.keys.correction_start, {"weight": 2}, "kind"),
+                (ps.keys.correction_start, {"kind": "widen"}, "kind")):
+            with pytest.raises(LiveError) as refused:
+                query_json(ps.session, key, body)
+            error = refused.value.body["error"]
+            assert (error["type"], error["field"]) == ("invalid_input", field), (body, error)
+            assert error["message"].startswith(f"expected {field} as "), error
+    assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

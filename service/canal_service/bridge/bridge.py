@@ -73,7 +73,6 @@ from canal_core.options import CORRECTION_KINDS
 from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
-from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_CORRECTION_WEIGHT, MAX_DEMO_LABEL
 from canal_protocol.schemas import CorrectionIn, shown_value
 
 from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
@@ -84,6 +83,7 @@ from ..validation import check_demonstration
 from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, zenoh_config
 from .models import ModelEntry, ModelTable
 from .posepath import PosePath
+from .queries import STREAM_QUERIES, body_error
 from .streams import ENC_JSON, ERROR_KEYS, Counts, Stream
 
 log = logging.getLogger("canal_service.bridge")
@@ -94,15 +94,6 @@ _BEHIND_S = 1.0
 #: service's recorder connects with retries, possibly after the first robots).
 RECORDER_WAIT_S = 10.0
 SWITCH_INTERVAL_S = 0.0005
-#: The per-stream queries, (chunk, chunk) after {prefix}/{skill}/{robot}/, and the fields
-#: each body takes, in the order their refusal names them.
-_STREAM_QUERIES: dict[tuple[str, str], tuple[str, ...]] = {
-    ("demo", "start"): ("from_seq", "label"),
-    ("demo", "stop"): ("last_seq",),
-    ("correction", "start"): ("kind", "weight", "label", "from_seq"),
-    ("correction", "stop"): ("last_seq",),
-    ("steer", "keep"): ("label", "weight"),
-}
 
 
 class Bridge:
@@ -597,7 +588,7 @@ class Bridge:
         if len(parts) == 2 and parts[1] == keyspace.MODEL:
             if self.options.shard == 0:  # one answer, not one per bridge
                 self._answer_model(query, parts[0])
-        elif len(parts) == 4 and (parts[2], parts[3]) in _STREAM_QUERIES:
+        elif len(parts) == 4 and (parts[2], parts[3]) in STREAM_QUERIES:
             skill, robot = parts[0], parts[1]
             if shards > 1 and shard_of(skill, robot, shards) != self.options.shard:
                 return
@@ -611,9 +602,9 @@ class Bridge:
                 _reply_error(query, "bad_payload",
                              f"expected a JSON object, got {shown_value(body)}")
                 return
-            refused = demo_body_error(body, (parts[2], parts[3]))
+            refused = body_error(body, (parts[2], parts[3]))
             if refused is not None:
-                _reply_error(query, "bad_payload", refused[1], refused[0])
+                _reply_error(query, refused[0], refused[2], refused[1])
                 return
             entry = self.models.entry(skill)
             if entry.status == "unknown_skill":
@@ -697,27 +688,9 @@ class Bridge:
         query.reply(query.key_expr, orjson.dumps(created), encoding=ENC_JSON)
 
     def _correction_start(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
-        kind = body.get("kind")
-        if kind not in CORRECTION_KINDS:
-            _reply_error(query, "invalid_input", "expected kind "
-                         f"{' or '.join(map(repr, CORRECTION_KINDS))}, got {shown_value(kind)}", "kind")
-            return
         weight = body.get("weight")
-        if weight is None:  # absent or null: the default, as for every optional field
-            weight = 1.0
-        if not _weight_valid(weight):
-            # Checked here, not at stop: a weight the correction cannot take must not cost the
-            # person the push.
-            _reply_error(query, "invalid_input",
-                         f"expected weight as {_WEIGHT_EXPECTED}, got {shown_value(weight)}", "weight")
-            return
-        label = body.get("label")
-        if label is not None and not _correction_label_valid(label):
-            _reply_error(query, "invalid_input",
-                         f"expected label as {_CORRECTION_LABEL_EXPECTED}, got {shown_value(label)}",
-                         "label")
-            return
-        self._capture_start(query, st, body, str(kind), float(weight))
+        self._capture_start(query, st, body, str(body["kind"]),
+                            1.0 if weight is None else float(weight))
 
     def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         kind, weight, label = st.capture_kind, st.capture_weight, st.capture_label
@@ -736,11 +709,10 @@ class Bridge:
         if not poses:
             _reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
             return
-        label = body.get("label")
-        weight = body.get("weight", 1.0)
+        weight, label = body.get("weight"), body.get("label")
         self._store_correction(query, st, "include", poses,
-                               float(weight) if isinstance(weight, int | float) else 1.0,
-                               label if isinstance(label, str) else "steered")
+                               1.0 if weight is None else float(weight),
+                               "steered" if label is None else label)
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
                           weight: float, label: str | None) -> None:
@@ -815,39 +787,6 @@ class Bridge:
                 log.exception("bridge housekeeping failed")
 
 
-_WEIGHT_EXPECTED = f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]"
-_CORRECTION_LABEL_EXPECTED = f"a text of at most {MAX_CORRECTION_LABEL} characters, without NUL"
-
-
-def _correction_label_valid(value: Any) -> bool:
-    return type(value) is str and len(value) <= MAX_CORRECTION_LABEL and "\x00" not in value
-
-
-def _weight_valid(value: Any) -> bool:
-    """The bound CorrectionIn puts on an include's weight, for a value from a live body."""
-    return type(value) in (int, float) and 0 < value <= MAX_CORRECTION_WEIGHT
-
-
-#: The fields of a demo/ or correction/ start and stop body and of a steer/keep body, with
-#: the check each value must pass
-#: (absent or null: the default) and what it is expected to be.
-_DEMO_FIELDS: dict[str, dict[str, tuple[Any, str]]] = {
-    "start": {
-        "from_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
-        "label": (lambda v: type(v) is str and len(v) <= MAX_DEMO_LABEL and "\x00" not in v,
-                  f"a text of at most {MAX_DEMO_LABEL} characters, without NUL"),
-    },
-    "stop": {
-        "last_seq": (lambda v: type(v) is int and 0 <= v < 2**64, "an integer in [0, 2**64)"),
-    },
-    # steer/keep
-    "keep": {
-        "label": (_correction_label_valid, _CORRECTION_LABEL_EXPECTED),
-        "weight": (_weight_valid, _WEIGHT_EXPECTED),
-    },
-}
-
-
 def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
     """The captured poses with the skill's ``dim`` coordinates. The others were answered
     ``wrong_dimension`` as they came and never tracked: a glitch does not cost the person the
@@ -861,22 +800,6 @@ def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
     dims = " or ".join(map(str, sorted({len(p.position) for p in poses})))
     raise InvalidInput(f"expected {field} with {dim} coordinates for this {dim}-D skill, got "
                        f"{len(poses)} poses with {dims}", field=field)
-
-
-def demo_body_error(body: dict[str, Any], query: tuple[str, str]) -> tuple[str, str] | None:
-    """(field, message) of the first field of a stream ``query``'s body (("demo", "start"),
-    ("steer", "keep"), ...) that it does not take or whose value is not what it must be,
-    else None. A field it does not take is refused, as over REST: a misspelt ``weight``
-    would otherwise leave the default in its place without a word."""
-    allowed = _STREAM_QUERIES[query]
-    for name in body:
-        if name not in allowed:
-            return name, f"expected only {', '.join(allowed)}, got {shown_value(name)}"
-    for name, (valid, expected) in _DEMO_FIELDS[query[1]].items():
-        value = body.get(name)
-        if value is not None and not valid(value):
-            return name, f"expected {name} as {expected}, got {shown_value(value)}"
-    return None
 
 
 #: Streams expired since the last trim that call for handing their memory back.
