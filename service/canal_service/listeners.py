@@ -9,35 +9,32 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from typing import Generic, ParamSpec
 
 import canal_core
 from canal_core.routes import Routes
 
 log = logging.getLogger("canal_service")
 
-
-#: ``listener(skill, version, model)``: the model is the canal, or :class:`Routes` when it
-#: has several routes.
-FitListener = Callable[[str, int, "canal_core.Canal | Routes"], None]
+P = ParamSpec("P")
 
 
-class FitListeners:
-    """Who hears of each committed fit, as ``listener(skill, version, canal)`` (the bridge).
+class Listeners(Generic[P]):
+    """Callables told of one kind of change, in the order they subscribed. Thread-safe:
+    the bridge subscribes and unsubscribes while requests notify."""
 
-    Built by ``create_app`` and handed to both the service (which notifies) and the bridge
-    (which subscribes when it starts and unsubscribes when it stops). Thread-safe.
-    """
-
-    def __init__(self, listeners: Sequence[FitListener] = ()) -> None:
-        self._listeners: list[FitListener] = list(listeners)
+    def __init__(self, listeners: Sequence[Callable[P, None]] = (), *, what: str = "listener"
+                 ) -> None:
+        self._listeners: list[Callable[P, None]] = list(listeners)
         self._lock = threading.Lock()
+        self._what = what
 
-    def append(self, listener: FitListener) -> None:
+    def append(self, listener: Callable[P, None]) -> None:
         """Subscribe ``listener``."""
         with self._lock:
             self._listeners.append(listener)
 
-    def remove(self, listener: FitListener) -> None:
+    def remove(self, listener: Callable[P, None]) -> None:
         """Unsubscribe ``listener`` (ValueError when it was not subscribed, as list.remove)."""
         with self._lock:
             self._listeners.remove(listener)
@@ -46,7 +43,7 @@ class FitListeners:
         with self._lock:
             return listener in self._listeners
 
-    def __iter__(self) -> Iterator[FitListener]:
+    def __iter__(self) -> Iterator[Callable[P, None]]:
         with self._lock:
             return iter(list(self._listeners))
 
@@ -54,42 +51,39 @@ class FitListeners:
         with self._lock:
             return len(self._listeners)
 
-    def notify(self, skill: str, version: int, canal: canal_core.Canal | Routes) -> None:
+    def notify(self, *args: P.args, **kwargs: P.kwargs) -> None:
         """Call every listener; one that raises is logged and does not stop the others."""
         for listener in self:
             try:
-                listener(skill, version, canal)
+                listener(*args, **kwargs)
             except Exception:
-                log.exception("fit listener failed")
+                log.exception("%s failed", self._what)
 
 
+#: ``listener(skill, version, model)``: the model is the canal, or :class:`Routes` when it
+#: has several routes.
+FitListener = Callable[[str, int, "canal_core.Canal | Routes"], None]
+#: ``listener(skill, version, scene)``
 SceneListener = Callable[[str, int, "canal_core.obstacles.Scene"], None]
 
 
-class SceneListeners:
+class FitListeners(Listeners[[str, int, "canal_core.Canal | Routes"]]):
+    """Who hears of each committed fit, as ``listener(skill, version, model)`` (the bridge).
+
+    Built by ``create_app`` and handed to both the service (which notifies) and the bridge
+    (which subscribes when it starts and unsubscribes when it stops).
+    """
+
+    def __init__(self, listeners: Sequence[FitListener] = ()) -> None:
+        super().__init__(listeners, what="fit listener")
+
+
+class SceneListeners(Listeners[[str, int, "canal_core.obstacles.Scene"]]):
     """Who hears of each committed scene change, as ``listener(skill, version, scene)``."""
 
-    def __init__(self) -> None:
-        self._listeners: list[SceneListener] = []
-        self._lock = threading.Lock()
-
-    def append(self, listener: SceneListener) -> None:
-        with self._lock:
-            self._listeners.append(listener)
-
-    def remove(self, listener: SceneListener) -> None:
-        with self._lock:
-            self._listeners.remove(listener)
-
-    def notify(self, skill: str, version: int, scene: canal_core.obstacles.Scene) -> None:
-        """Call every listener; one that raises is logged and does not stop the others."""
-        with self._lock:
-            listeners = list(self._listeners)
-        for listener in listeners:
-            try:
-                listener(skill, version, scene)
-            except Exception:
-                log.exception("scene listener failed")
+    def __init__(self, listeners: Sequence[SceneListener] = ()) -> None:
+        super().__init__(listeners, what="scene listener")
 
 
-__all__: Sequence[str] = ["FitListener", "FitListeners", "SceneListener", "SceneListeners"]
+__all__: Sequence[str] = ["FitListener", "FitListeners", "Listeners", "SceneListener",
+                          "SceneListeners"]
