@@ -26,6 +26,9 @@ def test_rrd_export_verifies_and_holds_every_entity(
         assert rows[(f"/demos/{j}/path", "LineStrips3D:strips")] == 1
         assert rows[(f"/demos/{j}/position", "Scalars:scalars")] == len(demos3[j - 1])
         assert rows[(f"/demos/{j}/info", "label")] == 1
+        # named at its start: at the path's mean point every demo's name fell on the others'
+        assert rows[(f"/demos/{j}/start", "Points3D:labels")] == 1
+        assert rows.get((f"/demos/{j}/path", "LineStrips3D:labels"), 0) == 0
     # The removal is a recursive clear of the demo, not a silent omission.
     assert rows[("/demos/1", "Clear:is_recursive")] == 1
     assert rows[("/demos/2", "Clear:is_recursive")] == 0

@@ -3,6 +3,7 @@
 Entities and timelines::
 
     demos/<id>/path         LineStrips3D       wall_time
+    demos/<id>/start        Points3D           wall_time   labelled "demo <id> <label>"
     demos/<id>/info         AnyValues          wall_time   demo_id, label, n_samples
     demos/<id>/position     Scalars            sample (+ demo_time when timestamps were given)
     demos/<id>              Clear(recursive)   wall_time   on removal
@@ -251,8 +252,13 @@ class RerunSegment:
         """Path, per-sample coordinates, id/label (and orientation triads) of a demonstration."""
         base = f"demos/{demo_id}"
         self._at(t_ns)
-        self.rec.log(f"{base}/path", self._strips(
-            [points], colors=[_DEMO_COLOR], labels=[f"demo {demo_id} {label or ''}".strip()]))
+        self.rec.log(f"{base}/path", self._strips([points], colors=[_DEMO_COLOR]))
+        # The name at the demo's start, not on its path: the viewer puts a strip's label at
+        # the mean of its points, and demonstrations of one skill share that mean, so their
+        # names were drawn on top of each other; their starts lie apart.
+        self.rec.log(f"{base}/start", self._points(
+            points[:1], colors=[_DEMO_COLOR], radii=[-3.0],
+            labels=[f"demo {demo_id} {label or ''}".strip()]))
         self.rec.log(f"{base}/info", rr.AnyValues(demo_id=demo_id, label=label or "",
                                                   n_samples=len(points)))
         dim = positions.shape[1]
