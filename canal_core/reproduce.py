@@ -110,6 +110,30 @@ def ratio(norm: FloatArray, reach: FloatArray) -> FloatArray:
     return np.asarray(eta, dtype=np.float64)
 
 
+def section_ratios(
+    points: FloatArray, index: IntArray, centres: FloatArray, basis: FloatArray, sections: CrossSections
+) -> FloatArray:
+    """The ratio eta = |p c_i| / |g_i c_i| of each point in the plane of its section i (Alg. 1
+    line 10), along the point's own in-plane direction.
+
+    Parameters
+    ----------
+    points : array, shape (M, D)
+    index : array of int, shape (M,)
+        The section each point is read in (a point off the plane is read by its projection).
+    centres : array, shape (N, D)
+    basis : array, shape (N, D - 1, D)
+    sections : CrossSections
+
+    Returns
+    -------
+    ratios : array, shape (M,)
+        0 on the directrix, 1 on the wall.
+    """
+    norm, direction = unit_directions(in_plane_offsets(points, index, centres, basis))
+    return ratio(norm, boundary_distance(sections, index, direction))
+
+
 def rounding_scale(centres: FloatArray) -> float:
     """Offsets at or below this (1e-12 of the directrix's reach) are rounding, not geometry."""
     return 1e-12 * (1.0 + float(np.abs(centres).max()))

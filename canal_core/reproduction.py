@@ -28,6 +28,7 @@ from .reproduce import (
     path_ratios,
     ratio_rule_positions,
     reach_along,
+    section_ratios,
     start_and_located_points,
 )
 from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
@@ -95,6 +96,13 @@ class Reproduction:
     approach : int
         Points between the start and the ratio rule's first point, on the straight line
         from a start behind the first plane (0 for any other start).
+    ratios : array, shape (N',), or None
+        How far out each position is, as a share of the canal's reach in its direction: the
+        start's own ratio (above 1 outside the canal), the approach's points read in the
+        first plane, then each point in the plane of its section. Where the path follows the
+        ratio rule this is its schedule (entry, learned persistence, end decay); a detour
+        around an obstacle shows its own. It is what says how much of the start's offset the
+        reproduction keeps, section by section.
     """
 
     positions: FloatArray
@@ -113,6 +121,7 @@ class Reproduction:
     start_clearance: float | None = None
     entry_index: int = 0
     approach: int = 0
+    ratios: FloatArray | None = None
 
     @property
     def section_path(self) -> FloatArray:
@@ -312,4 +321,15 @@ def reproduce(
         start_clearance=start_clearance,
         entry_index=0 if inside else 1 + n_approach + int(np.argmax(np.append(ratios <= 1.0 + CONTAINS_TOLERANCE, True))),
         approach=n_approach,
+        ratios=position_ratios(canal, positions, first, n_approach, eta),
     )
+
+
+def position_ratios(canal: Canal, positions: FloatArray, first: int, n_approach: int, eta: float) -> FloatArray:
+    """:attr:`Reproduction.ratios`: ``eta`` for the start, then each later position's ratio in
+    the plane it belongs to (section 0 for the ``n_approach`` approach points, then
+    ``first``, ``first + 1``, ...), shape (N',)."""
+    m = positions.shape[0] - 1 - n_approach
+    index = np.concatenate([np.zeros(n_approach, dtype=np.intp), first + np.arange(m, dtype=np.intp)])
+    later = section_ratios(positions[1:], index, canal.directrix, canal.basis, canal.sections)
+    return np.concatenate([[eta], later])

@@ -654,6 +654,13 @@ class ReproductionOut(BaseModel):
                           "start), 'nearest' (no entry holds it: the nearest entry), 'shared' "
                           "(several do: the nearest of those), "
                           "'forced' (the request's route).")
+    ratios: list[float] = Field(
+        default_factory=list,
+        description="How far out each position is, as a share of the canal's reach in its "
+                    "direction (0 on the directrix, 1 on the wall): the start's own ratio "
+                    "(above 1 outside the canal), then each position in the plane of its "
+                    "section. It shows how much of the start's offset the reproduction keeps, "
+                    "section by section.")
 
 
 class ReproductionBatchOut(BaseModel):

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from pydantic import (
     BeforeValidator,
     ConfigDict,
+    Field,
     PlainSerializer,
     TypeAdapter,
     WithJsonSchema,
@@ -168,8 +169,9 @@ class Reproduction(ReproductionOut):
     ``times`` (N',) seconds from the start and ``velocities`` (N', D) follow the demonstrations'
     mean speed (None when the model has no time stamps and no duration was asked for);
     ``orientations`` (N', 4) unit quaternions qx, qy, qz, qw per position when the model has
-    orientation (else ``None``); ``goal`` the goal asked for; ``notes`` what the service did
-    that the request did not say (ignored or assumed).
+    orientation (else ``None``); ``goal`` the goal asked for; ``ratios`` (N',) how far out each
+    position is (the start's ratio, then each position's in its section); ``notes`` what the
+    service did that the request did not say (ignored or assumed).
     """
 
     model_config = _ARRAYS
@@ -180,6 +182,7 @@ class Reproduction(ReproductionOut):
     velocities: Rows | None = None  # type: ignore[assignment]
     orientations: Rows | None = None  # type: ignore[assignment]
     goal: Vector | None = None  # type: ignore[assignment]
+    ratios: Vector = Field(default_factory=lambda: np.zeros(0))  # type: ignore[assignment]
 
 
 class ReproductionBatch(ReproductionBatchOut):

@@ -761,7 +761,8 @@ class CanalService:
                                         if getattr(body, k) is not None])
             check_finite_answer({"positions": result.positions, "times": result.times,
                                  "velocities": result.velocities,
-                                 "orientations": result.orientations, "eta": result.eta}, used)
+                                 "orientations": result.orientations, "eta": result.eta,
+                                 "ratios": result.ratios}, used)
             results.append(result)
         self._keep_reproductions(name, ref, results)
         outs = []
@@ -782,6 +783,7 @@ class CanalService:
                 start_clearance=result.start_clearance,
                 notes=notes + _orientation_notes(canal, result, start_orientation),
                 route=choice.route, route_reason=choice.reason, approach=int(result.approach),
+                ratios=_tolist(result.ratios),
             ))
         if body.start is not None:
             return outs[0]

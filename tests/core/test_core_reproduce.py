@@ -56,6 +56,39 @@ def test_eta_is_preserved_along_the_reproduction(kind: str) -> None:
     assert np.abs(axial).max() < 1e-12
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_ratios_say_how_far_out_each_position_is(kind: str) -> None:
+    canal = canal_core.fit(sleeve_demos(), cross_section=kind, n_samples=120)
+    start = canal.directrix[10] + 0.6 * 0.05 * canal.normals[10] + 0.2 * 0.05 * canal.binormals[10]
+    constant = canal.reproduce_detailed(start, end_decay=0.0, persistence="constant")
+    assert constant.ratios is not None and constant.ratios.shape == (len(constant.positions),)
+    np.testing.assert_allclose(constant.ratios, constant.eta, rtol=1e-9)  # the paper's rule
+    # The defaults: the start's ratio, faded by what the demos kept and onto the end.
+    learned = canal.reproduce_detailed(start)
+    assert learned.ratios is not None
+    assert learned.ratios[0] == pytest.approx(learned.eta)
+    assert learned.ratios[-1] == pytest.approx(0.0, abs=1e-9)
+    assert np.all(learned.ratios <= learned.eta + 1e-9)  # inside stays inside
+    # Each value is the position's ratio in its section, as locating it finds it.
+    middle = slice(1, len(learned.positions) // 2)
+    np.testing.assert_allclose(learned.ratios[middle], eta_along(canal, learned.positions[middle]),
+                               rtol=1e-6, atol=1e-9)
+
+
+def test_ratios_of_a_start_outside_show_its_entry() -> None:
+    canal = canal_core.fit(datasets.task_one())
+    result = canal.reproduce_detailed(np.array([0.0, 0.5, 0.0]))
+    assert result.ratios is not None
+    assert result.ratios[0] == pytest.approx(2.5, rel=1e-6)  # the start's own, not the clamp's 1
+    assert np.all(result.ratios[1:result.entry_index] > 1.0)
+    assert np.all(result.ratios[result.entry_index:] <= 1.0 + 1e-6)
+    # behind the first plane: the approach's points are read in the first plane
+    behind = canal.reproduce_detailed(canal.directrix[0] - 0.3 * canal.tangents[0]
+                                      + 0.01 * canal.normals[0])
+    assert behind.approach > 0 and behind.ratios is not None
+    assert behind.ratios.shape == (len(behind.positions),) and np.isfinite(behind.ratios).all()
+
+
 def test_start_is_matched_to_its_nearest_section_not_the_first() -> None:
     canal = canal_core.fit(helix_demos(), n_samples=150)
     start = canal.directrix[90] + 0.02 * canal.normals[90]

@@ -96,6 +96,15 @@ def test_removed_demo_is_deleted_in_the_scene(recorder: Recorder, demos3: list[n
     assert labels == {"demo_id": "1", "label": "take 1", "n_samples": str(len(demos3[0]))}
 
 
+def test_a_reproduction_result_carries_its_ratio_per_position(
+        recorder: Recorder, demos3: list[np.ndarray], canal3: Any) -> None:
+    record_session(recorder, "pour", demos3, canal3, n_live=1)
+    (result,) = mcap_messages(recorder.export_mcap("pour"), "/canal/reproduction_result")
+    expected = canal3.reproduce_detailed(demos3[0][0]).ratios
+    assert result["n_points"] == len(result["ratios"]) == len(expected)
+    np.testing.assert_allclose(result["ratios"], expected, rtol=1e-12)
+
+
 def test_two_d_skill_is_drawn_in_the_z0_plane(tmp_path: Path, canal2: Any) -> None:
     rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, live_max_hz=None)
     demos = [np.c_[np.linspace(0, 1, 30), np.linspace(0, 1, 30) ** 2] for _ in range(3)]

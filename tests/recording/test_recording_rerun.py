@@ -51,6 +51,8 @@ def test_rrd_export_verifies_and_holds_every_entity(
     assert rows[("/reproductions/1/start", "Points3D:positions")] == 1
     assert rows[("/reproductions/1/eta", "Scalars:scalars")] == 1
     assert rows[("/reproductions/1/inside", "Scalars:scalars")] == 1
+    # the latest reproduction's ratio per position, one bar chart for all of them
+    assert rows[("/ratio", "BarChart:values")] == 1
     for entity in ("/live/ur5/pose", "/live/ur5/target"):
         assert rows[(entity, "Points3D:positions")] == logged["live"]
     assert rows[("/live/ur5/progress", "Scalars:scalars")] == logged["live"]

@@ -118,6 +118,11 @@ def test_a_start_behind_the_first_plane_is_answered_with_its_approach(client: Te
     behind, on = r.json()["reproductions"]
     m = behind["approach"]
     assert m >= 5 and on["approach"] == 0
+    # how far out each position is: the start's own ratio first, then one per position
+    for answer in (behind, on):
+        assert len(answer["ratios"]) == len(answer["positions"]), answer["ratios"]
+        assert all(isinstance(x, float) and np.isfinite(x) for x in answer["ratios"])
+    assert on["ratios"][0] == pytest.approx(on["eta"]) and on["ratios"][-1] == pytest.approx(0.0, abs=1e-9)
     positions = np.asarray(behind["positions"])
     assert len(positions) == len(on["positions"]) + m and len(behind["times"]) == len(positions)
     steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)

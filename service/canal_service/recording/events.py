@@ -138,6 +138,7 @@ class ReproductionView:
     number: int = 0  # the skill's n-th reproduction: its own entity in both logs
     orientations: FloatArray | None = None  # (M, 4) unit [qx, qy, qz, qw], when the model has them
     times: FloatArray | None = None  # (M,) seconds from the start, when the model has them
+    ratios: FloatArray | None = None  # (M,) each position's ratio (the start's first)
     #: What the reproduction had that the logs cannot hold in full (left out, and counted)
     incomplete: tuple[str, ...] = ()
 
@@ -176,11 +177,16 @@ def reproduction_view(version: int, result: Any, number: int = 0) -> Reproductio
         times = None
     if times is None and getattr(result, "times", None) is not None:
         incomplete.append("times")
+    ratios = _optional(result, "ratios", None)
+    if ratios is not None and not np.isfinite(ratios).all():
+        ratios = None
+    if ratios is None and getattr(result, "ratios", None) is not None:
+        incomplete.append("ratios")
     return ReproductionView(
         version=int(version), positions=points3d(result.positions), start=points3d(result.start),
         inside=bool(result.inside), eta=float(result.eta),
         section_index=int(result.section_index), projected=bool(result.projected),
-        number=int(number), orientations=orientations, times=times,
+        number=int(number), orientations=orientations, times=times, ratios=ratios,
         incomplete=tuple(incomplete),
     )
 

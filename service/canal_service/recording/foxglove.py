@@ -103,7 +103,8 @@ SCHEMAS: dict[str, dict[str, Any]] = {
         "canal.ReproductionResult", timestamp=_TIME, model_version={"type": "integer"},
         eta={"type": "number"}, inside={"type": "boolean"}, projected={"type": "boolean"},
         section_index={"type": "integer"}, start=_VECTOR3, n_points={"type": "integer"},
-        number={"type": "integer"}, times={"type": ["array", "null"], "items": {"type": "number"}}),
+        number={"type": "integer"}, times={"type": ["array", "null"], "items": {"type": "number"}},
+        ratios={"type": ["array", "null"], "items": {"type": "number"}}),
     "canal.TrackerState": _obj(
         "canal.TrackerState", timestamp=_TIME, robot={"type": "string"},
         progress={"type": "number"}, eta={"type": ["number", "null"]}, section_index={"type": "integer"},

@@ -29,6 +29,8 @@ Entities and timelines::
     reproductions/<n>/point Points3D+Transform3D  reproduction_time (when it has times)
     reproductions/<n>/eta   Scalars            wall_time
     reproductions/<n>/inside Scalars (0/1)     wall_time
+    ratio                   BarChart           wall_time, model_version (the latest reproduction's
+                            ratio per position, the start first)
     scene/obstacles/<i>     Ellipsoids3D | Boxes3D | Capsules3D  wall_time (the skill's scene;
                             scene/obstacles is cleared at each change); scene/info AnyValues
     live/<robot>/pose       Points3D           wall_time
@@ -120,6 +122,8 @@ def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
       and live poses; with ``frame`` (points, (M, 3)) the eye is placed to show all of them.
     - "Radius per section": the latest canal's radius along its section index (a bar chart, so
       it reads the same on every timeline).
+    - "Ratio per point": the latest reproduction's ratio at each of its positions (the start
+      first): how much of the start's offset it keeps along the canal, and where it fades.
     - "Reproductions" and "Live streams": one series per reproduction and per robot along
       ``wall_time``, drawn as points so a single reproduction is visible.
     - The time panel follows ``wall_time`` to its end: the recording opens at its latest state
@@ -129,7 +133,7 @@ def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
     """
     # Entity filters match whole subtrees (``/**``), not ``*`` inside a path; the plots'
     # scalars and the info values under these trees are not drawn by a spatial view.
-    contents = ["+ /**", "- /frames/**", "- /radius/**"]
+    contents = ["+ /**", "- /frames/**", "- /radius/**", "- /ratio/**"]
     if dim == 2:
         spatial: rrb.View = rrb.Spatial2DView(name="Canal", origin="/", contents=contents)
     else:
@@ -146,6 +150,8 @@ def review_blueprint(dim: int = 3, *, frame: FloatArray | None = None,
             rrb.Vertical(
                 rrb.BarChartView(name="Radius per section (latest canal, section index)",
                                  origin="/model"),
+                rrb.BarChartView(name="Ratio per point (latest reproduction, start first)",
+                                 origin="/ratio"),
                 rrb.Tabs(
                     rrb.TimeSeriesView(name="Reproductions: eta, inside",
                                        origin="/reproductions"),
@@ -417,6 +423,12 @@ class RerunSegment:
                      static=True)
         self.rec.log(f"{base}/eta", rr.Scalars(rep.eta))
         self.rec.log(f"{base}/inside", rr.Scalars(float(rep.inside)))
+        if rep.ratios is not None:
+            # One entity for all reproductions: scrubbing shows each one's profile, and the
+            # view is not crowded by the hundreds a skill keeps.
+            self._at(t_ns, rep.version)
+            self.rec.log("ratio", rr.BarChart(rep.ratios, color=rgba,
+                                              abscissa=np.arange(len(rep.ratios))))
         if rep.times is not None:
             index = [rr.TimeColumn("reproduction_time", duration=rep.times - rep.times[0])]
             if self.dim == 2:

@@ -71,6 +71,7 @@ class StoredReproductionView:
     eta: float
     section_index: int
     t_ns: int
+    ratios: arrays.FloatArray | None = None  # (M,)
 
 
 def _reproduction(row: StoredReproduction) -> StoredReproductionView:
@@ -81,7 +82,8 @@ def _reproduction(row: StoredReproduction) -> StoredReproductionView:
         times=None if row.times is None else arrays.unpack(row.times, n),
         orientations=None if row.orientations is None else arrays.unpack(row.orientations, n, 4),
         inside=bool(row.inside), projected=bool(row.projected), eta=float(row.eta),
-        section_index=int(row.section_index), t_ns=_t_ns(row.created_at))
+        section_index=int(row.section_index), t_ns=_t_ns(row.created_at),
+        ratios=None if row.ratios is None else arrays.unpack(row.ratios, n))
 
 
 def _t_ns(created_at: Any) -> int:

@@ -120,6 +120,9 @@ class StoredReproduction(Base):
     projected: Mapped[bool] = mapped_column(Boolean, nullable=False)
     eta: Mapped[float] = mapped_column(Float, nullable=False)
     section_index: Mapped[int] = mapped_column(Integer, nullable=False)
+    #: (n_points,) float64: each position's ratio (``canal_core.Reproduction.ratios``); null
+    #: for a reproduction kept before they were stored
+    ratios: Mapped[bytes | None] = mapped_column(LargeBinary, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 

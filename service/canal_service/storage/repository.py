@@ -473,14 +473,14 @@ _R = StoredReproduction
 # was computed for (its id *and* creation time); no row back means it is gone.
 _INSERT_REPRODUCTION = insert(_R).from_select(
     ["skill_id", "number", "model_version", "n_points", "dim", "positions", "start", "times",
-     "orientations", "inside", "projected", "eta", "section_index", "created_at"],
+     "orientations", "inside", "projected", "eta", "section_index", "ratios", "created_at"],
     select(
         Skill.id,
         select(func.coalesce(func.max(_R.number), 0) + 1).where(_R.skill_id == Skill.id)
         .scalar_subquery(),
         *(bindparam(name, type_=_R.__table__.c[name].type) for name in (
             "model_version", "n_points", "dim", "positions", "start", "times", "orientations",
-            "inside", "projected", "eta", "section_index", "created_at")),
+            "inside", "projected", "eta", "section_index", "ratios", "created_at")),
     ).where(Skill.id == bindparam("skill_id"),
             Skill.created_at == bindparam("skill_created_at", type_=Skill.created_at.type)),
 ).returning(_R.number)
@@ -509,6 +509,7 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
         positions = np.asarray(result.positions, dtype=np.float64)
         times = getattr(result, "times", None)
         quats = getattr(result, "orientations", None)
+        ratios = getattr(result, "ratios", None)
         rows.append({
             "skill_id": skill_id, "skill_created_at": skill_created_at,
             "model_version": int(version),
@@ -520,6 +521,7 @@ def insert_reproductions(db: Database, skill_id: int, skill_created_at: datetime
                 np.asarray(quats, dtype=np.float64)),
             "inside": bool(result.inside), "projected": bool(result.projected),
             "eta": float(result.eta), "section_index": int(result.section_index),
+            "ratios": None if ratios is None else arrays.pack(np.asarray(ratios, np.float64)),
             "created_at": now,
         })
     step = max(1, min(32, keep // 2))
