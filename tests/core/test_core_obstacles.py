@@ -171,6 +171,13 @@ def test_a_sphere_on_the_path_is_passed_inside_the_canal_with_its_clearance(tube
     np.testing.assert_allclose(rep.positions[1:][far], plain.positions[1:][far])
     np.testing.assert_allclose(rep.positions[-1], plain.positions[-1])
     assert rep.start_clearance is not None and rep.start_clearance > 0.0
+    # Its ratios are those of the path it took: the ratio rule's away from the obstacle, the
+    # detour's own beside it (where it swerved, it is not where the rule put it).
+    assert rep.ratios is not None and plain.ratios is not None
+    np.testing.assert_allclose(rep.ratios[1:][far], plain.ratios[1:][far], atol=1e-9)
+    swerved = np.flatnonzero(rep.detoured)
+    assert np.abs(rep.ratios[1:][swerved] - plain.ratios[1:][swerved]).max() > 0.05
+    assert np.all(rep.ratios[1:] <= 1.0 + 1e-6)  # inside the canal all the way
 
 
 def test_boxes_and_capsules_are_passed_too(tube: canal_core.Canal) -> None:
@@ -198,6 +205,7 @@ def test_a_section_closed_by_an_obstacle_blocks_the_reproduction_before_it(tube:
     assert rep.positions[:, 0].max() < 1.95
     assert _dense_free(rep.positions[:-1], rep.positions[1:], scene).min() >= 0.0
     assert rep.positions.shape[0] == rep.blocked.section - rep.section_index
+    assert rep.ratios is not None and rep.ratios.shape == (rep.positions.shape[0],)
     assert rep.times is None or rep.times.shape[0] == rep.positions.shape[0]
 
 
