@@ -209,6 +209,11 @@ def reproduce(
     out.print(f"reproduced {len(r.positions)} points with model version {r.model_version}"
               f"{lasts}; start {state} (eta {r.eta:.3f}, section {r.section_index}); "
               f"ends at ({end})")
+    if len(r.ratios):
+        marks = np.linspace(0, len(r.ratios) - 1, 5).round().astype(int)
+        out.print("how far out, as a share of the canal's reach (0 the directrix, 1 the wall): "
+                  + ", ".join(f"{name} {r.ratios[i]:.2f}" for name, i in zip(
+                      ("start", "a quarter", "half-way", "three quarters", "end"), marks, strict=True)))
     if r.approach:
         out.print(f"the start lies behind the canal's first plane: {r.approach} points approach "
                   "its first section in a straight line, paced like the demonstrations' first steps")
