@@ -59,6 +59,8 @@ from .validation import (
 log = logging.getLogger("canal_service")
 
 _VERSION_RETRIES = 5
+#: Which model: (its skill's creation time in ns, its version).
+Revision = tuple[int, int]
 #: Which replica answered (host and process), as exports name it.
 REPLICA = f"{socket.gethostname()}:{os.getpid()}"
 
@@ -522,10 +524,18 @@ class CanalService:
             self.cache.put(key, routes)
         return routes, row, ref
 
-    def latest_version(self, name: str) -> int:
-        """The skill's latest model version, from one query (no canal read or decoded).
-        Raises :class:`SkillNotFound` or :class:`NoModelYet`."""
-        return repo.model_ref_by_name(self.db, name, None).version
+    def latest_revision(self, name: str) -> Revision:
+        """(the skill's creation time in ns, its latest model version), from one query (no
+        canal read or decoded). The creation time tells a skill deleted and created again
+        under its name, whose versions start again at 1, from the one before. Raises
+        :class:`SkillNotFound` or :class:`NoModelYet`."""
+        ref = repo.model_ref_by_name(self.db, name, None)
+        return repo.created_ns(ref.skill_created_at), ref.version
+
+    def latest_model(self, name: str) -> tuple[Routes, Revision, int]:
+        """(routes, revision as :meth:`latest_revision` says it, dim) of the latest model."""
+        routes, _row, ref = self._load_routes(name, None)
+        return routes, (repo.created_ns(ref.skill_created_at), ref.version), ref.dim
 
     def skills_by_latest_fit(self, limit: int) -> list[tuple[str, int]]:
         """(skill, latest version) of at most ``limit`` skills with a model, most recently

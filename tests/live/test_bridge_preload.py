@@ -158,7 +158,7 @@ def test_skills_are_listed_most_recently_fitted_first(database_url, service):
     assert service.skills_by_latest_fit(10) == [(s, 1) for s in reversed(FITTED)]
     assert service.skills_by_latest_fit(2) == [("p4", 1), ("p3", 1)]
     assert service.skills_by_latest_fit(0) == []
-    assert service.latest_version("p2") == 1
+    assert service.latest_revision("p2")[1] == 1
 
 
 # ---- at start ---------------------------------------------------------------------------------
@@ -356,13 +356,13 @@ def test_a_first_pose_beyond_the_preload_waits_for_the_loader_not_the_worker(
     bridge = start_bridge(preload_max=0)
     assert bridge.preloaded.wait(20)
     loaded_on: list[str] = []
-    real = service.load_routes
+    real = service.latest_model
 
     def spy(*args: Any, **kwargs: Any) -> Any:
         loaded_on.append(threading.current_thread().name)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(service, "load_routes", spy)
+    monkeypatch.setattr(service, "latest_model", spy)
     first, second = Robot(bridge, "p2", "arm1"), Robot(bridge, "p3", "arm2")
     try:
         assert first.ask(0, starts["p2"]).status == "ok"

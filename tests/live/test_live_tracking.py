@@ -250,3 +250,43 @@ def test_recorder_hears_live_steps(live):
     health = live.client.get("/healthz").json()
     assert health["recorder"]["status"] == "ok"
     assert health["bridge"]["status"] == "ok" and health["bridge"]["streams"] >= 1
+
+
+def shifted_demos(dy: float, dim: int = 3) -> list[list[list[float]]]:
+    x = np.linspace(0.0, 1.0, 100)
+    out = []
+    for j in range(5):
+        columns = [x, 0.02 * np.sin(3 * x + j) + dy, 0.02 * np.cos(2 * x + j)][:dim]
+        out.append(np.column_stack(columns).tolist())
+    return out
+
+
+def make_shifted(live, name: str, dy: float, dim: int = 3) -> None:
+    assert live.client.post("/skills", json={"name": name, "dim": dim}).status_code == 201
+    for demo in shifted_demos(dy, dim):
+        r = live.client.post(f"/skills/{name}/demonstrations", json={"positions": demo})
+        assert r.status_code == 201, r.text
+    assert live.client.post(f"/skills/{name}/fit", json={"routes": 1}).status_code == 201
+
+
+def test_a_skill_created_again_under_its_name_is_served_its_own_canal(live):
+    # Deleted and created again, a skill's versions start at 1 again; the bridge took the new
+    # fit's notice for a version it already served and kept answering with the deleted
+    # skill's canal (1 m away here), to every robot, until the process restarted.
+    make_shifted(live, "recr", 0.0)
+    with (PoseStreamer("recr", "arm", endpoint=live.endpoint) as running,
+          PoseStreamer("recr", "fresh", endpoint=live.endpoint) as fresh):
+        old = running.wait_for(running.send([0.5, 0.0, 0.0], restart=True), timeout=5.0)
+        assert old is not None and old.status == "ok", old
+        assert live.client.delete("/skills/recr").status_code == 204
+        make_shifted(live, "recr", 1.0)
+        for robot in (running, fresh):
+            got = robot.wait_for(robot.send([0.5, 1.0, 0.0]), timeout=5.0)
+            assert got is not None and got.status == "ok", got
+            assert got.model_version == 1 and abs(got.target[1] - 1.0) < 0.05, got
+    # and created again with another dimension: its poses are the new skill's
+    assert live.client.delete("/skills/recr").status_code == 204
+    make_shifted(live, "recr", 1.0, dim=2)
+    with PoseStreamer("recr", "flat", endpoint=live.endpoint) as ps:
+        got = ps.wait_for(ps.send([0.5, 1.0]), timeout=5.0)
+        assert got is not None and got.status == "ok" and abs(got.target[1] - 1.0) < 0.05, got

@@ -29,7 +29,7 @@ def test_skills_by_latest_fit_orders_by_the_newest_model(any_db_client: TestClie
     assert service.skills_by_latest_fit(2) == [("a", 2), ("c", 1)]
     assert any_db_client.delete("/skills/a").status_code == 204
     assert service.skills_by_latest_fit(10) == [("c", 1), ("b", 1)]
-    assert service.latest_version("b") == 1
+    assert service.latest_revision("b")[1] == 1
 
 
 def test_json_columns_read_back_what_the_stdlib_wrote(any_db_settings) -> None:

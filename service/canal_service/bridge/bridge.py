@@ -126,7 +126,8 @@ class Bridge:
         self._updates: Any = None
         self._scenes: Any = None
         self._steers: Any = None
-        self._published: dict[str, int] = {}
+        #: skill -> the revision last announced or heard of (ModelEntry.revision)
+        self._published: dict[str, tuple[int, int]] = {}
         self._metrics = m
         self._m_streams = m.live_streams
         self._m_step = m.live_step_seconds
@@ -340,7 +341,7 @@ class Bridge:
         """The stream's model entry when it has several routes and the stream's route was
         chosen in it (``st.route`` is then current), else None."""
         entry = self.models.models.get(st.skill)
-        if entry is None or entry.routes is None or st.route_version != entry.version:
+        if entry is None or entry.routes is None or st.route_serial != entry.serial:
             return None
         return entry
 
@@ -440,9 +441,13 @@ class Bridge:
         robots) and, when told, tell the other bridges on ``{prefix}/{skill}/model/updated``."""
         if not keyspace.is_plain_chunk(skill):
             return
-        self.models.updated(skill, canal, version)
-        if announce and self.session is not None and self._published.get(skill, -1) < version:
-            self._published[skill] = version
+        revision = self.models.updated(skill, canal, version)
+        if revision is None:
+            return
+        if not announce:  # heard from another bridge: already announced
+            self._published[skill] = revision
+        elif self.session is not None and self._published.get(skill) != revision:
+            self._published[skill] = revision
             try:
                 self.session.put(keyspace.model_updated_key(skill, self.prefix),
                                  orjson.dumps({"version": version}), encoding=ENC_JSON)
@@ -512,7 +517,6 @@ class Bridge:
                     continue
                 version = body.get("version")
                 if isinstance(version, int):
-                    self._published[skill] = max(self._published.get(skill, -1), version)
                     self.model_updated(skill, version, announce=False)
             except Exception:
                 log.exception("model update notice failed")

@@ -23,11 +23,12 @@ tracker bank; the step puts each stream in one of them at its first pose
 from __future__ import annotations
 
 import collections
+import itertools
 import logging
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from canal_core.errors import InvalidInputError
@@ -42,6 +43,9 @@ from ..service import CanalService
 from .config import BridgeOptions
 
 log = logging.getLogger("canal_service.bridge")
+
+_SERIALS = itertools.count(1)
+
 
 @dataclass(eq=False)
 class ModelEntry:
@@ -67,19 +71,39 @@ class ModelEntry:
     #: what a JSON answer says of the route: wire.NO_ROUTE for a model of one route, else the
     #: route this entry tracks (None: the canal of all the demonstrations)
     route: int | None = wire.NO_ROUTE
+    #: the skill's creation time (ns): with ``version``, which model this is. A skill
+    #: deleted and created again under its name starts its versions at 1 again.
+    created_ns: int = -1
+    #: this entry among every entry the process built: a stream whose serial is not its
+    #: skill's entry's any more is in another model now
+    serial: int = field(default_factory=lambda: next(_SERIALS))
+
+    @property
+    def revision(self) -> tuple[int, int]:
+        """(``created_ns``, ``version``)."""
+        return self.created_ns, self.version
+
+    def succeeds(self, old: ModelEntry) -> bool:
+        """Whether this model replaces ``old``: a later version of the same skill, or any
+        version of a skill created again (whose versions start again at 1)."""
+        return self.created_ns != old.created_ns or self.version > old.version
 
 
-def ok_entry(version: int, canal: Any, lookahead: int = 2) -> ModelEntry:
+def ok_entry(version: int, canal: Any, lookahead: int = 2, created_ns: int = -1) -> ModelEntry:
     """A served model: its canal, the tracker geometry every stream of it shares, and the
     bank that holds those streams' tracker states as arrays. ``canal`` may be
     :class:`canal_core.Routes`: with several routes, the entry of the canal of all holds one
     entry per route."""
     model = served_model(canal) if isinstance(canal, Routes) else canal
     if not isinstance(model, Routes):
-        return _plain_entry(version, model, lookahead)
-    entry = _plain_entry(version, model.pooled, lookahead)
-    entry.route, entry.chooser = None, model
-    entry.routes = tuple(_plain_entry(version, c, lookahead, k) for k, c in enumerate(model.canals))
+        entry = _plain_entry(version, model, lookahead)
+    else:
+        entry = _plain_entry(version, model.pooled, lookahead)
+        entry.route, entry.chooser = None, model
+        entry.routes = tuple(_plain_entry(version, c, lookahead, k)
+                             for k, c in enumerate(model.canals))
+    for each in (entry, *(entry.routes or ())):
+        each.created_ns = int(created_ns)
     return entry
 
 
@@ -119,19 +143,19 @@ class ModelTable:
         geometry rebuilt)."""
         if current is not None and current.status == "ok":
             try:
-                if self.service.latest_version(skill) == current.version:
+                if self.service.latest_revision(skill) == current.revision:
                     return current
             except (SkillNotFound, NoModelYet):
                 pass  # deleted meanwhile: the full read below says which entry it gets
         try:
-            canal, version, _dim = self.service.load_routes(skill, None)
+            canal, revision, _dim = self.service.latest_model(skill)
         except SkillNotFound as exc:
             return ModelEntry("unknown_skill", message=exc.message)
         except NoModelYet as exc:
             return ModelEntry("no_model", dim=exc.dim, message=exc.message)
-        if current is not None and current.status == "ok" and current.version == version:
+        if current is not None and current.status == "ok" and current.revision == revision:
             return current
-        return ok_entry(version, canal, self.options.lookahead)
+        return ok_entry(revision[1], canal, self.options.lookahead, created_ns=revision[0])
 
     def install(self, skill: str, entry: ModelEntry, used: float | None = None) -> bool:
         """Replace the skill's entry unless it would go back to an older version (False
@@ -151,10 +175,14 @@ class ModelTable:
         with self._install_lock:
             old = self.models.get(skill)
             if (old is not None and old.status == "ok" and entry.status == "ok"
-                    and entry.version <= old.version):
+                    and not entry.succeeds(old)):
                 return False
             entry.used = time.monotonic() if used is None else used
             self.models[skill] = entry  # built completely before: one atomic assignment
+        if old is not None and old.created_ns != entry.created_ns:
+            with self._scene_lock:
+                # Another skill under the name: the scene known is the deleted one's.
+                self.scenes.pop(skill, None)
         if entry.status == "ok":
             self._apply_scene(skill, entry)
         return True
@@ -231,20 +259,31 @@ class ModelTable:
         self.install(skill, entry)
         return entry
 
-    def updated(self, skill: str, canal: Any, version: int) -> None:
+    def updated(self, skill: str, canal: Any, version: int) -> tuple[int, int] | None:
         """A fit landed: the skill's new model is built and installed now, on the calling
         thread (from ``canal`` when given, else read), so its next pose, or its first, finds
-        it ready. With ``preload_max`` 0 only a skill in use is reloaded."""
+        it ready. With ``preload_max`` 0 only a skill in use is reloaded. Answers the skill's
+        latest revision (None: it has no model, or is gone)."""
         self.unknown.pop(skill, None)
+        # A notice names a version only: the skill under that name may have been deleted and
+        # created again since the entry was built, its versions counting from 1 again. One
+        # query says which model is the latest (fits are rare; poses never wait on it).
+        try:
+            revision: tuple[int, int] | None = self.service.latest_revision(skill)
+        except (SkillNotFound, NoModelYet):
+            revision = None  # gone meanwhile: the load below says which entry it gets
         old = self.models.get(skill)
-        if old is not None and old.status == "ok" and old.version >= version:
-            return  # already served: install() would keep it anyway
         if old is None and self.options.preload_max <= 0:
-            return  # not in use and not preloading: its first pose loads it
-        entry = (ok_entry(version, canal, self.options.lookahead) if canal is not None
-                 else self.load(skill, old))
+            return revision  # not in use and not preloading: its first pose loads it
+        if old is not None and old.status == "ok" and old.revision == revision:
+            return revision  # already served
+        if canal is not None and revision is not None and revision[1] == version:
+            entry = ok_entry(version, canal, self.options.lookahead, created_ns=revision[0])
+        else:
+            entry = self.load(skill, old)
         if entry is not old:
             self.install(skill, entry)
+        return revision
 
     def preload(self, stop: threading.Event | None = None) -> list[str]:
         """Load the models of the ``preload_max`` most recently fitted skills, newest first
@@ -254,14 +293,12 @@ class ModelTable:
             return []
         started = time.monotonic()
         installed = []
-        for rank, (skill, version) in enumerate(self.service.skills_by_latest_fit(limit)):
+        for rank, (skill, _version) in enumerate(self.service.skills_by_latest_fit(limit)):
             if stop is not None and stop.is_set():
                 break
             if not keyspace.is_plain_chunk(skill):
                 continue  # no pose key can name it
             old = self.models.get(skill)
-            if old is not None and old.status == "ok" and old.version >= version:
-                continue
             try:
                 entry = self.load(skill, old)
             except Exception:

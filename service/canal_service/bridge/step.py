@@ -84,7 +84,7 @@ class Stepper(Answers):
                 if group is None:
                     group = by_model[id(tracked)] = (tracked, [], [], [])
                 _, group_jobs, slots, positions = group
-            if st.bank is not tracked.bank or st.version != tracked.version or pose.restart:
+            if st.bank is not tracked.bank or st.revision != tracked.revision or pose.restart:
                 self._seed(st, tracked, position, pose.restart)
             if st.steer is not None:
                 self._steer(st, tracked)
@@ -109,13 +109,13 @@ class Stepper(Answers):
     def _route_of(st: Stream, entry: ModelEntry, position: tuple[float, ...],
                   restart: bool) -> ModelEntry:
         """The entry (a route's, or the canal of all's) a stream of a model of several
-        routes is stepped in: chosen at its first pose, a restart, or a new version whose
-        routes do not include the one it had."""
+        routes is stepped in: chosen at its first pose, a restart, a new version whose
+        routes do not include the one it had, or a skill created again under the name."""
         routes = entry.routes
         assert routes is not None
-        if st.route_version != entry.version or restart:
-            if (not restart and st.route_version >= 0 and st.route is not None
-                    and st.route < len(routes)):
+        if st.route_serial != entry.serial or restart:
+            if (not restart and st.route_serial >= 0 and st.route is not None
+                    and st.route < len(routes) and st.revision[0] == entry.created_ns):
                 st.route_reason = "kept"
             else:
                 try:
@@ -123,7 +123,7 @@ class Stepper(Answers):
                     st.route, st.route_reason = choice.route, choice.reason
                 except Exception:  # a pose no route can place: the canal of all
                     st.route, st.route_reason = None, "shared"
-            st.route_version = entry.version
+            st.route_serial = entry.serial
         return entry if st.route is None else routes[st.route]
 
     def _seed(self, st: Stream, entry: ModelEntry, position: tuple[float, ...],
@@ -133,9 +133,11 @@ class Stepper(Answers):
         the section it had reached, with its plan, so a stream in flight is not re-located."""
         carried: tuple[int, float, Any, int] | None = None
         old = st.bank
-        if old is not None and st.version != entry.version:
+        if old is not None and st.revision != entry.revision:
             self.counts.switches += 1
-            if not restart:
+            # A skill created again under the name is another skill: its stream is placed
+            # afresh, as a new one.
+            if not restart and st.revision[0] == entry.created_ns:
                 carried = (int(old.index[st.slot]), float(old.eta[st.slot]),
                            old.direction[st.slot].copy(), old.geometry.centres.shape[0])
         bank = entry.bank
@@ -143,7 +145,7 @@ class Stepper(Answers):
         if st.bank is not bank:
             release_slot(st)
             st.bank, st.slot = bank, bank.add()
-        st.version = entry.version
+        st.revision = entry.revision
         if carried is not None:
             index, eta, direction, n_old = carried
             n = bank.geometry.centres.shape[0]

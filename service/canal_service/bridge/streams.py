@@ -49,12 +49,14 @@ class Stream:
     publisher: Any
     bank: TrackerBank | None = None  # the bank of the model version it is tracked with
     slot: int = -1  # its row in that bank
-    version: int = -1
+    #: the model it is tracked with (ModelEntry.revision)
+    revision: tuple[int, int] = (-1, -1)
     #: a model of several routes: the route it follows (None: the canal of all), why
-    #: (canal_core.routes.RouteChoice.reason) and the model version it was chosen in
+    #: (canal_core.routes.RouteChoice.reason) and the model entry it was chosen in
+    #: (ModelEntry.serial)
     route: int | None = None
     route_reason: str = ""
-    route_version: int = -1
+    route_serial: int = -1
     last_seen: float = 0.0
     last_seq: int = -1
     coalesced: int = 0
