@@ -18,7 +18,13 @@ tighter than the canal is wide, a target's ratio (not the plan's) is capped by t
 condition (F1 of :mod:`canal_core.tube`), so that targets never fall behind the ones before.
 
 Progress never goes back: the window starts one section behind the last index reached, so
-a curve that comes back close to itself cannot pull the robot to an earlier section. If the
+a curve that comes back close to itself cannot pull the robot to an earlier section, and the
+target is aimed from the section reached, never from one behind it. Where the canal turns
+tighter than it is wide (or widens fast as it turns), neighbouring planes cross inside it: a
+position can lie in front of a plane and behind the one before it. A robot on or in front
+of a plane up to ``lookahead`` past the section it is located at has passed it, so a robot
+that reached its target is placed at the target's section; otherwise it would stand still on
+its target for good. If the
 robot is not found in the window (it was pushed far ahead), the sections ahead are searched
 once, vectorised, and the bracketing pair whose centre is nearest the robot is taken (the
 first plane crossed could be a later turn of a helix). "Done" is only reported at the last
@@ -200,6 +206,27 @@ def _first_crossing(dist: FloatArray) -> int:
     return first if change.size and change[first] else -1
 
 
+def _passed_planes(dist: FloatArray, hit: int, reached: int, lookahead: int, tolerance: float) -> int:
+    """The window's first crossing ``hit``, or the furthest plane up to ``lookahead`` past
+    ``hit`` or past the section ``reached`` (all window positions) that the position is on or
+    in front of (up to ``tolerance``).
+
+    Where the canal turns tighter than it is wide, or widens fast as it turns, neighbouring
+    planes cross inside it, and a robot on its target (``lookahead`` planes ahead) can still
+    lie behind a plane in between: the first crossing then stays where it was, the target
+    with it, and the robot stood still on its target for good (or went back and forth
+    between two targets, the further one behind the nearer one's plane). A robot on or in
+    front of a plane has passed it. The tolerance is the one "done" allows: a robot
+    converging on its target approaches that plane geometrically and would otherwise be on
+    it only by rounding.
+    """
+    last = min(max(hit, reached) + max(lookahead, 1), dist.shape[0] - 1)
+    for ahead in range(last, hit, -1):
+        if dist[ahead] >= -tolerance:
+            return ahead
+    return hit
+
+
 def tracker_step(
     geometry: TrackerGeometry,
     state: TrackerState,
@@ -245,13 +272,13 @@ def tracker_step(
     dist = g.tangents[lo : hi + 1] @ position - g.offsets[lo : hi + 1]
     hit = _first_crossing(dist)
     if hit >= 0:
-        index = lo + hit
+        index = lo + _passed_planes(dist, hit, last_index - lo, lookahead, g.done_tolerance)
     elif dist[-1] > 0.0 and hi < n - 1:  # pushed ahead of the window: search forward once
         index = _nearest_crossing_ahead(g, hi, position)
     elif dist[-1] > 0.0:  # past the last plane
         index = n - 2
-    else:  # behind the window: hold the last section, never go back
-        index = lo
+    else:  # behind the window: hold the last section, never go back (unless a plane is passed)
+        index = lo + _passed_planes(dist, 0, last_index - lo, lookahead, g.done_tolerance)
     index = max(min(index, n - 2), 0)
     upper = min(index + 1, n - 1)
     d0 = float(g.tangents[index] @ position - g.offsets[index])
@@ -262,7 +289,10 @@ def tracker_step(
     q = (1.0 - alpha) * pair_q[0] + alpha * pair_q[-1]
     norm = math.sqrt(float(q @ q))
     direction = q / norm if norm > 0.0 else DEFAULT_DIRECTIONS[q.shape[0]]
-    target_index = min(index + max(lookahead, 1), n - 1)
+    # Aimed from the section reached, not from a pose located one behind it (the window
+    # starts there): a target never goes back, or a robot on a canal whose planes cross
+    # inside it could go back and forth for good between a target and the one before it.
+    target_index = min(max(index, last_index) + max(lookahead, 1), n - 1)
     if g.sections.spec.isotropic:
         # The default kind: the boundary distance does not depend on the direction.
         radius = g.sections.params["radius"]

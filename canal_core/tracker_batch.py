@@ -295,12 +295,28 @@ def batched_tracker_step(
         change = t.open_pairs[last_index]
         change[:, :-1] &= crossing
         first = change.argmax(axis=1)
-        index = t.lo[last_index] + first
+        lo = t.lo[last_index]
+        index = lo + first
+        placed = first <= WINDOW
         # membership tests on short lists cost a tenth of an ndarray.any()
         if WINDOW + 1 in first.tolist():
             lost = np.flatnonzero(first > WINDOW)
             from_index = last_index[lost]
             index[lost] = _unplaced_sections(g, p[lost], t.lo[from_index], t.hi[from_index])
+            first = np.where(placed, first, 0)
+            placed |= index == lo  # behind the window: held at its first section
+        # as tracker._passed_planes: the furthest plane up to lookahead past the first
+        # crossing or the section reached that the position is on or in front of
+        furthest = np.minimum(np.maximum(first, last_index - lo) + max(lookahead, 1),
+                              t.hi[last_index] - lo)
+        rows = np.arange(b)
+        for ahead in range(1, max(lookahead, 1) + 2):  # the reached section is 0 or 1 past lo
+            column = first + ahead
+            passed = placed & (column <= furthest)
+            passed &= dist[rows, np.minimum(column, WINDOW + 1)] >= -g.done_tolerance
+            if passed.any():
+                index[passed] = lo[passed] + column[passed]
+        np.minimum(index, n - 2, out=index)  # the last plane passed is the last pair's
         # the located pair: [d0, d1, q0, r0, q1, r1] from one product
         v = (t.pair[index] @ ph)[:, :, 0]
         d0 = v[:, 0]
@@ -363,7 +379,8 @@ def batched_tracker_step(
                 p if pending is None else pending,
                 np.zeros(b, dtype=np.intp) if strikes is None else strikes, p, reach, n,
                 g.tangents)
-        target_index = index + max(int(lookahead), 1)
+        # aimed from the section reached (as tracker_step)
+        target_index = np.maximum(index, last_index) + max(int(lookahead), 1)
         np.minimum(target_index, n - 1, out=target_index)
         target = _planned_points(t, target_index, plan_eta, plan_dir)
         progress = index + alpha

@@ -142,6 +142,17 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
             at = n - 2
         else:  # behind the window: hold, never go back
             at = lo
+            found = lo
+        if found >= 0:
+            # as tracker._passed_planes: the furthest plane up to lookahead past the first
+            # crossing or the section reached that the position is on or in front of
+            for s in range(min(max(found, last) + max(lookahead, 1), hi), found, -1):
+                dot = 0.0
+                for j in range(d):
+                    dot += tangents[s, j] * p[r, j]
+                if dot - offsets[s] >= -done_tolerance:
+                    at = s
+                    break
         at = max(min(at, n - 2), 0)
         d0 = 0.0
         d1 = 0.0
@@ -220,7 +231,7 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
         inside = live_eta <= 1.0 + 1e-9 and not (at == 0 and d0 < 0.0) \
             and not (at == n - 2 and d1 > done_tolerance) and not held
         done = at >= n - 2 and d1 >= -done_tolerance and not held
-        aim = min(at + lookahead, n - 1)
+        aim = min(max(at, last) + lookahead, n - 1)  # from the section reached (as tracker_step)
         # the tube condition (F1) on the target's section and the next (the feed-forward's):
         # their ratios are capped, not the plan's
         after = min(aim + 1, n - 1)
