@@ -146,3 +146,25 @@ def test_a_restart_reconciles_the_recording_with_the_database(tmp_path: Path) ->
     assert shown == {f"demo/{ids[1]}", f"demo/{ids[2]}", f"demo/{late}"}
     models = list(make_reader(io.BytesIO(mcap)).iter_messages(topics=["/canal/model_info"]))
     assert len(models) == 1
+
+
+def test_no_snapshot_is_left_behind_whatever_the_answer(tmp_path: Path) -> None:
+    # A range past the end is a 416: Starlette answers it without running the response's
+    # background task, so each such request used to leave its snapshot in .exports.
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=True, zenoh_enabled=False)
+    exports = settings.resolved_recordings_dir / ".exports"
+    with TestClient(create_app(settings)) as c:
+        c.post("/skills", json={"name": "pour", "dim": 3})
+        for j in range(3):
+            c.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+        assert c.post("/skills/pour/fit", json={"n_samples": 30}).status_code == 201
+        for url in ("/skills/pour/recording.rrd", "/skills/pour/recording.mcap",
+                    "/skills/pour/recording.mcap?profile=ros2"):
+            far = c.get(url, headers={"range": "bytes=999999999-"})
+            assert far.status_code == 416, (url, far.status_code)
+            assert far.headers["content-range"].startswith("bytes */")
+            assert c.head(url, headers={"range": "bytes=999999999-"}).status_code == 416
+            assert c.head(url).status_code == 200
+            assert c.get(url, headers={"range": "bytes=0-3"}).status_code == 206
+            assert c.get(url).status_code == 200
+            assert sorted(p.name for p in exports.iterdir()) == [], url

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any, Literal
 
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
-from starlette.background import BackgroundTask
 from starlette.types import Receive, Scope, Send
 
 from canal_protocol.options import RecordingKind
@@ -42,23 +42,30 @@ def _answerable(value: str) -> bool:
 class _Download(FileResponse):
     """A snapshot file, with a Range header it cannot answer ignored (RFC 9110, 14.2 lets a
     server do so) instead of Starlette's plain-text 400: a download tool that sent one gets
-    the whole file, as from a server without ranges."""
+    the whole file, as from a server without ranges. The snapshot is deleted once answered,
+    whatever the answer."""
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         headers = scope.get("headers", [])
         asked = next((v for k, v in headers if k == b"range"), None)
         if asked is not None and not _answerable(asked.decode("latin-1")):
             scope = {**scope, "headers": [(k, v) for k, v in headers if k != b"range"]}
-        await super().__call__(scope, receive, send)
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            # Not a background task: Starlette runs those only after a complete send, not
+            # after its own 416 for a range past the end, nor when sending fails or is
+            # cancelled, and every snapshot left behind stays on disk until a restart. Done
+            # here without awaiting, so a cancelled request cannot skip it either.
+            Path(self.path).unlink(missing_ok=True)
 
 
 async def _export(service: CanalService, name: str, kind: RecordingKind,
                   profile: Literal["foxglove", "ros2"] = "foxglove") -> FileResponse:
+    # The snapshot is ours to delete once answered (Recorder contract): _Download does.
     path = await run_in_threadpool(service.export_recording, name, kind, profile)
-    # The snapshot is ours to delete once sent (Recorder contract).
     return _Download(path, media_type=_MEDIA[kind], filename=f"{name}.{kind}",
-                        headers=service.recording_provenance(),
-                        background=BackgroundTask(path.unlink, missing_ok=True))
+                     headers=service.recording_provenance())
 
 
 @router.get("/recording.rrd", response_class=FileResponse, responses={
