@@ -193,3 +193,32 @@ def test_the_writer_logs_stored_demos_in_bounded_batches(tmp_path: Path) -> None
     assert sorted(logged) == sorted(2 * [f"demo/{i}" for i in ids])
     assert rec.health()["writer_cpu_s"] > before
     db.dispose()
+
+
+def test_an_export_the_writer_did_not_answer_in_time_degrades_health_until_it_catches_up(
+        tmp_path: Path, demos3: list[np.ndarray]) -> None:
+    # export_timeout_s=0: the export never waits, as after a burst the writer is still behind.
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.1, export_timeout_s=0)
+    try:
+        rec.demo_added("pour", 3, 1, demos3[0], None, None)
+        rec.export_mcap("pour")
+        health = rec.health()
+        assert health["status"] == "degraded" and health["detail"].startswith("export: ")
+        # An export that gets the writer's answer: the writer is no longer behind.
+        rec.export_timeout_s = 30
+        path = rec.export_mcap("pour")
+        assert mcap_counts(path)["/canal/demos"] == 1
+        assert rec.health()["status"] == "ok", rec.health()["detail"]
+        # Without another export: the writer catching up (its queue drained) is enough.
+        rec.export_timeout_s = 0
+        rec.demo_added("pour", 3, 2, demos3[1], None, None)
+        rec.export_mcap("pour")
+        deadline = time.monotonic() + 60
+        while rec.health()["status"] != "ok" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        health = rec.health()
+        assert health["status"] == "ok" and health["queued"] == 0, health["detail"]
+        assert health["dropped"] == 0
+    finally:
+        rec.close()
+    assert mcap_counts(rec.export_mcap("pour"))["/canal/demos"] == 2

@@ -61,9 +61,15 @@ class Exporter(SegmentWriter):
             self._events.append(rotate)
             self._mark_urgent()
             self._wake.set()
-            if not rotate.done.wait(self.export_timeout_s):
+            if rotate.done.wait(self.export_timeout_s):
+                self._clear("export")  # the writer answers in time again: no longer behind
+            else:
                 self._note("export", f"writer did not answer within {self.export_timeout_s:g}"
                            " s; exported the closed segments only")
+                # Noted after the wait, so the writer may have answered and drained its queue
+                # (which clears the note) in between: then it is not behind either.
+                if rotate.done.is_set() and not self._events:
+                    self._clear("export")
         exports = self.root / EXPORTS
         exports.mkdir(parents=True, exist_ok=True)
         out = exports / f"{uuid.uuid4().hex}-{skill_dirname(skill)}.{kind}"

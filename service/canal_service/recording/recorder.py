@@ -197,7 +197,10 @@ class Recorder(Exporter, Reconciler):
             try:
                 event = self._events.popleft()
             except IndexError:
+                # Caught up: nothing dropped is waiting, and an export that timed out waiting
+                # for this writer would now get its answer.
                 self._clear("queue")
+                self._clear("export")
                 return False
             if isinstance(event, Stop):
                 return True
