@@ -222,3 +222,67 @@ def test_an_export_the_writer_did_not_answer_in_time_degrades_health_until_it_ca
     finally:
         rec.close()
     assert mcap_counts(rec.export_mcap("pour"))["/canal/demos"] == 2
+
+
+def _service_with_recorder(tmp_path: Path) -> tuple[Any, Any, Recorder]:
+    from canal_service.metrics import Metrics
+    from canal_service.recording.source import DbSource
+    from canal_service.service import CanalService
+    from canal_service.storage import Database
+
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    # A flush interval longer than the test: what the writer wrote is still unflushed when
+    # the rebuild or the delete comes, as right after a burst of requests.
+    rec = Recorder(tmp_path / "rec", flush_interval_s=600, source=DbSource(db))
+    return db, CanalService(db, Metrics(), recorder=rec), rec
+
+
+def test_a_rebuild_right_after_uploads_drops_nothing(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    from canal_protocol.schemas import DemonstrationIn, FitRequest, SkillCreate
+
+    db, service, rec = _service_with_recorder(tmp_path)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        ids = [service.add_json_demonstration("pour", DemonstrationIn(
+            positions=helix_demo(k).tolist())).id for k in range(3)]
+        service.fit("pour", FitRequest(n_samples=30))
+        assert rec.rebuild("pour") == {"demos": 3, "models": 1, "removed": 0,
+                                       "reproductions": 0}
+        health = rec.health()
+        path = rec.export_mcap("pour")
+    finally:
+        rec.close()
+        db.dispose()
+    # What the rebuild replaced was superseded, not lost: the export holds all of it.
+    assert health["dropped"] == 0 and health["status"] == "ok", health
+    logged = [e["id"] for m in mcap_messages(path, "/canal/demos") for e in m["entities"]]
+    assert sorted(logged) == sorted(f"demo/{i}" for i in ids)
+    assert len(mcap_messages(path, "/canal/model_info")) == 1
+    assert "Dropping data" not in capfd.readouterr().err
+
+
+def test_deleting_a_skill_right_after_uploads_drops_nothing(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    from canal_protocol.schemas import DemonstrationIn, FitRequest, SkillCreate
+
+    db, service, rec = _service_with_recorder(tmp_path)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        for k in range(3):
+            service.add_json_demonstration("pour", DemonstrationIn(
+                positions=helix_demo(k).tolist()))
+        service.fit("pour", FitRequest(n_samples=30))
+        rec.export_mcap("pour").unlink()  # written, closed: then more, left unflushed
+        service.add_json_demonstration("pour", DemonstrationIn(positions=helix_demo(4).tolist()))
+        rec.reconcile("pour")  # the writer has logged it (the reconcile waits for it)
+        service.delete_skill("pour")
+        rec.reconcile()  # the delete is handled before it
+        health = rec.health()
+    finally:
+        rec.close()
+        db.dispose()
+    assert health["dropped"] == 0 and health["status"] == "ok", health
+    assert not (tmp_path / "rec" / "pour").exists()
+    assert "Dropping data" not in capfd.readouterr().err

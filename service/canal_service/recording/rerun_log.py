@@ -479,6 +479,15 @@ class RerunSegment:
         with contextlib.suppress(Exception):
             self.rec.disconnect()
 
+    def discard(self) -> None:
+        """Close a segment whose recording is being deleted, without raising: what was
+        logged since the last flush goes, on purpose."""
+        self.abandon()
+        # disconnect() hands what the SDK still batches to the binary stream; read unread,
+        # the SDK would warn that it drops it ("Dropping data in BinaryStreamStorage").
+        with contextlib.suppress(Exception):
+            self._stream.read(flush=False)
+
 
 def empty_rrd(path: Path, recording_id: str, skill: str, *, dim: int = 3,
               coordinates: str = "RIGHT_HAND_Z_UP") -> None:

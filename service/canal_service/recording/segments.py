@@ -134,7 +134,7 @@ class SegmentWriter(RecorderQueue):
         """Drop the skill's open segment and delete its files."""
         state = self._skills.pop(skill, None)
         if state is not None:
-            self._abandon(state, reconcile=False)
+            self._discard(state)
         with self._skill_lock(skill):
             SkillDir.of(self.root, skill).remove()
         self._dims.pop(skill, None)
@@ -316,6 +316,19 @@ class SegmentWriter(RecorderQueue):
         except Exception as exc:
             log.exception("recorder could not merge a segment of %s", state.skill)
             self._note(state.skill, f"{type(exc).__name__}: {exc}")
+
+    def _discard(self, state: SkillState) -> None:
+        """Drop the open segment of a recording that is being deleted (rebuilt, or its skill
+        is gone): what it held since its last flush is superseded, not lost, so it is not
+        counted as dropped, as what was flushed before it is not."""
+        state.pending_events = state.pending_live = 0
+        self._live_settle(state.skill, self._live_recorded)  # written, then deleted with the rest
+        state.pending_ledger = []
+        if state.rerun is not None:
+            state.rerun.discard()
+        if state.mcap is not None:
+            state.mcap.abandon()
+        state.rerun = state.mcap = state.segment = None
 
     def _abandon(self, state: SkillState, *, reconcile: bool = True) -> None:
         """Drop the open segment after a write error; its files are recovered later."""
