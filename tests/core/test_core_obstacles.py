@@ -86,11 +86,32 @@ def test_segment_check_sees_what_passes_between_the_ends() -> None:
     assert (exact[:3] < 0.0).all()
     assert exact[3] > 0.0
     np.testing.assert_allclose(exact[[0, 1, 3]], dense[[0, 1, 3]], atol=1e-3)
-    assert exact[2] <= 0.0  # boxes: marched, a touch counts
+    assert exact[2] < 0.0  # boxes too: it enters the box
+    np.testing.assert_allclose(exact, dense, atol=1e-3)
     # A segment that passes beside the box is measured no further from it than it is.
     beside = segment_free_distances(np.array([[6.3, 0.0, -1.0]]), np.array([[6.3, 0.0, 1.0]]), scene)
     dense_beside = _dense_free(np.array([[6.3, 0.0, -1.0]]), np.array([[6.3, 0.0, 1.0]]), scene, 4000)
     assert 0.0 < beside[0] <= dense_beside[0] + 1e-9
+
+
+def test_a_step_through_a_thin_wall_is_not_clear(tube: canal_core.Canal) -> None:
+    # A step 2.5 wall-thicknesses long, whose ends lie 2 mm and 16 mm from a 2 cm slab across
+    # the canal, passes through it. The march from its ends stopped at the slab's faces and
+    # said "touching" (0), which the path check took as clear: the reproduction went through
+    # a door across the canal, all its points outside the wall, and was not blocked.
+    slab = {"kind": "box", "center": [0.0, 0.0, 0.0], "half_extents": [0.01, 0.5, 0.5]}
+    scene = scene_from_list([slab], 3)
+    p, q = np.array([[-0.012, 0.0, 0.0]]), np.array([[0.026, 0.03, 0.0]])
+    assert (free_distances(np.vstack([p, q]), scene) > 0.0).all()
+    free = segment_free_distances(p, q, scene)
+    np.testing.assert_allclose(free, _dense_free(p, q, scene, 4000), atol=1e-5)
+    assert free[0] == pytest.approx(-0.01, abs=1e-6)
+    # ... and a door across the canal, as the reproduction meets it
+    x = float(tube.directrix[len(tube.directrix) // 2, 0])
+    wall = {"kind": "box", "center": [x, 0.0, 0.0], "half_extents": [0.01, 2.0, 2.0]}
+    rep = tube.reproduce_detailed(np.array([0.0, 0.1, 0.0]), obstacles=[wall])
+    assert rep.blocked is not None and rep.blocked.reason == "closed"
+    assert (rep.positions[:, 0] < x - 0.01).all()
 
 
 def test_malformed_obstacles_are_refused_naming_the_field() -> None:
