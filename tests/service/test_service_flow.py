@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from canal_testing import arc_demo
 from fastapi.testclient import TestClient
 from service_helpers import demo_positions
 
@@ -61,3 +62,37 @@ def test_full_session(any_db_client: TestClient) -> None:
     assert c.delete("/skills/pour").status_code == 204
     assert c.get("/skills/pour").status_code == 404
     assert c.get("/skills").json()["total"] == 0
+
+
+def test_an_id_is_never_given_twice(any_db_client: TestClient) -> None:
+    # SQLite gave a new row the id of a deleted last row: demonstration 3 deleted, the next
+    # upload was demonstration 3 again, so model version 1 still listed demonstration 3 among
+    # its own, now a trajectory made after it, and a client holding the old id got another.
+    client = any_db_client
+    assert client.post("/skills", json={"name": "ids", "dim": 3}).status_code == 201
+    ids = []
+    for j in range(3):
+        r = client.post("/skills/ids/demonstrations",
+                        json={"positions": (arc_demo(j, 40, 3, 0) + 0.01 * j).tolist()})
+        ids.append(r.json()["id"])
+    fit = client.post("/skills/ids/fit", json={"n_samples": 30})
+    assert fit.status_code == 201, fit.text
+    assert client.delete(f"/skills/ids/demonstrations/{ids[-1]}").status_code == 204
+    again = client.post("/skills/ids/demonstrations",
+                        json={"positions": arc_demo(5, 40, 3, 0).tolist()}).json()["id"]
+    assert again not in ids, (again, ids)
+    assert client.get(f"/skills/ids/demonstrations/{ids[-1]}").status_code == 404
+    assert ids[-1] in client.get("/skills/ids/models/1").json()["demo_ids"]
+    # corrections too: one undone and deleted with its version is not given again
+    correction = {"kind": "include", "samples": (arc_demo(1, 40, 3, 0) + 0.005).tolist()}
+    first = client.post("/skills/ids/corrections", json=correction)
+    assert first.status_code == 201, first.text
+    first_id = first.json()["correction"]["id"]
+    assert client.delete("/skills/ids").status_code == 204
+    assert client.post("/skills", json={"name": "ids", "dim": 3}).status_code == 201
+    for j in range(3):
+        client.post("/skills/ids/demonstrations", json={"positions": arc_demo(j, 40, 3, 0).tolist()})
+    assert client.post("/skills/ids/fit", json={"n_samples": 30}).status_code == 201
+    second = client.post("/skills/ids/corrections", json=correction)
+    assert second.status_code == 201, second.text
+    assert second.json()["correction"]["id"] != first_id

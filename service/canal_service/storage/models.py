@@ -52,6 +52,9 @@ class Demonstration(Base):
     """One recorded trajectory, arrays stored as packed float64 bytes (see ``arrays``)."""
 
     __tablename__ = "demonstrations"
+    # An id is never given twice (SQLite would give a deleted last row's id to the next one):
+    # models list their demonstrations by id, and clients hold ids.
+    __table_args__ = ({"sqlite_autoincrement": True},)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     skill_id: Mapped[int] = mapped_column(
@@ -169,6 +172,8 @@ class Correction(Base):
     """A person's correction of a skill's canal: its path (packed float64) and its kind."""
 
     __tablename__ = "corrections"
+    # ids are never given twice (as demonstrations')
+    __table_args__ = ({"sqlite_autoincrement": True},)
 
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     skill_id: Mapped[int] = mapped_column(
