@@ -44,6 +44,13 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
         assert wait_until(lambda: metric(client, "canal_live_poses_total") >= result.n_steps,
                           5.0)
         assert metric(client, "canal_live_targets_total") >= result.n_steps
+        # every count, steering inputs too (a bridge process's were never added)
+        with PoseStreamer("s", "joy", endpoint=endpoint) as ps:
+            ps.wait_for(ps.send(result.start.tolist(), restart=True), timeout=5.0)
+            for _ in range(5):
+                ps.steer(1.0, 0.0)
+                ps.wait_for(ps.send(result.start.tolist()), timeout=5.0)
+        assert wait_until(lambda: metric(client, "canal_live_steer_inputs_total") >= 5, 5.0)
         # and its drain count to /healthz (one pose at a time: about a drain per pose)
         def reported():
             b = client.get("/healthz").json()["bridge"]["bridges"][0]

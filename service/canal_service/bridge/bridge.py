@@ -84,7 +84,7 @@ from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, 
 from .models import ModelEntry, ModelTable
 from .posepath import PosePath
 from .queries import STREAM_QUERIES, body_error
-from .streams import ENC_JSON, ERROR_KEYS, Counts, Stream
+from .streams import ENC_JSON, ERROR_KEYS, Counts, Stream, add_counts
 
 log = logging.getLogger("canal_service.bridge")
 
@@ -361,14 +361,8 @@ class Bridge:
 
     def flush_metrics(self) -> None:
         """Hand the worker's counts to Prometheus (deltas since the last flush)."""
-        m, now, before = self._metrics, self.counts.snapshot(), self._flushed
-        m.live_poses.inc(now["poses"] - before["poses"])
-        m.live_targets.inc(now["targets"] - before["targets"])
-        m.live_coalesced.inc(now["coalesced"] - before["coalesced"])
-        m.live_model_switches.inc(now["switches"] - before["switches"])
-        m.live_steers.inc(now["steers"] - before["steers"])
-        m.live_recorded.inc(now["recorded"] - before["recorded"])
-        m.live_decimated.inc(now["decimated"] - before["decimated"])
+        now, before = self.counts.snapshot(), self._flushed
+        add_counts(self._metrics, now, before)
         for key, n in now["errors"].items():
             if n != before["errors"][key]:
                 self._m_error_children[key].inc(n - before["errors"][key])

@@ -37,6 +37,7 @@ import orjson
 from ..core.cli import settings_options
 from ..core.config import Settings
 from ..service import CanalService
+from .streams import add_counts
 
 log = logging.getLogger("canal_service.bridge")
 
@@ -190,14 +191,8 @@ class BridgeProcesses:
         """Add a bridge's new counts to the service's metrics."""
         m = self.service.metrics
         now = child.counts
-        before = self._flushed.get(child.shard) or {
-            "poses": 0, "targets": 0, "coalesced": 0, "switches": 0, "errors": {}}
-        m.live_poses.inc(max(now.get("poses", 0) - before["poses"], 0))
-        m.live_targets.inc(max(now.get("targets", 0) - before["targets"], 0))
-        m.live_coalesced.inc(max(now.get("coalesced", 0) - before["coalesced"], 0))
-        m.live_model_switches.inc(max(now.get("switches", 0) - before["switches"], 0))
-        m.live_recorded.inc(max(now.get("recorded", 0) - before.get("recorded", 0), 0))
-        m.live_decimated.inc(max(now.get("decimated", 0) - before.get("decimated", 0), 0))
+        before = self._flushed.get(child.shard) or {"errors": {}}
+        add_counts(m, now, before)
         for key, n in now.get("errors", {}).items():
             delta = n - before["errors"].get(key, 0)
             if delta > 0:

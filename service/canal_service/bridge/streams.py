@@ -136,6 +136,22 @@ class Counts:
                 "parked": self.parked, "steers": self.steers}
 
 
+#: Each count of :meth:`Counts.snapshot` that /metrics shows, and its counter on
+#: :class:`canal_service.metrics.Metrics`. One table for a bridge in the service's process and
+#: for the supervisor of bridge processes: a count missing from one of two lists never reached
+#: /metrics from bridge processes.
+COUNT_METRICS = {"poses": "live_poses", "targets": "live_targets", "coalesced": "live_coalesced",
+                 "switches": "live_model_switches", "steers": "live_steers",
+                 "recorded": "live_recorded", "decimated": "live_decimated"}
+
+
+def add_counts(metrics: Any, now: dict[str, Any], before: dict[str, Any]) -> None:
+    """Add each count's growth from ``before`` to ``now`` (snapshots) to its counter."""
+    for name, counter in COUNT_METRICS.items():
+        grown = now.get(name, 0) - before.get(name, 0)
+        if grown > 0:
+            getattr(metrics, counter).inc(grown)
+
 
 class StreamTable:
     """The streams of one bridge and the state every layer of the
