@@ -55,12 +55,18 @@ def decode_steer(encoding: str, data: bytes) -> tuple[float, float]:
     if encoding.startswith(JSON_ENCODING) or encoding.startswith("text/json") or data[:1] == b"{":
         try:
             body = orjson.loads(data)
-            u, v = float(body["u"]), float(body["v"])
-        except (orjson.JSONDecodeError, KeyError, TypeError, ValueError):
-            raise WireError("bad_payload", 'expected {"u": number, "v": number}') from None
-        if isinstance(body.get("u"), bool) or isinstance(body.get("v"), bool):
-            raise WireError("bad_payload", 'expected {"u": number, "v": number}, got booleans')
-        return _clipped(u, v)
+        except orjson.JSONDecodeError:
+            raise WireError("bad_payload", 'expected {"u": number, "v": number}, got invalid JSON') from None
+        # Numbers only, and no other field: "0.9" or a misspelt key is a client's mistake to
+        # be told of, as a pose's JSON tells it, not a value to guess.
+        if not isinstance(body, dict) or set(body) != {"u", "v"}:
+            got = (f"fields {', '.join(sorted(body)) or 'none'}" if isinstance(body, dict)
+                   else f"a JSON {type(body).__name__}")
+            raise WireError("bad_payload", f'expected {{"u": number, "v": number}}, got {got}')
+        for name in ("u", "v"):
+            if type(body[name]) not in (int, float):
+                raise WireError("bad_payload", f"expected {name} as a number, got {type(body[name]).__name__}")
+        return _clipped(float(body["u"]), float(body["v"]))
     if encoding.startswith(CDR_ENCODING) or data[:1] == b"\x00":
         layout = _CDR.get(data[1]) if len(data) >= 28 else None
         if layout is None:

@@ -210,6 +210,25 @@ def test_a_correction_field_is_refused_alike_by_every_query_that_takes_it(
     assert live.client.get(f"/skills/{corrected_skill}/models").json()["total"] == versions
 
 
+def test_a_capture_in_the_way_is_named_by_what_it_captures(live: Any, corrected_skill: str) -> None:
+    # An exclude started while an include was captured was refused naming "demo".
+    with PoseStreamer(corrected_skill, "busy", endpoint=live.endpoint) as ps:
+        ps.start_correction("include")
+        for start, busy in ((lambda: ps.start_correction("exclude"), "correction"),
+                            (lambda: ps.start_demo(), "correction")):
+            with pytest.raises(LiveError) as refused:
+                start()
+            error = refused.value.body["error"]
+            assert (error["type"], error["field"]) == ("conflict", busy), error
+            assert error["message"].startswith("a correction is being captured"), error
+    with PoseStreamer(corrected_skill, "busy2", endpoint=live.endpoint) as ps:
+        ps.start_demo()
+        with pytest.raises(LiveError) as refused:
+            ps.start_correction("exclude")
+        error = refused.value.body["error"]
+        assert (error["type"], error["field"]) == ("conflict", "demo"), error
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

@@ -30,6 +30,10 @@ def test_a_big_endian_vector3_reads_too_and_overshoot_is_clipped() -> None:
     ("application/json", b'{"u": 1}', "bad_payload"),
     ("application/json", b'{"u": true, "v": 0}', "bad_payload"),
     ("application/json", b'{"u": NaN, "v": 0}', "bad_payload"),
+    # a number in a string, an unknown field, not an object: refused as a pose's JSON is
+    ("application/json", b'{"u": "0.9", "v": 0}', "bad_payload"),
+    ("application/json", b'{"u": 0.5, "v": 0, "w": 1}', "bad_payload"),
+    ("application/json", b'[0.5, 0]', "bad_payload"),
     ("application/octet-stream", codecs.encode_steer(0.0, 0.0)[:-1], "bad_payload"),
     ("application/octet-stream", b"\x01\x01\x00\x02" + bytes(8) + bytes(16), "bad_payload"),
     ("application/octet-stream", codecs.encode_steer(float("inf"), 0.0), "non_finite"),

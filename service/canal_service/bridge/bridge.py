@@ -642,8 +642,9 @@ class Bridge:
         with st.lock:
             if st.capture is not None and st.capture_kind not in (kind, "steer"):
                 busy = "a demonstration" if st.capture_kind is None else "a correction"
+                # the field names what is being captured: what to stop first
                 _reply_error(query, "conflict", f"{busy} is being captured on this stream; "
-                             "stop it first", "correction" if kind is None else "demo")
+                             "stop it first", "demo" if st.capture_kind is None else "correction")
                 return
             st.capture = []
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
