@@ -317,3 +317,18 @@ def test_wrong_dimension_or_skill_is_refused_by_the_single_insert(client: TestCl
     assert r.status_code == 201 and r.json()["checksum"] == checksum(flat)
     stored = client.get(f"/skills/flat/demonstrations/{r.json()['id']}").json()
     assert stored["dim"] == 2 and np.array_equal(np.asarray(stored["positions"]), flat)
+
+
+def test_a_topic_sent_with_a_file_that_has_none_is_refused(client: TestClient, skill: str) -> None:
+    # ?topic= picks an MCAP file's pose topic; with a CSV, NumPy or JSON body it was ignored
+    # and the upload stored, so a client that meant another file was not told.
+    csv = "\n".join(f"{k / 10},{k / 20},0" for k in range(12)).encode()
+    for kwargs, got in (({"files": {"file": ("demo.csv", csv, "text/csv")}}, "a CSV file"),
+                        ({"json": {"positions": [[k / 10, 0.0, 0.0] for k in range(12)]}},
+                         "a JSON body")):
+        r = client.post(f"/skills/{skill}/demonstrations", params={"topic": "/arm/pose"}, **kwargs)
+        assert r.status_code == 422, r.text
+        error = r.json()["error"]
+        assert error["field"] == "topic" and error["message"] == (
+            f"expected topic only with an MCAP file, got {got}"), error
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0

@@ -69,6 +69,8 @@ async def add_demonstration(
     lane = upload_lane(request)
     limits = upload_limits(request)
     if base == "application/json" or base.endswith("+json"):
+        if topic is not None:
+            raise InvalidInput("expected topic only with an MCAP file, got a JSON body", field="topic")
         raw = await request.body()
         # Parsing too runs on the lane: on the event loop it would hold every other
         # request (and the bytes of the next upload) for its millisecond.

@@ -109,9 +109,16 @@ def detect_format(
     )
 
 
+_FORMAT_NAMES = {"csv": "CSV", "npy": "NumPy", "mcap": "MCAP"}
+
+
 def parse_upload(fmt: UploadFormat, data: bytes, dim: int, topic: str | None = None,
                  limits: UploadLimits | None = None) -> ParsedUpload:
     """Parse ``data`` in format ``fmt`` for a ``dim``-D skill, within ``limits``."""
+    if topic is not None and fmt != "mcap":
+        # a topic names an MCAP file's pose topic: with another file the client meant another
+        raise InvalidInput(f"expected topic only with an MCAP file, got a {_FORMAT_NAMES[fmt]} file",
+                           field="topic")
     if not data:
         raise BadUpload("the uploaded file is empty", field="file")
     budget = Budget(limits or UploadLimits())
