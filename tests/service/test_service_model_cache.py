@@ -107,9 +107,11 @@ def test_reproductions_answer_what_the_model_says(live_server: LiveServer) -> No
         assert set(one) == {"positions", "start", "inside", "eta", "section_index", "projected",
                             "model_version", "times", "velocities", "orientations", "goal",
                             "blocked", "scene_version", "obstacles", "start_clearance", "notes",
-                            "route", "route_reason", "approach"}
+                            "route", "route_reason", "approach", "ratios"}
         assert one["model_version"] == 1 and isinstance(one["inside"], bool)
         assert isinstance(one["approach"], int)
+        assert len(one["ratios"]) == len(one["positions"])
+        assert all(isinstance(x, float) for x in one["ratios"])
         assert one["route"] is None and one["route_reason"] == "single"
         assert one["blocked"] is None and one["scene_version"] is None and one["obstacles"] == 0
         assert np.asarray(one["positions"], dtype=float).shape[1] == 3
