@@ -154,3 +154,51 @@ def test_the_recording_says_which_route_each_stream_followed(live: Any, reach: s
 
     seen = wait_until(lambda: (lambda s: s if len(s) == 2 else None)(states()), timeout=10.0)
     assert seen == {"/live/rec0/state": {0}, "/live/rec1/state": {1}}, seen
+
+
+def _follow(ps: PoseStreamer, x: np.ndarray, steps: int) -> tuple[np.ndarray, list[wire.Target]]:
+    answers = []
+    for _ in range(steps):
+        t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+        assert t is not None and t.target is not None, t
+        answers.append(t)
+        x = x + 0.5 * (np.asarray(t.target) - x)
+    return x, answers
+
+
+def test_a_stream_keeps_its_way_when_a_refit_numbers_the_routes_afresh(live: Any) -> None:
+    # A refit numbers routes afresh (route 0 is the first demonstration's: upload the first
+    # way's demonstrations again and the other way becomes route 0). A stream kept its route *number*: the robot on the -y way was given
+    # targets on the +y way, 0.7 m across, pose after pose. Through a version of one route
+    # it kept a stale number too, and on a route it was moved to it was placed at the share
+    # of the canal it had reached on the old one.
+    client = live.client
+    fit_two_route_skill(client, "renum", 80)
+    ids = [d["id"] for d in client.get("/skills/renum/demonstrations").json()["items"]]
+
+    def minus_y_route() -> int:
+        model = client.get("/skills/renum/models/latest").json()
+        middles = [np.asarray(r["directrix"])[len(r["directrix"]) // 2, 1] for r in model["route_canals"]]
+        return int(np.argmin(middles))
+
+    before = minus_y_route()
+    with PoseStreamer("renum", "arm", endpoint=live.endpoint, encoding="json") as ps:
+        x, answers = _follow(ps, np.array(ROUTE_STARTS[1]), 25)
+        assert answers[-1].route == before and x[1] < -0.2, (answers[-1], x)
+        for fit, routes in (({"n_samples": 80, "routes": 1}, None),  # one route between
+                            ({"n_samples": 80}, "renumbered")):
+            if routes == "renumbered":  # the +y demonstrations again, after the -y ones
+                for j, demo_id in enumerate(ids[:4]):
+                    assert client.delete(f"/skills/renum/demonstrations/{demo_id}").status_code == 204
+                    client.post("/skills/renum/demonstrations",
+                                json={"positions": two_route_demo(j).tolist()})
+            assert client.post("/skills/renum/fit", json=fit).status_code == 201
+            x, answers = _follow(ps, x, 8)
+            assert all(t.target[1] < -0.1 for t in answers), answers  # the same way
+            assert answers[-1].status == "ok", answers
+        after = minus_y_route()
+        assert after != before, "the refit was to number the routes afresh"
+        assert answers[-1].route == after
+        # and the robot goes on along its way to the end
+        x, answers = _follow(ps, x, 200)
+        assert answers[-1].done and all(t.target[1] < 0.05 for t in answers), answers[-1]

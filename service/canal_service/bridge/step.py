@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from canal_core.routes import way_of
 from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
 from canal_core.tracker import start_section
 from canal_protocol import wire
@@ -84,6 +85,8 @@ class Stepper(Answers):
                 if group is None:
                     group = by_model[id(tracked)] = (tracked, [], [], [])
                 _, group_jobs, slots, positions = group
+            elif st.route is not None:  # a model of one route has no route number to keep
+                st.route, st.route_serial = None, -1
             if st.bank is not tracked.bank or st.revision != tracked.revision or pose.restart:
                 self._seed(st, tracked, position, pose.restart)
             if st.steer is not None:
@@ -109,14 +112,26 @@ class Stepper(Answers):
     def _route_of(st: Stream, entry: ModelEntry, position: tuple[float, ...],
                   restart: bool) -> ModelEntry:
         """The entry (a route's, or the canal of all's) a stream of a model of several
-        routes is stepped in: chosen at its first pose, a restart, a new version whose
-        routes do not include the one it had, or a skill created again under the name."""
+        routes is stepped in: chosen at its first pose or a restart by the route's entry
+        (canal_core.routes.Routes.choose); on a new version of the model, the route of its
+        way ((R3) of canal_core.routes.way_of, as a kept correction's): the route whose
+        directrix passes nearest the one it followed (keeping its number unless another is
+        less than half as far), or nearest the robot when it followed none. Routes are
+        numbered afresh by each fit: a number kept as it is could be another way."""
         routes = entry.routes
         assert routes is not None
         if st.route_serial != entry.serial or restart:
-            if (not restart and st.route_serial >= 0 and st.route is not None
-                    and st.route < len(routes) and st.revision[0] == entry.created_ns):
-                st.route_reason = "kept"
+            in_flight = (not restart and st.bank is not None
+                         and st.revision[0] == entry.created_ns)
+            if in_flight and st.bank is not None:
+                followed = st.route is not None and st.route_serial >= 0
+                way = (st.bank.geometry.centres if followed
+                       else np.array(position, dtype=np.float64)[None, :])
+                keep = st.route if followed and st.route is not None and st.route < len(routes) else None
+                route = way_of(entry.chooser, way, keep)
+                st.route_reason = ("nearest" if not followed else "kept" if route == st.route
+                                   else "way")
+                st.route = route
             else:
                 try:
                     choice = entry.chooser.choose(np.array(position, dtype=np.float64))
@@ -137,7 +152,10 @@ class Stepper(Answers):
             self.counts.switches += 1
             # A skill created again under the name is another skill: its stream is placed
             # afresh, as a new one.
-            if not restart and st.revision[0] == entry.created_ns:
+            # A route chosen afresh (from the robot's position) is another canal: placed
+            # afresh too, not at the share of the canal the old one had reached.
+            placed_afresh = entry.route != wire.NO_ROUTE and st.route_reason not in ("kept", "way")
+            if not restart and st.revision[0] == entry.created_ns and not placed_afresh:
                 carried = (int(old.index[st.slot]), float(old.eta[st.slot]),
                            old.direction[st.slot].copy(), old.geometry.centres.shape[0])
         bank = entry.bank
