@@ -15,6 +15,23 @@ import hmac
 
 import orjson
 
+#: What a bearer token may hold: visible ASCII, no space (an HTTP header carries nothing else
+#: intact: a space at either end is stripped, a control character or a letter outside ASCII
+#: cannot be sent).
+TOKEN_CHARACTERS = "visible ASCII characters without spaces or control characters"
+
+
+def token_problem(token: str) -> str | None:
+    """Why ``token`` cannot be a bearer token (the service's ``--token``, a client's), or None.
+
+    The message says which character came and where, not the whole token."""
+    for i, c in enumerate(token, 1):
+        if not "!" <= c <= "~":
+            shown = "a space" if c == " " else repr(c)
+            return f"expected {TOKEN_CHARACTERS}, got {shown} at character {i} of {len(token)}"
+    return None
+
+
 #: The Zenoh user name of every session that holds the service's token.
 LIVE_USER = "canal"
 _LABEL = b"canal live path usrpwd v1"
@@ -42,4 +59,5 @@ def insert_credentials(config: object, token: str, users_file: str | None = None
         insert("transport/auth/usrpwd/dictionary_file", orjson.dumps(users_file).decode())
 
 
-__all__ = ["LIVE_USER", "insert_credentials", "live_password", "users_file_text"]
+__all__ = ["LIVE_USER", "TOKEN_CHARACTERS", "insert_credentials", "live_password", "token_problem",
+           "users_file_text"]

@@ -394,6 +394,29 @@ def test_token_is_sent(tmp_path: Path) -> None:
         assert r.exit_code == 0 and "t" in r.stdout
 
 
+def test_a_token_no_header_can_carry_is_a_usage_error(tmp_path: Path) -> None:
+    # A letter outside ASCII was a UnicodeEncodeError traceback; a newline or a trailing space
+    # was exit 3 "cannot reach the Canal service ... Illegal header value".
+    from canal_client.cli import app
+    from typer.testing import CliRunner
+
+    with LiveService(tmp_path / "data", token="s3cret") as live:
+        env = {"CANAL_URL": live.url, "CANAL_TOKEN": ""}
+        for token, got in (("tokén", "got 'é' at character 4 of 5"),
+                           ("a\nb", "got '\\n' at character 2 of 3"),
+                           ("s3cret ", "got a space at character 7 of 7")):
+            for args, extra in ((["--token", token, "skill", "create", "t"], {}),
+                                (["skill", "create", "t"], {"CANAL_TOKEN": token})):
+                r = CliRunner().invoke(app, args, env={**env, **extra})
+                said = " ".join(r.output.replace("│", " ").split())
+                assert r.exit_code == 2, (token, extra, r.output)
+                assert "--token (or CANAL_TOKEN)" in said and got in said, (token, said)
+                assert "visible ASCII characters without spaces" in said, said
+                assert "Traceback" not in r.output and "cannot reach" not in r.output
+        r = CliRunner().invoke(app, ["--token", "s3cret", "--json", "skill", "list"], env=env)
+        assert r.exit_code == 0 and json.loads(r.stdout) == [], r.output
+
+
 def test_real_process_entry_point(service: LiveService, unique_name: Callable[[str], str],
                                   tmp_path: Path) -> None:
     name = unique_name("proc")

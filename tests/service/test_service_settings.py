@@ -70,6 +70,8 @@ def test_flags_override_the_environment_which_overrides_defaults(
     (["--zenoh-processes", "-1"], "--zenoh-processes"),
     (["--upload-max-seconds", "0"], "--upload-max-seconds"),
     (["--upload-workers", "0"], "--upload-workers"),
+    (["--token", "tokén"], "--token"),
+    (["--token", "s3cret "], "--token"),
 ])
 def test_a_bad_value_is_a_usage_error_naming_the_flag(
         argv: list[str], named: str, capsys: pytest.CaptureFixture[str]) -> None:
@@ -77,6 +79,22 @@ def test_a_bad_value_is_a_usage_error_naming_the_flag(
         settings_from_args(argv)
     assert exit_info.value.code == 2
     assert f"error: {named} (or CANAL_" in capsys.readouterr().err
+
+
+def test_a_token_no_header_can_carry_is_refused_without_echoing_it(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    # It started, and no client could send it: 'tokén' cannot be encoded in a header, and
+    # 's3cret ' arrives as 's3cret' (HTTP strips the space), so every request was a 401.
+    monkeypatch.setenv("CANAL_TOKEN", "s3cret ")
+    with pytest.raises(SystemExit) as exit_info:
+        settings_from_args([])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert "--token (or CANAL_TOKEN): expected visible ASCII characters without spaces or " \
+           "control characters, got a space at character 7 of 7" in " ".join(err.split())
+    assert "s3cret" not in err  # a secret is not printed back
+    monkeypatch.setenv("CANAL_TOKEN", "")
+    assert settings_from_args([]).token is None  # empty: no token
 
 
 def test_a_new_setting_is_one_field() -> None:

@@ -10,6 +10,8 @@ from typing import Annotated, Any
 
 import typer
 
+from canal_protocol.credentials import TOKEN_CHARACTERS, token_problem
+
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
 from ..rest import DEFAULT_URL, CanalClient
 from .output import EXIT_REFUSED, EXIT_UNREACHABLE, err, error
@@ -28,14 +30,25 @@ def global_options(
     ctx: typer.Context,
     url: Annotated[str, typer.Option("--url", envvar="CANAL_URL",
                                      help="Base URL of the Canal service.")] = DEFAULT_URL,
-    token: Annotated[str | None, typer.Option("--token", envvar="CANAL_TOKEN",
-                                              help="Bearer token, when the service needs one.")
-                     ] = None,
+    token: Annotated[str | None, typer.Option(
+        "--token", envvar="CANAL_TOKEN",
+        help=f"Bearer token, when the service needs one ({TOKEN_CHARACTERS}).")] = None,
     json_output: Annotated[bool, typer.Option("--json",
                                               help="Machine-readable JSON on stdout.")] = False,
 ) -> None:
     """The root command's callback: keeps the global options for the command that follows."""
-    ctx.obj = Options(url=service_url(url), token=token or None, json=json_output)
+    ctx.obj = Options(url=service_url(url), token=bearer_token(token), json=json_output)
+
+
+def bearer_token(text: str | None) -> str | None:
+    """``--token`` as sent, None when empty; one no HTTP header can carry (a letter outside
+    ASCII, a space, a newline) is a usage error saying which character came, never the token."""
+    if not text:
+        return None
+    problem = token_problem(text)
+    if problem is not None:
+        raise typer.BadParameter(problem, param_hint="--token (or CANAL_TOKEN)")
+    return text
 
 
 def service_url(text: str) -> str:

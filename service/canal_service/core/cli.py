@@ -143,7 +143,9 @@ def settings_from_args(argv: Sequence[str] | None = None,
             where = (f"{flags[field]} (or CANAL_{field.upper()})" if field in flags
                      else field or "settings")
             got = error.get("input")
-            came = "" if isinstance(got, dict) or got is None else f", got {got!r}"
+            # a message that says what came already (a token's: never the secret itself)
+            said = ", got " in error["msg"]
+            came = "" if isinstance(got, dict) or got is None or said else f", got {got!r}"
             problems.append(f"{where}: {error['msg']}{came}")
         parser.error("; ".join(problems))
 

@@ -16,7 +16,10 @@ from pathlib import Path
 from typing import Annotated
 
 from pydantic import Field, SecretStr, field_validator
+from pydantic_core import PydanticCustomError
 from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from canal_protocol.credentials import token_problem
 
 DEFAULT_MAX_BODY_BYTES = 64 * 1024 * 1024
 # Kept equal to canal_service.uploads' defaults (imported there would make config import numpy).
@@ -68,7 +71,8 @@ class Settings(BaseSettings):
     recordings_view_coordinates: str = Field(
         "RIGHT_HAND_Z_UP", description="rr.ViewCoordinates of the world in the .rrd recordings.")
     token: Annotated[SecretStr | None, Flag(metavar="TOKEN")] = Field(
-        None, description="When set, every route except /healthz needs 'Authorization: Bearer ...'."
+        None, description="When set, every route except /healthz needs 'Authorization: Bearer ...' "
+                          "(visible ASCII characters, no spaces)."
     )
     cors_origins: Annotated[list[str], Flag("--cors-origin", metavar="ORIGIN")] = Field(
         default_factory=list, description="Allowed CORS origins; CORS stays off when empty."
@@ -157,6 +161,10 @@ class Settings(BaseSettings):
         # An empty CANAL_TOKEN= in a compose file means "no token", not "the empty token".
         if value is not None and not value.get_secret_value():
             return None
+        # One no client can send in a header would leave every route answering 401.
+        problem = None if value is None else token_problem(value.get_secret_value())
+        if problem is not None:
+            raise PydanticCustomError("token", problem)
         return value
 
     @property
