@@ -700,3 +700,19 @@ def test_a_url_without_a_scheme_is_http(run: Run, service: LiveService) -> None:
     assert isinstance(json.loads(r.stdout), list)
     r = run("skill", "list", url="ftp://" + bare)
     assert r.exit_code == 2 and "expected an http:// or https:// URL" in r.output, r.output
+
+
+def test_a_url_that_names_no_service_is_a_usage_error(run: Run) -> None:
+    # 'http://[::1' was an httpx.InvalidURL traceback; '' (and one without a host) was exit 3
+    # "cannot reach the Canal service at http:".
+    for bad in ("http://[::1", "", "  ", "http://", "http://:8000", "http://127.0.0.1:99999",
+                "127.0.0.1:port"):
+        tries = [run("--url", bad, "skill", "create", "u-bad")]
+        if bad:  # an empty CANAL_URL is no CANAL_URL (the default URL)
+            tries.append(run("skill", "create", "u-bad", url=bad))
+        for r in tries:
+            said = " ".join(r.output.replace("│", " ").split())
+            assert r.exit_code == 2, (bad, r.output)
+            assert "--url (or CANAL_URL)" in said and f"got {bad.strip()!r}" in said, (bad, said)
+            assert "Traceback" not in r.output and "cannot reach" not in r.output, (bad, said)
+    assert run("skill", "show", "u-bad").exit_code == 1  # nothing was created

@@ -8,6 +8,7 @@ import dataclasses
 from collections.abc import Iterator
 from typing import Annotated, Any
 
+import httpx
 import typer
 
 from canal_protocol.credentials import TOKEN_CHARACTERS, token_problem
@@ -52,15 +53,24 @@ def bearer_token(text: str | None) -> str | None:
 
 
 def service_url(text: str) -> str:
-    """``--url`` as a base URL: ``host:port`` (as curl takes it) is ``http://host:port``."""
+    """``--url`` as a base URL: ``host:port`` (as curl takes it) is ``http://host:port``. One
+    that names no host (empty, ``http://``), or that cannot be parsed (``http://[::1``, a port
+    that is not one) is a usage error saying what came."""
     text = text.strip()
     scheme, sep, _ = text.partition("://")
-    if not sep:
-        return f"http://{text}"
-    if scheme.lower() not in ("http", "https"):
-        raise typer.BadParameter(f"expected an http:// or https:// URL like {DEFAULT_URL}, "
+    url = text if sep else f"http://{text}"
+    expected = f"expected an http:// or https:// URL like {DEFAULT_URL}"
+    if sep and scheme.lower() not in ("http", "https"):
+        raise typer.BadParameter(f"{expected}, got {text!r}", param_hint="--url (or CANAL_URL)")
+    try:
+        parsed = httpx.URL(url)
+        ok = bool(parsed.host) and (parsed.port is None or 0 < parsed.port < 65536)
+    except httpx.InvalidURL:
+        ok = False
+    if not ok:
+        raise typer.BadParameter(f"{expected} (a host, and a port from 1 to 65535 if any), "
                                  f"got {text!r}", param_hint="--url (or CANAL_URL)")
-    return text
+    return url
 
 
 def options(ctx: typer.Context) -> Options:
@@ -100,8 +110,6 @@ def connected(ctx: typer.Context) -> Iterator[CanalClient]:
 def health_document(opts: Options) -> dict[str, Any]:
     """The service's /healthz document (also when it says 503 degraded: it still knows its
     bridge and its recorder)."""
-    import httpx
-
     try:
         response = httpx.get(opts.url.rstrip("/") + "/healthz", timeout=10.0)
     except httpx.TimeoutException:
