@@ -17,6 +17,7 @@ callback threads never run user code); ``on_target`` is called from that thread.
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -44,20 +45,60 @@ class LiveError(CanalClientError, RuntimeError):
         self.body = body
 
 
+def zenoh_reason(exc: BaseException) -> str:
+    """A Zenoh error as one line: its message, where a JSON5 parse stopped, without the Rust
+    source location zenoh appends (``... at /root/.cargo/.../lib.rs:1486.``)."""
+    text = re.sub(r"\s+at \S+\.rs:\d+\.?\s*$", "", str(exc).strip())
+    quoted = re.search(r'msg: "(.*?)(?:\s+at \S+\.rs:\d+\.?)?"', text)
+    if quoted:  # Json5Err(Message { msg: "...", location: ... })
+        text = quoted[1]
+    place = re.match(r"\s*-->\s*(\d+):(\d+)", text)
+    said = re.search(r"^\s*=\s*(.+)$", text, re.MULTILINE)
+    if place and said:  # a parse error drawn as a caret under the line
+        text = f"line {place[1]}, column {place[2]}: {said[1]}"
+    return " ".join(text.split())
+
+
+ENDPOINT_FORM = "Zenoh endpoints like tcp/127.0.0.1:7447 (<protocol>/<address>, comma-separated)"
+
+
 def client_config(endpoint: str | Sequence[str] = "tcp/127.0.0.1:7447",
                   zenoh_config: str | Path | None = None,
                   token: str | None = None) -> zenoh.Config:
     """A peer config connecting to ``endpoint`` with multicast scouting off, or the user's
     Zenoh JSON5 file unchanged. ``token``: the service's bearer token, which a service
     started with ``--token`` requires on its live path too (as Zenoh credentials,
-    :mod:`canal_protocol.credentials`; not used with a config file, which says its own)."""
+    :mod:`canal_protocol.credentials`; not used with a config file, which says its own).
+
+    Raises :class:`~canal_client.errors.ArgumentError` (argument ``endpoint`` or
+    ``zenoh_config``) for an endpoint Zenoh cannot parse, and for a config file that does not
+    exist or that Zenoh refuses."""
     if zenoh_config is not None:
-        return zenoh.Config.from_file(str(zenoh_config))
+        path = Path(zenoh_config)
+        expected = "a Zenoh JSON5 config file"
+        if not path.exists():
+            raise ArgumentError("zenoh_config", expected, f"{str(path)!r}, which does not exist")
+        if not path.is_file():
+            raise ArgumentError("zenoh_config", expected, f"{str(path)!r}, which is not a file")
+        try:
+            return zenoh.Config.from_file(str(path))
+        except zenoh.ZError as exc:
+            raise ArgumentError("zenoh_config", expected,
+                                f"{str(path)!r}: {zenoh_reason(exc)}") from None
     endpoints = [endpoint] if isinstance(endpoint, str) else list(endpoint)
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", "[]")
+    for one in endpoints or [""]:  # each alone, to name the one refused
+        ok = isinstance(one, str) and bool(one.strip())
+        if ok:
+            try:
+                config.insert_json5("connect/endpoints", orjson.dumps([one]).decode())
+            except zenoh.ZError:
+                ok = False
+        if not ok:
+            raise ArgumentError("endpoint", ENDPOINT_FORM, repr(one))
     config.insert_json5("connect/endpoints", orjson.dumps(endpoints).decode())
     if token:
         insert_credentials(config, token)
@@ -149,9 +190,13 @@ class PoseStreamer:
         self.encoding = encoding
         self.on_target = on_target
         self._own_session = session is None
-        self.session = zenoh.open(client_config(endpoint, zenoh_config, token)) \
-            if session is None \
-            else session
+        if session is None:
+            config = client_config(endpoint, zenoh_config, token)
+            try:
+                session = zenoh.open(config)
+            except zenoh.ZError as exc:  # no router answers, a protocol zenoh does not have
+                raise LiveError(f"cannot open a Zenoh session: {zenoh_reason(exc)}") from None
+        self.session = session
         self._cond = threading.Condition()
         self._latest: wire.Target | None = None
         self._answers: dict[int, wire.Target] = {}

@@ -716,3 +716,46 @@ def test_a_url_that_names_no_service_is_a_usage_error(run: Run) -> None:
             assert "--url (or CANAL_URL)" in said and f"got {bad.strip()!r}" in said, (bad, said)
             assert "Traceback" not in r.output and "cannot reach" not in r.output, (bad, said)
     assert run("skill", "show", "u-bad").exit_code == 1  # nothing was created
+
+
+def test_sim_with_a_zenoh_option_that_cannot_be_used_says_which(
+        run: Run, service: LiveService, unique_name: Callable[[str], str],
+        tmp_path: Path) -> None:
+    # Each was a zenoh.ZError traceback; the scene asked for with --obstacle must stay unset.
+    name = unique_name("sim-zenoh")
+    make_fitted(service, name)
+    malformed = tmp_path / "bad.json5"
+    malformed.write_text('{ mode: "peer", ')
+    missing = tmp_path / "missing.json5"
+    for flags, option, said in (
+        (["--endpoint", "garbage"], "--endpoint", "got 'garbage'"),
+        (["--endpoint", "tcp/127.0.0.1:7447,tcp/"], "--endpoint", "got 'tcp/'"),
+        (["--endpoint", ""], "--endpoint", "got ''"),
+        (["--zenoh-config", str(missing)], "--zenoh-config",
+         f"got {str(missing)!r}, which does not exist"),
+        (["--zenoh-config", str(tmp_path)], "--zenoh-config",
+         f"got {str(tmp_path)!r}, which is not a file"),
+        (["--zenoh-config", str(malformed)], "--zenoh-config",
+         f"got {str(malformed)!r}: line 1, column 17: expected identifier or string"),
+    ):
+        r = run("sim", name, *flags, "--obstacle", "sphere:0.5,0,0,0.05", "--timeout", "1")
+        said_all = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2, (flags, r.output)
+        assert f"Invalid value for {option}" in said_all and said in said_all, (flags, said_all)
+        assert "Traceback" not in r.output and ".rs:" not in r.output, (flags, r.output)
+    with CanalClient(service.url) as c:
+        assert c.get_scene(name).obstacles == []
+
+
+def test_sim_that_cannot_connect_through_its_config_is_a_runtime_failure(
+        run: Run, unique_name: Callable[[str], str], tmp_path: Path) -> None:
+    # A client-mode config whose router does not answer: zenoh.open's ZError was a traceback.
+    config = tmp_path / "client.json5"
+    config.write_text(json.dumps({"mode": "client",
+                                  "connect": {"endpoints": [f"tcp/127.0.0.1:{free_port()}"]},
+                                  "scouting": {"multicast": {"enabled": False}}}))
+    r = run("sim", unique_name("sim-noroute"), "--zenoh-config", str(config), "--prefix",
+            "canal", "--timeout", "1")
+    assert r.exit_code == 1, r.output
+    assert r.stderr.startswith("error: simulation failed: cannot open a Zenoh session"), r.stderr
+    assert "Traceback" not in r.output and ".rs:" not in r.output, r.output

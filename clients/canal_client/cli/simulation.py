@@ -15,7 +15,13 @@ from rich.markup import escape
 
 from canal_core.validation import FloatArray
 
-from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
+from ..errors import (
+    ApiError,
+    ArgumentError,
+    CanalClientError,
+    ConnectionFailedError,
+    RequestTimeoutError,
+)
 from .output import EXIT_REFUSED, err, error, out, print_json
 from .parsing import choice_parser, parse_obstacle, parse_point
 from .session import connected, fail_unreachable, health_document, options
@@ -95,7 +101,8 @@ def parse_keep_out(text: str) -> tuple[FloatArray, float]:
 
 #: run_sim's parameters as this command's flags, for the errors it raises.
 _FLAGS = {"start": "--start", "pushes": "--push", "keep_out": "--keep-out", "gain": "--gain",
-          "timeout_s": "--timeout", "rate_hz": "--rate"}
+          "timeout_s": "--timeout", "rate_hz": "--rate", "endpoint": "--endpoint",
+          "zenoh_config": "--zenoh-config"}
 
 
 def _flag_error(exc: Any) -> typer.BadParameter:
@@ -123,8 +130,9 @@ def sim(
     timeout: Annotated[float | None, typer.Option("--timeout", help="Give up after S s.")
                        ] = None,
     endpoint: Annotated[str | None, typer.Option(
-        "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 "
-                           "(default: the one the service's /healthz reports).")] = None,
+        "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447, several "
+                           "comma-separated (default: the ones the service's /healthz "
+                           "reports).")] = None,
     prefix: Annotated[str | None, typer.Option(
         "--prefix", help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
     zenoh_config: Annotated[Path | None, typer.Option("--zenoh-config",
@@ -156,7 +164,17 @@ def sim(
               f"{ZENOH_INSTALL}")
         raise typer.Exit(EXIT_REFUSED)
     from .. import sim as sim_module  # imports zenoh: only for this command
+    from ..live import client_config
 
+    endpoints = None if endpoint is None else [e.strip() for e in endpoint.split(",")]
+    try:  # before anything is asked of the service: a value Zenoh cannot use at all
+        if endpoints is not None:
+            client_config(endpoints)
+        if zenoh_config is not None:
+            client_config(zenoh_config=zenoh_config)
+    except ArgumentError as exc:
+        raise typer.BadParameter(f"expected {exc.expected}, got {exc.got}",
+                                 param_hint=_FLAGS.get(exc.argument, exc.argument)) from None
     opts = options(ctx)
     if (endpoint is None and zenoh_config is None) or prefix is None:
         try:
@@ -168,8 +186,8 @@ def sim(
                 error(str(exc))
                 raise typer.Exit(EXIT_REFUSED) from None
             found, found_prefix = [], "canal"  # --endpoint given: the service is optional
-        if endpoint is None and zenoh_config is None:
-            endpoint = ",".join(found)
+        if endpoints is None and zenoh_config is None:
+            endpoints = found
         prefix = prefix or found_prefix
     try:
         # before the scene is set: a run refused afterwards would have changed it
@@ -190,7 +208,7 @@ def sim(
     for key, value in (("robot", robot), ("start", point), ("rate_hz", rate),
                        ("lag", lag.value if lag else None), ("gain", gain),
                        ("timeout_s", timeout),
-                       ("endpoint", endpoint.split(",") if endpoint else None),
+                       ("endpoint", endpoints),
                        ("zenoh_config", str(zenoh_config) if zenoh_config else None),
                        ("encoding", encoding.value if encoding else None)):
         if value is not None:
