@@ -479,6 +479,15 @@ def test_serve_forwards_the_service_flags(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "python -m canal_service" in p.stderr
     assert "--port" in p.stderr and "eighty" in p.stderr
+    # 'loud' was uvicorn's KeyError traceback, from the flag and from the variable alike
+    for args, env in ((["--log-level", "loud"], {}), ([], {"CANAL_LOG_LEVEL": "loud"})):
+        p = subprocess.run([sys.executable, "-m", "canal_client.cli", "serve", "--port",
+                            str(free_port()), "--data-dir", str(tmp_path / "loud"),
+                            "--no-recordings", "--no-zenoh", *args], capture_output=True,
+                           text=True, timeout=60, env={**os.environ, **env})
+        assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr[-2000:]
+        assert "--log-level (or CANAL_LOG_LEVEL): Input should be 'debug', 'info'" in p.stderr
+        assert "got 'loud'" in p.stderr
 
 
 def test_serve_on_a_port_in_use_exits_saying_so(tmp_path: Path) -> None:

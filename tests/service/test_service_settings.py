@@ -71,6 +71,8 @@ def test_flags_override_the_environment_which_overrides_defaults(
     (["--upload-max-seconds", "0"], "--upload-max-seconds"),
     (["--upload-workers", "0"], "--upload-workers"),
     (["--token", "tokén"], "--token"),
+    (["--log-level", "loud"], "--log-level"),
+    (["--log-level", "trace"], "--log-level"),
     (["--token", "s3cret "], "--token"),
 ])
 def test_a_bad_value_is_a_usage_error_naming_the_flag(
@@ -79,6 +81,18 @@ def test_a_bad_value_is_a_usage_error_naming_the_flag(
         settings_from_args(argv)
     assert exit_info.value.code == 2
     assert f"error: {named} (or CANAL_" in capsys.readouterr().err
+
+
+def test_a_log_level_is_one_of_uvicorns_named_in_any_case(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    # 'loud' was a KeyError traceback from uvicorn's logging setup, after the port was bound.
+    monkeypatch.setenv("CANAL_LOG_LEVEL", "loud")
+    with pytest.raises(SystemExit) as exit_info:
+        settings_from_args([])
+    assert exit_info.value.code == 2
+    assert "error: --log-level (or CANAL_LOG_LEVEL): Input should be 'debug', 'info', " \
+           "'warning', 'error' or 'critical', got 'loud'" in " ".join(capsys.readouterr().err.split())
+    assert settings_from_args(["--log-level", "WARNING"]).log_level == "warning"
 
 
 def test_a_token_no_header_can_carry_is_refused_without_echoing_it(

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_core import PydanticCustomError
@@ -103,8 +103,8 @@ class Settings(BaseSettings):
                     "the pool that serves fits and reads; uploads hold the GIL, so a few threads "
                     "taking turns beat many contending (docs/deployment.md).")
     model_cache_size: int = Field(64, ge=0, description="Fitted canals kept decoded in memory.")
-    log_level: str = Field("info", description="Log level (uvicorn's: debug, info, warning, "
-                                               "error, critical).")
+    log_level: Literal["debug", "info", "warning", "error", "critical"] = Field(
+        "info", description="Log level: debug, info, warning, error or critical (any case).")
 
     # ---- live bridge over Zenoh (docs/live.md) ----
     zenoh_enabled: Annotated[bool, Flag("--no-zenoh")] = Field(
@@ -154,6 +154,11 @@ class Settings(BaseSettings):
         2, ge=1, description="Tracker lookahead in sections (2: the target lies beyond the next "
         "section plane, so a robot that lags behind its target still crosses it)."
     )
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _log_level_in_any_case(cls, value: Any) -> Any:
+        return value.lower() if isinstance(value, str) else value
 
     @field_validator("token")
     @classmethod
