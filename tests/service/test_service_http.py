@@ -129,6 +129,21 @@ def test_bearer_token_on_every_route_but_health(tmp_path: Path) -> None:
         assert spec["components"]["securitySchemes"]["bearer"]["scheme"] == "bearer"
 
 
+def test_the_bearer_scheme_is_taken_in_any_case(tmp_path: Path) -> None:
+    # RFC 9110 11.1: the scheme is case-insensitive; "bearer s3cret" was a 401.
+    settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, zenoh_enabled=False,
+                        token="s3cret")
+    with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as http:
+        for given in ("bearer s3cret", "BEARER s3cret", "bEaReR s3cret", "Bearer   s3cret"):
+            r = http.get("/skills", headers={"authorization": given})
+            assert r.status_code == 200, (given, r.text)
+        for given in ("bearer S3CRET", "bearer s3cre", "Basic s3cret", "bearers3cret",
+                      "bearer", "s3cret", "bearer s3cret x"):
+            r = http.get("/skills", headers={"authorization": given})
+            assert r.status_code == 401, (given, r.text)
+        assert http.get("/skills").json()["error"]["field"] == "Authorization"
+
+
 def test_cors_off_by_default_and_on_when_configured(tmp_path: Path) -> None:
     origin = {"origin": "http://localhost:5173", "access-control-request-method": "GET"}
     off = Settings(data_dir=tmp_path / "a", recordings_enabled=False, zenoh_enabled=False)
