@@ -62,7 +62,9 @@ SHARD_ALPHABET = string.ascii_letters + string.digits + "_-.~+=,;:!%&'()[]{}<>|^
 
 def check_chunk(name: str, what: str) -> str:
     """``name`` if it is a valid single key-expression chunk, else ValueError."""
-    if not name or any(c in _BAD_CHUNK for c in name):
+    if not name:
+        raise ValueError(f"expected {what} that is not empty, got ''")
+    if any(c in _BAD_CHUNK for c in name):
         raise ValueError(f"expected {what} without '/', '*', '$', '?' or '#', got {name!r}")
     return name
 

@@ -214,7 +214,7 @@ class PoseStreamer:
             while not _matching(self._pub):
                 if time.monotonic() > deadline:
                     raise LiveError(f"no Canal bridge subscribes to {self.keys.pose} "
-                                    f"(waited {connect_timeout} s)")
+                                    f"(waited {connect_timeout:g} s)")
                 time.sleep(0.005)
             self._thread = threading.Thread(target=self._receive, name="canal-pose-streamer",
                                             daemon=True)

@@ -218,6 +218,10 @@ def check_points(dim: int, start: ArrayLike | None = None,
                                        f"got {np.size(value)}")
 
 
+#: The longest wait for the bridge, and then for the model, before a run.
+CONNECT_WAIT_S = 5.0
+
+
 def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = None,
             rate_hz: float = 100.0, lag: str = "first-order", gain: float | None = None,
             pushes: Sequence[Push] = (), timeout_s: float = 60.0,
@@ -227,6 +231,8 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
             session: Any = None, token: str | None = None,
             keep_out: tuple[Sequence[float], float] | None = None) -> SimResult:
     """Run one simulated robot on ``skill`` until Canal says done or ``timeout_s`` passes.
+    Before the run, the bridge and the skill's model are each waited for at most
+    ``min(timeout_s, 5)`` seconds.
 
     ``gain`` defaults to ``0.5 * rate_hz`` (1/s) for the first-order lag and to
     ``(0.2 * rate_hz) ** 2`` (1/s^2) for the PD lag.
@@ -240,9 +246,11 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
     rng = np.random.default_rng(seed)
     pending = [(when, np.asarray(offset, dtype=np.float64)) for when, offset in pushes]
     given = None if start is None else np.asarray(start, dtype=np.float64)
+    wait_s = min(timeout_s, CONNECT_WAIT_S)
     with PoseStreamer(skill, robot, endpoint=endpoint, zenoh_config=zenoh_config,
-                      prefix=prefix, encoding=encoding, session=session, token=token) as ps:
-        model = ps.model()
+                      prefix=prefix, encoding=encoding, session=session, token=token,
+                      connect_timeout=wait_s) as ps:
+        model = ps.model(timeout=wait_s)
         check_points(int(model["dim"]), given, pushes, keep_out)
         x = random_interior_start(model, rng) if given is None else given
         x0 = x.copy()

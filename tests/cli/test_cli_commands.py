@@ -768,3 +768,19 @@ def test_sim_that_cannot_connect_through_its_config_is_a_runtime_failure(
     assert r.exit_code == 1, r.output
     assert r.stderr.startswith("error: simulation failed: cannot open a Zenoh session"), r.stderr
     assert "Traceback" not in r.output and ".rs:" not in r.output, r.output
+
+
+def test_sim_says_the_wait_it_used_and_that_a_robot_needs_a_name(run: Run) -> None:
+    # --timeout 1 said "(waited 5.0 s)"; --robot '' was "expected robot without '/', ...".
+    flags = ["--endpoint", f"tcp/127.0.0.1:{free_port()}", "--prefix", "canal"]
+    r = run("sim", "nobody-listens", *flags, "--timeout", "1", url=closed_port_url())
+    assert r.exit_code == 1, r.output
+    assert "no Canal bridge subscribes to canal/nobody-listens/sim/pose (waited 1 s)" in r.stderr
+    for robot, said in (("", "expected robot that is not empty, got ''"),
+                        ("arm/1", "expected robot without '/', '*', '$', '?' or '#', "
+                                  "got 'arm/1'")):
+        r = run("sim", "x", *flags, "--robot", robot, url=closed_port_url())
+        said_all = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2, (robot, r.output)
+        assert f"Invalid value for --robot: {said}" in said_all, (robot, said_all)
+

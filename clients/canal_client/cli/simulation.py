@@ -14,6 +14,7 @@ import typer
 from rich.markup import escape
 
 from canal_core.validation import FloatArray
+from canal_protocol.keys import check_chunk
 
 from ..errors import (
     ApiError,
@@ -127,8 +128,10 @@ def sim(
     gain: Annotated[float | None, typer.Option("--gain", help="Dynamics gain.")] = None,
     push: Annotated[list[str] | None, typer.Option(
         "--push", help="T:dx,dy,dz pushes the robot by (dx,dy,dz) at T s (repeat).")] = None,
-    timeout: Annotated[float | None, typer.Option("--timeout", help="Give up after S s.")
-                       ] = None,
+    timeout: Annotated[float | None, typer.Option(
+        "--timeout", help="Give up after S s (default 60). Before the run, the bridge and "
+                          "then the model are each waited for at most 5 s, or S s when less."
+    )] = None,
     endpoint: Annotated[str | None, typer.Option(
         "--endpoint", help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447, several "
                            "comma-separated (default: the ones the service's /healthz "
@@ -167,6 +170,11 @@ def sim(
     from ..live import client_config
 
     endpoints = None if endpoint is None else [e.strip() for e in endpoint.split(",")]
+    if robot is not None:
+        try:
+            check_chunk(robot, "robot")
+        except ValueError as exc:
+            raise typer.BadParameter(str(exc), param_hint="--robot") from None
     try:  # before anything is asked of the service: a value Zenoh cannot use at all
         if endpoints is not None:
             client_config(endpoints)
