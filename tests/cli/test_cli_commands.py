@@ -784,3 +784,25 @@ def test_sim_says_the_wait_it_used_and_that_a_robot_needs_a_name(run: Run) -> No
         assert r.exit_code == 2, (robot, r.output)
         assert f"Invalid value for --robot: {said}" in said_all, (robot, said_all)
 
+
+def test_recordings_rebuild_counts_the_reproductions_it_logs(
+        run: Run, service: LiveService, unique_name: Callable[[str], str]) -> None:
+    # The help said reproductions "are not stored, so they are not kept", and the summary
+    # left them out, while the service rebuilds the ones its database keeps.
+    name = unique_name("rebuild")
+    make_fitted(service, name)
+    with CanalClient(service.url) as c:
+        c.reproduce(name, [0.0, 0.01, 0.0])
+        c.reproduce(name, [0.0, 0.02, 0.0])
+    r = run("--json", "recordings", "rebuild", name)
+    assert r.exit_code == 0, r.output
+    body = json.loads(r.stdout)
+    assert (body["demos"], body["models"], body["reproductions"]) == (4, 1, 2), body
+    r = run("recordings", "rebuild", name)
+    assert r.exit_code == 0, r.output
+    assert (f"rebuilt the recordings of {name}: 4 demonstrations, 1 model versions, "
+            "2 reproductions") in r.stdout
+    r = run("recordings", "rebuild", "--help")
+    said = " ".join(r.stdout.split())
+    assert r.exit_code == 0 and "the reproductions it keeps" in said, said
+    assert "reproductions are not stored" not in said, said

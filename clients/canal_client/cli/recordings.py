@@ -170,12 +170,15 @@ def view_web(ctx: typer.Context, skill: str, no_open: bool) -> None:
 
 @app.command("rebuild")
 def recordings_rebuild(ctx: typer.Context, skill: str) -> None:
-    """Regenerate SKILL's .rrd and .mcap from the service's database (demonstrations and
-    model versions; live poses and reproductions are not stored, so they are not kept)."""
+    """Regenerate SKILL's .rrd and .mcap from the service's database: its demonstrations,
+    model versions and the reproductions it keeps (the service's
+    --recordings-reproductions-kept, the newest per skill). Live poses are not stored, so a
+    rebuilt recording does not have them."""
     with connected(ctx) as c:
         body = c.rebuild_recording(skill)
     if options(ctx).json:
         print_json(body)
         return
     out.print(f"rebuilt the recordings of {escape(skill)}: {body.get('demos', 0)} "
-              f"demonstrations, {body.get('models', 0)} model versions")
+              f"demonstrations, {body.get('models', 0)} model versions, "
+              f"{body.get('reproductions', 0)} reproductions")
