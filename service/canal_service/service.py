@@ -956,7 +956,8 @@ def check_route(route: int | None, n_routes: int, field: str) -> int | None:
 
 def corrected_routes(routes: Routes, correction: Correction_, route: int | None
                      ) -> tuple[Routes, Any]:
-    """``routes`` refined by ``correction``, and the first canal's applied correction.
+    """``routes`` refined by ``correction``, and the first route's applied correction (the
+    canal of all's when no route took it).
 
     One route: its canal, as a single-canal model (``route`` is 0 or None). Several:
     ``route`` names the one canal corrected; None corrects every canal the samples pass
@@ -982,11 +983,13 @@ def corrected_routes(routes: Routes, correction: Correction_, route: int | None
         taken.append(out.corrections[-1])
         return out
 
-    pooled = attempt(routes.pooled)
     canals = [attempt(c) for c in canals]
+    pooled = attempt(routes.pooled)
     if not taken:
         assert refusal is not None
         raise refusal
+    # The span stored is a route's (the first that took it): the canal of all is followed by
+    # no reproduction, and its sections are not the ones a person corrected.
     return Routes(tuple(canals), pooled, routes.labels), taken[0]
 
 

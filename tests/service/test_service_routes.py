@@ -147,6 +147,29 @@ def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx
     assert undone.n_routes == 2 and not any(c.corrections for c in undone.canals)
 
 
+def test_a_correction_for_every_route_stores_the_span_of_the_route_it_refines(
+        http: httpx.Client) -> None:
+    # With "route": null the correction refines the routes its samples lie along, but the
+    # stored first_section..last_section were the canal of all's (which no reproduction
+    # follows), not the route's: the listing pointed at sections the correction did not change.
+    add_two_route_demos(http)
+    assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
+    routes = canal_core.routes.routes_from_dict(
+        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
+    canal = routes.canals[1]
+    idx = np.arange(20, 41)
+    samples = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    spans = {}
+    for route in (1, None):
+        r = http.post("/skills/reach/corrections",
+                      json={"kind": "include", "samples": samples.tolist(), "route": route,
+                            "model": 1})
+        assert r.status_code == 201, r.text
+        made = r.json()["correction"]
+        spans[route] = (made["first_section"], made["last_section"])
+    assert spans[None] == spans[1], spans
+
+
 def test_a_stored_model_loads_after_a_restart(tmp_path: object, settings: Settings) -> None:
     with LiveServer(create_app(settings)) as server, \
             httpx.Client(base_url=server.url, timeout=60) as http:
