@@ -73,7 +73,7 @@ from canal_core.options import CORRECTION_KINDS
 from canal_core.tracker_kernel import compile_step_rows, numba_available
 from canal_protocol import codecs, wire
 from canal_protocol import keys as keyspace
-from canal_protocol.schemas import CorrectionIn, shown_value
+from canal_protocol.schemas import CorrectionIn, SceneIn, shown_value
 
 from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
 from ..memory import release_memory
@@ -485,14 +485,16 @@ class Bridge:
                 if isinstance(version, int):
                     self.scene_updated(skill, version)
                 return
-            items = body.get("obstacles") if isinstance(body, dict) else body
+            # The REST scene's own model: one set of rules for both ways in (fields, lengths).
+            checked = SceneIn.model_validate(body if isinstance(body, dict) else {"obstacles": body})
             dim = self.service.skill_dim(skill)
-            scene = canal_core.obstacles.scene_from_list(items, dim)
+            scene = canal_core.obstacles.scene_from_list(
+                [o.as_dict() for o in checked.obstacles], dim)
             if self.options.shard == 0:
                 self.service.put_scene(skill, scene.to_list())  # -> _on_scene
             else:
                 self.models.scene_changed(skill, self.models.scene_version(skill) + 1, scene)
-        except (canal_core.CanalError, ServiceError, orjson.JSONDecodeError) as exc:
+        except (canal_core.CanalError, ServiceError, orjson.JSONDecodeError, ValidationError) as exc:
             log.warning("scene put on %s refused: %s", sample.key_expr, exc)
         except Exception:
             log.exception("scene put on %s failed", sample.key_expr)
