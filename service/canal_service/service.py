@@ -791,7 +791,8 @@ class CanalService:
                     **result.blocked.to_dict()),
                 scene_version=scene_version, obstacles=0 if scene is None else len(scene),
                 start_clearance=result.start_clearance,
-                notes=notes + _orientation_notes(canal, result, start_orientation),
+                notes=(notes + _orientation_notes(canal, result, start_orientation)
+                       + _goal_notes(result, scene)),
                 route=choice.route, route_reason=choice.reason, approach=int(result.approach),
                 ratios=_tolist(result.ratios),
             ))
@@ -1012,6 +1013,20 @@ def _orientation_notes(canal: canal_core.Canal, result: canal_core.Reproduction,
                 "the mean at its section: its offset is carried as far as the demonstrations "
                 "kept theirs, outside what was demonstrated"]
     return []
+
+
+def _goal_notes(result: canal_core.Reproduction,
+                scene: canal_core.obstacles.Scene | None) -> list[str]:
+    """Say so when the goal asked for lies in an obstacle: the path goes around it, so it
+    does not end on the goal the answer echoes."""
+    if result.goal is None or scene is None or not len(scene) or result.blocked is not None:
+        return []
+    free = float(canal_core.obstacles.free_distances(result.goal[None, :], scene)[0])
+    if free >= 0.0:
+        return []
+    miss = float(np.linalg.norm(result.positions[-1] - result.goal))
+    return [f"goal lies inside an obstacle or its clearance ({-free:.3g} deep): the path goes "
+            f"around it and ends {miss:.3g} from the goal"]
 
 
 _INDEXED_FIELD = re.compile(r"^(demos|timestamps)\[(\d+)\]")

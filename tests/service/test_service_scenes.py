@@ -155,3 +155,18 @@ def test_a_scene_goes_with_its_skill(http: httpx.Client) -> None:
     assert http.post("/skills", json={"name": "reach", "dim": 3}).status_code == 201
     assert http.get("/skills/reach/scene").json() == {
         "skill": "reach", "version": 0, "obstacles": [], "updated_at": None}
+
+
+def test_a_goal_inside_an_obstacle_is_said_to_be_missed(http: httpx.Client) -> None:
+    # The path went around the obstacle over the goal and ended 5 cm from it, while the answer
+    # echoed the goal, unblocked, without a word.
+    goal = [1.0, 0.0, 0.0]
+    ball = {"kind": "sphere", "center": [0.98, 0.0, 0.0], "radius": 0.03}
+    rep = http.post("/skills/reach/reproductions",
+                    json={"start": START, "goal": goal, "obstacles": [ball]}).json()
+    miss = float(np.linalg.norm(np.asarray(rep["positions"][-1]) - goal))
+    assert rep["blocked"] is None and miss > 0.01, rep["blocked"]
+    assert any(n.startswith("goal lies inside an obstacle") and f"{miss:.3g}" in n
+               for n in rep["notes"]), rep["notes"]
+    free = http.post("/skills/reach/reproductions", json={"start": START, "goal": goal}).json()
+    assert not any(n.startswith("goal lies") for n in free["notes"])

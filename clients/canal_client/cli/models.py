@@ -210,10 +210,12 @@ def reproduce(
               f"{lasts}; start {state} (eta {r.eta:.3f}, section {r.section_index}); "
               f"ends at ({end})")
     if len(r.ratios):
-        marks = np.linspace(0, len(r.ratios) - 1, 5).round().astype(int)
+        # named points only where the path has that many (a path of 2 has a start and an end)
+        names = (("start", "end") if len(r.ratios) < 5
+                 else ("start", "a quarter", "half-way", "three quarters", "end"))
+        marks = np.linspace(0, len(r.ratios) - 1, len(names)).round().astype(int)
         out.print("how far out, as a share of the canal's reach (0 the directrix, 1 the wall): "
-                  + ", ".join(f"{name} {r.ratios[i]:.2f}" for name, i in zip(
-                      ("start", "a quarter", "half-way", "three quarters", "end"), marks, strict=True)))
+                  + ", ".join(f"{name} {r.ratios[i]:.2f}" for name, i in zip(names, marks, strict=True)))
     if r.approach:
         out.print(f"the start lies behind the canal's first plane: {r.approach} points approach "
                   "its first section in a straight line, paced like the demonstrations' first steps")
