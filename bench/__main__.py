@@ -43,8 +43,8 @@ else:  # run as a file (python bench/__main__.py): bench/ is sys.path[0]
 
 HERE = Path(__file__).parent
 #: Every benchmark, in the order of its section in BENCHMARKS.md.
-SCRIPTS = ["core", "service", "recording", "replicas", "live", "quality", "obstacles", "scale",
-           "orientation", "startup", "memory", "corrections"]
+SCRIPTS = ["core", "service", "recording", "replicas", "live", "following", "quality", "obstacles",
+           "scale", "orientation", "startup", "memory", "corrections"]
 PLOTS_DIR = HERE.parent / "docs" / "img" / "bench"
 INDEX = "index"
 HEADER = """# Benchmarks
