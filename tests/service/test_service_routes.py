@@ -108,14 +108,16 @@ def test_route_options_out_of_bounds_are_refused_naming_the_field(http: httpx.Cl
     assert http.get("/skills/reach").json()["n_models"] == 0
 
 
-def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx.Client) -> None:
+def two_routes_and_a_widening(http: httpx.Client) -> tuple[canal_core.Routes, np.ndarray]:
+    """The two-route skill fitted, and samples beside its route 1: an include of that route."""
     add_two_route_demos(http)
     assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
-    routes = canal_core.routes.routes_from_dict(
-        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
-    canal = routes.canals[1]
-    idx = np.arange(20, 41)
-    samples = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    routes = _latest_routes(http)
+    return routes, _widening(routes.canals[1])
+
+
+def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx.Client) -> None:
+    routes, samples = two_routes_and_a_widening(http)
     r = http.post("/skills/reach/corrections",
                   json={"kind": "include", "samples": samples.tolist(), "route": 1})
     assert r.status_code == 201, r.text
@@ -124,7 +126,7 @@ def test_a_correction_names_its_route_and_the_model_keeps_its_routes(http: httpx
     after = canal_core.routes.routes_from_dict(
         http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
     assert len(after.canals[1].corrections) == 1 and len(after.canals[0].corrections) == 0
-    assert float(after.canals[1].radii[30]) > float(canal.radii[30])
+    assert float(after.canals[1].radii[30]) > float(routes.canals[1].radii[30])
     np.testing.assert_allclose(after.canals[0].directrix, routes.canals[0].directrix)
     listed = http.get("/skills/reach/corrections").json()["items"]
     assert [c["route"] for c in listed] == [1]
@@ -152,13 +154,7 @@ def test_a_correction_for_every_route_stores_the_span_of_the_route_it_refines(
     # With "route": null the correction refines the routes its samples lie along, but the
     # stored first_section..last_section were the canal of all's (which no reproduction
     # follows), not the route's: the listing pointed at sections the correction did not change.
-    add_two_route_demos(http)
-    assert http.post("/skills/reach/fit", json={"n_samples": 60}).status_code == 201
-    routes = canal_core.routes.routes_from_dict(
-        http.get("/skills/reach/models/latest", params={"serialized": True}).json()["serialized"])
-    canal = routes.canals[1]
-    idx = np.arange(20, 41)
-    samples = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    routes, samples = two_routes_and_a_widening(http)
     spans = {}
     for route in (1, None):
         r = http.post("/skills/reach/corrections",
