@@ -150,10 +150,9 @@ class Stepper(Answers):
         old = st.bank
         if old is not None and st.revision != entry.revision:
             self.counts.switches += 1
-            # A skill created again under the name is another skill: its stream is placed
-            # afresh, as a new one.
-            # A route chosen afresh (from the robot's position) is another canal: placed
-            # afresh too, not at the share of the canal the old one had reached.
+            # Placed afresh, as a new stream, on a skill created again under the name (another
+            # skill) and on a route chosen from the robot's position (another canal): the
+            # share of the canal reached on the old one says nothing there.
             placed_afresh = entry.route != wire.NO_ROUTE and st.route_reason not in ("kept", "way")
             if not restart and st.revision[0] == entry.created_ns and not placed_afresh:
                 carried = (int(old.index[st.slot]), float(old.eta[st.slot]),
