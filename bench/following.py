@@ -1,5 +1,4 @@
-"""Following live targets: a simulated robot driven by the live tracker, against the offline
-reproduction from the same start.
+"""Following live targets: a robot on the live tracker, against the offline reproduction.
 
 Usage: ``python bench/following.py [--quick]``; its section of BENCHMARKS.md:
 ``python -m bench --only following --write``.
