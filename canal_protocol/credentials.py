@@ -21,15 +21,20 @@ import orjson
 TOKEN_CHARACTERS = "visible ASCII characters without spaces or control characters"
 
 
-def token_problem(token: str) -> str | None:
-    """Why ``token`` cannot be a bearer token (the service's ``--token``, a client's), or None.
-
-    The message says which character came and where, not the whole token."""
+def token_fault(token: str) -> str | None:
+    """The first character of ``token`` a bearer token cannot hold, and where it is
+    (``'é' at character 4 of 5``), or None. Never the whole token."""
     for i, c in enumerate(token, 1):
         if not "!" <= c <= "~":
             shown = "a space" if c == " " else repr(c)
-            return f"expected {TOKEN_CHARACTERS}, got {shown} at character {i} of {len(token)}"
+            return f"{shown} at character {i} of {len(token)}"
     return None
+
+
+def token_problem(token: str) -> str | None:
+    """Why ``token`` cannot be a bearer token (the service's ``--token``, a client's), or None."""
+    fault = token_fault(token)
+    return None if fault is None else f"expected {TOKEN_CHARACTERS}, got {fault}"
 
 
 #: The Zenoh user name of every session that holds the service's token.
@@ -59,5 +64,6 @@ def insert_credentials(config: object, token: str, users_file: str | None = None
         insert("transport/auth/usrpwd/dictionary_file", orjson.dumps(users_file).decode())
 
 
-__all__ = ["LIVE_USER", "TOKEN_CHARACTERS", "insert_credentials", "live_password", "token_problem",
+__all__ = ["LIVE_USER", "TOKEN_CHARACTERS", "insert_credentials", "live_password", "token_fault",
+           "token_problem",
            "users_file_text"]

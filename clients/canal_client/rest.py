@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from pydantic import BaseModel, ValidationError
 
+from canal_protocol.credentials import TOKEN_CHARACTERS, token_fault
 from canal_protocol.options import (
     Alignment,
     CrossSection,
@@ -817,6 +818,9 @@ class _Base(_Operations):
 
     def __init__(self, url: str, token: str | None,
                  timeout: float | httpx.Timeout | None) -> None:
+        fault = None if not token else token_fault(token)
+        if fault is not None:  # httpx would fail at the first request, naming no argument
+            raise ArgumentError("token", TOKEN_CHARACTERS, fault)
         self.url = url.rstrip("/")
         self.token = token
         self.timeout = timeout

@@ -116,6 +116,14 @@ def test_token(tmp_path: Path) -> None:
         with CanalClient(live.url, token="s3cret") as good:
             assert good.create_skill("x").name == "x"
             assert [s.name for s in good.list_skills()] == ["x"]
+        # A token no HTTP header can carry failed at the first request with httpx's
+        # UnicodeEncodeError; it is an ArgumentError naming the character, not the token.
+        for bad, fault in (("tokén", "'é' at character 4 of 5"), ("s3cret ", "a space at character 7 of 7")):
+            for client in (CanalClient, AsyncCanalClient):
+                with pytest.raises(ArgumentError) as refused:
+                    client(live.url, token=bad)
+                assert str(refused.value).startswith("token: expected visible ASCII")
+                assert str(refused.value).endswith(f"got {fault}")
 
 
 def test_recordings_off_is_not_found(tmp_path: Path) -> None:
