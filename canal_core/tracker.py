@@ -383,6 +383,17 @@ def start_section(geometry: TrackerGeometry, position: FloatArray, located: int)
     return state.index if after is not state else 0
 
 
+def plausible_from(geometry: TrackerGeometry, index: int, position: FloatArray) -> bool:
+    """Whether a stream that has reached section ``index`` (with a plan) would take
+    ``position``, shape (D,), as a plausible step: near the canal and at most
+    :data:`MAX_ADVANCE` sections ahead (see "Plausible steps" in the module docstring)."""
+    n, k = geometry.centres.shape[0], geometry.basis.shape[1]
+    state = TrackerState(min(max(int(index), 0), max(n - 1, 0)), 0.0, DEFAULT_DIRECTIONS[k])
+    with np.errstate(all="ignore"):
+        _, after = tracker_step(geometry, state, np.asarray(position, dtype=np.float64))
+    return after.strikes == 0
+
+
 def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
     """Whether a pose is far from the canal: its ratio ``eta`` above :data:`FAR_ETA` (or
     not a number), or it lies more than :data:`FAR_ETA` times the local ``reach`` outside

@@ -290,3 +290,35 @@ def test_a_skill_created_again_under_its_name_is_served_its_own_canal(live):
     with PoseStreamer("recr", "flat", endpoint=live.endpoint) as ps:
         got = ps.wait_for(ps.send([0.5, 1.0]), timeout=5.0)
         assert got is not None and got.status == "ok" and abs(got.target[1] - 1.0) < 0.05, got
+
+
+def test_a_refit_whose_canal_grew_at_its_start_does_not_send_a_stream_back(live):
+    # On a new fit a stream went on from the same share of the canal. When the canal grew at
+    # its start (or a route merged into a longer one) that share lay far behind the robot,
+    # and the robot was answered outside_canal with a target half a metre back, pose after
+    # pose, until its poses added up to a displacement.
+    def demos(x0: float) -> list[list[list[float]]]:
+        x = np.linspace(x0, 1.0, 120)
+        return [np.column_stack([x, 0.02 * np.sin(3 * x + j), 0.02 * np.cos(2 * x + j)]).tolist()
+                for j in range(5)]
+
+    client = live.client
+    assert client.post("/skills", json={"name": "grown", "dim": 3}).status_code == 201
+    ids = [client.post("/skills/grown/demonstrations", json={"positions": d}).json()["id"]
+           for d in demos(0.0)]
+    assert client.post("/skills/grown/fit", json={"n_samples": 100}).status_code == 201
+    with PoseStreamer("grown", "arm", endpoint=live.endpoint) as ps:
+        x = np.array([0.05, 0.0, 0.0])
+        for _ in range(60):
+            t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+            assert t is not None and t.target is not None, t
+            x = x + 0.5 * (np.asarray(t.target) - x)
+        assert 0.3 < x[0] < 0.9, x
+        for demo_id in ids:
+            assert client.delete(f"/skills/grown/demonstrations/{demo_id}").status_code == 204
+        for d in demos(-1.0):
+            client.post("/skills/grown/demonstrations", json={"positions": d})
+        assert client.post("/skills/grown/fit", json={"n_samples": 100}).status_code == 201
+        t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+        assert t is not None and t.model_version == 2 and t.status == "ok", t
+        assert np.linalg.norm(np.asarray(t.target) - x) < 0.1, (t.target, x)

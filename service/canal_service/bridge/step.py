@@ -18,7 +18,7 @@ import numpy as np
 
 from canal_core.routes import way_of
 from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
-from canal_core.tracker import start_section
+from canal_core.tracker import plausible_from, start_section
 from canal_protocol import wire
 
 from .answers import Answers
@@ -163,16 +163,20 @@ class Stepper(Answers):
             release_slot(st)
             st.bank, st.slot = bank, bank.add()
         st.revision = entry.revision
+        point = np.array(position, dtype=np.float64)
         if carried is not None:
             index, eta, direction, n_old = carried
             n = bank.geometry.centres.shape[0]
-            if n == n_old:  # the same sections (a correction): the plan carries over too
+            same_sections = n == n_old  # a correction: the plan carries over too
+            if not same_sections:  # another fit: the same share of the canal
+                index = round(index * (n - 1) / max(n_old - 1, 1))
+            # ... unless the robot is not there on the new canal (a route that merged with
+            # another, a canal that grew at its start): placed afresh, not sent back to it
+            if plausible_from(bank.geometry, index, point):
                 bank.reset(st.slot, index)
-                bank.eta[st.slot], bank.direction[st.slot] = eta, direction
-            else:  # another fit: the same share of the canal
-                bank.reset(st.slot, round(index * (n - 1) / max(n_old - 1, 1)))
-            return
-        point = np.array(position, dtype=np.float64)
+                if same_sections:
+                    bank.eta[st.slot], bank.direction[st.slot] = eta, direction
+                return
         try:
             located = int(entry.canal.reproduce_detailed(point).section_index)
             # a first pose far from the canal (a glitch?) places nothing: from the first
