@@ -167,7 +167,8 @@ class Stepper(Answers):
         if carried is not None:
             index, eta, direction, n_old = carried
             n = bank.geometry.centres.shape[0]
-            same_sections = n == n_old  # a correction: the plan carries over too
+            # a correction (the same sections of the same route): the plan carries over too
+            same_sections = n == n_old and st.route_reason != "way"
             if not same_sections:  # another fit: the same share of the canal
                 index = round(index * (n - 1) / max(n_old - 1, 1))
             # ... unless the robot is not there on the new canal (a route that merged with
