@@ -34,25 +34,25 @@ def _seq_valid(value: Any) -> bool:
     return type(value) is int and 0 <= value < 2**64
 
 
-def correction_label_valid(value: Any) -> bool:
-    """The bound a stored correction puts on its label."""
-    return type(value) is str and len(value) <= MAX_CORRECTION_LABEL and "\x00" not in value
+def _text_within(limit: int) -> Callable[[Any], bool]:
+    """A label's check: a text of at most ``limit`` characters, without NUL."""
+    return lambda value: type(value) is str and len(value) <= limit and "\x00" not in value
 
 
-def weight_valid(value: Any) -> bool:
+def _weight_valid(value: Any) -> bool:
     """The bound a stored correction puts on an include's weight."""
     return type(value) in (int, float) and 0 < value <= MAX_CORRECTION_WEIGHT
 
 
 _SEQ = BodyField(_seq_valid, "an integer in [0, 2**64)")
-_DEMO_LABEL = BodyField(lambda v: type(v) is str and len(v) <= MAX_DEMO_LABEL and "\x00" not in v,
+_DEMO_LABEL = BodyField(_text_within(MAX_DEMO_LABEL),
                         f"a text of at most {MAX_DEMO_LABEL} characters, without NUL")
 # A correction's weight and label are checked at start, not at stop: a value the correction
 # cannot keep must not cost the person the push.
-_CORRECTION_LABEL = BodyField(correction_label_valid,
+_CORRECTION_LABEL = BodyField(_text_within(MAX_CORRECTION_LABEL),
                               f"a text of at most {MAX_CORRECTION_LABEL} characters, without NUL",
                               "invalid_input")
-_WEIGHT = BodyField(weight_valid, f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]", "invalid_input")
+_WEIGHT = BodyField(_weight_valid, f"a number in (0, {MAX_CORRECTION_WEIGHT:g}]", "invalid_input")
 _KIND = BodyField(lambda v: v in CORRECTION_KINDS, " or ".join(map(repr, CORRECTION_KINDS)),
                   "invalid_input", required=True)
 
@@ -87,4 +87,4 @@ def body_error(body: dict[str, Any], query: tuple[str, str]) -> tuple[str, str, 
     return None
 
 
-__all__ = ["STREAM_QUERIES", "BodyField", "body_error", "correction_label_valid", "weight_valid"]
+__all__ = ["STREAM_QUERIES", "BodyField", "body_error"]
