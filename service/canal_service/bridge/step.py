@@ -121,11 +121,10 @@ class Stepper(Answers):
         routes = entry.routes
         assert routes is not None
         if st.route_serial != entry.serial or restart:
-            in_flight = (not restart and st.bank is not None
-                         and st.revision[0] == entry.created_ns)
-            if in_flight and st.bank is not None:
+            old = None if restart or st.revision[0] != entry.created_ns else st.bank
+            if old is not None:  # in flight on a new version of the same skill
                 followed = st.route is not None and st.route_serial >= 0
-                way = (st.bank.geometry.centres if followed
+                way = (old.geometry.centres if followed
                        else np.array(position, dtype=np.float64)[None, :])
                 keep = st.route if followed and st.route is not None and st.route < len(routes) else None
                 route = way_of(entry.chooser, way, keep)
