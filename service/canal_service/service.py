@@ -529,13 +529,12 @@ class CanalService:
         canal read or decoded). The creation time tells a skill deleted and created again
         under its name, whose versions start again at 1, from the one before. Raises
         :class:`SkillNotFound` or :class:`NoModelYet`."""
-        ref = repo.model_ref_by_name(self.db, name, None)
-        return repo.created_ns(ref.skill_created_at), ref.version
+        return _revision(repo.model_ref_by_name(self.db, name, None))
 
     def latest_model(self, name: str) -> tuple[Routes, Revision, int]:
         """(routes, revision as :meth:`latest_revision` says it, dim) of the latest model."""
         routes, _row, ref = self._load_routes(name, None)
-        return routes, (repo.created_ns(ref.skill_created_at), ref.version), ref.dim
+        return routes, _revision(ref), ref.dim
 
     def skills_by_latest_fit(self, limit: int) -> list[tuple[str, int]]:
         """(skill, latest version) of at most ``limit`` skills with a model, most recently
@@ -1013,6 +1012,10 @@ def _orientation_notes(canal: canal_core.Canal, result: canal_core.Reproduction,
                 "the mean at its section: its offset is carried as far as the demonstrations "
                 "kept theirs, outside what was demonstrated"]
     return []
+
+
+def _revision(ref: repo.ModelRef) -> Revision:
+    return repo.created_ns(ref.skill_created_at), ref.version
 
 
 def _goal_notes(result: canal_core.Reproduction,
