@@ -279,8 +279,8 @@ class ModelTable:
             return revision  # already served
         if canal is not None and revision is not None and revision[1] == version:
             entry = ok_entry(version, canal, self.options.lookahead, created_ns=revision[0])
-        else:
-            entry = self.load(skill, old)
+        else:  # read: the revision just asked for is not the entry's (no second query for it)
+            entry = self.load(skill)
         if entry is not old:
             self.install(skill, entry)
         return revision
