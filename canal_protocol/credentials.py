@@ -65,5 +65,4 @@ def insert_credentials(config: object, token: str, users_file: str | None = None
 
 
 __all__ = ["LIVE_USER", "TOKEN_CHARACTERS", "insert_credentials", "live_password", "token_fault",
-           "token_problem",
-           "users_file_text"]
+           "token_problem", "users_file_text"]
