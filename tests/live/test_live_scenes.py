@@ -137,8 +137,10 @@ def test_a_scene_put_over_zenoh_is_held_to_the_rest_scene_s_rules(live, scn) -> 
             ps.session.put(f"canal/{scn}/scene", orjson.dumps(body))
         # a good one after them: once it is stored, the bad ones had their turn
         ps.session.put(f"canal/{scn}/scene", orjson.dumps([{**ball, "name": "ok"}]))
-        assert wait_until(lambda: live.client.get(f"/skills/{scn}/scene").json()["version"] > before)
+        # a loaded machine measures four scenes in turn: time enough for all of them
+        assert wait_until(lambda: live.client.get(f"/skills/{scn}/scene").json()["version"] > before,
+                          timeout=30.0), (before, live.client.get(f"/skills/{scn}/scene").json())
     stored = live.client.get(f"/skills/{scn}/scene").json()
-    assert stored["version"] == before + 1, stored
+    assert stored["version"] == before + 1, (before, stored)
     assert [o.get("name") for o in stored["obstacles"]] == ["ok"]
     assert live.client.delete(f"/skills/{scn}/scene").status_code == 204
