@@ -27,6 +27,12 @@ point, scored against the spheres' own radii (no clearance):
 * ``step``: the largest step after the first 10 %, over the demonstrations' largest step
   between sections (``Canal.largest_step``).
 
+``canal, live`` is a first-order robot following the live tracker's answers around the same
+spheres from the same start (the bridge's tracker bank and obstacle pass, lookahead 2, each
+pose 30 % of the way to its target, at most 4,000 poses); its ``blocked`` is the share that
+did not reach the end, and the headline compares how often it ends as the reproduction does
+(both reach the end, or both are blocked).
+
 DMP: movement_primitives' DMP (30 weights per dimension) fitted on the mean demo (200 points
 in normalised time), goal the mean goal, started at the held-out start, with one
 ``CouplingTermObstacleAvoidance3D`` per sphere (the term sees the sphere's centre as a point)
@@ -184,6 +190,28 @@ def dmp_reproduce(model: tuple[DMP, np.ndarray], start: np.ndarray, spheres: lis
     return np.asarray(y, float)
 
 
+def live_followed(canal: canal_core.Canal, start: np.ndarray, scene: Scene) -> tuple[np.ndarray, bool]:
+    """The path of a first-order robot following the live tracker's answers around ``scene``
+    from ``start`` (the bridge's tracker bank and obstacle pass, lookahead 2; each pose moves
+    30 % of the way to its target, at most 4,000 poses), and whether it reached the end."""
+    from canal_core.tracker_bank import TrackerBank
+    from canal_core.tracker_obstacles import scene_tables
+
+    bank = TrackerBank(canal.tracker_geometry(), 2)
+    bank.scene = scene_tables(bank.geometry, scene, canal.section_steps)
+    slot = bank.add(int(canal.reproduce_detailed(start).section_index))
+    x = start[None, :].copy()
+    path = [x[0].copy()]
+    for _ in range(4000):
+        rows = bank.step_packed([slot], x)
+        bank.avoid_packed(rows, x)
+        if rows[0, 7] != 0.0:
+            return np.array(path), True
+        x = x + 0.3 * (rows[:, :3] - x)
+        path.append(x[0].copy())
+    return np.array(path), False
+
+
 # -- scoring ------------------------------------------------------------------------------------
 
 
@@ -225,6 +253,12 @@ def evaluate(sets: dict[str, list[Demo]], seed: int) -> dict[str, dict[str, dict
             if rep.blocked is not None:
                 print(f"  {set_name}[{k}]: blocked at section {rep.blocked.section} "
                       f"({rep.blocked.reason})", flush=True)
+            path, reached = live_followed(canal, start, scene)
+            r = rows["canal, live"]
+            for key, value in scored(canal, path, held, scene).items():
+                r[key].append(value)
+            r["blocked"].append(float(not reached))
+            r["agrees"].append(float(reached == (rep.blocked is None)))
             plain = canal.reproduce_detailed(start).positions
             r = rows["canal without obstacles"]
             for key, value in scored(canal, plain, held, scene).items():
@@ -263,12 +297,14 @@ def table(groups: dict[str, dict[str, dict[str, list[float]]]]) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for group, rows in groups.items():
         best = best_dmp(rows)
-        for method in ("canal", "canal without obstacles", best, "DMP gamma=0"):
+        for method in ("canal", "canal, live", "canal without obstacles", best, "DMP gamma=0"):
             r = rows[method]
             n = len(r["free"])
             label = method if method != "DMP gamma=0" else "DMP without the term"
             if method == best:
                 label = f"DMP + coupling term, best gain ({method.split('=')[1]})"
+            if method == "canal, live":
+                label = "canal, a live robot following it (blocked: did not reach the end)"
             lines.append(
                 f"| {group} | {n} | {label} | {100 * np.mean(r['free']):.0f} % | "
                 f"{100 * np.mean(r['blocked']):.0f} % | {100 * np.mean(r['inside']):.0f} % | "
@@ -296,7 +332,7 @@ def live_cost(repeats: int = 300, robots: int = 16, obstacles: int = 10) -> tupl
         side = math.cos(angle) * canal.normals[i] + math.sin(angle) * canal.binormals[i]
         spheres.append({"kind": "sphere", "center": (canal.directrix[i] + 0.4 * r * side).tolist(),
                         "radius": 0.4 * r})
-    tables = scene_tables(canal.tracker_geometry(), scene_from_list(spheres, 3), canal.largest_step)
+    tables = scene_tables(canal.tracker_geometry(), scene_from_list(spheres, 3), canal.section_steps)
     # Robots at their own places along the canal, each moving 60 % of the way to its answer
     # per step (a lagging arm), started over at the beginning when done: one drain of 16 poses
     # per step, as the bridge steps them.
@@ -354,6 +390,10 @@ def main(argv: list[str] | None = None) -> int:
             f"{scene_us:.1f} us with a 10-sphere scene ({scene_us / plain_us:.1f}x; "
             f"{100 * detoured:.0f} % of the answers corrected), same run. Not measured here: the "
             f"full 16 robots x 1 kHz Zenoh run with a scene (bench/live.py runs it without).")
+    agree = "; ".join(f"{group} {int(np.sum(rows['canal, live']['agrees']))} of {len(rows['canal, live']['agrees'])}"
+                      for group, rows in groups.items())
+    live += (f" A live robot around the spheres ends as the reproduction does (both reach the end, "
+             f"or both are blocked) in: {agree} folds.")
     print("\n" + live)
     total = time.perf_counter() - t_all
     print(f"\ncanal reproduction with obstacles: median {np.median(canal_ms):.0f} ms, "
@@ -365,6 +405,13 @@ def main(argv: list[str] | None = None) -> int:
                                    100 * float(np.mean(rows["canal"]["free"])), "%",
                                    peer_name=f"DMP + coupling term ({best.split('=')[1]})",
                                    peer_value=100 * float(np.mean(rows[best]["free"])), better="higher"))
+    for group, rows in groups.items():
+        followers = rows["canal, live"]
+        summary.append(summary_row(f"live robots around spheres that reach the end, {group}",
+                                   100 * (1.0 - float(np.mean(followers["blocked"]))), "%",
+                                   peer_name="reproductions not blocked",
+                                   peer_value=100 * (1.0 - float(np.mean(rows["canal"]["blocked"]))),
+                                   better="higher"))
     summary.append(summary_row("live step per pose with a 10-obstacle scene, 16 streams", scene_us, "us",
                                peer_name="no scene", peer_value=plain_us))
     write_summary("obstacles", summary)

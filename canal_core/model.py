@@ -31,7 +31,7 @@ from .errors import InvalidInputError
 from .frames import canal_frames
 from .goal import goal_displacements
 from .io import canal_dict, canal_fields
-from .obstacles import demonstrated_largest_step
+from .obstacles import demonstrated_largest_step, demonstrated_steps
 from .options import FitOptions
 from .orientation import OrientationModel
 from .reproduce import (
@@ -317,6 +317,12 @@ class Canal:
         """The longest step a demonstration takes from one section to the next (or the
         directrix, when longer): no detour around obstacles steps further."""
         return demonstrated_largest_step(self.directrix, self.basis, self.section_points)
+
+    @cached_property
+    def section_steps(self) -> FloatArray:
+        """The largest step a demonstration takes into or out of each section, shape (N,):
+        the pace a live detour keeps around each section (:mod:`canal_core.tracker_obstacles`)."""
+        return demonstrated_steps(self.directrix, self.basis, self.section_points)
 
     def with_goal(self, goal: Any) -> Canal:
         """This canal deformed so that its directrix ends at ``goal`` (D,) (:mod:`canal_core.goal`).

@@ -490,6 +490,32 @@ def _box_segment_free(
 # -- the demonstrations' own step ------------------------------------------------------
 
 
+def demonstrated_steps(centres: FloatArray, basis: FloatArray, section_points: FloatArray) -> FloatArray:
+    """The largest step any demonstration (or the directrix) takes into or out of each section.
+
+    A demonstration that sets off from far aside, or crosses the last planes in a jump, steps
+    far once; around every other section the steps are the demonstrations' own pace there.
+
+    Parameters
+    ----------
+    centres : array, shape (N, D)
+    basis : array, shape (N, D - 1, D)
+    section_points : array, shape (N, n, D - 1)
+        Where each demonstration crosses each section, in-plane.
+
+    Returns
+    -------
+    steps : array, shape (N,)
+    """
+    n = centres.shape[0]
+    if n < 2:
+        return np.zeros(n)
+    world = centres[:, None, :] + np.einsum("njk,nkd->njd", section_points, basis)  # (N, n, D)
+    between = np.sqrt(((world[1:] - world[:-1]) ** 2).sum(axis=2)).max(axis=1, initial=0.0)
+    between = np.maximum(between, np.sqrt(((centres[1:] - centres[:-1]) ** 2).sum(axis=1)))
+    return np.maximum(np.concatenate([between[:1], between]), np.concatenate([between, between[-1:]]))
+
+
 def demonstrated_largest_step(centres: FloatArray, basis: FloatArray, section_points: FloatArray) -> float:
     """The largest step any demonstration takes from one cross-section to the next.
 
@@ -500,10 +526,7 @@ def demonstrated_largest_step(centres: FloatArray, basis: FloatArray, section_po
     section_points : array, shape (N, n, D - 1)
         Where each demonstration crosses each section, in-plane.
     """
-    world = centres[:, None, :] + np.einsum("njk,nkd->njd", section_points, basis)  # (N, n, D)
-    steps = np.sqrt(((world[1:] - world[:-1]) ** 2).sum(axis=2))
-    directrix = np.sqrt(((centres[1:] - centres[:-1]) ** 2).sum(axis=1))
-    return float(max(steps.max(initial=0.0), directrix.max(initial=0.0)))
+    return float(demonstrated_steps(centres, basis, section_points).max(initial=0.0))
 
 
 # -- avoidance ---------------------------------------------------------------------------
@@ -896,6 +919,7 @@ __all__ = [
     "Scene",
     "avoided_path",
     "demonstrated_largest_step",
+    "demonstrated_steps",
     "free_distances",
     "merged_scene",
     "obstacle_free_distances",

@@ -12,7 +12,9 @@ all rows at once, and corrected where needed:
   (``detour``), among a polar grid of each section (:func:`canal_core.obstacles.section_candidates`,
   free distances precomputed per scene), no further from the robot than the tracker's own
   answer (or one step, when that is further) and at least half a step clear of every
-  obstacle (so that the next move has room along the obstacle, not only away from it);
+  obstacle (so that the next move has room along the obstacle, not only away from it), or
+  as clear as the section's clearest point where the scene leaves less room than that (a
+  narrow passage is taken, keeping every obstacle's clearance);
 * no such point in the target section (out of reach): the nearest clear point of an earlier
   section up to the robot's own (``detour``: it swerves before it goes on); before a section
   the scene closes, or with no clear point in reach at all, the robot holds there or where it
@@ -23,8 +25,9 @@ obstacle within a horizon of sections is taken only when no clear lane is in rea
 then the one nearest a clear lane: the robot starts to swerve while there is room, instead
 of meeting the obstacle head on.
 
-A step is the demonstrations' largest step from one section to the next
-(:func:`canal_core.obstacles.demonstrated_largest_step`). Every quantity a pose needs is a
+A step is the demonstrations' largest step into or out of the robot's section
+(:func:`canal_core.obstacles.demonstrated_steps`): their pace there, not the one far step a
+demonstration may take where it sets off from aside or ends. Every quantity a pose needs is a
 gather of the per-scene tables and a few vectorised operations over the rows: no Python
 loop over poses.
 """
@@ -36,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .obstacles import Scene, obstacle_free_distances, section_candidates
+from .obstacles import Scene, obstacle_free_distances, section_candidates, segment_free_distances
 from .tracker import TrackerGeometry
 from .validation import FloatArray
 
@@ -61,13 +64,16 @@ class SceneTables:
     free : array, shape (N, G)
         Their free distance to the scene.
     closed : array of bool, shape (N,)
-        Sections with no candidate clear by :data:`LIVE_MARGIN` steps.
-    step : float
-        The longest move of one answer.
-    lane_free : array, shape (N, G)
-        The smallest free distance of each candidate's *lane* (the same in-plane point,
-        relative to each section's size and frame) over the next ``horizon`` sections: a lane
-        that is clear now but runs into an obstacle soon is left while there is room to.
+        Sections with no clear candidate.
+    steps : array, shape (N,)
+        The longest move of one answer around each section.
+    margin : array, shape (N,)
+        The free distance a detour target keeps in each section: :data:`LIVE_MARGIN` steps,
+        or the section's clearest candidate's when that is less (0 where closed).
+    lane_clear : array of bool, shape (N, G)
+        Whether each candidate's *lane* (the same in-plane point, relative to each section's
+        size and frame) keeps the margin over the next ``horizon`` sections: a lane that is
+        clear now but runs into an obstacle soon is left while there is room to.
     horizon : int
     lane_gap : array, shape (N, G)
         Distance from each candidate to the nearest candidate of its section whose lane is
@@ -78,7 +84,10 @@ class SceneTables:
         ahead of them, and a stream there is ``blocked`` (it moves on to the last free
         section and holds).
     usable : array of bool, shape (N, G)
-        Candidates clear by :data:`LIVE_MARGIN` steps.
+        Candidates that keep their section's margin.
+    closed_before : array of int, shape (N,)
+        How many closed sections there are up to each: a stream whose target lies past one
+        more than its own section is ``blocked``.
     lane_penalty : array, shape (N, G)
         What a candidate on a blocked lane adds to its cost (0 on a clear lane, or where no
         lane of its section is clear): it is taken only when no clear lane is in reach, the
@@ -90,44 +99,56 @@ class SceneTables:
     candidates: FloatArray
     free: FloatArray
     closed: NDArray[np.bool_]
-    step: float
-    lane_free: FloatArray
+    steps: FloatArray
+    margin: FloatArray
+    lane_clear: NDArray[np.bool_]
     horizon: int
     lane_gap: FloatArray
     closed_ahead: NDArray[np.bool_]
     usable: NDArray[np.bool_]
+    closed_before: NDArray[np.intp]
     lane_penalty: FloatArray
 
 
-def scene_tables(geometry: TrackerGeometry, scene: Scene, step: float, version: int = 0) -> SceneTables:
+def scene_tables(geometry: TrackerGeometry, scene: Scene, steps: FloatArray | float,
+                 version: int = 0) -> SceneTables:
     """Measure ``scene`` against every section of ``geometry`` (one pass; a few ms).
 
     Parameters
     ----------
     geometry : TrackerGeometry
     scene : Scene
-    step : float
-        The longest move of one answer (the demonstrations' largest step).
+    steps : array, shape (N,), or float
+        The longest move of one answer around each section (the demonstrations' largest
+        step there, :attr:`canal_core.Canal.section_steps`); a number applies to every section.
     version : int
     """
     n, d = geometry.centres.shape
+    step_k = np.broadcast_to(np.asarray(steps, dtype=np.float64), (n,)).copy()
     cand = section_candidates(np.arange(n), geometry.centres, geometry.basis, geometry.sections)
     g = cand.shape[1]
     if len(scene):
         free = obstacle_free_distances(cand.reshape(-1, d), scene).min(axis=1).reshape(n, g)
     else:
         free = np.full((n, g), np.inf)
-    closed = ~(free >= LIVE_MARGIN * step).any(axis=1)
+    clearest = free.max(axis=1)
+    closed = ~(clearest >= 0.0)
+    # Half a step of room where the section has it (the next move goes along the obstacle,
+    # not only away from it); in a narrower passage, the room there is. The step is the
+    # demonstrations' usual one at most: one far crossing where they end must not shut
+    # the goal off.
+    step = float(np.median(step_k))
+    margin = np.where(closed, 0.0, np.minimum(LIVE_MARGIN * np.minimum(step_k, step), clearest))
+    usable = (free >= margin[:, None]) & ~closed[:, None]
     # The horizon: as many sections as a step's sideways room takes to cross the widest
     # section (as the offline detour's window), at least 3.
     spacing = float(np.median(np.sqrt((np.diff(geometry.centres, axis=0) ** 2).sum(axis=1)))) if n > 1 else 0.0
     sideways = np.sqrt(max(step**2 - spacing**2, 1e-300))
     widest = float(np.sqrt(((cand - geometry.centres[:, None, :]) ** 2).sum(axis=2)).max())
     horizon = int(np.clip(np.ceil(widest / sideways) + 2, 3, max(3, n // 3)))
-    lane = free.copy()
+    clear_lane = usable.copy()
     for h in range(1, horizon + 1):
-        np.minimum(lane, free[np.minimum(np.arange(n) + h, n - 1)], out=lane)
-    clear_lane = lane >= LIVE_MARGIN * step
+        clear_lane &= usable[np.minimum(np.arange(n) + h, n - 1)]
     gap = np.full((n, cand.shape[1]), np.inf)
     gap[clear_lane] = 0.0
     # Only sections with a blocked lane need the search (a few, around each obstacle).
@@ -140,10 +161,10 @@ def scene_tables(geometry: TrackerGeometry, scene: Scene, step: float, version: 
         d2 = np.where(clear_lane[mixed[lo : lo + 32], None, :], d2, np.inf)
         gap[mixed[lo : lo + 32]] = np.sqrt(np.maximum(d2.min(axis=2), 0.0))
     closed_ahead = ~clear_lane.any(axis=1)
-    usable = free >= LIVE_MARGIN * step
-    penalty = np.where(~clear_lane & np.isfinite(gap), 1e6 * step**2 + 1e3 * np.where(np.isfinite(gap), gap, 0.0) ** 2, 0.0)
-    return SceneTables(scene, int(version), cand, free, closed, float(step), lane, horizon, gap,
-                       closed_ahead, usable, penalty)
+    scale2 = (step_k**2)[:, None]
+    penalty = np.where(~clear_lane & np.isfinite(gap), 1e6 * scale2 + 1e3 * np.where(np.isfinite(gap), gap, 0.0) ** 2, 0.0)
+    return SceneTables(scene, int(version), cand, free, closed, step_k, margin, clear_lane, horizon, gap,
+                       closed_ahead, usable, np.cumsum(closed), penalty)
 
 
 def avoided_targets(
@@ -183,21 +204,25 @@ def avoided_targets(
     fp_each = each[:b]
     fp = fp_each.min(axis=1)
     ft = each[b:].min(axis=1)
-    step = tables.step
     move = np.sqrt(((out - positions) ** 2).sum(axis=1))
     with np.errstate(invalid="ignore"):
         clear = (fp >= 0.0) & (ft >= 0.0) & (fp + ft >= move)
+        # Ends too near an obstacle for the sufficient test (a narrow passage): the segment
+        # itself is measured.
+        near_ends = np.flatnonzero(~clear & (fp >= 0.0) & (ft >= 0.0))
+    if near_ends.size:
+        clear[near_ends] = segment_free_distances(positions[near_ends], out[near_ends], scene) >= 0.0
     inside = ~(fp >= 0.0)  # NaN (a non-finite pose) counts as inside nothing: left as it is
     inside &= np.isfinite(fp)
     if inside.any():
         rows = np.flatnonzero(inside)
-        out[rows] = _backed_away(scene, positions[rows], fp_each[rows], step)
+        out[rows] = _backed_away(scene, positions[rows], fp_each[rows], tables.steps[section[rows]])
         status[rows] = IN_OBSTACLE
     # Anticipation: a clear move whose lane runs into an obstacle within the horizon is
     # detoured too, while there is still room to swerve.
     k = np.minimum(target_section, tables.candidates.shape[0] - 1)
     near = ((tables.candidates[k] - out[:, None, :]) ** 2).sum(axis=2).argmin(axis=1)
-    ahead = tables.lane_free[k, near] < LIVE_MARGIN * step
+    ahead = ~tables.lane_clear[k, near]
     todo = np.flatnonzero((~clear | ahead) & ~inside & np.isfinite(fp))
     if todo.size:
         out[todo], status[todo] = _detoured(tables, positions[todo], out[todo], fp[todo],
@@ -205,7 +230,7 @@ def avoided_targets(
     return out, status
 
 
-def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: float) -> FloatArray:
+def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: FloatArray) -> FloatArray:
     """Targets one step (at most) out of the deepest obstacle, along its outward normal."""
     deepest = free_each.argmin(axis=1)
     depth = -free_each[np.arange(p.shape[0]), deepest]
@@ -236,9 +261,8 @@ def _detoured(
     """Rows whose straight move is not clear: the nearest clear candidate of the target section,
     else of an earlier one (blocked), else the robot's own position (blocked)."""
     r = p.shape[0]
-    step = tables.step
     # A detour moves no further than the tracker's own answer would have, or one step.
-    reach = np.maximum(np.sqrt(((t - p) ** 2).sum(axis=1)), step)
+    reach = np.maximum(np.sqrt(((t - p) ** 2).sum(axis=1)), tables.steps[section])
     n = tables.candidates.shape[0]
     # Tiers: the target section, then back to the robot's own section.
     depth = int(np.max(target_section - section, initial=0)) + 1
@@ -252,24 +276,49 @@ def _detoured(
         pl = p[left]
         dist2 = ((cand - pl[:, None, :]) ** 2).sum(axis=2)
         free = tables.free[sec]
-        reach_l = np.minimum(fp[left, None] + free, reach[left, None])
-        ok = tables.usable[sec] & (dist2 <= reach_l * reach_l)
-        if tier == 0:
-            ok &= ~tables.closed[sec][:, None]
+        in_reach = tables.usable[sec] & (dist2 <= reach[left, None] ** 2)
+        lipschitz = np.minimum(fp[left, None] + free, reach[left, None])
+        ok = in_reach & (dist2 <= lipschitz * lipschitz)
         # Nearest the tracker's target, among lanes clear ahead first.
         cost = ((cand - t[left, None, :]) ** 2).sum(axis=2) + tables.lane_penalty[sec]
-        cost[~ok] = np.inf
-        best = cost.argmin(axis=1)
-        hit = np.isfinite(cost[np.arange(left.size), best])
+        best, hit = _cheapest(cost, ok)
+        # In a passage narrower than a step the sufficient test clears no move: the rows
+        # left measure their moves to the candidates in reach.
+        unsure = np.flatnonzero(~hit & in_reach.any(axis=1))
+        if unsure.size:
+            rr, gg = np.nonzero(in_reach[unsure] & ~ok[unsure])
+            ok[unsure[rr], gg] = segment_free_distances(pl[unsure[rr]], cand[unsure[rr], gg], tables.scene) >= 0.0
+            best, hit = _cheapest(cost, ok)
+        chosen = cand[np.arange(left.size), best]
+        # None in reach (a section's grid is coarser than a step where the canal is wide): one
+        # step towards the section's best clear point, when that step keeps clear.
+        far = np.flatnonzero(~hit & tables.usable[sec].any(axis=1))
+        if far.size:
+            goal_best, _ = _cheapest(cost[far], tables.usable[sec[far]])
+            toward = cand[far, goal_best] - pl[far]
+            length = np.sqrt((toward**2).sum(axis=1))
+            q = pl[far] + (np.minimum(1.0, reach[left[far]] / np.maximum(length, 1e-300)))[:, None] * toward
+            moves = (length > 0.0) & (segment_free_distances(pl[far], q, tables.scene) >= 0.0)
+            chosen[far[moves]] = q[moves]
+            hit[far[moves]] = True
         rows = left[hit]
-        out[rows] = cand[np.flatnonzero(hit), best[hit]]
-        # Holding back in an earlier section is still a detour while the target section is
-        # open (the robot swerves first); it is blocked only before a closed one.
-        status[rows] = np.where(tables.closed_ahead[target_section[rows]], BLOCKED, DETOUR)
+        out[rows] = chosen[hit]
+        # Holding back in an earlier section is still a detour while the way to the target
+        # section is open (the robot swerves first); it is blocked before a closed one.
+        shut = tables.closed_ahead[target_section[rows]] | (
+            tables.closed_before[target_section[rows]] > tables.closed_before[section[rows]])
+        status[rows] = np.where(shut, BLOCKED, DETOUR)
         left = left[~hit]
         if not left.size:
             break
     return out, status
+
+
+def _cheapest(cost: FloatArray, ok: NDArray[np.bool_]) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+    """Each row's cheapest allowed column, and whether it has one."""
+    masked = np.where(ok, cost, np.inf)
+    best = masked.argmin(axis=1)
+    return best, np.isfinite(masked[np.arange(cost.shape[0]), best])
 
 
 __all__ = [

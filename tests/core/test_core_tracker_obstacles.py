@@ -27,7 +27,7 @@ def drive(canal: canal_core.Canal, items: list[dict[str, object]], x: np.ndarray
     """``robots`` first-order robots from around ``x``, stepped together: poses, targets,
     statuses (steps, robots, ...) and whether each finished."""
     bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
-    bank.scene = scene_tables(bank.geometry, scene_from_list(items, 3), canal.largest_step)
+    bank.scene = scene_tables(bank.geometry, scene_from_list(items, 3), canal.section_steps)
     slots = [bank.add(0) for _ in range(robots)]
     pos = x + np.linspace(-0.2, 0.2, robots)[:, None] * float(canal.radii[0]) * canal.normals[0]
     poses, targets, statuses = [], [], []
@@ -59,6 +59,46 @@ def test_robots_swerve_around_a_ball_on_their_way_and_finish() -> None:
     assert free_distances(targets.reshape(-1, 3), scene).min() >= 0.0
 
 
+def test_a_passage_the_reproduction_takes_stays_open_live_where_one_demo_stepped_far_elsewhere() -> None:
+    # One demonstration sets off from far aside: the demonstrations' largest step (at the
+    # head) is ten times their step anywhere else. The live margin and reach are the
+    # demonstrations' own steps around each section, so a ball that leaves a passage
+    # narrower than half that largest step does not close the canal to a live robot.
+    demos = tube_demos(radius=0.5, n_demos=6, n_points=80)
+    for j, d in enumerate(demos):
+        d[:, 1] += 0.08 * np.sin(2.0 * d[:, 0] + j)
+        d[:, 2] += 0.08 * np.cos(2.5 * d[:, 0] + 2 * j)
+    demos[0][:4, 1] += 0.6 * np.linspace(1.0, 0.0, 4)
+    canal = canal_core.fit(demos, n_samples=120)
+    k = 60
+    ball = {"kind": "sphere", "center": (canal.directrix[k] + 0.1 * canal.normals[k]).tolist(), "radius": 0.55}
+    scene = scene_from_list([ball], 3)
+    tables = scene_tables(canal.tracker_geometry(), scene, canal.section_steps)
+    assert 0.0 < tables.free[k].max() < 0.5 * canal.largest_step  # a passage, narrower than that
+    offline = canal.reproduce_detailed(canal.directrix[0], obstacles=scene)
+    assert offline.blocked is None
+    poses, targets, statuses, done = drive(canal, [ball], canal.directrix[0], steps=600)
+    assert done.all(), statuses[-1]
+    assert (statuses == DETOUR).any() and not (statuses == BLOCKED).any()
+    assert free_distances(poses.reshape(-1, 3), scene).min() >= 0.0
+    assert free_distances(targets.reshape(-1, 3), scene).min() >= 0.0
+
+
+def test_a_long_last_step_of_one_demonstration_does_not_shut_the_goal_off() -> None:
+    # One demonstration ends far aside: its last step is twelve times the usual one. A ball
+    # leaves the goal a few usual steps of room; the goal stays a place a detour may aim.
+    demos = tube_demos(radius=0.5, n_demos=6, n_points=80)
+    demos[0][-4:, 1] += 0.6 * np.linspace(0.0, 1.0, 4)
+    canal = canal_core.fit(demos, n_samples=120)
+    goal = canal.directrix[-1]
+    ball = {"kind": "sphere", "center": (goal + 0.35 * canal.normals[-1]).tolist(), "radius": 0.3}
+    tables = scene_tables(canal.tracker_geometry(), scene_from_list([ball], 3), canal.section_steps)
+    assert canal.section_steps[-1] > 10 * np.median(canal.section_steps)
+    centre = np.linalg.norm(tables.candidates[-1] - goal, axis=1).argmin()
+    assert tables.free[-1, centre] < 0.5 * canal.section_steps[-1]
+    assert tables.usable[-1, centre] and tables.lane_clear[-1, centre]
+
+
 def test_a_wall_holds_the_robots_before_it(tube: canal_core.Canal) -> None:
     k = 60
     axes = np.stack([tube.tangents[k], tube.normals[k], tube.binormals[k]], axis=1)
@@ -74,7 +114,7 @@ def test_a_robot_inside_an_obstacle_is_told_and_backed_away(tube: canal_core.Can
     x = tube.directrix[20] + np.array([0.0, 0.05, 0.0])
     ball = {"kind": "sphere", "center": tube.directrix[20].tolist(), "radius": 0.15}
     bank = TrackerBank(tube.tracker_geometry(), 2, compiled=False)
-    bank.scene = scene_tables(bank.geometry, scene_from_list([ball], 3), tube.largest_step)
+    bank.scene = scene_tables(bank.geometry, scene_from_list([ball], 3), tube.section_steps)
     slot = bank.add(20)
     rows = bank.step_packed([slot], x[None])
     status = bank.avoid_packed(rows, x[None])

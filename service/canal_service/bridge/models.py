@@ -231,7 +231,7 @@ class ModelTable:
             if scene is None or not len(scene) or scene.dim != each.dim:
                 bank.scene = None
             else:
-                bank.scene = scene_tables(bank.geometry, scene, each.canal.largest_step, version)
+                bank.scene = scene_tables(bank.geometry, scene, each.canal.section_steps, version)
 
     def _drop(self, skill: str, entry: ModelEntry) -> None:
         """Forget the skill's entry if it is still ``entry`` (not one installed meanwhile)."""
