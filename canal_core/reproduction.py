@@ -32,7 +32,7 @@ from .reproduce import (
     start_and_located_points,
 )
 from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
-from .tube import tube_ratio_caps
+from .tube import paced_offsets, tube_ratio_caps, wall_slope_shares
 from .validation import (
     BoolArray,
     FloatArray,
@@ -135,7 +135,7 @@ def ratio_rule_path(
     eta: float, entry: float | None, end_decay: float, persistence: str, has_goal: bool,
 ) -> tuple[FloatArray, FloatArray]:
     """The ratio rule's path on sections first .. N - 1, shape (K, D), and its ratios (K,):
-    the learned persistence, the entry (E1)-(E3) and the tube caps (F1) on the schedule of
+    the learned persistence, the entry (E1)-(E3), the tube caps (F1) and the wall's slope (F2) on the schedule of
     :func:`canal_core.reproduce.path_ratios` (the arguments as :func:`reproduce` has them)."""
     s0, u = start_arclength, direction
     reach = reach_along(canal.sections, index, canal.n_sections, u)  # sections index .. N-1
@@ -162,6 +162,15 @@ def ratio_rule_path(
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
     caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
     ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
+    wall = reach[first - index :]
+    ratios = ratios * wall_slope_shares(wall, canal.arclength[first:])  # (F2)
+    if ratios.size > 1:
+        # The offset changes from section to section no faster than a demonstration stepped
+        # there: a persistence regressed on crossings of the first planes could fade a
+        # start's offset in two sections, a jump of centimetres.
+        steps = canal.section_steps[first:]
+        paced = paced_offsets(ratios * wall, np.minimum(steps[:-1], steps[1:]), wall)  # (F3)
+        ratios = np.divide(paced, wall, out=np.zeros_like(paced), where=wall > 0.0)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
     return path, ratios
 

@@ -71,3 +71,74 @@ def tube_ratio_caps(reach: FloatArray, direction: FloatArray, curvature: FloatAr
     bend = reach * np.einsum("kd,kd->k", np.broadcast_to(direction, curvature.shape), curvature)
     return np.asarray(np.divide(TUBE_MARGIN, bend, out=np.full_like(bend, np.inf), where=bend > 0.0),
                       dtype=np.float64)
+
+
+def wall_slope_shares(reach: FloatArray, arclength: FloatArray) -> FloatArray:
+    """The share of R_k(u) a reproduced point may use (F2), shape (K,): 1 where the wall's
+    slope along the directrix is at most 1, less where it is steeper.
+
+    A canal surface is the envelope of spheres of radius r(s) swept along the directrix; it
+    exists only where |dr/ds| < 1 (a sphere that grows faster than it moves swallows its
+    neighbours). Fitted sections can break that where one section is grown to hold a sample
+    of another stretch of a stroke that folds back: the wall then jumps by centimetres from
+    one section to the next, and a point riding it at a constant ratio jumps with it. The
+    point is placed against the largest wall of slope 1 under the sections,
+
+        R'_k(u) = min_j (R_j(u) + |s_j - s_k|)        (F2)
+
+    (forward and backward running minima), at eta_k R'_k(u) = (eta_k R'_k / R_k) R_k: never
+    further out than the ratio rule's own point, so inside stays inside.
+
+    Parameters
+    ----------
+    reach : array, shape (K,)
+        R_k(u) on consecutive sections.
+    arclength : array, shape (K,)
+        s_k, the directrix's arc length there.
+    """
+    if reach.size == 0:
+        return np.ones(0)
+    forward = arclength + np.minimum.accumulate(reach - arclength)
+    backward = np.minimum.accumulate((reach + arclength)[::-1])[::-1] - arclength
+    wall = np.minimum(forward, backward)
+    return np.asarray(np.divide(wall, reach, out=np.ones_like(reach), where=reach > 0.0), dtype=np.float64)
+
+
+def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) -> FloatArray:
+    """Offsets that change by at most ``allowed`` from one section to the next (F3), shape (K,).
+
+    With A_k = allowed_1 + ... + allowed_k:
+
+    * a fade is slowed to that pace, on the wall at most (a point inside stays inside):
+      r_k = max(m_k, min(max_{j <= k} (m_j - (A_k - A_j)), W_k)), the last point kept
+      (the reproduction lands where its schedule does);
+    * a rise is lowered to it: m'_k = min_{j <= k} (r_j + A_k - A_j);
+    * and, from the first point inside on, so is what is left of a fade (the last sections
+      before a landing): m'_k <- min_{j >= k} (m'_j + A_j - A_k).
+
+    A point outside (m_k > W_k: a start outside, entering) is never raised and never pulled in
+    earlier: its entry is the schedule's.
+
+    Parameters
+    ----------
+    offsets : array, shape (K,)
+        m_k = eta_k R_k(u), the reproduced points' distances from the directrix.
+    allowed : array, shape (K - 1,)
+        The largest change from section k - 1 to k.
+    wall : array, shape (K,)
+        W_k, the boundary distance along the points' direction.
+    """
+    m = np.asarray(offsets, dtype=np.float64)
+    if m.size < 2:
+        return m.copy()
+    a = np.concatenate([[0.0], np.cumsum(allowed)])
+    slowed = np.maximum.accumulate(m + a) - a
+    raised = np.maximum(m, np.minimum(slowed, wall))
+    raised[-1] = m[-1]
+    paced = a + np.minimum.accumulate(raised - a)
+    inside = np.flatnonzero(m <= wall)
+    if inside.size:
+        e = int(inside[0])
+        tail = paced[e:] + a[e:]
+        paced[e:] = np.minimum(paced[e:], np.minimum.accumulate(tail[::-1])[::-1] - a[e:])
+    return np.asarray(paced, dtype=np.float64)
