@@ -72,8 +72,9 @@ class SceneTables:
         or the section's clearest candidate's when that is less (0 where closed).
     lane_clear : array of bool, shape (N, G)
         Whether each candidate's *lane* (the same in-plane point, relative to each section's
-        size and frame) keeps the margin over the next ``horizon`` sections: a lane that is
-        clear now but runs into an obstacle soon is left while there is room to.
+        size and frame) keeps the margin over the next ``horizon`` sections, its steps from
+        section to section clear too: a lane that is clear now but runs into an obstacle
+        soon is left while there is room to.
     horizon : int
     lane_gap : array, shape (N, G)
         Distance from each candidate to the nearest candidate of its section whose lane is
@@ -86,8 +87,9 @@ class SceneTables:
     usable : array of bool, shape (N, G)
         Candidates that keep their section's margin.
     closed_before : array of int, shape (N,)
-        How many closed sections there are up to each: a stream whose target lies past one
-        more than its own section is ``blocked``.
+        How many sections up to each are closed, or reached by no lane from the section
+        before (a wall between two planes): a stream whose target lies past one more than
+        its own section is ``blocked``.
     lane_penalty : array, shape (N, G)
         What a candidate on a blocked lane adds to its cost (0 on a clear lane, or where no
         lane of its section is clear): it is taken only when no clear lane is in reach, the
@@ -146,9 +148,21 @@ def scene_tables(geometry: TrackerGeometry, scene: Scene, steps: FloatArray | fl
     sideways = np.sqrt(max(step**2 - spacing**2, 1e-300))
     widest = float(np.sqrt(((cand - geometry.centres[:, None, :]) ** 2).sum(axis=2)).max())
     horizon = int(np.clip(np.ceil(widest / sideways) + 2, 3, max(3, n // 3)))
-    clear_lane = usable.copy()
+    # Each lane's step to the next section: a wall between two planes holds no candidate,
+    # but the steps across it run into it. Most steps pass the sufficient test of their ends'
+    # free distances; the rest are measured.
+    onward = usable[:-1] & usable[1:]  # (N - 1, G)
+    if len(scene) and n > 1:
+        length = np.sqrt(((cand[1:] - cand[:-1]) ** 2).sum(axis=2))
+        rows, cols = np.nonzero(onward & ~(free[:-1] + free[1:] >= length))
+        onward[rows, cols] = segment_free_distances(cand[rows, cols], cand[rows + 1, cols], scene) >= 0.0
+    passable = np.vstack([onward, usable[-1:]])  # (N, G)
+    # A section no lane reaches from the one before is closed to a stream before it.
+    shut = closed.copy()
+    shut[1:] |= ~onward.any(axis=1)
+    clear_lane = passable.copy()
     for h in range(1, horizon + 1):
-        clear_lane &= usable[np.minimum(np.arange(n) + h, n - 1)]
+        clear_lane &= passable[np.minimum(np.arange(n) + h, n - 1)]
     gap = np.full((n, cand.shape[1]), np.inf)
     gap[clear_lane] = 0.0
     # Only sections with a blocked lane need the search (a few, around each obstacle).
@@ -160,11 +174,11 @@ def scene_tables(geometry: TrackerGeometry, scene: Scene, steps: FloatArray | fl
         d2 = sq[lo : lo + 32, :, None] + sq[lo : lo + 32, None, :] - 2.0 * (r @ r.transpose(0, 2, 1))
         d2 = np.where(clear_lane[mixed[lo : lo + 32], None, :], d2, np.inf)
         gap[mixed[lo : lo + 32]] = np.sqrt(np.maximum(d2.min(axis=2), 0.0))
-    closed_ahead = ~clear_lane.any(axis=1)
+    closed_ahead: NDArray[np.bool_] = np.asarray(~clear_lane.any(axis=1), dtype=bool)
     scale2 = (step_k**2)[:, None]
     penalty = np.where(~clear_lane & np.isfinite(gap), 1e6 * scale2 + 1e3 * np.where(np.isfinite(gap), gap, 0.0) ** 2, 0.0)
     return SceneTables(scene, int(version), cand, free, closed, step_k, margin, clear_lane, horizon, gap,
-                       closed_ahead, usable, np.cumsum(closed), penalty)
+                       closed_ahead, usable, np.cumsum(shut), penalty)
 
 
 def avoided_targets(
@@ -268,6 +282,10 @@ def _detoured(
     depth = int(np.max(target_section - section, initial=0)) + 1
     out = p.copy()
     status = np.full(r, BLOCKED, dtype=np.int8)
+    # Before a closed section (or one no lane reaches), the robot goes on as far as it is
+    # free and holds nearest where it is, instead of sliding along what closes the canal.
+    shut_all = tables.closed_ahead[target_section] | (
+        tables.closed_before[target_section] > tables.closed_before[section])
     left = np.arange(r)
     for tier in range(depth):  # a handful of tiers (the lookahead + 1), on the rows left
         ts = target_section[left]
@@ -281,6 +299,7 @@ def _detoured(
         ok = in_reach & (dist2 <= lipschitz * lipschitz)
         # Nearest the tracker's target, among lanes clear ahead first.
         cost = ((cand - t[left, None, :]) ** 2).sum(axis=2) + tables.lane_penalty[sec]
+        cost = np.where(shut_all[left, None], dist2, cost)
         best, hit = _cheapest(cost, ok)
         # In a passage narrower than a step the sufficient test clears no move: the rows
         # left measure their moves to the candidates in reach.
@@ -292,7 +311,7 @@ def _detoured(
         chosen = cand[np.arange(left.size), best]
         # None in reach (a section's grid is coarser than a step where the canal is wide): one
         # step towards the section's best clear point, when that step keeps clear.
-        far = np.flatnonzero(~hit & tables.usable[sec].any(axis=1))
+        far = np.flatnonzero(~hit & tables.usable[sec].any(axis=1) & ~shut_all[left])
         if far.size:
             goal_best, _ = _cheapest(cost[far], tables.usable[sec[far]])
             toward = cand[far, goal_best] - pl[far]
@@ -305,12 +324,14 @@ def _detoured(
         out[rows] = chosen[hit]
         # Holding back in an earlier section is still a detour while the way to the target
         # section is open (the robot swerves first); it is blocked before a closed one.
-        shut = tables.closed_ahead[target_section[rows]] | (
-            tables.closed_before[target_section[rows]] > tables.closed_before[section[rows]])
-        status[rows] = np.where(shut, BLOCKED, DETOUR)
+        status[rows] = np.where(shut_all[rows], BLOCKED, DETOUR)
         left = left[~hit]
         if not left.size:
             break
+    # A robot told to stay where it is, is held: it says so (it may stay held for good where
+    # only a detour planned ahead, as a reproduction's, would go around).
+    held = ((out - p) ** 2).sum(axis=1) <= (1e-9 * reach) ** 2
+    status[held] = BLOCKED
     return out, status
 
 

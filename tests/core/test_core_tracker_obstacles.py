@@ -110,6 +110,37 @@ def test_a_wall_holds_the_robots_before_it(tube: canal_core.Canal) -> None:
     assert ((poses.reshape(-1, 3) - tube.directrix[k]) @ tube.tangents[k]).max() < -0.02
 
 
+def test_a_thin_wall_between_two_planes_holds_a_robot_blocked_and_still() -> None:
+    # A plate 1 mm thick across a flat canal, between two section planes: no candidate of any
+    # section lies in it, but every step across it does. A robot that goes exactly to each
+    # target is held before it, told so, and not slid along the wall.
+    x = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([x, o + 0.002 * np.sin(7.0 * x + i)])
+             for i, o in enumerate((0.05, -0.05, 0.025, -0.025))]
+    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 60)] * 4)
+    plate = {"kind": "box", "center": [0.5, 0.0], "half_extents": [0.0005, 1.0]}
+    scene = scene_from_list([plate], 2)
+    assert canal.reproduce_detailed(np.zeros(2), obstacles=scene).blocked is not None
+    bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
+    bank.scene = scene_tables(bank.geometry, scene, canal.section_steps)
+    slot = bank.add(0)
+    pos = np.zeros((1, 2))
+    poses, statuses, velocities = [], [], []
+    for _ in range(300):
+        rows = bank.step_packed([slot], pos)
+        statuses.append(int(bank.avoid_packed(rows, pos)[0]))
+        poses.append(pos[0].copy())
+        velocities.append(rows[0, 7:9].copy())  # packed: target (2), 5 scalars, velocity (2)
+        pos = rows[:, :2].copy()
+    poses_ = np.array(poses)
+    assert poses_[:, 0].max() < 0.4995
+    assert all(st == BLOCKED for st in statuses[-100:])
+    assert np.abs(np.diff(poses_[-100:], axis=0)).max() == 0.0
+    # A timed canal gives a feed-forward velocity; a held robot is given none towards the wall.
+    assert np.linalg.norm(velocities[0]) > 0.0
+    assert all(np.array_equal(v, np.zeros(2)) for v, st in zip(velocities, statuses, strict=True) if st != OK)
+
+
 def test_a_robot_inside_an_obstacle_is_told_and_backed_away(tube: canal_core.Canal) -> None:
     x = tube.directrix[20] + np.array([0.0, 0.05, 0.0])
     ball = {"kind": "sphere", "center": tube.directrix[20].tolist(), "radius": 0.15}
