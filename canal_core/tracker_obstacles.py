@@ -15,10 +15,14 @@ all rows at once, and corrected where needed:
   obstacle (so that the next move has room along the obstacle, not only away from it), or
   as clear as the section's clearest point where the scene leaves less room than that (a
   narrow passage is taken, keeping every obstacle's clearance);
-* no such point in the target section (out of reach): the nearest clear point of an earlier
-  section up to the robot's own (``detour``: it swerves before it goes on); before a section
-  the scene closes, or with no clear point in reach at all, the robot holds there or where it
-  is (``blocked``).
+* no such point in the target section (out of reach): one step towards the best of them when
+  that step keeps clear (where the section's grid is coarser than a step), else the nearest
+  clear point of an earlier section up to the robot's own (``detour``: it swerves before it
+  goes on);
+* before a section the scene closes (no clear candidate, or none a lane reaches from the
+  section before: a plate between two planes), the robot goes on as far as it is free,
+  nearest where it is, and holds there (``blocked``); a robot for which no move is found is
+  held where it is and told so (``blocked``).
 
 A candidate whose *lane* (the same point relative to each later section) runs into an
 obstacle within a horizon of sections is taken only when no clear lane is in reach, and
@@ -272,8 +276,9 @@ def _detoured(
     section: NDArray[np.intp],
     target_section: NDArray[np.intp],
 ) -> tuple[FloatArray, NDArray[np.int8]]:
-    """Rows whose straight move is not clear: the nearest clear candidate of the target section,
-    else of an earlier one (blocked), else the robot's own position (blocked)."""
+    """Rows whose straight move is not clear: the best clear candidate of the target section,
+    or a step towards it, else of an earlier section (``detour``); before a closed section or
+    with no move found, as far as it is free or where it is (``blocked``)."""
     r = p.shape[0]
     # A detour moves no further than the tracker's own answer would have, or one step.
     reach = np.maximum(np.sqrt(((t - p) ** 2).sum(axis=1)), tables.steps[section])
