@@ -229,7 +229,7 @@ class McapSegment:
             t_ns, model_version=rep.version, eta=rep.eta, inside=rep.inside,
             projected=rep.projected, section_index=rep.section_index, number=rep.number,
             start={"x": x, "y": y, "z": z}, n_points=len(rep.positions),
-            times=rep.times if rep.times is not None else None,
+            times=rep.times,
             ratios=rep.ratios))
         if rep.orientations is not None:
             self._write("/canal/reproduction_poses", "foxglove.PosesInFrame", t_ns,
