@@ -13,11 +13,12 @@ import re
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, Protocol, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -59,6 +60,7 @@ from .validation import (
 log = logging.getLogger("canal_service")
 
 _VERSION_RETRIES = 5
+T = TypeVar("T")
 #: Which model: (its skill's creation time in ns, its version).
 Revision = tuple[int, int]
 #: Which replica answered (host and process), as exports name it.
@@ -160,6 +162,7 @@ class CanalService:
         self.cache = CanalCache(cache_size)
         self.fit_listeners = fit_listeners if fit_listeners is not None else FitListeners()
         self.scene_listeners = SceneListeners()
+        self._making = SkillLocks()
 
     # ---- recorder ---------------------------------------------------------------------------
 
@@ -318,7 +321,6 @@ class CanalService:
             skill = repo.get_skill(s, name)
             rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
             loaded = [(r.id, *_demo_arrays(r)) for r in rows]
-            kept = self._latest_corrections(s, skill) if body.keep_corrections else []
         if body.demo_ids is not None:
             missing = sorted(set(body.demo_ids) - {d[0] for d in loaded})
             if missing:
@@ -364,36 +366,44 @@ class CanalService:
         if routes.n_routes > 1:
             used_options.update(routes=routes.n_routes, route_separation=body.route_separation,
                                 demo_routes=routes.labels.tolist())
-        model = self._store_model(name, used_options, demo_ids, serialized, seconds, canal)
-        self.cache.put(model[0], routes)  # the next reproduction needs no decoding
+        plain = NewVersion(used_options, demo_ids, serialized, seconds, routes)
+
+        def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
+            # The corrections kept are those of the latest version when the fit is stored,
+            # not when it started: one a person made while the fit ran is re-applied too.
+            kept = self._latest_corrections(name) if body.keep_corrections else None
+            if not kept:
+                (fit,) = self._store_versions(name, [plain], kept=None if kept is None else [])
+                fit.summary.notes = route_notes
+                return fit.summary, partial(self._tell_stored, name, fit)
+            # The skill's corrections, re-applied to the new canal (a version of its own, whose
+            # parent is the plain fit); one that no longer applies is left behind and said so.
+            refined, applied, notes = self._reapplied(routes, kept)
+            made_on = {c.id: c.route for c in kept}
+            moved = {c.id: c.route for c in applied if c.route != made_on[c.id]}
+
+            def follow(s: Any, skill: Skill, _version: int, ids: list[int]) -> list[int]:
+                # a correction that followed its way to another route number keeps that number
+                for row in repo.get_corrections(s, skill, list(moved)):
+                    row.route = moved[row.id]
+                return ids
+
+            lineage = StoredLineage(None, None, [c.id for c in applied], follow if moved else None)
+            fit, corrected = self._store_versions(name, [plain, NewVersion(
+                used_options, demo_ids, served_model(refined).to_dict(), 0.0, refined, lineage)],
+                kept=[c.id for c in kept])
+            corrected.summary.notes = route_notes + notes
+
+            def tell() -> None:
+                self._tell_stored(name, fit, notify=False)
+                self._tell_stored(name, corrected)
+
+            return corrected.summary, tell
+
+        summary = self._on_latest(name, "fit", build)
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
-        version, instance = model[1].version, model[2]
-        created = model[1].created_at
-        stored_ns = None if created is None else repo.created_ns(created)
-        served = served_model(routes)
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
-                                                              t_ns=stored_ns, instance=instance))
-        if not kept:
-            self.fit_listeners.notify(name, version, served)
-            model[1].notes = route_notes
-            return model[1]
-        # The skill's corrections, re-applied to the new canal (a version of its own, whose
-        # parent is the plain fit); one that no longer applies is left behind and said so.
-        refined, applied, notes = self._reapplied(routes, kept)
-        made_on = {c.id: c.route for c in kept}
-        moved = {c.id: c.route for c in applied if c.route != made_on[c.id]}
-
-        def follow(s: Any, skill: Skill, _version: int, ids: list[int]) -> list[int]:
-            # a correction that followed its way to another route number keeps that number
-            for row in repo.get_corrections(s, skill, list(moved)):
-                row.route = moved[row.id]
-            return ids
-
-        lineage = StoredLineage(version, version, [c.id for c in applied],
-                                follow if moved else None)
-        return self._store_refined(name, used_options, demo_ids, refined, lineage,
-                                   route_notes + notes)
+        return summary
 
     def _route_labels(self, positions: list[arrays.FloatArray], routes: int | None,
                       separation: float, demo_ids: list[int]
@@ -429,37 +439,106 @@ class CanalService:
                          "once more to learn its own width, or delete it if it was a slip")
         return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
-    def _store_model(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                     serialized: dict[str, Any], seconds: float, canal: canal_core.Canal,
-                     lineage: StoredLineage | None = None,
-                     ) -> tuple[CacheKey, schemas.ModelSummary, str]:
-        """Store a new model version (with its lineage and, in the same transaction, what
-        ``lineage.in_transaction`` writes: a new correction, an undone mark)."""
-        # Versions are max + 1 under a unique constraint: two replicas fitting at once both
-        # try the same number, one wins, the other retries with the next.
+    def _on_latest(self, name: str, what: str,
+                   build: Callable[[], tuple[T, Callable[[], None]]]) -> T:
+        """Make a new model version of a skill on its latest version.
+
+        ``build`` reads the latest version, makes the new one and stores it with that latest
+        as its base (:meth:`_store_versions`); it answers the result and what to tell once
+        the version is stored (the recorder, the fit listeners), told here after the skill is
+        let go. This replica's requests that make versions of one skill (fits, corrections,
+        undos) run ``build`` one at a time, so each one builds on the one before; a version
+        another replica stored meanwhile makes the store refuse, and ``build`` runs again on
+        the new latest.
+        """
+        stale: _StaleBase | None = None
+        with self._making.hold(name):
+            for _attempt in range(_VERSION_RETRIES):
+                try:
+                    result, tell = build()
+                    break
+                except _StaleBase as exc:
+                    stale = exc
+            else:
+                assert stale is not None
+                raise VersionConflict(
+                    f"other replicas stored new versions of skill {name!r} while this {what} "
+                    f"was made on the latest, {_VERSION_RETRIES} times in a row (the latest is "
+                    f"now version {stale.found}); send it again", field="model") from stale
+        tell()
+        return result
+
+    def _store_versions(self, name: str, made: Sequence[NewVersion], *,
+                        base: int | None = None, kept: Sequence[int] | None = None
+                        ) -> list[StoredVersion]:
+        """Store new model versions, numbered one after the other, in one transaction (a fit
+        and its version with the corrections re-applied go in together: nobody sees the fit
+        alone as the latest), with their lineage and what ``lineage.in_transaction`` writes
+        in the same transaction (a new correction, an undone mark).
+
+        What they were made on must still be the latest, else nothing is stored and
+        :class:`_StaleBase` says which version is the latest now: ``base``, the latest
+        version a correction or an undo was made on; ``kept``, the corrections of the latest
+        version a refit re-applied (any version with those same corrections will do: a fit
+        is made of demonstrations, not of the version before it). Neither stores them
+        whatever the latest is: a fit that keeps no correction, a correction of the version
+        a request named.
+        """
+        # Versions are max + 1 under a unique constraint, read with the skill's row locked
+        # (next_model_version): the latest cannot change between the check and the insert.
+        # Should two replicas still take one number, one wins, the other retries.
         clash: IntegrityError | None = None
         for _attempt in range(_VERSION_RETRIES):
             try:
                 with self.db.write() as s:
                     skill = repo.get_skill(s, name)
-                    version = repo.next_model_version(s, skill)
-                    row = repo.add_model(s, skill, version, options, demo_ids, serialized, seconds,
-                                         int(canal.n_sections), str(canal.section_kind))
-                    found = repo.Lineage(None, version, [])
-                    if lineage is not None:
-                        ids = list(lineage.correction_ids)
-                        if lineage.in_transaction is not None:
-                            ids = lineage.in_transaction(s, skill, version, ids)
-                        found = repo.Lineage(lineage.parent_version, lineage.fit_version, ids)
-                        repo.add_lineage(s, row, lineage.parent_version, lineage.fit_version, ids)
-                    return (model_cache_key(row.id, skill.created_at),
-                            self._model_summary(row, skill.dim, found, len(demo_ids)),
-                            repo.skill_instance(skill.id, skill.created_at))
+                    first = repo.next_model_version(s, skill)
+                    if base is not None and first - 1 != base:
+                        raise _StaleBase(first - 1)
+                    if kept is not None:
+                        latest, ids = repo.latest_corrections(s, skill)
+                        if ids != list(kept):
+                            raise _StaleBase(latest)
+                    return [self._add_version(s, skill, version, each)
+                            for version, each in enumerate(made, start=first)]
             except IntegrityError as exc:
                 clash = exc
         raise VersionConflict(
             f"concurrent fits of skill {name!r} took {_VERSION_RETRIES} version numbers in a "
             "row; fit again", field="version") from clash
+
+    def _add_version(self, s: Any, skill: Skill, version: int, made: NewVersion
+                     ) -> StoredVersion:
+        canal = made.routes.pooled
+        row = repo.add_model(s, skill, version, made.options, made.demo_ids, made.serialized,
+                             made.fit_seconds, int(canal.n_sections), str(canal.section_kind))
+        found = repo.Lineage(None, version, [])
+        lineage = made.lineage
+        if lineage is not None:
+            # None: the fit stored just before it, in the same transaction
+            parent = version - 1 if lineage.parent_version is None else lineage.parent_version
+            fit = version - 1 if lineage.fit_version is None else lineage.fit_version
+            ids = list(lineage.correction_ids)
+            if lineage.in_transaction is not None:
+                ids = lineage.in_transaction(s, skill, version, ids)
+            found = repo.Lineage(parent, fit, ids)
+            repo.add_lineage(s, row, parent, fit, ids)
+        return StoredVersion(model_cache_key(row.id, skill.created_at),
+                             self._model_summary(row, skill.dim, found, len(made.demo_ids)),
+                             repo.skill_instance(skill.id, skill.created_at), made.routes)
+
+    def _tell_stored(self, name: str, stored: StoredVersion, notify: bool = True) -> None:
+        """Keep a stored version decoded, tell the recorder and (``notify``) the fit
+        listeners: they serve it from the next pose on."""
+        self.cache.put(stored.key, stored.routes)  # the next reproduction needs no decoding
+        served = served_model(stored.routes)
+        version, instance = stored.summary.version, stored.instance
+        created = stored.summary.created_at
+        stored_ns = None if created is None else repo.created_ns(created)
+        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
+                                                              t_ns=stored_ns, instance=instance))
+        if notify:
+            self.fit_listeners.notify(name, version, served)
 
     @staticmethod
     def _model_summary(row: ModelVersion, dim: int, lineage: repo.Lineage,
@@ -585,14 +664,12 @@ class CanalService:
 
     # ---- corrections ------------------------------------------------------------------------
 
-    def _latest_corrections(self, s: Any, skill: Skill) -> list[StoredCorrection]:
+    def _latest_corrections(self, name: str) -> list[StoredCorrection]:
         """The corrections of the skill's latest model version, in the order applied."""
-        ref = repo.model_ref(s, skill, None)
-        if ref is None:
-            return []
-        row = repo.get_model(s, ref[0])
-        ids = repo.lineages(s, [row])[row.id].correction_ids
-        return [StoredCorrection.of(r) for r in repo.get_corrections(s, skill, ids)]
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            _version, ids = repo.latest_corrections(s, skill)
+            return [StoredCorrection.of(r) for r in repo.get_corrections(s, skill, ids)]
 
     @staticmethod
     def _reapplied(routes: Routes, kept: Sequence[StoredCorrection]
@@ -618,62 +695,63 @@ class CanalService:
         return routes, applied, notes
 
     def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                       routes: Routes, lineage: StoredLineage, notes: list[str]
-                       ) -> schemas.ModelSummary:
-        """Store a refined model as the new latest version and tell whoever listens."""
-        canal = routes.pooled
-        served = served_model(routes)
-        serialized = served.to_dict()
-        key, summary, instance = self._store_model(name, options, demo_ids, serialized, 0.0,
-                                                   canal, lineage)
-        self.cache.put(key, routes)
-        version = summary.version
-        created = summary.created_at
-        stored_ns = None if created is None else repo.created_ns(created)
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
-                                                              t_ns=stored_ns, instance=instance))
-        self.fit_listeners.notify(name, version, served)
-        summary.notes = notes
-        return summary
+                       routes: Routes, lineage: StoredLineage, notes: list[str], *,
+                       base: int | None) -> tuple[schemas.ModelSummary, Callable[[], None]]:
+        """Store a refined model as the new latest version, made on ``base``
+        (:meth:`_store_versions`); what to tell once stored, as :meth:`_on_latest` takes it."""
+        (stored,) = self._store_versions(name, [NewVersion(
+            options, demo_ids, served_model(routes).to_dict(), 0.0, routes, lineage)], base=base)
+        stored.summary.notes = notes
+        return stored.summary, partial(self._tell_stored, name, stored)
 
     def correct(self, name: str, body: schemas.CorrectionIn) -> schemas.CorrectedModel:
         """Refine a model version (the latest by default) by a person's correction; the
-        result is the new latest version. Nothing is stored when canal_core refuses it."""
+        result is the new latest version. Nothing is stored when canal_core refuses it.
+
+        The latest is the latest when the correction is stored: a fit, correction or undo
+        that lands meanwhile is what it is applied to (a version the request names is
+        corrected whatever landed since)."""
         version = None if body.model == "latest" else int(body.model)
-        routes, base_version, dim = self.load_routes(name, version)
-        route = check_route(body.route, routes.n_routes, "route")
-        canal = routes.pooled if route is None else routes.canals[route]
-        with self.db.read() as s:
-            skill = repo.get_skill(s, name)
-            base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
-            lineage = repo.lineages(s, [base])[base.id]
-            options, demo_ids = dict(base.options), list(base.demo_ids)
-        check_correction_inputs(canal.directrix, canal.radii, body.samples, body.plan,
-                                body.timestamps)
-        try:
-            correction = checked_correction(body.kind, body.samples, dim, body.weight, body.label,
-                                            body.timestamps, body.orientations, body.plan)
-            refined, applied = corrected_routes(routes, correction, route)
-        except canal_core.CanalError as exc:
-            raise CanalRejected(exc, exc.message, field=exc.field) from exc
-        for each in refined.every_canal:
-            check_finite_answer({"directrix": each.directrix, "radii": each.radii},
-                                "samples, plan")
         made: list[Correction] = []
 
-        def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
-            row = repo.insert_correction(
-                s, skill, correction.kind, correction.label, correction.weight, correction.samples,
-                correction.timestamps, correction.orientations, correction.plan, base_version,
-                version, applied.first, applied.last, route)
-            made.append(row)
-            return [*ids, row.id]
+        def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
+            routes, base_version, dim = self.load_routes(name, version)
+            route = check_route(body.route, routes.n_routes, "route")
+            canal = routes.pooled if route is None else routes.canals[route]
+            with self.db.read() as s:
+                skill = repo.get_skill(s, name)
+                base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
+                lineage = repo.lineages(s, [base])[base.id]
+                options, demo_ids = dict(base.options), list(base.demo_ids)
+            check_correction_inputs(canal.directrix, canal.radii, body.samples, body.plan,
+                                    body.timestamps)
+            try:
+                correction = checked_correction(body.kind, body.samples, dim, body.weight,
+                                                body.label, body.timestamps, body.orientations,
+                                                body.plan)
+                refined, applied = corrected_routes(routes, correction, route)
+            except canal_core.CanalError as exc:
+                raise CanalRejected(exc, exc.message, field=exc.field) from exc
+            for each in refined.every_canal:
+                check_finite_answer({"directrix": each.directrix, "radii": each.radii},
+                                    "samples, plan")
 
-        summary = self._store_refined(
-            name, options, demo_ids, refined,
-            StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store), [])
-        self.metrics.corrections.labels(correction.kind).inc()
+            def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
+                row = repo.insert_correction(
+                    s, skill, correction.kind, correction.label, correction.weight,
+                    correction.samples, correction.timestamps, correction.orientations,
+                    correction.plan, base_version, version, applied.first, applied.last, route)
+                made.append(row)
+                return [*ids, row.id]
+
+            return self._store_refined(
+                name, options, demo_ids, refined,
+                StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
+                [], base=base_version if version is None else None)
+
+        summary = self._on_latest(name, "correction", build)
         row = made[-1]
+        self.metrics.corrections.labels(row.kind).inc()
         return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(row))
 
     def list_corrections(self, name: str, offset: int, limit: int
@@ -687,33 +765,44 @@ class CanalService:
                                                     limit=limit)
 
     def undo_correction(self, name: str, correction_id: int) -> schemas.CorrectedModel:
-        """A new latest version without one correction: the others re-applied to the fit."""
-        with self.db.read() as s:
-            skill = repo.get_skill(s, name)
-            target = repo.get_corrections(s, skill, [correction_id])[0]
-            ref = repo.require_model_ref(s, skill, None)
-            latest = repo.get_model(s, ref[0])
-            lineage = repo.lineages(s, [latest])[latest.id]
-            if correction_id not in lineage.correction_ids:
-                raise CorrectionNotInLatest(
-                    f"correction {correction_id} is not part of the latest model version "
-                    f"{latest.version} of skill {name!r} (undone already, or left behind by a "
-                    "refit)", field="id")
-            rest = [StoredCorrection.of(r) for r in repo.get_corrections(
-                s, skill, [i for i in lineage.correction_ids if i != correction_id])]
-            options, demo_ids = dict(latest.options), list(latest.demo_ids)
-            latest_version = latest.version
-        base, _v, _dim = self.load_routes(name, lineage.fit_version)
-        refined, applied, notes = self._reapplied(base, rest)
+        """A new latest version without one correction: the others re-applied to the fit.
 
-        def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
-            repo.get_corrections(s, skill, [correction_id])[0].undone = True
-            return ids
+        The others are those of the latest version when the undo is stored: a correction
+        that lands meanwhile is kept."""
+        undone: list[Correction] = []
 
-        summary = self._store_refined(
-            name, options, demo_ids, refined,
-            StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark), notes)
+        def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
+            with self.db.read() as s:
+                skill = repo.get_skill(s, name)
+                target = repo.get_corrections(s, skill, [correction_id])[0]
+                ref = repo.require_model_ref(s, skill, None)
+                latest = repo.get_model(s, ref[0])
+                lineage = repo.lineages(s, [latest])[latest.id]
+                if correction_id not in lineage.correction_ids:
+                    raise CorrectionNotInLatest(
+                        f"correction {correction_id} is not part of the latest model version "
+                        f"{latest.version} of skill {name!r} (undone already, or left behind by "
+                        "a refit)", field="id")
+                rest = [StoredCorrection.of(r) for r in repo.get_corrections(
+                    s, skill, [i for i in lineage.correction_ids if i != correction_id])]
+                options, demo_ids = dict(latest.options), list(latest.demo_ids)
+                latest_version = latest.version
+            base, _v, _dim = self.load_routes(name, lineage.fit_version)
+            refined, applied, notes = self._reapplied(base, rest)
+
+            def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
+                repo.get_corrections(s, skill, [correction_id])[0].undone = True
+                return ids
+
+            undone.append(target)
+            return self._store_refined(
+                name, options, demo_ids, refined,
+                StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark),
+                notes, base=latest_version)
+
+        summary = self._on_latest(name, "undo", build)
         self.metrics.corrections_undone.inc()
+        target = undone[-1]
         target.undone = True
         return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(target))
 
@@ -930,12 +1019,76 @@ InTransaction = Callable[[Any, Skill, int, list[int]], list[int]]
 @dataclass(frozen=True)
 class StoredLineage:
     """The lineage a new version is stored with; ``in_transaction(session, skill, version,
-    ids)`` writes what must commit with it and answers the version's correction ids."""
+    ids)`` writes what must commit with it and answers the version's correction ids.
 
-    parent_version: int
-    fit_version: int
+    ``parent_version`` and ``fit_version`` None: the fit stored just before it, in the same
+    transaction (a refit's version with the corrections re-applied)."""
+
+    parent_version: int | None
+    fit_version: int | None
     correction_ids: list[int]
     in_transaction: InTransaction | None = None
+
+
+@dataclass(frozen=True)
+class NewVersion:
+    """A model version to store: its options, demonstrations, serialised model, fit time,
+    the model itself and, for a refined one, its lineage (None: a fit)."""
+
+    options: dict[str, Any]
+    demo_ids: list[int]
+    serialized: dict[str, Any]
+    fit_seconds: float
+    routes: Routes
+    lineage: StoredLineage | None = None
+
+
+@dataclass(frozen=True)
+class StoredVersion:
+    """A model version just stored: its cache key, its summary, the skill's instance (for
+    the recorder) and the model."""
+
+    key: CacheKey
+    summary: schemas.ModelSummary
+    instance: str
+    routes: Routes
+
+
+class _StaleBase(Exception):
+    """A new version was made on a latest version that is no longer the latest (another
+    replica stored one meanwhile); nothing was stored. Never leaves the service: the
+    request is made again on the new latest."""
+
+    def __init__(self, found: int) -> None:
+        super().__init__(f"the latest is now version {found}")
+        self.found = found
+
+
+class SkillLocks:
+    """One lock per skill name, held by the requests of this process that make model
+    versions of it; a skill's lock is dropped when nobody holds it or waits for it."""
+
+    def __init__(self) -> None:
+        self._guard = threading.Lock()
+        self._locks: dict[str, tuple[threading.Lock, int]] = {}
+
+    @contextmanager
+    def hold(self, name: str) -> Iterator[None]:
+        with self._guard:
+            lock, users = self._locks.get(name, (None, 0))
+            if lock is None:
+                lock = threading.Lock()
+            self._locks[name] = (lock, users + 1)
+        try:
+            with lock:
+                yield
+        finally:
+            with self._guard:
+                users = self._locks[name][1] - 1
+                if users:
+                    self._locks[name] = (lock, users)
+                else:
+                    del self._locks[name]
 
 
 def _correction_out(row: Correction) -> schemas.CorrectionOut:

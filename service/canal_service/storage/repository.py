@@ -604,6 +604,20 @@ def lineages(session: Session, models: Sequence[ModelVersion]) -> dict[int, Line
     return out
 
 
+def latest_corrections(session: Session, skill: Skill) -> tuple[int, list[int]]:
+    """(the skill's latest model version, 0 when it has none; the ids of that version's
+    corrections, in the order applied), from one query that leaves the canal unread."""
+    row = session.execute(
+        select(ModelVersion.version, ModelLineage.correction_ids)
+        .outerjoin(ModelLineage, ModelLineage.model_id == ModelVersion.id)
+        .where(ModelVersion.skill_id == skill.id)
+        .order_by(ModelVersion.version.desc()).limit(1)
+    ).first()
+    if row is None:
+        return 0, []
+    return int(row[0]), [int(i) for i in row[1] or ()]
+
+
 def insert_correction(session: Session, skill: Skill, kind: str, label: str, weight: float,
                       samples: arrays.FloatArray, timestamps: arrays.FloatArray | None,
                       orientations: arrays.FloatArray | None, plan: arrays.FloatArray | None,
