@@ -66,7 +66,7 @@ from .options import (
     MIN_CORRECTION_SAMPLES,
     CorrectionKind,
 )
-from .preprocess import check_time_order
+from .preprocess import check_time_order, glitch_rows
 from .reproduce import located_points, section_basis, smootherstep
 from .validation import (
     BoolArray,
@@ -291,6 +291,39 @@ def checked_correction(
     quats = None if orientations is None else check_quaternions(orientations, points.shape[0], "orientations")
     path = None if plan is None else check_positions(plan, "plan", dim)
     return Correction(str(kind), points, check_positive(weight, "weight"), label, times, quats, path)
+
+
+def correction_glitches(samples: Any) -> BoolArray:
+    """The samples of a correction path left out as glitches: a demonstration's rule
+    (:func:`canal_core.preprocess.glitch_rows`, docs/preprocessing.md step 4) on the path in
+    the order it came.
+
+    Parameters
+    ----------
+    samples : array_like, shape (M, D)
+
+    Returns
+    -------
+    glitch : array of bool, shape (M,)
+    """
+    return glitch_rows(check_positions(samples, "samples"))
+
+
+def cleaned_samples(samples: FloatArray) -> FloatArray:
+    """A correction path without its glitches (:func:`correction_glitches`), what shapes the
+    canal; raises :class:`InvalidInputError` when fewer than ``MIN_CORRECTION_SAMPLES``
+    samples are left, as a fit refuses a demonstration left too short."""
+    glitch = glitch_rows(samples)
+    if not glitch.any():
+        return samples
+    left = int(samples.shape[0] - glitch.sum())
+    if left < MIN_CORRECTION_SAMPLES:
+        raise InvalidInputError(
+            f"expected at least {MIN_CORRECTION_SAMPLES} samples in samples, got {left} after "
+            f"dropping {int(glitch.sum())} as glitches (far off the path and straight back)",
+            field="samples",
+        )
+    return np.asarray(samples[~glitch], dtype=np.float64)
 
 
 # -- geometry ----------------------------------------------------------------------------
@@ -629,10 +662,11 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
     Raises
     ------
     InvalidInputError
-        ``samples``: wrong dimension, too short, outside every section; ``kind``: an
+        ``samples``: wrong dimension, too short (glitches left out), outside every section; ``kind``: an
         exclude that would close the canal.
     """
-    samples = check_positions(correction.samples, "samples", canal.dim)
+    # Glitches (one reading far off the path) are left out, as a demonstration's are at fit.
+    samples = cleaned_samples(check_positions(correction.samples, "samples", canal.dim))
     reach = REACH * canal.radii
     crossed, coords = path_crossings(samples, canal.directrix, canal.tangents, canal.basis, reach)
     first, last = _span(crossed, "samples", samples, float(np.median(np.diff(canal.arclength))))

@@ -491,6 +491,43 @@ def _prepared_tail(head: _Head, glitch: np.ndarray, field: str, still_tolerance:
     )
 
 
+def glitch_rows(positions: FloatArray) -> np.ndarray:
+    """The rows steps 3 and 4 drop as glitches from a path taken in the order it came.
+
+    The rule of a demonstration's step 4 on the samples step 3 keeps (exact and
+    rounding-level repeats merged into the sample they repeat); a repeat of a glitch is a
+    glitch too. A path of fewer than ``MIN_TESTED`` distinct samples keeps every row, as a
+    demonstration does. Corrections are cleaned by this before they shape a canal.
+
+    Parameters
+    ----------
+    positions : array, shape (T, D)
+        Finite (checked by the caller).
+
+    Returns
+    -------
+    glitch : array of bool, shape (T,)
+        True for the rows to leave out.
+    """
+    n = positions.shape[0]
+    new = mask_of_new_samples(positions)
+    exact = np.flatnonzero(new)
+    pts = np.take(positions, exact, axis=0)
+    size = robust_path_length(pts)
+    if size == 0.0:
+        return np.zeros(n, dtype=bool)
+    keep = _repeat_mask(pts, NEAR_DUPLICATE_TOLERANCE * size)
+    kept = np.flatnonzero(keep)
+    flagged = np.zeros(exact.size, dtype=bool)
+    flagged[kept[glitch_masks([np.take(pts, kept, axis=0)])[0]]] = True
+    # Each exact row stands for the kept sample it merged into, each input row for its
+    # exact row.
+    representative = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))
+    exact_flag = flagged[representative]
+    row_exact = np.cumsum(new) - 1
+    return np.asarray(exact_flag[row_exact], dtype=bool)
+
+
 def prepared_rows(
     positions: FloatArray,
     timestamps: FloatArray | None = None,

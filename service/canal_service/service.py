@@ -26,7 +26,7 @@ from sqlalchemy.exc import IntegrityError
 
 import canal_core
 from canal_core.corrections import Correction as Correction_
-from canal_core.corrections import checked_correction, corrected_canal
+from canal_core.corrections import checked_correction, corrected_canal, correction_glitches
 from canal_core.routes import RouteChoice, Routes, routes_from_dict, served_model, single_route
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
@@ -747,7 +747,7 @@ class CanalService:
             return self._store_refined(
                 name, options, demo_ids, refined,
                 StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
-                [], base=base_version if version is None else None)
+                _glitch_notes(correction.samples), base=base_version if version is None else None)
 
         summary = self._on_latest(name, "correction", build)
         row = made[-1]
@@ -1105,6 +1105,22 @@ def check_route(route: int | None, n_routes: int, field: str) -> int | None:
         raise InvalidInput(f"expected {field} in 0..{n_routes - 1} (the model has {n_routes} "
                            f"route{'s' if n_routes > 1 else ''}), got {route}", field=field)
     return route
+
+
+#: Glitch samples a correction's note names by number; more are counted only.
+GLITCHES_NAMED = 10
+
+
+def _glitch_notes(samples: arrays.FloatArray) -> list[str]:
+    """A note on the samples of a correction path left out as glitches (none: no note)."""
+    rows = np.flatnonzero(correction_glitches(samples)).tolist()
+    if not rows:
+        return []
+    named = ", ".join(map(str, rows[:GLITCHES_NAMED])) + (", ..." if len(rows) > GLITCHES_NAMED else "")
+    one = len(rows) == 1
+    return [f"{len(rows)} of the {samples.shape[0]} samples {'was' if one else 'were'} left out as "
+            f"{'a glitch' if one else 'glitches'} (far off the path and straight back, the rule "
+            f"demonstrations are cleaned by at fit): sample{'' if one else 's'} {named}"]
 
 
 def corrected_routes(routes: Routes, correction: Correction_, route: int | None

@@ -10,7 +10,12 @@ from core_data import helix_demos, sleeve_demos
 
 import canal_core
 from canal_core import InvalidInputError
-from canal_core.corrections import MIN_WIDTH_FRACTION, path_crossings, reapplied_canal
+from canal_core.corrections import (
+    MIN_WIDTH_FRACTION,
+    correction_glitches,
+    path_crossings,
+    reapplied_canal,
+)
 from canal_core.cross_sections import boundary_distance
 
 KINDS = ("circle", "mec", "ellipse", "spline")
@@ -277,3 +282,65 @@ def test_a_path_shown_against_the_canals_direction_corrects_it_as_shown_forwards
     behind = canal.corrected("exclude", pushed[::-1].copy(), plan=run[::-1].copy())
     np.testing.assert_allclose(behind.directrix, ahead.directrix, atol=1e-12, rtol=0)
     assert behind.corrections[0].first == ahead.corrections[0].first
+
+
+def line_canal() -> canal_core.Canal:
+    """A straight 1 m canal of four demonstrations 5 cm around its axis (200 sections)."""
+    x = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([x, dy + 0.002 * np.sin(7 * x + i), dz + 0.002 * np.sin(7 * x + i + 1)])
+             for i, (dy, dz) in enumerate([(0.05, 0.0), (-0.05, 0.0), (0.0, 0.05), (0.0, -0.05)])]
+    return canal_core.fit(demos)
+
+
+def test_a_glitch_sample_in_a_correction_path_is_dropped_as_a_demonstrations_would_be() -> None:
+    # An include path 0.9 radii out over sections 60-139, with one sample (at section 100)
+    # thrown 2.5 radii out: an IK/TF glitch or a pose in the wrong frame. Demonstrations get
+    # such a sample dropped at fit; in a correction it used to double the canal's radius there.
+    canal = line_canal()
+    idx = np.arange(60, 140)
+    path = canal.directrix[idx] + 0.9 * canal.radii[idx, None] * canal.normals[idx]
+    spiky = path.copy()
+    spiky[40] = canal.directrix[100] + 2.5 * canal.radii[100] * canal.normals[100]
+    assert np.flatnonzero(correction_glitches(spiky)).tolist() == [40]
+    assert not correction_glitches(path).any()
+    clean = canal.corrected("include", path)
+    with_glitch = canal.corrected("include", spiky)
+    # The glitch is left out: the canal is the one the path without it makes...
+    without = canal.corrected("include", np.delete(spiky, 40, axis=0))
+    assert np.array_equal(with_glitch.radii, without.radii)
+    assert np.array_equal(with_glitch.directrix, without.directrix)
+    # ... no wider than the clean path's, and the correction keeps the samples as they came.
+    assert (with_glitch.radii / canal.radii).max() < 1.02 * (clean.radii / canal.radii).max()
+    np.testing.assert_array_equal(with_glitch.corrections[0].correction.samples, spiky)
+    # An exclude's path is cleaned alike: its glitch neither cuts nor plans.
+    run, pushed = pushed_run(canal, start_section=40)
+    glitched = pushed.copy()
+    glitched[30] = glitched[30] - 2.5 * canal.radii[70] * canal.normals[70]
+    assert correction_glitches(glitched)[30]
+    cut = canal.corrected("exclude", glitched)
+    np.testing.assert_array_equal(cut.radii, canal.corrected("exclude", np.delete(glitched, 30, axis=0)).radii)
+
+
+def test_a_correction_too_short_for_the_glitch_rule_is_taken_whole() -> None:
+    # The rule needs five distinct samples to tell a glitch from motion, as for demonstrations:
+    # a four-sample correction is taken as it came, whatever its shape.
+    canal = line_canal()
+    idx = np.array([90, 95, 100, 105])
+    path = canal.directrix[idx] + 0.5 * canal.radii[idx, None] * canal.normals[idx]
+    path[2] = canal.directrix[100] + 2.5 * canal.radii[100] * canal.normals[100]
+    assert not correction_glitches(path).any()
+    assert canal.corrected("include", path).radii[100] > 2.0 * canal.radii[100]
+
+
+def test_a_correction_left_too_short_by_its_glitches_is_refused_naming_the_samples() -> None:
+    # Six samples, two of them thrown five radii off: the rule drops those and the first
+    # sample with them (an end whose step dwarfs the next), leaving three, fewer than a
+    # correction needs, as a demonstration left that short is refused at fit.
+    canal = line_canal()
+    idx = np.arange(100, 124, 4)
+    path = canal.directrix[idx] + 0.5 * canal.radii[idx, None] * canal.normals[idx]
+    path[1:3] += 5.0 * canal.radii[idx[1:3], None] * canal.normals[idx[1:3]]
+    assert correction_glitches(path).sum() == 3
+    with pytest.raises(InvalidInputError, match=r"at least 4 samples in samples, got 3 after dropping 3 as glitches") as caught:
+        canal.corrected("include", path)
+    assert caught.value.field == "samples"

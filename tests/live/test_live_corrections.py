@@ -229,6 +229,30 @@ def test_a_capture_in_the_way_is_named_by_what_it_captures(live: Any, corrected_
         assert (error["type"], error["field"]) == ("conflict", "demo"), error
 
 
+def test_a_live_correction_leaves_out_the_glitch_pose_its_tracker_rejected(live: Any) -> None:
+    # A guided include path 0.9 radii out with one pose 2.5 radii out: the tracker answers
+    # that pose outside_canal (a glitch), and the correction captured leaves it out of the
+    # canal too, saying so, instead of doubling the canal's radius there.
+    make_skill(live.client, "glitchy", 3)
+    canal = canal_of(live, "glitchy")
+    idx = np.arange(20, 61)
+    path = canal.directrix[idx] + 0.9 * canal.radii[idx, None] * canal.normals[idx]
+    path[20] = canal.directrix[40] + 2.5 * canal.radii[40] * canal.normals[40]
+    with PoseStreamer("glitchy", "guided", endpoint=live.endpoint, encoding="json") as ps:
+        for i in range(20):
+            ps.wait_for(ps.send((canal.directrix[i] + 0.9 * canal.radii[i] * canal.normals[i]).tolist(),
+                                restart=(i == 0)), 10.0)
+        ps.start_correction("include", label="guided, one glitch pose")
+        answers = [ps.wait_for(ps.send(q.tolist()), 10.0) for q in path]
+        made = ps.stop_correction()
+    assert answers[20] is not None and answers[20].status == "outside_canal"
+    assert made["correction"]["n_points"] == 41
+    assert [n for n in made["notes"] if "glitch" in n] == [
+        "1 of the 41 samples was left out as a glitch (far off the path and straight back, "
+        "the rule demonstrations are cleaned by at fit): sample 20"]
+    assert (canal_of(live, "glitchy").radii / canal.radii).max() < 1.5
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

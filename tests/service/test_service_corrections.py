@@ -158,6 +158,30 @@ def test_a_correction_that_would_close_the_canal_is_refused(http: httpx.Client) 
 
 
 
+def test_a_glitch_sample_in_a_correction_is_left_out_and_the_answer_says_so(http: httpx.Client) -> None:
+    # One sample of an include path thrown 2.5 radii out (an IK/TF glitch, a pose in the
+    # wrong frame) used to double the canal's radius there, silently. It is dropped as a
+    # demonstration's would be at fit; the samples are stored as they came.
+    fitted = served_canal(http)
+    idx = np.arange(20, 61)
+    path = fitted.directrix[idx] + 0.9 * fitted.radii[idx, None] * fitted.normals[idx]
+    spiky = path.copy()
+    spiky[20] = fitted.directrix[40] + 2.5 * fitted.radii[40] * fitted.normals[40]
+    clean = http.post("/skills/pour/corrections", json={"kind": "include", "samples": path.tolist()})
+    assert clean.status_code == 201, clean.text
+    assert not [n for n in clean.json()["notes"] if "glitch" in n]
+    r = http.post("/skills/pour/corrections",
+                  json={"kind": "include", "samples": spiky.tolist(), "model": 1})
+    assert r.status_code == 201, r.text
+    body = r.json()
+    assert body["parent_version"] == 1 and body["correction"]["n_points"] == 41
+    assert [n for n in body["notes"] if "glitch" in n] == [
+        "1 of the 41 samples was left out as a glitch (far off the path and straight back, "
+        "the rule demonstrations are cleaned by at fit): sample 20"]
+    grown = served_canal(http).radii / fitted.radii
+    assert grown.max() < 1.02 * (served_canal(http, "2").radii / fitted.radii).max()
+
+
 def test_a_sample_row_a_value_short_is_named_in_words_not_numpy_s(http: httpx.Client) -> None:
     # Null rows and non-numbers are refused by the schema; a row of the wrong length reached
     # numpy and came back as "inhomogeneous shape after 1 dimensions".
