@@ -447,7 +447,25 @@ def segment_free_distances(p: FloatArray, q: FloatArray, scene: Scene) -> FloatA
         out = np.minimum(out, (_segment_segment_distances(p, q, a, b) - reach[None, :]).min(axis=1))
     if scene.box_index.size:
         c, rot, half, clearance = scene.box_arrays
-        out = np.minimum(out, _box_segment_free(p, q, c, rot, half, clearance))
+        out = np.minimum(out, _box_segment_free_each(p, q, c, rot, half, clearance).min(axis=1))
+    return out
+
+
+def obstacle_segment_free_distances(p: FloatArray, q: FloatArray, scene: Scene) -> FloatArray:
+    """:func:`segment_free_distances` to each obstacle apart, shape (M, O).
+
+    Parameters
+    ----------
+    p, q : arrays, shape (M, D)
+    scene : Scene
+    """
+    out = np.full((p.shape[0], len(scene)), np.inf)
+    if scene.round_index.size:
+        a, b, reach = scene.round_arrays
+        out[:, scene.round_index] = _segment_segment_distances(p, q, a, b) - reach[None, :]
+    if scene.box_index.size:
+        c, rot, half, clearance = scene.box_arrays
+        out[:, scene.box_index] = _box_segment_free_each(p, q, c, rot, half, clearance)
     return out
 
 
@@ -461,11 +479,11 @@ def _box_free(x: FloatArray, centres: FloatArray, rotations: FloatArray, half: F
                       + np.minimum(q.max(axis=2), 0.0) - clearance[None, :])
 
 
-def _box_segment_free(
+def _box_segment_free_each(
     p: FloatArray, q: FloatArray, centres: FloatArray, rotations: FloatArray, half: FloatArray, clearance: FloatArray
 ) -> FloatArray:
-    """Smallest free distance of segments (M) to boxes (B): golden-section search of the
-    convex signed distance along each segment, both ends included."""
+    """Smallest free distance of segments (M) to each box (B), shape (M, B): golden-section
+    search of the convex signed distance along each segment, both ends included."""
     seg = q - p
     m, nb = p.shape[0], centres.shape[0]
 
@@ -484,7 +502,7 @@ def _box_segment_free(
         c, d, fc, fd = (np.where(left, new, d), np.where(left, c, new),
                         np.where(left, f_new, fd), np.where(left, fc, f_new))
     ends = np.minimum(free_at(np.zeros((m, nb))), free_at(np.ones((m, nb))))
-    return np.asarray(np.minimum(np.minimum(fc, fd), ends).min(axis=1))
+    return np.asarray(np.minimum(np.minimum(fc, fd), ends))
 
 
 # -- the demonstrations' own step ------------------------------------------------------
@@ -546,7 +564,8 @@ class Blocked:
         largest from the section before; ``start``: the start is inside an obstacle deeper
         than one such step (move it out first).
     obstacles : tuple of int
-        Indices (in the scene) of the obstacles that take part of that section.
+        Indices (in the scene) of the obstacles in the way: for ``closed`` those that take part
+        of that section, else those the steps into it run into (never empty).
     """
 
     section: int
@@ -889,12 +908,48 @@ def _window_path(
         return best.rows, None
     furthest = max(chains, key=lambda c: (c.rows.shape[0], -c.cost))
     at = furthest.rows.shape[0]
+    last = furthest.rows[-1] if at else before[0]
     if at < end:
-        taking = np.flatnonzero((each[at] < 0.0).any(axis=0))
-        return furthest.rows, Blocked(int(sec[at]), "unreachable", tuple(int(x) for x in taking))
+        ahead = np.concatenate([nom[at : at + 1], grid[at]])
+        return furthest.rows, Blocked(int(sec[at]), "unreachable", _in_the_way(last, ahead, float(lim[at]), scene))
     # Every row reached but not the fixed row after the window.
-    taking = np.flatnonzero(obstacle_free_distances(path[hi + 1][None, :], scene)[0] < 0.0)
-    return furthest.rows, Blocked(int(first + hi), "unreachable", tuple(int(x) for x in taking))
+    return furthest.rows, Blocked(int(first + hi), "unreachable",
+                                  _in_the_way(last, path[hi + 1][None, :], float(lim[end]), scene))
+
+
+def _in_the_way(last: FloatArray, ahead: FloatArray, limit: float, scene: Scene) -> tuple[int, ...]:
+    """The obstacles that stand between the last point reached and a section it cannot reach.
+
+    The steps from ``last`` to the section's candidates ``ahead`` within one step
+    (``limit``; all of them when none is): the obstacles one of those steps runs into (a
+    candidate inside an obstacle counts: its step ends in it), else those within reach of
+    one (the step's ends nearer an obstacle than its length: what the quick clearance test
+    refuses), else the obstacle nearest the step to the first candidate (the ratio rule's
+    point). Never empty for a scene with obstacles.
+
+    Parameters
+    ----------
+    last : array, shape (D,)
+    ahead : array, shape (G, D)
+        The ratio rule's point of the section first.
+    limit : float
+    scene : Scene
+    """
+    length = np.sqrt(((ahead - last[None, :]) ** 2).sum(axis=1))
+    near = length <= limit
+    ends = ahead[near] if near.any() else ahead
+    starts = np.broadcast_to(last, ends.shape)
+    run_into = obstacle_segment_free_distances(np.ascontiguousarray(starts), np.ascontiguousarray(ends), scene)
+    named = np.flatnonzero((run_into < 0.0).any(axis=0))
+    if not named.size:
+        at_last = obstacle_free_distances(last[None, :], scene)[0]
+        at_ends = obstacle_free_distances(ends, scene)
+        steps = np.sqrt(((ends - last[None, :]) ** 2).sum(axis=1))
+        named = np.flatnonzero((at_last[None, :] + at_ends < steps[:, None]).any(axis=0))
+    if not named.size and len(scene):
+        nominal = obstacle_segment_free_distances(last[None, :], ahead[:1], scene)[0]
+        named = np.array([int(np.argmin(nominal))])
+    return tuple(int(x) for x in named)
 
 
 def _shift_angles(in_plane: int, inward: FloatArray) -> list[FloatArray]:
@@ -924,6 +979,7 @@ __all__ = [
     "merged_scene",
     "obstacle_free_distances",
     "obstacle_from_dict",
+    "obstacle_segment_free_distances",
     "rotation_matrix",
     "scene_from_list",
     "section_candidates",

@@ -559,7 +559,9 @@ class BlockedOut(BaseModel):
         description="closed: no clear point left in the section inside the canal; unreachable: "
                     "none within the demonstrations' largest step; start: the start is inside an "
                     "obstacle deeper than that step.")
-    obstacles: list[int] = Field(description="Indices (in the scene used) of the obstacles there.")
+    obstacles: list[int] = Field(
+        description="Indices (in the scene used) of the obstacles in the way (never empty): for "
+                    "closed those that take the section, else those the steps into it run into.")
 
 
 class ReproductionRequest(_In):

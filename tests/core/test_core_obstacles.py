@@ -164,7 +164,27 @@ def test_parallel_demos_leave_no_room_to_swerve_within_their_step() -> None:
     ball = {"kind": "sphere", "center": [2.0, 0.2, 0.0], "radius": 0.15}
     rep = canal.reproduce_detailed(np.array([0.0, 0.2, 0.0]), obstacles=[ball])
     assert rep.blocked is not None and rep.blocked.reason == "unreachable"
+    assert rep.blocked.obstacles == (0,)
     assert rep.positions[-1, 0] < 2.0 - 0.15
+
+
+@pytest.mark.parametrize("wall", [
+    {"kind": "capsule", "a": [0.5, -1.0], "b": [0.5, 1.0], "radius": 0.001},
+    {"kind": "box", "center": [0.5, 0.0], "half_extents": [0.0005, 1.0]},
+])
+def test_an_unreachable_section_names_the_obstacle_in_the_way(wall: dict[str, object]) -> None:
+    # A wall a millimetre thin across a 2-D canal, between two section planes: no candidate
+    # of the section beyond it lies inside it, so the answer said unreachable naming no
+    # obstacle. It names the wall, and not a disc off to the side.
+    x = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([x, o + 0.002 * np.sin(7 * x + i)])
+             for i, o in enumerate((0.05, -0.05, 0.025, -0.025))]
+    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 60)] * 4)
+    aside = {"kind": "disc", "center": [0.3, 0.5], "radius": 0.01}
+    rep = canal.reproduce_detailed(np.array([0.0, 0.0]), obstacles=[aside, wall])
+    assert rep.blocked is not None and rep.blocked.reason == "unreachable"
+    assert rep.blocked.obstacles == (1,)
+    assert rep.positions[-1, 0] < 0.5
 
 
 def _check_path(canal: canal_core.Canal, rep: canal_core.Reproduction, scene: canal_core.obstacles.Scene) -> None:

@@ -89,6 +89,18 @@ def test_a_wall_across_the_canal_blocks_with_its_section(http: httpx.Client) -> 
     assert 0.58 <= model["directrix"][rep["blocked"]["section"]][0] <= 0.62
 
 
+def test_a_thin_wall_between_two_sections_is_named_where_it_blocks(http: httpx.Client) -> None:
+    # A millimetre-thin door between two section planes: no point of the next section lies in
+    # it, so nothing of that section is closed, yet no step gets past it. The answer said
+    # unreachable naming no obstacle; it names the door, not the cup.
+    model = http.get("/skills/reach/models/latest").json()
+    x = 0.5 * (model["directrix"][60][0] + model["directrix"][61][0])
+    door = {"kind": "box", "center": [x, 0.0, 0.0], "half_extents": [0.0005, 0.5, 0.5], "name": "door"}
+    rep = http.post("/skills/reach/reproductions", json={"start": START, "obstacles": [BALL, door]}).json()
+    assert rep["blocked"] == {"section": 61, "reason": "unreachable", "obstacles": [1]}
+    assert np.asarray(rep["positions"])[:, 0].max() < x
+
+
 @pytest.mark.parametrize(
     ("obstacle", "field"),
     [
