@@ -528,6 +528,27 @@ def test_usage_errors_exit_2(run: Run) -> None:
     assert r.exit_code == 2
 
 
+@pytest.mark.parametrize(("args", "option"), [
+    (["reproduce", "flat", "--start", "0,,0.04"], "--start"),
+    (["reproduce", "flat", "--start", ",0,0.04"], "--start"),
+    (["reproduce", "flat", "--start", "0,0.04,"], "--start"),
+    (["reproduce", "flat", "--start", "0,0", "--goal", "1,,0"], "--goal"),
+    (["reproduce", "flat", "--start", "0,0,0", "--start-orientation", "0,0,,1"], "--start-orientation"),
+    (["reproduce", "flat", "--start", "0,0,0", "--obstacle", "sphere:0.5,,0,0.02"], "--obstacle"),
+    (["scene", "set", "flat", "--obstacle", "box:0.5,0,0,0.01,0.5,0.5,"], "--obstacle"),
+    (["sim", "flat", "--start", "0,,0"], "--start"),
+    (["sim", "flat", "--push", "1:0,,0.05"], "--push"),
+    (["sim", "flat", "--keep-out", "0.5,,0:0.02"], "--keep-out"),
+])
+def test_a_number_left_empty_is_a_usage_error_naming_its_option(
+        run: Run, args: list[str], option: str) -> None:
+    # "0,,0.04" was read as the point (0, 0.04): the empty field was dropped, and a 3-D
+    # start became a 2-D one. Every option that takes numbers refuses it before any request.
+    r = run(*args, url=closed_port_url())
+    assert r.exit_code == 2, (args, r.output)
+    assert option in r.output and "left empty" in r.output, (args, r.output)
+
+
 def test_help_offers_the_contracts_choices(run: Run) -> None:
     # The choices are canal_core's and the limits the HTTP contract's, not a copy in the CLI:
     # a kind added to canal_core shows up here without touching the CLI.

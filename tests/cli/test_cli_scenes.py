@@ -93,3 +93,29 @@ def test_scene_set_with_nothing_to_set_is_a_usage_error_and_keeps_the_scene(
     assert r.exit_code == 0, r.output
     with CanalClient(service.url) as c:
         assert c.get_scene(name).obstacles == []
+
+
+def test_a_box_of_the_wrong_dimension_is_a_usage_error_naming_what_it_takes(
+        run: Callable[..., Result], service: LiveService, unique_name: Callable[[str], str]) -> None:
+    # box:cx,cy,cz,hx,hy (hz forgotten) on a 3-D skill was read as a 2-D box with a clearance
+    # and refused by the service as a centre of 2 values. The box's numbers are read by the
+    # skill's dimension: a usage error saying what a box of that skill takes.
+    solid, flat = unique_name("box3"), unique_name("box2")
+    with CanalClient(service.url) as c:
+        c.create_skill(solid, dim=3)
+        c.create_skill(flat, dim=2)
+    for args in (["scene", "set", solid], ["reproduce", solid, "--start", "0,0,0"]):
+        r = run(*args, "--obstacle", "box:0.5,0,0,0.01,0.5")
+        assert r.exit_code == 2, r.output
+        said = " ".join(r.output.split())
+        assert "--obstacle" in said and "box:cx,cy,cz,hx,hy,hz[,clearance]" in said, said
+        assert "3-D" in said and "got 5 numbers" in said, said
+    r = run("scene", "set", flat, "--obstacle", "box:0.5,0,0,0.01,0.5,0.5")
+    assert r.exit_code == 2 and "box:cx,cy,hx,hy[,clearance]" in " ".join(r.output.split()), r.output
+    # The same five numbers on a 2-D skill are a box and its clearance.
+    r = run("--json", "scene", "set", flat, "--obstacle", "box:0.5,0,0.01,0.5,0.002")
+    assert r.exit_code == 0, r.output
+    box = json.loads(r.stdout)["obstacles"][0]
+    assert box["center"] == [0.5, 0.0] and box["half_extents"] == [0.01, 0.5] and box["clearance"] == 0.002
+    with CanalClient(service.url) as c:
+        assert not c.get_scene(solid).obstacles  # nothing was stored

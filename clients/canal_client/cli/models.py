@@ -34,7 +34,7 @@ from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
 from .output import EXIT_REFUSED, err, error, out, plain, print_json
-from .parsing import choice_parser, parse_obstacle, parse_point, parse_quaternion
+from .parsing import choice_parser, has_box, parse_obstacle, parse_point, parse_quaternion
 from .session import connected, options
 
 # typer shows each Literal's values as choices and choice_parser checks them (canal_protocol's
@@ -188,6 +188,9 @@ def reproduce(
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:
+        if has_box(obstacle):  # a box's numbers are read by the skill's dimension
+            dim = c.get_skill(skill).dim
+            obstacles = [parse_obstacle(o, dim=dim) for o in obstacle or []]
         r = c.reproduce(skill, point, model=model, outside=outside, goal=goal_point,
                         duration=duration, start_orientation=quat, obstacles=obstacles,
                         route=route, persistence=persistence)

@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 
 from .output import out, print_json
-from .parsing import parse_obstacle
+from .parsing import has_box, parse_obstacle
 from .session import connected, options
 
 app = typer.Typer(help="Set, show and clear a skill's scene (its obstacles).", no_args_is_help=True)
@@ -55,9 +55,12 @@ def scene_set(
         raise typer.BadParameter("expected a scene file or --obstacle; to remove every obstacle: "
                                  "canal scene clear SKILL", param_hint="SCENE")
     items = read_scene_file(scene) if scene is not None else []
-    items += [parse_obstacle(o) for o in obstacle or []]
+    typed = [parse_obstacle(o) for o in obstacle or []]
     with connected(ctx) as c:
-        result = c.set_scene(skill, items)
+        if has_box(obstacle):  # a box's numbers are read by the skill's dimension
+            dim = c.get_skill(skill).dim
+            typed = [parse_obstacle(o, dim=dim) for o in obstacle or []]
+        result = c.set_scene(skill, items + typed)
     if options(ctx).json:
         print_json(result)
     else:

@@ -203,7 +203,10 @@ def sim(
                                                    ("gain", gain)) if v is not None})
         if obstacles:
             with connected(ctx) as c:
-                sim_module.check_points(c.get_skill(skill).dim, point, pushes, sphere)
+                dim = c.get_skill(skill).dim
+                sim_module.check_points(dim, point, pushes, sphere)
+            # a box's numbers are read by the skill's dimension
+            obstacles = [parse_obstacle(o, dim=dim) for o in obstacle or []]
     except sim_module.SimInputError as exc:
         raise _flag_error(exc) from None
     if obstacles:
