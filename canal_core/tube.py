@@ -114,7 +114,8 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
       (the reproduction lands where its schedule does);
     * a rise is lowered to it: m'_k = min_{j <= k} (r_j + A_k - A_j);
     * and, from the first point inside on, so is what is left of a fade (the last sections
-      before a landing): m'_k <- min_{j >= k} (m'_j + A_j - A_k).
+      before a landing): m'_k <- min_{j >= k} (m'_j + A_j - A_k);
+    * from the first point inside on, every point stays inside (E3): m'_k <- min(m'_k, W_k).
 
     A point outside (m_k > W_k: a start outside, entering) is never raised and never pulled in
     earlier: its entry is the schedule's.
@@ -141,4 +142,10 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
         e = int(inside[0])
         tail = paced[e:] + a[e:]
         paced[e:] = np.minimum(paced[e:], np.minimum.accumulate(tail[::-1])[::-1] - a[e:])
+    # Lowering an entering point can bring it inside before its schedule does: from there on
+    # the path stays in (E3), whatever the pace.
+    entered = np.flatnonzero(paced <= wall)
+    if entered.size:
+        e = int(entered[0])
+        paced[e:] = np.minimum(paced[e:], wall[e:])
     return np.asarray(paced, dtype=np.float64)

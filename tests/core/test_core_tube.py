@@ -41,6 +41,16 @@ def test_paced_offsets_change_by_at_most_what_is_allowed_and_stay_inside() -> No
     assert np.allclose(paced_offsets(entering, np.full(4, 0.02), np.full(5, 0.5))[:3], entering[:3])
 
 
+def test_paced_offsets_keep_a_path_that_has_entered_inside() -> None:
+    # A start outside, entering while the wall widens and then narrows: lowering the rise
+    # brings the second point inside; the third must not leave again.
+    m = np.array([1.8, 2.0, 1.9, 1.0])
+    wall = np.array([1.5, 1.9, 1.7, 1.7])
+    paced = paced_offsets(m, np.full(3, 0.05), wall)
+    first = int(np.flatnonzero(paced <= wall)[0])
+    assert (paced[first:] <= wall[first:]).all()
+
+
 def pressing_demo(j: int, n: int = 300) -> np.ndarray:
     """Down, up a little and down again at one place: a stroke that folds back over itself."""
     rng = np.random.default_rng(j)
