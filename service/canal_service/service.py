@@ -40,6 +40,7 @@ from .errors import (
     ModelVersionNotFound,
     NotEnoughDemonstrations,
     RecordingFailed,
+    SkillNotFound,
     VersionConflict,
 )
 from .fitting import FitJob, FitRunner
@@ -319,6 +320,7 @@ class CanalService:
         """
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
+            instance = repo.skill_instance(skill.id, skill.created_at)
             rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
             loaded = [(r.id, *_demo_arrays(r)) for r in rows]
         if body.demo_ids is not None:
@@ -373,7 +375,8 @@ class CanalService:
             # not when it started: one a person made while the fit ran is re-applied too.
             kept = self._latest_corrections(name) if body.keep_corrections else None
             if not kept:
-                (fit,) = self._store_versions(name, [plain], kept=None if kept is None else [])
+                (fit,) = self._store_versions(name, [plain], kept=None if kept is None else [],
+                                              instance=instance)
                 fit.summary.notes = route_notes
                 return fit.summary, partial(self._tell_stored, name, fit)
             # The skill's corrections, re-applied to the new canal (a version of its own, whose
@@ -391,7 +394,7 @@ class CanalService:
             lineage = StoredLineage(None, None, [c.id for c in applied], follow if moved else None)
             fit, corrected = self._store_versions(name, [plain, NewVersion(
                 used_options, demo_ids, served_model(refined).to_dict(), 0.0, refined, lineage)],
-                kept=[c.id for c in kept])
+                kept=[c.id for c in kept], instance=instance)
             corrected.summary.notes = route_notes + notes
 
             def tell() -> None:
@@ -469,8 +472,8 @@ class CanalService:
         return result
 
     def _store_versions(self, name: str, made: Sequence[NewVersion], *,
-                        base: int | None = None, kept: Sequence[int] | None = None
-                        ) -> list[StoredVersion]:
+                        base: int | None = None, kept: Sequence[int] | None = None,
+                        instance: str | None = None) -> list[StoredVersion]:
         """Store new model versions, numbered one after the other, in one transaction (a fit
         and its version with the corrections re-applied go in together: nobody sees the fit
         alone as the latest), with their lineage and what ``lineage.in_transaction`` writes
@@ -482,7 +485,9 @@ class CanalService:
         version a refit re-applied (any version with those same corrections will do: a fit
         is made of demonstrations, not of the version before it). Neither stores them
         whatever the latest is: a fit that keeps no correction, a correction of the version
-        a request named.
+        a request named. ``instance``: the skill the versions were made for
+        (:func:`repo.skill_instance`); one deleted and created again under its name meanwhile
+        is another skill, and gets none of them.
         """
         # Versions are max + 1 under a unique constraint, read with the skill's row locked
         # (next_model_version): the latest cannot change between the check and the insert.
@@ -492,6 +497,9 @@ class CanalService:
             try:
                 with self.db.write() as s:
                     skill = repo.get_skill(s, name)
+                    if instance is not None and repo.skill_instance(skill.id, skill.created_at) != instance:
+                        raise SkillNotFound(f"skill {name!r} was deleted while it was being fitted "
+                                            "(a skill of that name was created since)", field="name")
                     first = repo.next_model_version(s, skill)
                     if base is not None and first - 1 != base:
                         raise _StaleBase(first - 1)

@@ -272,3 +272,32 @@ def test_eight_corrections_at_once_each_build_on_the_one_before(tmp_path: Path) 
         assert after["corrections"] == [*before["corrections"], after["correction"]["id"]]
     assert latest["version"] == 9
     assert latest["corrections"] == [m["correction"]["id"] for m in made]
+
+
+def test_a_fit_whose_skill_is_deleted_and_created_again_meanwhile_lands_in_neither(
+    replicas: list[Any],
+) -> None:
+    """The fit computed its canal, then (before storing it) its skill was deleted on the
+    other replica and a new skill made under the same name: the new skill is another skill,
+    and gets no model made of the deleted one's demonstrations."""
+    (app_a, a), (_app_b, b) = replicas
+    with httpx.Client(base_url=a.url, timeout=WAIT_S) as http:
+        _skill_with_v1(http)
+    hold = HoldAt(app_a.state.service.db.read_engine, "models")
+    out: dict[str, httpx.Response] = {}
+    try:
+        hold.arm()
+        fitting = _post(a.url, "/skills/pour/fit", {"n_samples": 100}, out, "fit")
+        assert hold.reached.wait(WAIT_S), "the fit never read the latest version before storing"
+        with httpx.Client(base_url=b.url, timeout=WAIT_S) as http:
+            assert http.delete("/skills/pour").status_code == 204
+            assert http.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        hold.go.set()
+        fitting.join(WAIT_S)
+    finally:
+        hold.close()
+    fit = out["fit"]
+    assert fit.status_code == 404, fit.text
+    assert "deleted" in fit.text, fit.text
+    with httpx.Client(base_url=b.url, timeout=WAIT_S) as http:
+        assert http.get("/skills/pour/models").json()["items"] == []
