@@ -249,7 +249,9 @@ def avoided_targets(
 
 
 def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: FloatArray) -> FloatArray:
-    """Targets one step (at most) out of the deepest obstacle, along its outward normal."""
+    """Targets one step (at most) out of the obstacles: along the deepest one's outward normal,
+    or, where that leads into another (obstacles that overlap), the way out of all of them
+    that leaves the most room."""
     deepest = free_each.argmin(axis=1)
     depth = -free_each[np.arange(p.shape[0]), deepest]
     # The normal by central differences of that obstacle's distance (exact shapes, tiny h),
@@ -265,7 +267,24 @@ def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: Float
     grad[flat] = 0.0
     grad[flat, 0] = 1.0
     norm[flat] = 1.0
-    return np.asarray(p + (np.minimum(depth, step) / norm)[:, None] * grad)
+    out = p + (np.minimum(depth, step) / norm)[:, None] * grad
+    # The normal step when it gets out (or is as good as any); else one step along the one of
+    # a fixed set of directions with the most room.
+    ways = _escape_directions(d)  # (W, D)
+    tries = np.concatenate([out[:, None, :], p[:, None, :] + step[:, None, None] * ways[None, :, :]], axis=1)
+    room = obstacle_free_distances(tries.reshape(-1, d), scene).min(axis=1).reshape(r, -1)
+    best = np.where((room[:, 0] >= 0.0) | (room[:, 0] >= room.max(axis=1)), 0, room.argmax(axis=1))
+    return np.asarray(tries[np.arange(r), best])
+
+
+def _escape_directions(d: int) -> FloatArray:
+    """Unit directions a robot inside obstacles may try: 16 in the plane, 26 in space."""
+    if d == 2:
+        a = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+        return np.column_stack([np.cos(a), np.sin(a)])
+    grid = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * d, indexing="ij")).reshape(d, -1).T
+    grid = grid[(grid != 0.0).any(axis=1)]
+    return np.asarray(grid / np.sqrt((grid**2).sum(axis=1))[:, None])
 
 
 def _detoured(

@@ -110,6 +110,31 @@ def test_a_wall_holds_the_robots_before_it(tube: canal_core.Canal) -> None:
     assert ((poses.reshape(-1, 3) - tube.directrix[k]) @ tube.tangents[k]).max() < -0.02
 
 
+def test_a_robot_inside_two_overlapping_obstacles_is_backed_out_of_both() -> None:
+    # Two discs that overlap (one object made of two): out along the deepest one's normal is
+    # into the other. Each answer must leave the robot no deeper, and it gets out.
+    x = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([x, 0.05 * np.cos(np.pi * j / 2) + 0.01 * np.sin(7.0 * x + j)]) for j in range(4)]
+    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 60)] * 4)
+    discs = [{"kind": "disc", "center": [0.5, 0.0], "radius": 0.03},
+             {"kind": "disc", "center": [0.5, 0.04], "radius": 0.03}]
+    scene = scene_from_list(discs, 2)
+    bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
+    bank.scene = scene_tables(bank.geometry, scene, canal.section_steps)
+    slot = bank.add(int(canal.reproduce_detailed(np.array([0.5, 0.02])).section_index))
+    pos = np.array([[0.5, 0.02]])
+    free = [float(free_distances(pos, scene)[0])]
+    for _ in range(20):
+        rows = bank.step_packed([slot], pos)
+        status = int(bank.avoid_packed(rows, pos)[0])
+        if status != IN_OBSTACLE:
+            break
+        pos = rows[:, :2].copy()
+        free.append(float(free_distances(pos, scene)[0]))
+    assert free[0] < 0.0 and free[-1] >= 0.0, free
+    assert (np.diff(free) >= 0.0).all(), free
+
+
 def test_a_thin_wall_between_two_planes_holds_a_robot_blocked_and_still() -> None:
     # A plate 1 mm thick across a flat canal, between two section planes: no candidate of any
     # section lies in it, but every step across it does. A robot that goes exactly to each
