@@ -4,10 +4,12 @@ The tracker (:mod:`canal_core.tracker_bank`) answers each pose with the ratio ru
 few sections ahead. With a scene (:mod:`canal_core.obstacles`) each answer is then checked,
 all rows at once, and corrected where needed:
 
-* the robot inside an obstacle (or its clearance): the target backs away along the
-  obstacle's outward normal, by at most one step (``in_obstacle``);
+* the robot inside an obstacle (or its clearance): the target backs away along the deepest
+  obstacle's outward normal, by at most one step, or, where that leads into another
+  obstacle, one step the way with the most room (``in_obstacle``);
 * the straight move to the target keeps every clearance (the 1-Lipschitz test of
-  :func:`canal_core.obstacles.segments_keep_clearance`): the answer is the tracker's (``ok``);
+  :func:`canal_core.obstacles.segments_keep_clearance`, or the segment measured where its
+  ends are too near an obstacle for it): the answer is the tracker's (``ok``);
 * otherwise the target is the clear point of the target section nearest the tracker's
   (``detour``), among a polar grid of each section (:func:`canal_core.obstacles.section_candidates`,
   free distances precomputed per scene), no further from the robot than the tracker's own
