@@ -471,9 +471,9 @@ class CanalService:
         tell()
         return result
 
-    def _store_versions(self, name: str, made: Sequence[NewVersion], *,
-                        base: int | None = None, kept: Sequence[int] | None = None,
-                        instance: str | None = None) -> list[StoredVersion]:
+    def _store_versions(self, name: str, made: Sequence[NewVersion], *, instance: str,
+                        base: int | None = None, kept: Sequence[int] | None = None
+                        ) -> list[StoredVersion]:
         """Store new model versions, numbered one after the other, in one transaction (a fit
         and its version with the corrections re-applied go in together: nobody sees the fit
         alone as the latest), with their lineage and what ``lineage.in_transaction`` writes
@@ -485,9 +485,9 @@ class CanalService:
         version a refit re-applied (any version with those same corrections will do: a fit
         is made of demonstrations, not of the version before it). Neither stores them
         whatever the latest is: a fit that keeps no correction, a correction of the version
-        a request named. ``instance``: the skill the versions were made for
-        (:func:`repo.skill_instance`); one deleted and created again under its name meanwhile
-        is another skill, and gets none of them.
+        a request named. ``instance``: the skill the versions were made from
+        (:func:`repo.skill_instance`, read with what they were made of); one deleted and
+        created again under its name meanwhile is another skill, and gets none of them.
         """
         # Versions are max + 1 under a unique constraint, read with the skill's row locked
         # (next_model_version): the latest cannot change between the check and the insert.
@@ -497,9 +497,10 @@ class CanalService:
             try:
                 with self.db.write() as s:
                     skill = repo.get_skill(s, name)
-                    if instance is not None and repo.skill_instance(skill.id, skill.created_at) != instance:
-                        raise SkillNotFound(f"skill {name!r} was deleted while it was being fitted "
-                                            "(a skill of that name was created since)", field="name")
+                    if repo.skill_instance(skill.id, skill.created_at) != instance:
+                        raise SkillNotFound(f"skill {name!r} was deleted while a new version of it "
+                                            "was being made (a skill of that name was created "
+                                            "since)", field="name")
                     first = repo.next_model_version(s, skill)
                     if base is not None and first - 1 != base:
                         raise _StaleBase(first - 1)
@@ -704,11 +705,14 @@ class CanalService:
 
     def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],
                        routes: Routes, lineage: StoredLineage, notes: list[str], *,
-                       base: int | None) -> tuple[schemas.ModelSummary, Callable[[], None]]:
-        """Store a refined model as the new latest version, made on ``base``
-        (:meth:`_store_versions`); what to tell once stored, as :meth:`_on_latest` takes it."""
+                       instance: str, base: int | None
+                       ) -> tuple[schemas.ModelSummary, Callable[[], None]]:
+        """Store a refined model as the new latest version of the skill ``instance``, made on
+        ``base`` (:meth:`_store_versions`); what to tell once stored, as :meth:`_on_latest`
+        takes it."""
         (stored,) = self._store_versions(name, [NewVersion(
-            options, demo_ids, served_model(routes).to_dict(), 0.0, routes, lineage)], base=base)
+            options, demo_ids, served_model(routes).to_dict(), 0.0, routes, lineage)],
+            instance=instance, base=base)
         stored.summary.notes = notes
         return stored.summary, partial(self._tell_stored, name, stored)
 
@@ -728,6 +732,7 @@ class CanalService:
             canal = routes.pooled if route is None else routes.canals[route]
             with self.db.read() as s:
                 skill = repo.get_skill(s, name)
+                instance = repo.skill_instance(skill.id, skill.created_at)
                 base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
                 lineage = repo.lineages(s, [base])[base.id]
                 options, demo_ids = dict(base.options), list(base.demo_ids)
@@ -755,7 +760,8 @@ class CanalService:
             return self._store_refined(
                 name, options, demo_ids, refined,
                 StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
-                _glitch_notes(correction.samples), base=base_version if version is None else None)
+                _glitch_notes(correction.samples), instance=instance,
+                base=base_version if version is None else None)
 
         summary = self._on_latest(name, "correction", build)
         row = made[-1]
@@ -782,6 +788,7 @@ class CanalService:
         def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
             with self.db.read() as s:
                 skill = repo.get_skill(s, name)
+                instance = repo.skill_instance(skill.id, skill.created_at)
                 target = repo.get_corrections(s, skill, [correction_id])[0]
                 ref = repo.require_model_ref(s, skill, None)
                 latest = repo.get_model(s, ref[0])
@@ -806,7 +813,7 @@ class CanalService:
             return self._store_refined(
                 name, options, demo_ids, refined,
                 StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark),
-                notes, base=latest_version)
+                notes, instance=instance, base=latest_version)
 
         summary = self._on_latest(name, "undo", build)
         self.metrics.corrections_undone.inc()

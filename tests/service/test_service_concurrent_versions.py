@@ -301,3 +301,33 @@ def test_a_fit_whose_skill_is_deleted_and_created_again_meanwhile_lands_in_neith
     assert "deleted" in fit.text, fit.text
     with httpx.Client(base_url=b.url, timeout=WAIT_S) as http:
         assert http.get("/skills/pour/models").json()["items"] == []
+
+
+def test_a_correction_of_a_named_version_whose_skill_is_created_again_meanwhile_is_not_stored(
+    replicas: list[Any],
+) -> None:
+    """A correction of version 1 by name read it, then its skill was deleted and a new one
+    made and fitted under the same name on the other replica: the correction belongs to
+    neither, and the new skill's latest stays its own fit."""
+    (app_a, a), (_app_b, b) = replicas
+    with httpx.Client(base_url=a.url, timeout=WAIT_S) as http:
+        v1 = _skill_with_v1(http)
+    hold = HoldAt(app_a.state.service.db.read_engine, "model_lineage")
+    out: dict[str, httpx.Response] = {}
+    try:
+        hold.arm()
+        correcting = _post(a.url, "/skills/pour/corrections",
+                           {"kind": "include", "samples": _include(v1), "model": 1}, out, "correction")
+        assert hold.reached.wait(WAIT_S), "the correction never read its version"
+        with httpx.Client(base_url=b.url, timeout=WAIT_S) as http:
+            assert http.delete("/skills/pour").status_code == 204
+            _skill_with_v1(http)
+        hold.go.set()
+        correcting.join(WAIT_S)
+    finally:
+        hold.close()
+    made = out["correction"]
+    assert made.status_code == 404 and "deleted" in made.text, made.text
+    with httpx.Client(base_url=b.url, timeout=WAIT_S) as http:
+        latest = _latest(http)
+    assert latest["version"] == 1 and latest["corrections"] == []
