@@ -160,9 +160,9 @@ def ratio_rule_path(
     if entry is None:
         entry = entry_fraction(canal.arclength[first:], s0, share,
                                np.concatenate([reach[:1], reach[first - index:]]), ENTRY_FRACTION)
-    caps = tube_ratio_caps(reach[first - index :], u, canal.curvature[first:])  # (F1)
-    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
     wall = reach[first - index :]
+    caps = tube_ratio_caps(wall, u, canal.curvature[first:])  # (F1)
+    ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
     ratios = ratios * wall_slope_shares(wall, canal.arclength[first:])  # (F2)
     if ratios.size > 1:
         # The offset changes from section to section no faster than a demonstration stepped
@@ -171,7 +171,7 @@ def ratio_rule_path(
         steps = canal.section_steps[first:]
         paced = paced_offsets(ratios * wall, np.minimum(steps[:-1], steps[1:]), wall)  # (F3)
         ratios = np.divide(paced, wall, out=np.zeros_like(paced), where=wall > 0.0)
-    path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, reach[first - index :])
+    path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, wall)
     return path, ratios
 
 

@@ -98,9 +98,7 @@ def wall_slope_shares(reach: FloatArray, arclength: FloatArray) -> FloatArray:
     """
     if reach.size == 0:
         return np.ones(0)
-    forward = arclength + np.minimum.accumulate(reach - arclength)
-    backward = np.minimum.accumulate((reach + arclength)[::-1])[::-1] - arclength
-    wall = np.minimum(forward, backward)
+    wall = np.minimum(_floor_ahead(reach, arclength), _floor_behind(reach, arclength))
     return np.asarray(np.divide(wall, reach, out=np.ones_like(reach), where=reach > 0.0), dtype=np.float64)
 
 
@@ -136,12 +134,11 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
     slowed = np.maximum.accumulate(m + a) - a
     raised = np.maximum(m, np.minimum(slowed, wall))
     raised[-1] = m[-1]
-    paced = a + np.minimum.accumulate(raised - a)
+    paced = _floor_ahead(raised, a)
     inside = np.flatnonzero(m <= wall)
     if inside.size:
         e = int(inside[0])
-        tail = paced[e:] + a[e:]
-        paced[e:] = np.minimum(paced[e:], np.minimum.accumulate(tail[::-1])[::-1] - a[e:])
+        paced[e:] = _floor_behind(paced[e:], a[e:])
     # Lowering an entering point can bring it inside before its schedule does: from there on
     # the path stays in (E3), whatever the pace.
     entered = np.flatnonzero(paced <= wall)
@@ -149,3 +146,15 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
         e = int(entered[0])
         paced[e:] = np.minimum(paced[e:], wall[e:])
     return np.asarray(paced, dtype=np.float64)
+
+
+def _floor_ahead(values: FloatArray, along: FloatArray) -> FloatArray:
+    """min_{j <= k} (v_j + along_k - along_j): the largest values under ``values`` that rise
+    by at most the growth of ``along`` (non-decreasing), from each point on."""
+    return np.asarray(along + np.minimum.accumulate(values - along), dtype=np.float64)
+
+
+def _floor_behind(values: FloatArray, along: FloatArray) -> FloatArray:
+    """min_{j >= k} (v_j + along_j - along_k): the largest values under ``values`` that fall
+    by at most the growth of ``along``, up to each point."""
+    return np.asarray(np.minimum.accumulate((values + along)[::-1])[::-1] - along, dtype=np.float64)
