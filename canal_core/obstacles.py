@@ -390,6 +390,28 @@ def segments_keep_clearance(free_p: FloatArray, free_q: FloatArray, length: Floa
     return np.asarray((free_p >= 0.0) & (free_q >= 0.0) & (free_p + free_q >= length))
 
 
+def segments_clear(p: FloatArray, q: FloatArray, free_p: FloatArray, free_q: FloatArray,
+                   scene: Scene) -> BoolArray:
+    """Whether segments [p_m, q_m] keep every clearance: the sufficient test of
+    :func:`segments_keep_clearance` first, the segment itself measured
+    (:func:`segment_free_distances`) where both ends are clear but too near an obstacle for it.
+
+    Parameters
+    ----------
+    p, q : arrays, shape (M, D)
+    free_p, free_q : arrays, shape (M,)
+        :func:`free_distances` of the ends (NaN: not clear).
+    scene : Scene
+    """
+    length = np.sqrt(((q - p) ** 2).sum(axis=1))
+    with np.errstate(invalid="ignore"):
+        clear = segments_keep_clearance(free_p, free_q, length)
+        unsure = np.flatnonzero(~clear & (free_p >= 0.0) & (free_q >= 0.0))
+    if unsure.size:
+        clear[unsure] = segment_free_distances(p[unsure], q[unsure], scene) >= 0.0
+    return clear
+
+
 def _segment_segment_distances(p: FloatArray, q: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Distance between each segment [p_m, q_m] (M, D) and each [a_s, b_s] (S, D), shape (M, S).
 
@@ -984,5 +1006,6 @@ __all__ = [
     "scene_from_list",
     "section_candidates",
     "segment_free_distances",
+    "segments_clear",
     "segments_keep_clearance",
 ]

@@ -45,7 +45,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .obstacles import Scene, obstacle_free_distances, section_candidates, segment_free_distances
+from .obstacles import (
+    Scene,
+    obstacle_free_distances,
+    section_candidates,
+    segment_free_distances,
+    segments_clear,
+)
 from .tracker import TrackerGeometry
 from .validation import FloatArray
 
@@ -159,9 +165,9 @@ def scene_tables(geometry: TrackerGeometry, scene: Scene, steps: FloatArray | fl
     # free distances; the rest are measured.
     onward = usable[:-1] & usable[1:]  # (N - 1, G)
     if len(scene) and n > 1:
-        length = np.sqrt(((cand[1:] - cand[:-1]) ** 2).sum(axis=2))
-        rows, cols = np.nonzero(onward & ~(free[:-1] + free[1:] >= length))
-        onward[rows, cols] = segment_free_distances(cand[rows, cols], cand[rows + 1, cols], scene) >= 0.0
+        rows, cols = np.nonzero(onward)
+        onward[rows, cols] = segments_clear(cand[rows, cols], cand[rows + 1, cols], free[rows, cols],
+                                            free[rows + 1, cols], scene)
     passable = np.vstack([onward, usable[-1:]])  # (N, G)
     # A section no lane reaches from the one before is closed to a stream before it.
     shut = closed.copy()
@@ -224,14 +230,7 @@ def avoided_targets(
     fp_each = each[:b]
     fp = fp_each.min(axis=1)
     ft = each[b:].min(axis=1)
-    move = np.sqrt(((out - positions) ** 2).sum(axis=1))
-    with np.errstate(invalid="ignore"):
-        clear = (fp >= 0.0) & (ft >= 0.0) & (fp + ft >= move)
-        # Ends too near an obstacle for the sufficient test (a narrow passage): the segment
-        # itself is measured.
-        near_ends = np.flatnonzero(~clear & (fp >= 0.0) & (ft >= 0.0))
-    if near_ends.size:
-        clear[near_ends] = segment_free_distances(positions[near_ends], out[near_ends], scene) >= 0.0
+    clear = segments_clear(positions, out, fp, ft, scene)
     inside = ~(fp >= 0.0)  # NaN (a non-finite pose) counts as inside nothing: left as it is
     inside &= np.isfinite(fp)
     if inside.any():
