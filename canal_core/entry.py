@@ -38,6 +38,14 @@ of that line, at the time section i has, and the ratio rule's path follows m - 1
 time later. The steps are the directrix's own first steps, within a factor 1.5 (the nearest
 count of them): from rest, as the demonstrations started, never one jump. A start a little
 behind the plane, whose first step is about the directrix's, gets none (m = 1).
+
+A start *beside* the canal, outside it, can be left far from the path's first point too:
+where the tube's cap (F1 of :mod:`canal_core.tube`) cuts the entry short, the points before
+the cut come down to it at the demonstrations' pace, and the distance left is at the start.
+When it is longer than the demonstrations' largest step there, the approach is the straight
+line in equal steps of at most that step, one section's time each:
+
+    a_i = i / m,   m = ceil(d / step)                                                  (E5)
 """
 
 from __future__ import annotations
@@ -82,6 +90,27 @@ def approach_shares(arclength: FloatArray, distance: float) -> FloatArray:
     shares = arclength[1 : m + 1] / max(float(arclength[m]), 1e-300)
     shares[-1] = 1.0
     return np.asarray(shares, dtype=np.float64)
+
+
+def paced_approach_shares(distance: float, step: float) -> FloatArray:
+    """a_1 .. a_m of (E5), shape (m,), ending at 1: where a start outside passes on its
+    straight line to the ratio rule's first point, ``distance`` away, in steps of at most
+    ``step`` (the demonstrations' largest around that point): a_i = i / m, m = ceil(d / step).
+
+    Parameters
+    ----------
+    distance : float
+        d, from the start to the first point.
+    step : float
+        The largest step a demonstration takes there (``Canal.section_steps``).
+
+    Returns
+    -------
+    shares : array, shape (m,)
+        Just [1.0] when ``distance`` is at most ``step`` (or ``step`` is 0).
+    """
+    m = int(np.ceil(distance / step)) if step > 0.0 and distance > step else 1
+    return np.asarray(np.arange(1, m + 1, dtype=np.float64) / m, dtype=np.float64)
 
 
 def entry_fraction(

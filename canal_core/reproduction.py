@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .bounds import check_duration, check_reach
-from .entry import approach_shares, entry_fraction
+from .entry import approach_shares, entry_fraction, paced_approach_shares
 from .errors import OutsideCanalError
 from .lone import lone_path
 from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
@@ -55,7 +55,9 @@ class Reproduction:
     positions : array, shape (N', D)
         The start, then one point per remaining cross-section, ending on the last one. A
         start behind the first plane first approaches the first of them along a straight
-        line, in ``approach`` points (:func:`canal_core.entry.approach_shares`, (E4)).
+        line, in ``approach`` points (:func:`canal_core.entry.approach_shares`, (E4)); so
+        does a start outside whose first point lies farther than a demonstration stepped
+        there, one demonstrated step at a time (E5).
     start : array, shape (D,)
     inside : bool
         Whether the start lies inside the canal.
@@ -95,12 +97,13 @@ class Reproduction:
         where the learned entry or the entry blend brought the path in).
     approach : int
         Points between the start and the ratio rule's first point, on the straight line
-        from a start behind the first plane (0 for any other start).
+        from a start behind the first plane (E4) or from a start outside farther from that
+        point than a demonstration stepped there (E5); 0 for any other start.
     ratios : array, shape (N',), or None
         How far out each position is, as a share of the canal's reach in its direction: the
         start's own ratio (above 1 outside the canal), the approach's points read in the
-        first plane, then each point in the plane of its section. Where the path follows the
-        ratio rule this is its schedule (entry, learned persistence, end decay); a detour
+        first plane (E4) or in the start's own plane (E5), then each point in the plane of
+        its section. Where the path follows the ratio rule this is its schedule (entry, learned persistence, end decay); a detour
         around an obstacle shows its own. It is what says how much of the start's offset the
         reproduction keeps, section by section.
     """
@@ -163,13 +166,23 @@ def ratio_rule_path(
     wall = reach[first - index :]
     caps = tube_ratio_caps(wall, u, canal.curvature[first:])  # (F1)
     ratios = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share, caps)
-    ratios = ratios * wall_slope_shares(wall, canal.arclength[first:])  # (F2)
-    if ratios.size > 1:
+    slope = wall_slope_shares(wall, canal.arclength[first:])
+    ratios = ratios * slope  # (F2)
+    if ratios.size:
         # The offset changes from section to section no faster than a demonstration stepped
-        # there: a persistence regressed on crossings of the first planes could fade a
-        # start's offset in two sections, a jump of centimetres.
-        steps = canal.section_steps[first:]
-        paced = paced_offsets(ratios * wall, np.minimum(steps[:-1], steps[1:]), wall)  # (F3)
+        # there, from the start's own on: a persistence regressed on crossings of the first
+        # planes could fade a start's offset in two sections, or in the first step, a jump of
+        # centimetres.
+        steps = canal.section_steps[index:]
+        here = (1.0 - alpha) * reach[0] + alpha * reach[first - index]
+        walls = np.concatenate([[here], wall])
+        offsets = np.concatenate([[eta * here], ratios * wall])
+        scheduled = None
+        if eta > 1.0:
+            planned = path_ratios(eta, canal.arclength[first:], s0, entry, end_decay, share) * slope * wall
+            scheduled = np.concatenate([offsets[:1], planned])
+        allowed = np.minimum(steps[:-1], steps[1:])[first - index - 1 :]
+        paced = paced_offsets(offsets, allowed, walls, scheduled)[1:]  # (F3)
         ratios = np.divide(paced, wall, out=np.zeros_like(paced), where=wall > 0.0)
     path = ratio_rule_positions(first, ratios, u, canal.directrix, canal.basis, canal.sections, wall)
     return path, ratios
@@ -280,7 +293,8 @@ def reproduce(
         positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
         start_clearance = avoided.start_clearance
     shares = np.ones(1)
-    if index == 0 and loc.axial[0] < 0.0 and positions.shape[0] > 1:
+    behind = index == 0 and loc.axial[0] < 0.0
+    if behind and positions.shape[0] > 1:
         # (E4): behind the first plane, the first point is a straight line away; the path
         # takes it in the directrix's own first steps. The line is the one the obstacle
         # check cleared (a detour starts after it), so its points need no second check.
@@ -289,17 +303,34 @@ def reproduce(
         positions = np.vstack([point, approach, positions[1:]])
         if detoured is not None:
             detoured = np.concatenate([np.zeros(shares.size - 1, dtype=bool), detoured])
+    elif not inside and entry != 0.0 and positions.shape[0] > 1:
+        # (E5) A start outside whose first point lies farther than the demonstrations ever
+        # stepped there (the tube's cap, F1, brought the entry down to meet it at their pace)
+        # goes there along the straight line, one demonstrated step at a time. ``entry=0`` is
+        # the paper's clamp, onto the wall at once, and keeps it.
+        shares = paced_approach_shares(float(np.linalg.norm(positions[1] - point)), float(canal.section_steps[first]))
+        if shares.size > 1:
+            approach = point + shares[:-1, None] * (positions[1] - point)
+            positions = np.vstack([point, approach, positions[1:]])
+            if detoured is not None:
+                detoured = np.concatenate([np.zeros(shares.size - 1, dtype=bool), detoured])
     n_approach = shares.size - 1
     times = None
     # Seconds from the stamps; a steady logger's pace only once a duration says how long.
     profile = canal.section_times if canal.section_times is not None or seconds is None else canal.section_pace
     if profile is not None:
         times = reproduction_times(profile, index, alpha, path.shape[0] + 1)
-        if n_approach:
+        if n_approach and behind:
             # The approach points at their sections' times; the path m - 1 sections later.
             t0 = profile[1] - times[1]
             times = np.concatenate([times[:1], profile[1 : n_approach + 1] - t0,
                                     times[1:] + (profile[n_approach + 1] - profile[1])])
+        elif n_approach:
+            # Evenly along the line, each of its m - 1 further steps a section's time at the
+            # first point: the path follows as much later.
+            pace = float(profile[first] - profile[first - 1]) if first > 0 else float(profile[1] - profile[0])
+            span = float(times[1]) + n_approach * pace
+            times = np.concatenate([times[:1], shares[:-1] * span, times[1:] + (span - times[1])])
         if seconds is not None:
             times = rescaled_times(times, seconds)
         times = times[: positions.shape[0]]  # a blocked path keeps its own times
@@ -318,7 +349,7 @@ def reproduce(
         # of the reproduction.
         measured = np.concatenate([[eta], ratios])
     else:
-        measured = position_ratios(canal, positions, first, n_approach, eta)
+        measured = position_ratios(canal, positions, first, n_approach, eta, 0 if behind else index)
     return Reproduction(
         positions=positions,
         start=point,
@@ -340,11 +371,14 @@ def reproduce(
     )
 
 
-def position_ratios(canal: Canal, positions: FloatArray, first: int, n_approach: int, eta: float) -> FloatArray:
+def position_ratios(
+    canal: Canal, positions: FloatArray, first: int, n_approach: int, eta: float, approach_section: int = 0
+) -> FloatArray:
     """:attr:`Reproduction.ratios`: ``eta`` for the start, then each later position's ratio in
-    the plane it belongs to (section 0 for the ``n_approach`` approach points, then
-    ``first``, ``first + 1``, ...), shape (N',)."""
+    the plane it belongs to (``approach_section`` for the ``n_approach`` approach points: 0
+    behind the canal, the start's own section beside it; then ``first``, ``first + 1``, ...),
+    shape (N',)."""
     m = positions.shape[0] - 1 - n_approach
-    index = np.concatenate([np.zeros(n_approach, dtype=np.intp), first + np.arange(m, dtype=np.intp)])
+    index = np.concatenate([np.full(n_approach, approach_section, dtype=np.intp), first + np.arange(m, dtype=np.intp)])
     later = section_ratios(positions[1:], index, canal.directrix, canal.basis, canal.sections)
     return np.concatenate([[eta], later])

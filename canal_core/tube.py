@@ -102,7 +102,9 @@ def wall_slope_shares(reach: FloatArray, arclength: FloatArray) -> FloatArray:
     return np.asarray(np.divide(wall, reach, out=np.ones_like(reach), where=reach > 0.0), dtype=np.float64)
 
 
-def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) -> FloatArray:
+def paced_offsets(
+    offsets: FloatArray, allowed: FloatArray, wall: FloatArray, scheduled: FloatArray | None = None
+) -> FloatArray:
     """Offsets that change by at most ``allowed`` from one section to the next (F3), shape (K,).
 
     With A_k = allowed_1 + ... + allowed_k:
@@ -113,10 +115,11 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
     * a rise is lowered to it: m'_k = min_{j <= k} (r_j + A_k - A_j);
     * and, from the first point inside on, so is what is left of a fade (the last sections
       before a landing): m'_k <- min_{j >= k} (m'_j + A_j - A_k);
-    * from the first point inside on, every point stays inside (E3): m'_k <- min(m'_k, W_k).
-
-    A point outside (m_k > W_k: a start outside, entering) is never raised and never pulled in
-    earlier: its entry is the schedule's.
+    * from the first point inside on, every point stays inside (E3): m'_k <- min(m'_k, W_k);
+    * a point outside (m_k > W_k: a start outside, entering) is never raised; it comes in as
+      fast as its entry schedule does (``scheduled``) or as a demonstration stepped, whichever
+      is faster: where the tube's cap (F1) cuts the schedule short, the points before it come
+      down to meet it at that pace instead of dropping onto the wall in one step.
 
     Parameters
     ----------
@@ -126,6 +129,8 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
         The largest change from section k - 1 to k.
     wall : array, shape (K,)
         W_k, the boundary distance along the points' direction.
+    scheduled : array, shape (K,), optional
+        The entry schedule's offsets before the tube's cap; None: the offsets themselves.
     """
     m = np.asarray(offsets, dtype=np.float64)
     if m.size < 2:
@@ -135,10 +140,12 @@ def paced_offsets(offsets: FloatArray, allowed: FloatArray, wall: FloatArray) ->
     raised = np.maximum(m, np.minimum(slowed, wall))
     raised[-1] = m[-1]
     paced = _floor_ahead(raised, a)
-    inside = np.flatnonzero(m <= wall)
-    if inside.size:
-        e = int(inside[0])
-        paced[e:] = _floor_behind(paced[e:], a[e:])
+    # Before the entry the schedule's own fall is allowed too: the learned entry is smooth,
+    # only the cap's cut is not.
+    plan = m if scheduled is None else np.asarray(scheduled, dtype=np.float64)
+    outside = (m > wall)[:-1]
+    fall = np.where(outside, np.maximum(allowed, plan[:-1] - plan[1:]), allowed)
+    paced = _floor_behind(paced, np.concatenate([[0.0], np.cumsum(fall)]))
     # Lowering an entering point can bring it inside before its schedule does: from there on
     # the path stays in (E3), whatever the pace.
     entered = np.flatnonzero(paced <= wall)

@@ -648,9 +648,11 @@ class ReproductionOut(BaseModel):
     route: int | None = Field(
         None, description="The route followed (0, 1, ...); null: the model's one canal.")
     approach: int = Field(
-        0, description="Positions after the start on its straight approach to the first "
-                        "section, when the start lies behind the canal's first plane (taken in "
-                        "the demonstrations' first steps); 0 for any other start.")
+        0, description="Positions after the start on its straight approach to the path's "
+                        "first point: when the start lies behind the canal's first plane "
+                        "(taken in the demonstrations' first steps), or outside the canal "
+                        "farther from that point than a demonstration stepped there (one "
+                        "demonstrated step at a time); 0 for any other start.")
     route_reason: str | None = Field(
         None, description="Why that route: 'single' (one route), 'entry' (its entry holds the "
                           "start), 'nearest' (no entry holds it: the nearest entry), 'shared' "

@@ -684,8 +684,9 @@ def _reproduce(skill: str, start: ArrayLike, *, model: Version = "latest",
     ``result.notes``. ``obstacles`` are added to the skill's scene for this reproduction
     (``result.blocked`` says where they close the canal). A model of several routes follows
     the route whose entry holds the start (``result.route``, ``result.route_reason``), or
-    ``route`` when given. A start behind the canal's first plane reaches its first section
-    along a straight line in ``result.approach`` positions. ``persistence``: how the start's
+    ``route`` when given. A start behind the canal's first plane, or outside it and farther
+    from the path than a demonstration stepped, reaches the path along a straight line in
+    ``result.approach`` positions. ``persistence``: how the start's
     offset is carried ("learned", "constant", or "learned+end" to end where the
     demonstrations' ends follow their starts; docs/method.md section 4b)."""
     return (yield _request(REPRODUCE, name=skill, body={

@@ -229,14 +229,14 @@ def test_fit_and_reproduce_to_files(run: Run, service: LiveService,
         assert got.shape == expected.shape and np.allclose(got, expected)
 
     r = run("reproduce", name, "--start", "-0.3,0.01,0")  # behind the first plane
-    assert r.exit_code == 0 and "points approach its first section" in r.stdout, r.output
+    assert r.exit_code == 0 and "points approach it in a straight line" in r.stdout, r.output
     r = run("--json", "reproduce", name, "--start", "-0.05,5,0")
     doc = json.loads(r.stdout)
     assert r.exit_code == 0 and doc["projected"] is True and doc["inside"] is False
     assert doc["ratios"][0] > 1.0 and len(doc["ratios"]) == len(doc["positions"])
     r = run("reproduce", name, "--start", "-0.05,5,0")
-    assert r.exit_code == 0 and re.search(r"how far out, .*: start \d+\.\d\d, a quarter 0\.\d\d, "
-                                          r"half-way 0\.\d\d, three quarters 0\.\d\d, end 0\.00",
+    assert r.exit_code == 0 and re.search(r"how far out, .*: start \d+\.\d\d, a quarter \d+\.\d\d, "
+                                          r"half-way \d+\.\d\d, three quarters \d+\.\d\d, end 0\.00",
                                           r.stdout), r.output
     r = run("reproduce", name, "--start", "0,5,0", "--outside", "raise")
     assert r.exit_code == 1 and "(field: start)" in r.stderr

@@ -95,6 +95,38 @@ def test_a_reproduction_on_the_inner_side_of_a_tight_turn_never_runs_backwards()
         assert backwards_share(canal, path, canal.n_sections - path.shape[0]) < 0.002, held
 
 
+def test_a_start_outside_on_the_inner_side_of_a_tight_turn_enters_without_a_jump() -> None:
+    """A canal that grows wider than its U-turn is tight holds a start 2 radii out on the
+    inner side with the tube's cap (F1) as the turn tightens. The entry comes down to the cap
+    at the demonstrations' pace, and a start left far from the path's first point goes there
+    along a straight line, one demonstrated step at a time (E5): before, the entry dropped
+    onto the wall in one step 12-18x the demonstrations' largest."""
+    demos = hairpin_demos(spread=8.0)
+    canal = canal_core.fit(demos, n_samples=200)
+    largest = max(float(np.linalg.norm(np.diff(d, axis=0), axis=1).max()) for d in demos)
+    norms = np.linalg.norm(canal.curvature, axis=1)
+    tightest = int(np.argmax(norms * canal.radii))
+    inner = canal.curvature[tightest] / norms[tightest]
+    approached = 0
+    for section in (15, 20, 25, 30):
+        start = canal.directrix[section] + 2.0 * canal.radii[section] * (inner @ canal.basis[section])
+        result = canal.reproduce_detailed(start, duration=10.0)
+        assert not result.inside
+        steps = np.linalg.norm(np.diff(result.positions, axis=0), axis=1)
+        # The entry schedule itself falls at up to 3.7x from the first sections on (E2).
+        assert steps.max() < 4.0 * largest, section
+        assert canal.contains(result.positions[result.entry_index:]).all(), section
+        if result.approach:
+            approached += 1
+            line = result.positions[: result.approach + 2]
+            ahead = line[-1] - line[0]
+            off = line - line[0] - np.outer((line - line[0]) @ ahead / (ahead @ ahead), ahead)
+            assert np.abs(off).max() < 1e-9 * np.linalg.norm(ahead)  # a straight line
+            assert steps[: result.approach + 1].max() <= canal.section_steps.max() * (1 + 1e-9)
+            assert np.all(np.diff(result.times[: result.approach + 2]) > 0.0)
+    assert approached >= 2
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_live_targets_on_the_inner_side_of_a_tight_turn_never_run_backwards(dim: int) -> None:
     """A robot that rides the inner side of a tight turn at 0.9 of the canal's width: the

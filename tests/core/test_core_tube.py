@@ -41,6 +41,21 @@ def test_paced_offsets_change_by_at_most_what_is_allowed_and_stay_inside() -> No
     assert np.allclose(paced_offsets(entering, np.full(4, 0.02), np.full(5, 0.5))[:3], entering[:3])
 
 
+def test_an_entry_cut_short_by_the_tube_comes_down_to_the_cut_at_the_demonstrations_pace() -> None:
+    # The entry schedule falls by 0.05 a section; the tube's cap cuts it to 0.3 at the fourth
+    # point. The points before come down to meet the cut at the allowed 0.1 (the first step,
+    # from the start, is the reproduction's straight approach), not in one drop of 0.5 (the
+    # cut itself, inside, is slowed from the landing back as any fade is).
+    scheduled = np.array([0.9, 0.85, 0.8, 0.75, 0.7])
+    capped = np.array([0.9, 0.85, 0.8, 0.3, 0.29])
+    paced = paced_offsets(capped, np.full(4, 0.1), np.full(5, 0.5), scheduled)
+    assert np.allclose(paced, [0.69, 0.59, 0.49, 0.39, 0.29])
+    # Where the schedule itself falls faster than a demonstration stepped, it is kept.
+    paced = paced_offsets(scheduled[[0, 1, 2]] - [0.0, 0.2, 0.4], np.full(2, 0.1), np.full(3, 0.2),
+                          scheduled[[0, 1, 2]] - [0.0, 0.2, 0.4])
+    assert np.allclose(paced, [0.9, 0.65, 0.4])
+
+
 def test_paced_offsets_keep_a_path_that_has_entered_inside() -> None:
     # A start outside, entering while the wall widens and then narrows: lowering the rise
     # brings the second point inside; the third must not leave again.
@@ -76,3 +91,21 @@ def test_on_a_stroke_that_folds_back_the_offset_keeps_the_demonstrations_pace() 
         # Inside stays inside: from the first point inside on, every point is.
         assert canal.contains(rep.positions[rep.entry_index:]).all(), k
         assert (rep.ratios[rep.entry_index:] <= 1.0 + 1e-9).all(), k
+
+
+def test_a_start_inside_whose_offset_the_demonstrations_forget_at_once_steps_off_at_their_pace() -> None:
+    """Demonstrations that set off spread and meet within 3 % of the length: the learned
+    persistence has the start's offset gone by the next section. The first step, from the
+    start, is paced like the rest (F3 anchored at the start); before, it fell to the
+    persistence's ratio at once, 2.7x the demonstrations' largest step there."""
+    s = np.linspace(0.0, 1.0, 300)
+    fade = np.clip(1.0 - s / 0.03, 0.0, 1.0)
+    demos = [np.column_stack([s, o * fade + 0.002 * np.sin(3 * s + k), 0.2 * s**2 + 0.001 * k])
+             for k, o in enumerate(np.linspace(-0.1, 0.1, 6))]
+    canal = canal_core.fit(demos, n_samples=200)
+    for x in (0.004, 0.008, 0.015):
+        for y in (0.05, 0.08):
+            result = canal.reproduce_detailed([x, y * (1.0 - x / 0.03), 0.0])
+            assert result.inside and result.approach == 0
+            first = float(np.linalg.norm(result.positions[1] - result.positions[0]))
+            assert first <= 1.05 * canal.section_steps[result.section_index + 1], (x, y)

@@ -220,8 +220,8 @@ def reproduce(
         out.print("how far out, as a share of the canal's reach (0 the directrix, 1 the wall): "
                   + ", ".join(f"{name} {r.ratios[i]:.2f}" for name, i in zip(names, marks, strict=True)))
     if r.approach:
-        out.print(f"the start lies behind the canal's first plane: {r.approach} points approach "
-                  "its first section in a straight line, paced like the demonstrations' first steps")
+        out.print(f"the start is farther from the path than the demonstrations stepped: {r.approach} points "
+                  "approach it in a straight line, paced like the demonstrations' steps")
     if r.route is not None or r.route_reason not in (None, "single"):
         which = "the canal of all routes" if r.route is None else f"route {r.route}"
         out.print(f"followed {which} ({r.route_reason})")
