@@ -28,6 +28,7 @@ The yardstick is the in-process tracker above, from the same starts in the same 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from pathlib import Path
@@ -110,7 +111,7 @@ def served_group(name: str, sets: dict, port: int, endpoint: str) -> dict:
         if starts >= SERVE_STARTS:
             break
         arrays = [d.positions for d in demos]
-        skill = f"follow-{abs(hash(name)) % 10**6}-{k}"
+        skill = f"follow-{re.sub('[^a-z0-9]+', '-', name.lower()).strip('-')[:40]}-{k}"
         client.post("/skills", json={"name": skill, "dim": int(arrays[0].shape[1])}).raise_for_status()
         for a in arrays:
             client.post(f"/skills/{skill}/demonstrations", json={"positions": a.tolist()}).raise_for_status()
