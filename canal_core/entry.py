@@ -92,7 +92,7 @@ def approach_shares(arclength: FloatArray, distance: float) -> FloatArray:
     return np.asarray(shares, dtype=np.float64)
 
 
-def paced_approach_shares(distance: float, step: float) -> FloatArray:
+def paced_approach_shares(distance: float, step: float, most: int) -> FloatArray:
     """a_1 .. a_m of (E5), shape (m,), ending at 1: where a start outside passes on its
     straight line to the ratio rule's first point, ``distance`` away, in steps of at most
     ``step`` (the demonstrations' largest around that point): a_i = i / m, m = ceil(d / step).
@@ -103,13 +103,16 @@ def paced_approach_shares(distance: float, step: float) -> FloatArray:
         d, from the start to the first point.
     step : float
         The largest step a demonstration takes there (``Canal.section_steps``).
+    most : int
+        At most this many (the canal's sections): a start farther away takes longer steps,
+        and the reproduction's times give each the time it needs.
 
     Returns
     -------
     shares : array, shape (m,)
         Just [1.0] when ``distance`` is at most ``step`` (or ``step`` is 0).
     """
-    m = int(np.ceil(distance / step)) if step > 0.0 and distance > step else 1
+    m = min(int(np.ceil(distance / step)), max(most, 1)) if step > 0.0 and distance > step else 1
     return np.asarray(np.arange(1, m + 1, dtype=np.float64) / m, dtype=np.float64)
 
 

@@ -31,7 +31,14 @@ from .reproduce import (
     section_ratios,
     start_and_located_points,
 )
-from .timing import arc_length_times, finite_velocities, reproduction_times, rescaled_times
+from .timing import (
+    arc_length_times,
+    finite_velocities,
+    reproduction_times,
+    rescaled_times,
+    speed_limited_times,
+    top_speed,
+)
 from .tube import paced_offsets, tube_ratio_caps, wall_slope_shares
 from .validation import (
     BoolArray,
@@ -308,7 +315,8 @@ def reproduce(
         # stepped there (the tube's cap, F1, brought the entry down to meet it at their pace)
         # goes there along the straight line, one demonstrated step at a time. ``entry=0`` is
         # the paper's clamp, onto the wall at once, and keeps it.
-        shares = paced_approach_shares(float(np.linalg.norm(positions[1] - point)), float(canal.section_steps[first]))
+        shares = paced_approach_shares(float(np.linalg.norm(positions[1] - point)), float(canal.section_steps[first]),
+                                       canal.n_sections)
         if shares.size > 1:
             approach = point + shares[:-1, None] * (positions[1] - point)
             positions = np.vstack([point, approach, positions[1:]])
@@ -331,9 +339,12 @@ def reproduce(
             pace = float(profile[first] - profile[first - 1]) if first > 0 else float(profile[1] - profile[0])
             span = float(times[1]) + n_approach * pace
             times = np.concatenate([times[:1], shares[:-1] * span, times[1:] + (span - times[1])])
+        times = times[: positions.shape[0]]  # a blocked path keeps its own times
+        # No step faster than the demonstrations moved: a start past the end, or left far
+        # from the path, would otherwise cover its distance in a section's time (or 1 ns).
+        times = speed_limited_times(times, positions[: times.shape[0]], top_speed(profile, canal.section_steps))
         if seconds is not None:
             times = rescaled_times(times, seconds)
-        times = times[: positions.shape[0]]  # a blocked path keeps its own times
     elif seconds is not None:
         times = arc_length_times(positions, seconds)
     orientations, orientation_eta = None, None

@@ -167,6 +167,42 @@ def strictly_increasing(times: FloatArray) -> FloatArray:
     return np.asarray(np.concatenate([[times[0]], times[0] + np.cumsum(steps)]), dtype=np.float64)
 
 
+def top_speed(profile: FloatArray, steps: FloatArray) -> float:
+    """The demonstrations' fastest pace along the canal: the largest step a demonstration
+    takes into a section over the time the section takes, max_k steps_k / (tau_k - tau_{k-1})
+    (in the profile's units per second, or per share of the motion), over the sections that
+    take time.
+
+    Parameters
+    ----------
+    profile : array, shape (N,)
+        Section times tau (or the pace pi of (P1)).
+    steps : array, shape (N,)
+        The demonstrations' largest step into or out of each section (``Canal.section_steps``).
+
+    Returns
+    -------
+    speed : float
+        inf when no section takes time (nothing to limit by).
+    """
+    dt = np.diff(profile)
+    moving = dt > 0.0
+    if not moving.any():
+        return float("inf")
+    return float(np.max(steps[1:][moving] / dt[moving]))
+
+
+def speed_limited_times(times: FloatArray, positions: FloatArray, speed: float) -> FloatArray:
+    """``times`` (T,) stretched where a step of ``positions`` (T, D) would go faster than
+    ``speed``: each step takes max(its time, its length / speed), the rest follows as much later.
+    """
+    if times.shape[0] < 2 or not np.isfinite(speed) or speed <= 0.0:
+        return times
+    steps = np.sqrt(((positions[1:] - positions[:-1]) ** 2).sum(axis=1))
+    dt = np.maximum(np.diff(times), steps / speed)
+    return np.asarray(np.concatenate([times[:1], times[0] + np.cumsum(dt)]), dtype=np.float64)
+
+
 def rescaled_times(times: FloatArray, duration: float) -> FloatArray:
     """``times`` (T,) from 0, stretched so the last is ``duration``."""
     if times.shape[0] < 2 or times[-1] <= 0.0:

@@ -296,3 +296,24 @@ def test_a_start_behind_the_first_plane_with_obstacles_flags_no_approach_point_a
     assert result.detoured.shape == (result.positions.shape[0] - 1,)
     assert not result.detoured[:m].any()
     assert result.times.shape == (result.positions.shape[0],)
+
+
+def test_a_start_past_the_canal_end_or_far_beside_it_moves_no_faster_than_the_demonstrations() -> None:
+    """Five demonstrations 1 m long in 2 s (0.5 m/s). A start 2 cm past the last plane was
+    given one step to the end in 1 ns (2e7 m/s); one far away, a single step of 1.7 km; one
+    beside the last sections, a landing at 6 m/s. Every step now takes at least the time the
+    fastest demonstration needed for it, and an approach has at most one point per section."""
+    x = np.linspace(0.0, 1.0, 80)
+    demos = []
+    for j in range(5):
+        a = 2.0 * np.pi * j / 5
+        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
+                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
+    canal = canal_core.fit(demos, timestamps=[np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    for start in ([1.02, 0.0, 0.0], [1.5, 0.0, 0.0], [1.0, 0.3, 0.0], [1000.0, 1000.0, 1000.0],
+                  [0.99, 0.3, 0.0], [-1.0, 0.0, 0.0], [0.5, 0.3, 0.0]):
+        result = canal.reproduce_detailed(start)
+        speeds = np.linalg.norm(np.diff(result.positions, axis=0), axis=1) / np.diff(result.times)
+        assert speeds.max() <= 0.5 * 1.5, start  # 0.5 m/s, within the demonstrations' own spread
+        assert result.approach <= canal.n_sections, start
+        assert np.linalg.norm(result.velocities, axis=1).max() <= 0.5 * 2.0, start
