@@ -26,7 +26,7 @@ from .tracker import (
 )
 from .tracker_batch import TrackerBatch, batched_tracker_step, step_tables
 from .tracker_kernel import compiled_step_rows, packed_width
-from .tracker_obstacles import OK, SceneTables, avoided_targets
+from .tracker_obstacles import BLOCKED, DETOUR, OK, SceneTables, avoided_targets
 from .tube import TUBE_MARGIN
 from .validation import FloatArray
 
@@ -172,7 +172,8 @@ class TrackerBank:
         """Correct packed answers (:meth:`step_packed`) for the bank's scene, in place, in one
         vectorised pass (:func:`canal_core.tracker_obstacles.avoided_targets`); each row's
         obstacle status (0 ok, 1 detour, 2 blocked, 3 in_obstacle), or None without a scene.
-        Rows whose target the scene moved get a zero feed-forward velocity.
+        Rows whose target the scene moved get a zero feed-forward velocity; a row that is
+        done is never blocked (nothing lies ahead of it).
 
         The scene is read once, so a new one set by another thread applies from the next call.
         """
@@ -186,6 +187,9 @@ class TrackerBank:
             tables, np.asarray(positions, dtype=np.float64), rows[:, :d], section,
             np.minimum(section + self.lookahead, n - 1))
         rows[:, :d] = target
+        # A robot that has arrived has nothing ahead for the scene to close: held beside an
+        # obstacle over the goal, it ends where a reproduction ends, off its path.
+        status[(status == BLOCKED) & (rows[:, d + 4] != 0.0)] = DETOUR
         # The feed-forward velocity is the canal's at the tracker's own target: where the
         # target was moved (a detour, a hold, a way out of an obstacle) it would carry the
         # robot past the corrected target, into what it avoids. It is zero there (a model

@@ -185,3 +185,31 @@ def test_a_robot_inside_an_obstacle_is_told_and_backed_away(tube: canal_core.Can
     plain = rows.copy()
     assert bank.avoid_packed(rows, far)[0] == OK
     np.testing.assert_array_equal(rows, plain)
+
+
+def test_a_robot_held_beside_an_obstacle_over_the_goal_is_done_not_blocked() -> None:
+    # A sphere over the canal's end: a reproduction ends beside it, unblocked. A live robot
+    # that follows its targets arrives there too and is held; it was told `blocked` with
+    # `done` for good, as though the scene closed the canal ahead of a robot that finished.
+    x = np.linspace(0.0, 1.0, 80)
+    demos = []
+    for j in range(5):
+        a = 2.0 * np.pi * j / 5
+        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
+                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
+    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    scene = scene_from_list([{"kind": "sphere", "center": [1.0, 0.0, 0.0], "radius": 0.03}], 3)
+    assert canal.reproduce_detailed([0.0, 0.01, 0.0], obstacles=scene).blocked is None
+    bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
+    bank.scene = scene_tables(bank.geometry, scene, canal.section_steps)
+    slot = bank.add(0)
+    pos = np.array([[0.0, 0.01, 0.0]])
+    seen = []
+    for _ in range(200):
+        rows = bank.step_packed([slot], pos)
+        status = int(bank.avoid_packed(rows, pos)[0])
+        done = bool(rows[0, 3 + 4] > 0.5)  # packed: target (3), progress, eta, section, inside, done
+        seen.append((status, done))
+        pos = pos + 0.5 * (rows[:, :3] - pos)
+    assert seen[-1][1]  # the robot finished
+    assert not any(status == BLOCKED for status, _ in seen)
