@@ -60,6 +60,8 @@ SMOOTHNESS_WEIGHT = 25.0
 #: directions, by at most this many levels (as fine as a step's sideways room allows).
 SHIFT_DIRECTIONS = 32
 SHIFT_LEVELS = 128
+#: Points per block in :func:`free_distances` (keeps its temporaries within a few MB).
+FREE_BLOCK = 4096
 #: Golden-section steps of the segment search against boxes (:func:`segment_free_distances`):
 #: each keeps 0.618 of the interval, so 60 leave 3e-13 of the segment's length.
 GOLDEN_ITERATIONS = 60
@@ -333,6 +335,11 @@ def _point_segment_distances(points: FloatArray, a: FloatArray, b: FloatArray) -
     """Distance from each point (M, D) to each segment [a_s, b_s] (S, D), shape (M, S)."""
     ab = b - a  # (S, D)
     length2 = np.einsum("sd,sd->s", ab, ab)
+    if not length2.any():
+        # Points only (spheres): the distance to each, without the projection's temporaries
+        # (five times faster on a detour's thousands of candidates).
+        rel = points[:, None, :] - a[None, :, :]
+        return np.asarray(np.sqrt(np.einsum("msd,msd->ms", rel, rel)))
     rel = points[:, None, :] - a[None, :, :]  # (M, S, D)
     t = np.einsum("msd,sd->ms", rel, ab) / np.where(length2 > 0.0, length2, 1.0)
     t = np.clip(np.where(length2 > 0.0, t, 0.0), 0.0, 1.0)
@@ -361,7 +368,13 @@ def obstacle_free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     out = np.full((points.shape[0], len(scene)), np.inf)
     if scene.round_index.size:
         a, b, reach = scene.round_arrays
-        out[:, scene.round_index] = _point_segment_distances(points, a, b) - reach[None, :]
+        point = ~(b != a).any(axis=1)  # spheres apart from capsules: the cheaper distance
+        if point.all() or not point.any():
+            out[:, scene.round_index] = _point_segment_distances(points, a, b) - reach[None, :]
+        else:
+            index = scene.round_index
+            out[:, index[point]] = _point_segment_distances(points, a[point], b[point]) - reach[point][None, :]
+            out[:, index[~point]] = _point_segment_distances(points, a[~point], b[~point]) - reach[~point][None, :]
     if scene.box_index.size:
         c, rot, half, clearance = scene.box_arrays
         out[:, scene.box_index] = _box_distances(points, c, rot, half) - clearance[None, :]
@@ -370,9 +383,26 @@ def obstacle_free_distances(points: FloatArray, scene: Scene) -> FloatArray:
 
 def free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     """Smallest :func:`obstacle_free_distances` per point, shape (M,) (inf with no obstacle)."""
+    m = points.shape[0]
+    out = np.full(m, np.inf)
     if not len(scene):
-        return np.full(points.shape[0], np.inf)
-    return np.asarray(obstacle_free_distances(points, scene).min(axis=1))
+        return out
+    # A detour asks for tens of thousands of candidates at once: in blocks, each kind's
+    # smallest straight away, without the (M, O) table (a third of the time, and memory).
+    for lo in range(0, m, FREE_BLOCK):
+        block = points[lo : lo + FREE_BLOCK]
+        if scene.round_index.size:
+            a, b, reach = scene.round_arrays
+            point = ~(b != a).any(axis=1)
+            for part in (point, ~point):
+                if part.any():
+                    d = _point_segment_distances(block, a[part], b[part]) - reach[part][None, :]
+                    np.minimum(out[lo : lo + FREE_BLOCK], d.min(axis=1), out=out[lo : lo + FREE_BLOCK])
+        if scene.box_index.size:
+            c, rot, half, clearance = scene.box_arrays
+            d = _box_distances(block, c, rot, half) - clearance[None, :]
+            np.minimum(out[lo : lo + FREE_BLOCK], d.min(axis=1), out=out[lo : lo + FREE_BLOCK])
+    return out
 
 
 def segments_keep_clearance(free_p: FloatArray, free_q: FloatArray, length: FloatArray) -> BoolArray:

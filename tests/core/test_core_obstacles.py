@@ -9,7 +9,9 @@ from core_data import tube_demos
 import canal_core
 from canal_core import InvalidInputError
 from canal_core.obstacles import (
+    FREE_BLOCK,
     free_distances,
+    obstacle_free_distances,
     scene_from_list,
     segment_free_distances,
 )
@@ -323,3 +325,22 @@ def test_a_long_step_that_passes_beside_an_obstacle_is_kept(tube: canal_core.Can
                           tube.sections, scene, tube.largest_step)
     assert result.blocked is None
     np.testing.assert_array_equal(result.positions, np.vstack([start, end]))
+
+
+def test_free_distances_in_blocks_match_the_table_of_every_obstacle() -> None:
+    # Spheres, capsules and boxes together, over more points than one block: the smallest
+    # of each point's row of the table, exactly.
+    rng = np.random.default_rng(1)
+    items: list[dict[str, object]] = [
+        {"kind": "sphere", "center": rng.normal(size=3).tolist(), "radius": 0.1, "clearance": 0.01}
+        for _ in range(5)]
+    items += [{"kind": "capsule", "a": rng.normal(size=3).tolist(), "b": rng.normal(size=3).tolist(),
+               "radius": 0.1} for _ in range(3)]
+    items += [{"kind": "box", "center": rng.normal(size=3).tolist(), "half_extents": [0.1, 0.2, 0.3]}
+              for _ in range(2)]
+    scene = scene_from_list(items, 3)
+    points = rng.normal(size=(FREE_BLOCK + 17, 3))
+    np.testing.assert_array_equal(free_distances(points, scene), obstacle_free_distances(points, scene).min(axis=1))
+    spheres = scene_from_list(items[:5], 3)
+    np.testing.assert_array_equal(free_distances(points, spheres),
+                                  obstacle_free_distances(points, spheres).min(axis=1))
