@@ -308,6 +308,23 @@ def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     return {"field": field, "message": message, "type": kind}
 
 
+def is_json_content_type(content_type: str | None) -> bool:
+    """Whether a request's Content-Type lets FastAPI read its body as JSON: ``application/json``
+    or an ``application/...+json`` type, with any parameters (``; charset=utf-8``). None at
+    all is not JSON (FastAPI's strict content type, as the upload routes take it)."""
+    base = (content_type or "").split(";", 1)[0].strip().lower()
+    return base == "application/json" or (base.startswith("application/") and base.endswith("+json"))
+
+
+def unsupported_json_body(content_type: str | None) -> UnsupportedMediaType:
+    """A JSON route's body sent in another content type, or with none: FastAPI hands such a
+    body over as bytes, which every body model refuses (a 422 "a valid dictionary, got bytes"
+    of a body that may well be valid JSON). The content type is what is wrong: 415."""
+    came = content_type[:100] if content_type else "none"
+    return UnsupportedMediaType(f"expected Content-Type application/json, got {came!r}",
+                                field="Content-Type")
+
+
 def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
     """Envelope for pydantic errors: the first one names the field, all are in details."""
     details = [pydantic_detail(e) for e in errors]
@@ -347,8 +364,13 @@ def install_error_handlers(app: FastAPI) -> None:
         return JSONResponse(error_body(kind, exc.message, exc.field), status)
 
     @app.exception_handler(RequestValidationError)
-    async def _validation_error(_request: Request, exc: RequestValidationError) -> JSONResponse:
-        return JSONResponse(validation_error_body(list(exc.errors())), 422)
+    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        errors = list(exc.errors())
+        content_type = request.headers.get("content-type")
+        if not is_json_content_type(content_type) and any(
+                tuple(e.get("loc", ()))[:1] == ("body",) for e in errors):
+            return await _service_error(request, unsupported_json_body(content_type))
+        return JSONResponse(validation_error_body(errors), 422)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> JSONResponse:

@@ -78,6 +78,45 @@ def _raw_post(port: int, path: str, headers: list[str], body_chunks: list[bytes]
         return data
 
 
+def test_a_json_route_sent_another_content_type_is_415(live_server: LiveServer) -> None:
+    """A JSON route's body in another content type (text/plain, curl -d's form encoding) or
+    with none is refused as 415 naming the content type that came, and nothing is stored; a
+    JSON body, with or without a charset, is read as before."""
+    with httpx.Client(base_url=live_server.url) as http:
+        assert http.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        for j in range(3):
+            http.post("/skills/pour/demonstrations", json={"positions": demo_positions(j).tolist()})
+        for content_type in ("text/plain", "text/plain; charset=utf-8",
+                             "application/x-www-form-urlencoded", "application/xml", None):
+            for method, path, body in (
+                ("POST", "/skills", b'{"name": "other", "dim": 3}'),
+                ("POST", "/skills/pour/fit", b"{}"),
+                ("POST", "/skills/pour/fit", b"null"),
+                ("POST", "/skills/pour/reproductions", b'{"start": [0, 0, 0]}'),
+                ("PUT", "/skills/pour/scene", b'{"obstacles": []}'),
+                ("POST", "/skills/pour/corrections", b'{"kind": "include", "samples": [[0, 0, 0]]}'),
+            ):
+                headers = {} if content_type is None else {"content-type": content_type}
+                r = http.request(method, path, content=body, headers=headers)
+                assert r.status_code == 415, (content_type, path, r.text)
+                error = r.json()["error"]
+                assert error["type"] == "unsupported_media_type" and error["field"] == "Content-Type"
+                came = repr(content_type or "none")
+                assert f"expected Content-Type application/json, got {came}" in error["message"], error
+        assert http.get("/skills/pour").json()["n_models"] == 0
+        assert [s["name"] for s in http.get("/skills").json()["items"]] == ["pour"]
+        assert http.get("/skills/pour/scene").json()["version"] == 0
+        # JSON as it is usually labelled still works, and a fit without a body takes the defaults
+        for content_type in ("application/json", "application/json; charset=utf-8"):
+            r = http.post("/skills", content=b'{"name": "x-%d", "dim": 3}' % len(content_type),
+                          headers={"content-type": content_type})
+            assert r.status_code == 201, (content_type, r.text)
+        assert http.post("/skills/pour/fit").status_code == 201
+        # a bad JSON body is still a 422 naming its field
+        r = http.post("/skills", json={"name": "bad", "dim": 7})
+        assert r.status_code == 422 and r.json()["error"]["field"] == "dim", r.text
+
+
 def test_body_over_the_limit_is_413_and_nothing_stored(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path / "d", recordings_enabled=False, zenoh_enabled=False, max_body_bytes=10_000)
     with LiveServer(create_app(settings)) as server, httpx.Client(base_url=server.url) as http:

@@ -12,7 +12,7 @@ from fastapi.concurrency import run_in_threadpool
 from canal_protocol.schemas import ErrorResponse, FitRequest, ModelOut, ModelSummary, Page
 
 from ..deps import Limit, Offset, ServiceDep, SkillName, VersionRef, parse_version
-from ..errors import InvalidInput
+from ..errors import InvalidInput, is_json_content_type
 from ..mesh import MESH_MEDIA_TYPES, export_mesh
 
 router = APIRouter(prefix="/skills/{name}", tags=["models"])
@@ -24,8 +24,10 @@ _DISCONNECT_POLL_SECONDS = 0.25
 
 
 async def _not_null(request: Request) -> None:
-    # No body means every default; a JSON null is not "no body" but a client bug.
-    if (await request.body()).strip() == b"null":
+    # No body means every default; a JSON null is not "no body" but a client bug. A body in
+    # another content type is not JSON at all: the 415 of the error handlers.
+    if (is_json_content_type(request.headers.get("content-type"))
+            and (await request.body()).strip() == b"null"):
         raise InvalidInput("expected a JSON object of fit options (or no body), got null",
                            field="body")
 
