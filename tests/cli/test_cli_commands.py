@@ -33,7 +33,8 @@ from click.testing import Result
 from mcap.reader import make_reader
 
 from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES, PERSISTENCES
-from canal_protocol.schemas import FitRequest, ReproductionRequest
+from canal_protocol.options import MAX_CORRECTION_LABEL, MAX_DEMO_LABEL
+from canal_protocol.schemas import MAX_ID, FitRequest, ReproductionRequest
 
 Run = Callable[..., Result]  # the `run` fixture (conftest.py)
 
@@ -140,10 +141,14 @@ def test_demo_add_errors(run: Run, unique_name: Callable[[str], str], tmp_path: 
     assert "finite" in r.stderr or "nan" in r.stderr.lower()
     odd = tmp_path / "demo.xyz"
     odd.write_text("1,2,3\n")
-    r = run("demo", "add", name, str(odd), str(tmp_path / "missing.csv"))
+    r = run("demo", "add", name, str(odd), str(files["npy"]))
     assert r.exit_code == 1
     assert f"error: {odd}: unsupported file type" in r.stderr
-    assert f"error: {tmp_path / 'missing.csv'}: no such file" in r.stderr
+    assert "b_demo.npy: id " in r.stdout
+    # a missing file is bad usage, refused before anything is uploaded
+    r = run("demo", "add", name, str(files["csv"]), str(tmp_path / "missing.csv"))
+    assert r.exit_code == 2 and f"no file {str(tmp_path / 'missing.csv')!r}" in r.output
+    assert len(json.loads(run("--json", "demo", "list", name).stdout)) == 1
     # a 2-D file into a 3-D skill: the service's message names the field
     two_d = write_demo_files(tmp_path / "2d", dim=2)
     r = run("demo", "add", name, str(two_d["npy"]))
@@ -827,3 +832,80 @@ def test_recordings_rebuild_counts_the_reproductions_it_logs(
     said = " ".join(r.stdout.split())
     assert r.exit_code == 0 and "the reproductions it keeps" in said, said
     assert "reproductions are not stored" not in said, said
+
+
+#: Values the CLI can judge itself, against the contract's limits (canal_protocol): each is a
+#: usage error naming the option, what it expects and what came, before any request.
+_LONG = "x" * (MAX_CORRECTION_LABEL + 100)
+_REFUSED_HERE: list[tuple[list[str], str, str, str]] = [
+    (["fit", "x", "--route-separation", "0"], "--route-separation", "a number in (0, ", "got '0'"),
+    (["fit", "x", "--route-separation", "-1"], "--route-separation", "a number in (0, ", "got '-1'"),
+    (["fit", "x", "--route-separation", "nan"], "--route-separation", "a number in (0, ", "got 'nan'"),
+    (["fit", "x", "--route-separation", "inf"], "--route-separation", "a number in (0, ", "got 'inf'"),
+    (["fit", "x", "--frame-smoothing", "nan"], "--frame-smoothing", "a number in [0, ", "got 'nan'"),
+    (["fit", "x", "--demo", "1", "--demo", "0"], "--demo", f"a whole number in [1, {MAX_ID}]", "got '0'"),
+    (["reproduce", "x", "--start", "0,0,0", "--model", "0"], "--model",
+     f"'latest' or a model version in [1, {MAX_ID}]", "got '0'"),
+    (["reproduce", "x", "--start", "0,0,0", "--model", "-3"], "--model",
+     f"'latest' or a model version in [1, {MAX_ID}]", "got '-3'"),
+    (["correct", "x", "FILE", "--model", "0"], "--model", "'latest' or a model version", "got '0'"),
+    (["correct", "x", "FILE", "--weight", "nan"], "--weight", "a number in (0, 1000]", "got 'nan'"),
+    (["correct", "x", "FILE", "--label", _LONG], "--label",
+     f"text of at most {MAX_CORRECTION_LABEL} characters", f"got {len(_LONG)} characters"),
+    (["demo", "add", "x", "FILE", "--label", "y" * (MAX_DEMO_LABEL + 1)], "--label",
+     f"text of at most {MAX_DEMO_LABEL} characters", f"got {MAX_DEMO_LABEL + 1} characters"),
+    (["skill", "create", "x", "--description", "d" * 4001], "--description",
+     "text of at most 4000 characters", "got 4001 characters"),
+    (["corrections", "undo", "x", "0"], "'id'", f"a whole number in [1, {MAX_ID}]", "got '0'"),
+    (["corrections", "undo", "x", "-1"], "'id'", f"a whole number in [1, {MAX_ID}]", "got '-1'"),
+    (["corrections", "undo", "x", "--", "-1"], "'id'", f"a whole number in [1, {MAX_ID}]", "got '-1'"),
+    (["demo", "rm", "x", "1", "-2"], "'ids'", f"a whole number in [1, {MAX_ID}]", "got '-2'"),
+    (["demo", "rm", "x", "0"], "'ids'", f"a whole number in [1, {MAX_ID}]", "got '0'"),
+]
+
+
+@pytest.mark.parametrize(("args", "option", "expected", "got"), _REFUSED_HERE,
+                         ids=[" ".join(a[:4])[:60] for a, *_ in _REFUSED_HERE])
+def test_a_value_the_contract_refuses_is_a_usage_error_naming_its_option(
+        run: Run, tmp_path: Path, args: list[str], option: str, expected: str, got: str) -> None:
+    # These were sent, and came back as the service's 422 naming the request field (exit 1):
+    # `--route-separation 0`, `--demo 0`, `--model 0`, a label too long, `corrections undo
+    # SKILL 0`; a negative id was "No such option: -1".
+    file = write_demo_files(tmp_path)["csv"]
+    args = [str(file) if a == "FILE" else a for a in args]
+    r = run(*args, url=closed_port_url())
+    said = " ".join(r.output.replace("│", " ").split())
+    assert r.exit_code == 2, (args, said)
+    assert f"Invalid value for {option}" in said or f"Invalid value for '{option}'" in said, said
+    assert f"expected {expected}" in said and got in said, (args, said)
+
+
+def test_values_within_the_contracts_limits_are_sent(run: Run, tmp_path: Path) -> None:
+    # exit 3: the option was accepted and a request was tried
+    file = str(write_demo_files(tmp_path)["csv"])
+    url = closed_port_url()
+    low, high = field_bounds(FitRequest, "route_separation")
+    for args in (["fit", "x", "--route-separation", str(high)], ["fit", "x", "--route-separation", "0.01"],
+                 ["fit", "x", "--demo", "1", "--demo", str(MAX_ID)],
+                 ["reproduce", "x", "--start", "0,0,0", "--model", "1"],
+                 ["reproduce", "x", "--start", "0,0,0", "--model", "latest"],
+                 ["correct", "x", file, "--label", "l" * MAX_CORRECTION_LABEL, "--model", "2"],
+                 ["demo", "add", "x", file, "--label", "l" * MAX_DEMO_LABEL],
+                 ["skill", "create", "x", "--description", "d" * 4000],
+                 ["corrections", "undo", "x", "1"], ["demo", "rm", "x", "1", "2"]):
+        r = run(*args, url=url)
+        assert r.exit_code == 3, (args, r.output)
+    r = run("corrections", "undo", "x", "1", "--bogus", url=url)
+    assert r.exit_code == 2 and "No such option: --bogus" in r.output, r.output
+
+
+def test_a_missing_file_is_a_usage_error_naming_it(run: Run, tmp_path: Path) -> None:
+    # `demo add` reported it per file (exit 1) while `correct` refused it as usage (exit 2).
+    good = str(write_demo_files(tmp_path)["csv"])
+    missing = tmp_path / "missing.csv"
+    for args in (["demo", "add", "x", good, str(missing)], ["demo", "add", "x", str(tmp_path / "gone")],
+                 ["correct", "x", str(missing)]):
+        r = run(*args, url=closed_port_url())  # exit 2, not 3: nothing was sent
+        said = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2, (args, said)
+        assert "Invalid value for" in said and f"no file {args[-1]!r}" in said, said

@@ -9,12 +9,21 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from canal_protocol.options import CORRECTION_KINDS, MAX_CORRECTION_WEIGHT, CorrectionKind
+from canal_protocol.options import CORRECTION_KINDS, CorrectionKind
+from canal_protocol.schemas import CorrectionIn
 
 from ..errors import ArgumentError
 from ..rest import guess_format
 from .output import out, print_json, time_text
-from .parsing import choice_parser
+from .parsing import (
+    NumbersAsArguments,
+    choice_parser,
+    contract_parser,
+    existing_file,
+    field_type,
+    model_version,
+    stored_id,
+)
 from .session import connected, options
 
 app = typer.Typer(help="List and undo a skill's corrections.", no_args_is_help=True)
@@ -32,10 +41,12 @@ def correct(
         help="include: this path is right too; exclude: the robot was pushed away from where "
              "it went (the canal narrows on that side).")] = "include",
     weight: Annotated[float, typer.Option(
-        "--weight", "-w", help="How much an include counts against one demonstration (> 0).")
-    ] = 1.0,
-    label: Annotated[str, typer.Option("--label", "-l", help="Default: the file's name.")] = "",
-    model: Annotated[str, typer.Option("--model", "-m",
+        "--weight", "-w", parser=contract_parser(field_type(CorrectionIn, "weight")),
+        help="How much an include counts against one demonstration (> 0).")] = 1.0,
+    label: Annotated[str, typer.Option(
+        "--label", "-l", parser=contract_parser(field_type(CorrectionIn, "label")),
+        help="Default: the file's name.")] = "",
+    model: Annotated[str, typer.Option("--model", "-m", parser=model_version,
                                        help="Model version corrected, or 'latest'.")] = "latest",
     route: Annotated[int | None, typer.Option(
         "--route", min=0, help="A model of several routes: correct this route's canal "
@@ -44,18 +55,12 @@ def correct(
         "--topic", help="The pose topic of an .mcap file that has several.")] = None,
 ) -> None:
     """Refine the skill's canal by a correction: a new model version."""
-    if model != "latest" and not model.isdigit():
-        raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
-    if not 0 < weight <= MAX_CORRECTION_WEIGHT:
-        raise typer.BadParameter(f"expected a weight in (0, {MAX_CORRECTION_WEIGHT:g}], got {weight}",
-                                 param_hint="--weight")
     try:
         guess_format(file)
     except ArgumentError:
         raise typer.BadParameter(f"expected a .csv, .npy, .mcap or .json file, got {file.name!r}",
                                  param_hint="FILE") from None
-    if not file.is_file():
-        raise typer.BadParameter(f"no file {str(file)!r}", param_hint="FILE")
+    existing_file(file, "FILE")
     with connected(ctx) as c:
         made = c.correct_file(skill, file, kind, model=model, weight=weight,
                               label=label or None, route=route, topic=topic)
@@ -86,8 +91,9 @@ def corrections_list(ctx: typer.Context, skill: str) -> None:
     out.print(table)
 
 
-@app.command("undo")
-def corrections_undo(ctx: typer.Context, skill: str, id: int) -> None:
+@app.command("undo", cls=NumbersAsArguments)
+def corrections_undo(ctx: typer.Context, skill: str,
+                     id: Annotated[int, typer.Argument(parser=stored_id)]) -> None:
     """A new model version without correction ID (the skill's others re-applied)."""
     with connected(ctx) as c:
         made = c.undo_correction(skill, id)

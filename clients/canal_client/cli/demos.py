@@ -12,9 +12,12 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
+from canal_protocol.schemas import DemonstrationIn
+
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
 from ..rest import guess_format
 from .output import EXIT_REFUSED, err, error, out, print_json, time_text
+from .parsing import NumbersAsArguments, contract_parser, existing_file, field_type, stored_id
 from .session import connected, options
 
 #: The file kinds ``canal demo add`` takes from a folder.
@@ -84,7 +87,9 @@ def demo_add(
     paths: Annotated[list[Path], typer.Argument(
         help="Files (.csv, .npy, .json, .mcap) or folders of them.")],
     topic: Annotated[str | None, typer.Option("--topic", help="MCAP pose topic.")] = None,
-    label: Annotated[str | None, typer.Option("--label", help="Label for every file.")] = None,
+    label: Annotated[str | None, typer.Option(
+        "--label", parser=contract_parser(field_type(DemonstrationIn, "label")),
+        help="Label for every file.")] = None,
     format: Annotated[str | None, typer.Option(
         "--format", help="csv, npy, json or mcap, for files without a telling suffix.")] = None,
     time_unit: Annotated[str | None, typer.Option(
@@ -94,7 +99,10 @@ def demo_add(
     """Add one demonstration per file. A folder means every supported file in it
     (.csv, .npy, .json, .mcap; not recursive), in name order. A file that is refused is
     reported as "error: PATH: the service's message" and the others are still added; the
-    exit code is then 1. Prints each new demonstration's id."""
+    exit code is then 1. A path that is not there is bad usage (exit code 2), before anything
+    is uploaded. Prints each new demonstration's id."""
+    for path in paths:
+        existing_file(path, "PATHS")
     opts = options(ctx)
     files, failed = expand_paths(paths)
     results: list[dict[str, Any]] = []
@@ -155,9 +163,10 @@ def demo_list(ctx: typer.Context, skill: str) -> None:
         out.print(demo_table(demos))
 
 
-@app.command("rm")
+@app.command("rm", cls=NumbersAsArguments)
 def demo_rm(ctx: typer.Context, skill: str,
-            ids: Annotated[list[int], typer.Argument(help="Demonstration ids.", min=1)]) -> None:
+            ids: Annotated[list[int], typer.Argument(help="Demonstration ids.", parser=stored_id)]
+            ) -> None:
     """Remove demonstrations (model versions keep the ids they used). Every id is tried; the
     exit code is 1 when one of them could not be removed."""
     failed = False

@@ -16,7 +16,6 @@ from typing import Annotated, Any
 
 import numpy as np
 import typer
-from pydantic import BaseModel
 from rich.markup import escape
 
 from canal_core.options import ALIGNMENTS, CROSS_SECTIONS, DIRECTRICES, FRAMES
@@ -34,25 +33,31 @@ from canal_protocol.options import OutsideRule as Outside
 from canal_protocol.schemas import FitRequest
 
 from .output import EXIT_REFUSED, err, error, out, plain, print_json
-from .parsing import choice_parser, has_box, parse_obstacle, parse_point, parse_quaternion
+from .parsing import (
+    choice_parser,
+    contract_parser,
+    expected_words,
+    field_bounds,
+    field_type,
+    has_box,
+    model_version,
+    parse_obstacle,
+    parse_point,
+    parse_quaternion,
+    stored_id,
+)
 from .session import connected, options
 
 # typer shows each Literal's values as choices and choice_parser checks them (canal_protocol's
 # aliases of canal_core's names: never written out here).
 
-
-def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
-    """The (minimum, maximum) a pydantic model's field accepts (``ge``/``le``), None when open."""
-    low = high = None
-    for rule in model.model_fields[field].metadata:  # annotated_types.Ge, Le (or Interval)
-        low = getattr(rule, "ge", None) if low is None else low
-        high = getattr(rule, "le", None) if high is None else high
-    return low, high
+__all__ = ["field_bounds", "fit", "reproduce", "write_trajectory"]
 
 
 SAMPLES_MIN, SAMPLES_MAX = field_bounds(FitRequest, "n_samples")
-SMOOTHING_MIN, SMOOTHING_MAX = field_bounds(FitRequest, "frame_smoothing")
 ROUTES_MIN, ROUTES_MAX = field_bounds(FitRequest, "routes")
+SMOOTHING = field_type(FitRequest, "frame_smoothing")
+SEPARATION = field_type(FitRequest, "route_separation")
 
 
 def fit(
@@ -70,13 +75,13 @@ def fit(
         "--samples", "-n", min=SAMPLES_MIN, max=SAMPLES_MAX,
         help="Sections along the canal.")] = None,
     frame_smoothing: Annotated[float | None, typer.Option(
-        "--frame-smoothing", min=SMOOTHING_MIN, max=SMOOTHING_MAX,
+        "--frame-smoothing", parser=contract_parser(SMOOTHING),
         help="Smooth the curve the frames are computed on (fraction of its length; "
-             "0 = the paper's raw frames).")] = None,
+             f"0 = the paper's raw frames; {expected_words(SMOOTHING)}).")] = None,
     by_time: Annotated[bool, typer.Option(
         "--by-time", help="Align by the demos' time stamps instead of arc length.")] = False,
     demo: Annotated[list[int] | None, typer.Option(
-        "--demo", help="Fit only these demonstration ids (repeat).")] = None,
+        "--demo", parser=stored_id, help="Fit only these demonstration ids (repeat).")] = None,
     drop_corrections: Annotated[bool, typer.Option(
         "--drop-corrections", help="Leave the skill's corrections behind (by default they "
         "are re-applied to the new canal, as a version of its own).")] = False,
@@ -85,9 +90,10 @@ def fit(
         help="Routes (one canal each): 1 = one canal of all the demonstrations; N = exactly "
              "N; left out: demonstrations that go clearly different ways are split.")] = None,
     route_separation: Annotated[float | None, typer.Option(
-        "--route-separation",
+        "--route-separation", parser=contract_parser(SEPARATION),
         help="Where routes split when --routes is left out: the demonstrations' mean "
-             "distance as a share of their median path length.")] = None,
+             f"distance as a share of their median path length ({expected_words(SEPARATION)}).")
+    ] = None,
 ) -> None:
     """Fit a new model version from the skill's demonstrations (service defaults otherwise)."""
     busy = (contextlib.nullcontext() if options(ctx).json
@@ -143,7 +149,7 @@ def reproduce(
     ctx: typer.Context,
     skill: str,
     start: Annotated[str, typer.Option("--start", "-s", help="x,y[,z] start point.")],
-    model: Annotated[str, typer.Option("--model", "-m",
+    model: Annotated[str, typer.Option("--model", "-m", parser=model_version,
                                        help="Model version or 'latest'.")] = "latest",
     out_path: Annotated[Path | None, typer.Option(
         "--out", "-o", help="Save the trajectory: .csv (t,x,y,z header; t in seconds when the "
@@ -183,8 +189,6 @@ def reproduce(
     goal_point = None if goal is None else parse_point(goal, "--goal")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
         raise typer.BadParameter(f"expected seconds > 0, got {duration}", param_hint="--duration")
-    if model != "latest" and not model.isdigit():
-        raise typer.BadParameter("expected a version number or 'latest'", param_hint="--model")
     if out_path is not None and out_path.suffix.lower() not in (".csv", ".npy", ".json"):
         raise typer.BadParameter("expected a .csv, .npy or .json file", param_hint="--out")
     with connected(ctx) as c:

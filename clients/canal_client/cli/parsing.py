@@ -1,17 +1,150 @@
-"""Points and quaternions typed on the command line (``0,0.1,0``); a bad one is a usage
-error (exit code 2) naming the option."""
+"""Values typed on the command line: points and quaternions (``0,0.1,0``), and numbers, ids,
+versions and texts checked against the HTTP contract's own limits. A bad one is a usage
+error (exit code 2) naming the option, what it expects and what came, before any request."""
 
 from __future__ import annotations
 
+import math
+import re
+import typing
 from collections.abc import Callable, Sequence
-from typing import TypeVar
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
 
+import annotated_types
 import numpy as np
 import typer
+from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError
+from pydantic.fields import FieldInfo
+from typer.core import TyperCommand
 
 from canal_core.validation import FloatArray
+from canal_protocol.schemas import Id
 
 T = TypeVar("T")
+
+
+def field_type(model: type[BaseModel], field: str) -> Any:
+    """A pydantic model's field as a type with its limits (``Annotated[float, Gt(0), Le(10)]``)."""
+    info = model.model_fields[field]
+    return Annotated[info.annotation, *info.metadata]
+
+
+def _limits(annotation: Any) -> dict[str, Any]:
+    """The limits (``ge``, ``gt``, ``le``, ``lt``, ``max_length``) of an ``Annotated`` type."""
+    found: dict[str, Any] = {}
+    rules = list(typing.get_args(annotation)[1:]) if typing.get_origin(annotation) is Annotated else []
+    while rules:
+        rule = rules.pop(0)
+        if isinstance(rule, FieldInfo):
+            rules.extend(rule.metadata)
+            continue
+        if isinstance(rule, annotated_types.Interval):
+            rules.extend(rule)  # Ge, Gt, Le, Lt
+            continue
+        for name in ("ge", "gt", "le", "lt", "max_length"):
+            if getattr(rule, name, None) is not None:
+                found.setdefault(name, getattr(rule, name))
+    return found
+
+
+def field_bounds(model: type[BaseModel], field: str) -> tuple[Any, Any]:
+    """The (minimum, maximum) a pydantic model's field accepts (``ge``/``le``), None when open."""
+    limits = _limits(field_type(model, field))
+    return limits.get("ge"), limits.get("le")
+
+
+def _base(annotation: Any) -> Any:
+    """``int`` of ``Annotated[int | None, ...]``."""
+    if typing.get_origin(annotation) is Annotated:
+        annotation = typing.get_args(annotation)[0]
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    return args[0] if len(args) == 1 else annotation
+
+
+def expected_words(annotation: Any) -> str:
+    """What a value of the type must be, in words: ``a number in (0, 10]``, ``a whole number
+    in [1, 2147483647]``, ``text of at most 200 characters``."""
+    limits, base = _limits(annotation), _base(annotation)
+    if base is str:
+        return f"text of at most {limits['max_length']} characters" if "max_length" in limits else "text"
+    kind = "a whole number" if base is int else "a number"
+    shown = {k: f"{v:g}" if isinstance(v, float) else str(v) for k, v in limits.items()}
+    low = f"[{shown['ge']}" if "ge" in shown else f"({shown['gt']}" if "gt" in shown else None
+    high = f"{shown['le']}]" if "le" in shown else f"{shown['lt']})" if "lt" in shown else None
+    if low and high:
+        return f"{kind} in {low}, {high}"
+    if low is not None:
+        return f"{kind} {'>=' if low[0] == '[' else '>'} {low[1:]}"
+    if high is not None:
+        return f"{kind} {'<=' if high[-1] == ']' else '<'} {high[:-1]}"
+    return f"a finite {kind.removeprefix('a ')}" if base is float else kind
+
+
+def _came(text: str) -> str:
+    """What was typed, for a usage error: the text, or its length when it is long."""
+    return repr(text) if len(text) <= 40 else f"{len(text)} characters"
+
+
+def contract_parser(annotation: Any, expected: str | None = None) -> Callable[[object], Any]:
+    """A parser for an option or argument whose value goes into a request: the value typed,
+    checked against the contract's own type and limits (:func:`field_type` of a
+    canal_protocol schema, or one of its types such as :data:`~canal_protocol.schemas.Id`),
+    or a usage error saying what was expected and what came. Numbers must be finite: the
+    service refuses NaN and infinity, which typer's own range check lets through."""
+    adapter: TypeAdapter[Any] = TypeAdapter(annotation, config=ConfigDict(allow_inf_nan=False))
+    words = expected or expected_words(annotation)
+
+    def parse(text: object) -> Any:
+        if not isinstance(text, str):  # a default
+            return text
+        try:
+            value = adapter.validate_python(text)
+        except ValidationError:
+            raise typer.BadParameter(f"expected {words}, got {_came(text)}") from None
+        if isinstance(value, float) and not math.isfinite(value):  # a type without its own rule
+            raise typer.BadParameter(f"expected {words}, got {_came(text)}")
+        return value
+
+    return parse
+
+
+_ID_LIMITS = _limits(Id)
+#: A model version typed as ``--model``: 'latest' or a version (the contract's ``ModelRef``).
+_VERSION = contract_parser(Id, f"'latest' or a model version in [{_ID_LIMITS['ge']}, {_ID_LIMITS['le']}]")
+
+
+def model_version(text: object) -> str:
+    """``--model``: 'latest' or a version number (as text, the way the client takes it)."""
+    return "latest" if text == "latest" else str(_VERSION(text))
+
+
+#: A stored id (demonstration, correction) typed on the command line.
+stored_id = contract_parser(Id)
+
+
+def existing_file(path: Path, hint: str) -> None:
+    """A file the command reads must be there (a folder too where the command takes one):
+    a usage error naming the path, before any request."""
+    if not path.exists():
+        raise typer.BadParameter(f"no file {str(path)!r}", param_hint=hint)
+
+
+_NEGATIVE_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+class NumbersAsArguments(TyperCommand):
+    """A command whose arguments are numbers: ``-1`` typed as one is the argument (refused by
+    its own check, naming it), not an unknown option "-1". Any other unknown option is still
+    "No such option"."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:  # typer's vendored click Context
+        names = {n for p in self.get_params(ctx) for n in (*p.opts, *p.secondary_opts)}
+        dashed = [a.split("=", 1)[0] for a in args if a.startswith("-") and a != "--"]
+        unknown = [a for a in dashed if a not in names]
+        if unknown and all(_NEGATIVE_NUMBER.fullmatch(a) for a in unknown):
+            ctx.ignore_unknown_options = True
+        return super().parse_args(ctx, args)
 
 
 def choice_parser(choices: Sequence[T]) -> Callable[[object], T]:

@@ -8,8 +8,11 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from canal_protocol.schemas import SkillCreate
+
 from .demos import demo_table
 from .output import out, print_json, time_text
+from .parsing import contract_parser, field_type
 from .session import connected, options
 
 app = typer.Typer(help="Create, list, show and delete skills.", no_args_is_help=True)
@@ -20,7 +23,9 @@ def skill_create(
     ctx: typer.Context,
     name: Annotated[str, typer.Argument(help="Letters, digits, '.', '_', '-'.")],
     dim: Annotated[int, typer.Option("--dim", min=2, max=3, help="2 or 3.")] = 3,
-    description: Annotated[str, typer.Option("--description", "-d")] = "",
+    description: Annotated[str, typer.Option(
+        "--description", "-d", parser=contract_parser(field_type(SkillCreate, "description")))
+    ] = "",
 ) -> None:
     """Create a skill (its dimension is fixed for life)."""
     with connected(ctx) as c:
