@@ -91,7 +91,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         service = CanalService(db, metrics, cache_size=settings.model_cache_size,
                                recorder=recorder, fit_listeners=FitListeners(),
                                reproductions_kept=settings.recordings_reproductions_kept,
-                               fits=FitRunner(settings.fit_max_seconds))
+                               fits=FitRunner(settings.fit_max_seconds),
+                               reproduce_max_seconds=settings.reproduce_max_seconds)
         bridge = make_bridge(settings, service)
     except BaseException:
         # No lifespan will run to close what was opened: close it here.

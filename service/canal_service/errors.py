@@ -82,6 +82,14 @@ class FitCancelled(ServiceError):
     """A fit stopped before its end: its skill was deleted, or its client went away."""
 
 
+class ReproductionTooSlow(ServiceError):
+    """A batch of reproductions that outlived the server time one request may take."""
+
+
+class ReproductionCancelled(ServiceError):
+    """A batch of reproductions stopped because its client went away (nobody reads the answer)."""
+
+
 class NotFound(ServiceError):
     """Something the request names does not exist (base of the specific kinds below)."""
 
@@ -190,6 +198,8 @@ HTTP_STATUS: Mapping[type[Exception], tuple[int, str]] = {
     TooSlow: (422, "upload_too_slow"),
     FitTooSlow: (422, "fit_too_slow"),
     FitCancelled: (409, "conflict"),
+    ReproductionTooSlow: (422, "reproduction_too_slow"),
+    ReproductionCancelled: (409, "conflict"),
     NotFound: (404, "not_found"),
     Conflict: (409, "conflict"),
     # 404, not 503: the resource does not exist here, and retrying will not make it appear.

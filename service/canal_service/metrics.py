@@ -85,6 +85,10 @@ class Metrics:
                                           registry=r)
         self.reproductions = Counter("canal_reproductions_total", "Reproductions computed",
                                      ["inside"], registry=r)
+        self.reproductions_stopped = Counter(
+            "canal_reproductions_stopped_total",
+            "Batches of reproductions stopped before their end, by reason (too_slow: over "
+            "CANAL_REPRODUCE_MAX_SECONDS; client_left)", ["reason"], registry=r)
         # live bridge (canal_service.bridge)
         self.live_poses = Counter("canal_live_poses_total", "Poses received by the live bridge",
                                   registry=r)

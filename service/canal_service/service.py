@@ -40,6 +40,8 @@ from .errors import (
     ModelVersionNotFound,
     NotEnoughDemonstrations,
     RecordingFailed,
+    ReproductionCancelled,
+    ReproductionTooSlow,
     SkillNotFound,
     VersionConflict,
 )
@@ -154,8 +156,9 @@ class CanalService:
                  recorder: RecorderLike | None = None,
                  fit_listeners: FitListeners | None = None,
                  reproductions_kept: int = 1000,
-                 fits: FitRunner | None = None) -> None:
+                 fits: FitRunner | None = None, reproduce_max_seconds: float = 30.0) -> None:
         self.fits = fits if fits is not None else FitRunner(120.0)
+        self.reproduce_max_seconds = float(reproduce_max_seconds)
         self.db = db
         self.reproductions_kept = int(reproductions_kept)
         self.metrics = metrics
@@ -823,9 +826,14 @@ class CanalService:
 
     # ---- reproductions ----------------------------------------------------------------------
 
-    def reproduce(self, name: str, body: schemas.ReproductionRequest
+    def reproduce(self, name: str, body: schemas.ReproductionRequest,
+                  cancel: threading.Event | None = None
                   ) -> schemas.ReproductionOut | schemas.ReproductionBatchOut:
-        """Reproduce from one start or a batch; every start is checked before any is computed."""
+        """Reproduce from one start or a batch; every start is checked before any is computed.
+
+        A batch is stopped before its next start once it has run ``reproduce_max_seconds``
+        (``CANAL_REPRODUCE_MAX_SECONDS``), or once ``cancel`` is set (its client left)."""
+        began = time.monotonic()
         version = None if body.model == "latest" else int(body.model)
         routes, _row, ref = self._load_routes(name, version)
         canal = routes.pooled
@@ -856,8 +864,11 @@ class CanalService:
             check_obstacles(sent_list)
             sent = canal_core.obstacles.scene_from_list(sent_list, dim)
             scene = sent if scene is None else canal_core.obstacles.merged_scene(scene, sent)
-        results, choices = [], []
+        results: list[canal_core.Reproduction] = []
+        choices: list[RouteChoice] = []
         for start, field in zip(inputs.starts, fields, strict=True):
+            if results:
+                self._check_batch_time(began, len(results), len(fields), cancel)
             choice = (RouteChoice(forced, "forced") if forced is not None
                       else routes.choose(start))
             choices.append(choice)
@@ -902,6 +913,22 @@ class CanalService:
         if body.start is not None:
             return outs[0]
         return schemas.ReproductionBatchOut.model_construct(reproductions=outs)
+
+    def _check_batch_time(self, began: float, done: int, total: int,
+                          cancel: threading.Event | None) -> None:
+        """Stop a batch whose client left, or that has used its server time."""
+        if cancel is not None and cancel.is_set():
+            self.metrics.reproductions_stopped.labels("client_left").inc()
+            raise ReproductionCancelled("the client left: the batch of reproductions was stopped",
+                                        field="starts")
+        spent = time.monotonic() - began
+        if spent > self.reproduce_max_seconds:
+            self.metrics.reproductions_stopped.labels("too_slow").inc()
+            raise ReproductionTooSlow(
+                f"expected the reproductions within CANAL_REPRODUCE_MAX_SECONDS = "
+                f"{self.reproduce_max_seconds:g} s of server time, got {done} of {total} starts "
+                f"done in {spent:.1f} s: send fewer starts at once (or fewer obstacles)",
+                field="starts")
 
     def _keep_reproductions(self, name: str, ref: repo.ModelRef,
                             results: list[canal_core.Reproduction]) -> None:
