@@ -405,6 +405,86 @@ def free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     return out
 
 
+def backed_away_points(scene: Scene, p: FloatArray, free_each: FloatArray, step: FloatArray) -> FloatArray:
+    """Points one step (at most) out of the obstacles: along the deepest one's outward normal,
+    or, where that leads into another (obstacles that overlap), the way out of all of them
+    that leaves the most room. A live robot inside an obstacle or its clearance is sent there
+    (:mod:`canal_core.tracker_obstacles`), and a reproduction's start backs out that way.
+
+    Parameters
+    ----------
+    scene : Scene
+    p : array, shape (R, D)
+        Points inside an obstacle or its clearance.
+    free_each : array, shape (R, O)
+        :func:`obstacle_free_distances` of ``p``.
+    step : array, shape (R,)
+        The longest step each may take.
+
+    Returns
+    -------
+    points : array, shape (R, D)
+    """
+    deepest = free_each.argmin(axis=1)
+    depth = -free_each[np.arange(p.shape[0]), deepest]
+    # The normal by central differences of that obstacle's distance (exact shapes, tiny h),
+    # every row and axis in one evaluation.
+    r, d = p.shape
+    h = 1e-7 * (1.0 + np.abs(p).max(axis=1))
+    steps = np.concatenate([np.eye(d), -np.eye(d)])  # (2D, D)
+    probes = (p[:, None, :] + h[:, None, None] * steps[None, :, :]).reshape(-1, d)
+    dist = obstacle_free_distances(probes, scene).reshape(r, 2 * d, -1)[np.arange(r), :, deepest]
+    grad = (dist[:, :d] - dist[:, d:]) / (2.0 * h[:, None])
+    norm = np.sqrt((grad**2).sum(axis=1))
+    flat = norm <= 1e-12  # at a sphere's centre: any way out
+    grad[flat] = 0.0
+    grad[flat, 0] = 1.0
+    norm[flat] = 1.0
+    out = p + (np.minimum(depth, step) / norm)[:, None] * grad
+    # The normal step when it gets out (or is as good as any); else one step along the one of
+    # a fixed set of directions with the most room.
+    ways = _escape_directions(d)  # (W, D)
+    tries = np.concatenate([out[:, None, :], p[:, None, :] + step[:, None, None] * ways[None, :, :]], axis=1)
+    room = obstacle_free_distances(tries.reshape(-1, d), scene).min(axis=1).reshape(r, -1)
+    best = np.where((room[:, 0] >= 0.0) | (room[:, 0] >= room.max(axis=1)), 0, room.argmax(axis=1))
+    return np.asarray(tries[np.arange(r), best])
+
+
+def _escape_directions(d: int) -> FloatArray:
+    """Unit directions a robot inside obstacles may try: 16 in the plane, 26 in space."""
+    if d == 2:
+        a = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+        return np.column_stack([np.cos(a), np.sin(a)])
+    grid = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * d, indexing="ij")).reshape(d, -1).T
+    grid = grid[(grid != 0.0).any(axis=1)]
+    return np.asarray(grid / np.sqrt((grid**2).sum(axis=1))[:, None])
+
+
+def backed_out_path(start: FloatArray, scene: Scene, step: float, most: int = 64) -> FloatArray | None:
+    """A start inside an obstacle or its clearance, backed out in steps of at most ``step``
+    (:func:`backed_away_points`) until it keeps every clearance, shape (k, D); the last point
+    is clear. None when ``most`` steps do not get it out (or the start is clear already).
+
+    Parameters
+    ----------
+    start : array, shape (D,)
+    scene : Scene
+    step : float
+    most : int
+    """
+    p = np.asarray(start, dtype=np.float64)
+    out: list[FloatArray] = []
+    for _ in range(most):
+        each = obstacle_free_distances(p[None, :], scene)
+        if each.min() >= 0.0:
+            break
+        p = backed_away_points(scene, p[None, :], each, np.array([step]))[0]
+        out.append(p)
+    if not out or free_distances(p[None, :], scene)[0] < 0.0:
+        return None
+    return np.asarray(out, dtype=np.float64)
+
+
 def segments_keep_clearance(free_p: FloatArray, free_q: FloatArray, length: FloatArray) -> BoolArray:
     """Whether segments keep every clearance, from their ends' free distances (sufficient test).
 
@@ -613,8 +693,8 @@ class Blocked:
     reason : {"closed", "unreachable", "start"}
         ``closed``: no clear point is left in that section inside the canal;
         ``unreachable``: clear points are left but none within one step of the demonstrations'
-        largest from the section before; ``start``: the start is inside an obstacle deeper
-        than one such step (move it out first).
+        largest from the section before; ``start``: the start is inside an obstacle (or its
+        clearance) deeper than 64 such steps back out of (move it out first).
     obstacles : tuple of int
         Indices (in the scene) of the obstacles in the way: for ``closed`` those that take part
         of that section, else those the steps into it run into (never empty).
@@ -1025,6 +1105,8 @@ __all__ = [
     "Obstacle",
     "Scene",
     "avoided_path",
+    "backed_away_points",
+    "backed_out_path",
     "demonstrated_largest_step",
     "demonstrated_steps",
     "free_distances",

@@ -14,7 +14,13 @@ from .bounds import check_duration, check_reach
 from .entry import approach_shares, entry_fraction, paced_approach_shares
 from .errors import OutsideCanalError
 from .lone import lone_path
-from .obstacles import Blocked, avoided_path, demonstrated_largest_step, scene_from_list
+from .obstacles import (
+    Blocked,
+    avoided_path,
+    backed_out_path,
+    demonstrated_largest_step,
+    scene_from_list,
+)
 from .options import OUTSIDE_RULES, PERSISTENCES
 from .orientation import hemisphere_continuous, slerped
 from .reproduce import (
@@ -37,6 +43,7 @@ from .timing import (
     reproduction_times,
     rescaled_times,
     speed_limited_times,
+    strictly_increasing,
     top_speed,
 )
 from .tube import paced_offsets, tube_ratio_caps, wall_slope_shares
@@ -299,6 +306,15 @@ def reproduce(
         avoided = avoided_path(point, path, first, canal.directrix, canal.basis, canal.sections, scene, largest)
         positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
         start_clearance = avoided.start_clearance
+        if blocked is not None and blocked.reason == "start":
+            # The ratio rule's first step cannot leave the clearance the start is in: back
+            # out first, as a live robot is, then reproduce from there.
+            way_out = backed_out_path(point, scene, largest)
+            if way_out is not None:
+                rest = reproduce(canal, way_out[-1], "project", start_orientation, goal, None, entry=entry,
+                                 end_decay=end_decay, persistence=persistence, obstacles=scene)
+                return _after_backing_out(canal, point, way_out, rest, eta, index, inside, seconds,
+                                          avoided.start_clearance)
     shares = np.ones(1)
     behind = index == 0 and loc.axial[0] < 0.0
     if behind and positions.shape[0] > 1:
@@ -379,6 +395,55 @@ def reproduce(
         entry_index=0 if inside else 1 + n_approach + int(np.argmax(np.append(ratios <= 1.0 + CONTAINS_TOLERANCE, True))),
         approach=n_approach,
         ratios=measured,
+    )
+
+
+def _after_backing_out(
+    canal: Canal, point: FloatArray, way_out: FloatArray, rest: Reproduction, eta: float, index: int,
+    inside: bool, seconds: float | None, start_clearance: float | None,
+) -> Reproduction:
+    """The start, its steps out of an obstacle's clearance (``way_out``, ending where ``rest``
+    starts), then ``rest``: one reproduction, its times from the start (the steps at the
+    demonstrations' fastest pace), rescaled to ``seconds`` when asked."""
+    n = way_out.shape[0]
+    positions = np.vstack([point, way_out, rest.positions[1:]])
+    times = None
+    if rest.times is not None:
+        profile = canal.section_times if canal.section_times is not None else canal.section_pace
+        speed = top_speed(profile, canal.section_steps) if profile is not None else float("inf")
+        lengths = np.sqrt(((positions[1 : n + 1] - positions[:n]) ** 2).sum(axis=1))
+        dt = lengths / speed if np.isfinite(speed) and speed > 0.0 else np.full(n, float(np.diff(rest.times)[0]))
+        out = np.concatenate([[0.0], np.cumsum(dt)])
+        times = strictly_increasing(np.concatenate([out, out[-1] + rest.times[1:]]))
+        if seconds is not None:
+            times = rescaled_times(times, seconds)
+    orientations = None
+    if rest.orientations is not None:
+        orientations = np.vstack([np.repeat(rest.orientations[:1], n, axis=0), rest.orientations])
+    ratios = None
+    if rest.ratios is not None:
+        between = section_ratios(way_out[:-1], np.full(n - 1, index, dtype=np.intp), canal.directrix, canal.basis,
+                                 canal.sections)
+        ratios = np.concatenate([[eta], between, rest.ratios])
+    detoured = rest.detoured if rest.detoured is not None else np.zeros(rest.positions.shape[0] - 1, dtype=bool)
+    return Reproduction(
+        positions=positions,
+        start=point,
+        inside=inside,
+        eta=min(eta, 1.0),
+        section_index=index,
+        projected=eta > 1.0,
+        times=times,
+        velocities=None if times is None else finite_velocities(positions, times),
+        orientations=orientations,
+        orientation_eta=rest.orientation_eta,
+        goal=rest.goal,
+        blocked=rest.blocked,
+        detoured=np.concatenate([np.ones(n, dtype=bool), detoured]),
+        start_clearance=start_clearance,
+        entry_index=0 if inside else n + rest.entry_index,
+        approach=n + rest.approach,
+        ratios=ratios,
     )
 
 

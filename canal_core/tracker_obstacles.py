@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from .obstacles import (
     Scene,
+    backed_away_points,
     obstacle_free_distances,
     section_candidates,
     segment_free_distances,
@@ -235,7 +236,7 @@ def avoided_targets(
     inside &= np.isfinite(fp)
     if inside.any():
         rows = np.flatnonzero(inside)
-        out[rows] = _backed_away(scene, positions[rows], fp_each[rows], tables.steps[section[rows]])
+        out[rows] = backed_away_points(scene, positions[rows], fp_each[rows], tables.steps[section[rows]])
         status[rows] = IN_OBSTACLE
     # Anticipation: a clear move whose lane runs into an obstacle within the horizon is
     # detoured too, while there is still room to swerve.
@@ -247,45 +248,6 @@ def avoided_targets(
         out[todo], status[todo] = _detoured(tables, positions[todo], out[todo], fp[todo],
                                             section[todo], target_section[todo])
     return out, status
-
-
-def _backed_away(scene: Scene, p: FloatArray, free_each: FloatArray, step: FloatArray) -> FloatArray:
-    """Targets one step (at most) out of the obstacles: along the deepest one's outward normal,
-    or, where that leads into another (obstacles that overlap), the way out of all of them
-    that leaves the most room."""
-    deepest = free_each.argmin(axis=1)
-    depth = -free_each[np.arange(p.shape[0]), deepest]
-    # The normal by central differences of that obstacle's distance (exact shapes, tiny h),
-    # every row and axis in one evaluation.
-    r, d = p.shape
-    h = 1e-7 * (1.0 + np.abs(p).max(axis=1))
-    steps = np.concatenate([np.eye(d), -np.eye(d)])  # (2D, D)
-    probes = (p[:, None, :] + h[:, None, None] * steps[None, :, :]).reshape(-1, d)
-    dist = obstacle_free_distances(probes, scene).reshape(r, 2 * d, -1)[np.arange(r), :, deepest]
-    grad = (dist[:, :d] - dist[:, d:]) / (2.0 * h[:, None])
-    norm = np.sqrt((grad**2).sum(axis=1))
-    flat = norm <= 1e-12  # at a sphere's centre: any way out
-    grad[flat] = 0.0
-    grad[flat, 0] = 1.0
-    norm[flat] = 1.0
-    out = p + (np.minimum(depth, step) / norm)[:, None] * grad
-    # The normal step when it gets out (or is as good as any); else one step along the one of
-    # a fixed set of directions with the most room.
-    ways = _escape_directions(d)  # (W, D)
-    tries = np.concatenate([out[:, None, :], p[:, None, :] + step[:, None, None] * ways[None, :, :]], axis=1)
-    room = obstacle_free_distances(tries.reshape(-1, d), scene).min(axis=1).reshape(r, -1)
-    best = np.where((room[:, 0] >= 0.0) | (room[:, 0] >= room.max(axis=1)), 0, room.argmax(axis=1))
-    return np.asarray(tries[np.arange(r), best])
-
-
-def _escape_directions(d: int) -> FloatArray:
-    """Unit directions a robot inside obstacles may try: 16 in the plane, 26 in space."""
-    if d == 2:
-        a = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-        return np.column_stack([np.cos(a), np.sin(a)])
-    grid = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * d, indexing="ij")).reshape(d, -1).T
-    grid = grid[(grid != 0.0).any(axis=1)]
-    return np.asarray(grid / np.sqrt((grid**2).sum(axis=1))[:, None])
 
 
 def _detoured(

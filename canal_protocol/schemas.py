@@ -558,7 +558,7 @@ class BlockedOut(BaseModel):
     reason: Literal["closed", "unreachable", "start"] = Field(
         description="closed: no clear point left in the section inside the canal; unreachable: "
                     "none within the demonstrations' largest step; start: the start is inside an "
-                    "obstacle deeper than that step.")
+                    "obstacle or its clearance deeper than 64 such steps back out of.")
     obstacles: list[int] = Field(
         description="Indices (in the scene used) of the obstacles in the way (never empty): for "
                     "closed those that take the section, else those the steps into it run into.")

@@ -261,10 +261,18 @@ def test_a_start_inside_an_obstacle_leaves_it_and_says_so(tube: canal_core.Canal
     assert rep.start_clearance is not None and rep.start_clearance < 0.0
     assert rep.blocked is None
     assert _dense_free(rep.positions[1:-1], rep.positions[2:], scene).min() >= 0.0
-    # Deep inside: it does not jump out, it says where it is.
+    # Deep inside: it does not jump out, it backs out in the demonstrations' steps, each
+    # further from the surface, and says where it started.
     deep = {"kind": "sphere", "center": [0.2, 0.0, 0.0], "radius": 0.2}
-    stuck = tube.reproduce_detailed(start, obstacles=[deep])
-    assert stuck.blocked is not None and stuck.blocked.reason == "start"
+    out = tube.reproduce_detailed(start, obstacles=[deep])
+    assert out.blocked is None and out.start_clearance is not None and out.start_clearance < -0.19
+    free = free_distances(out.positions, scene_from_list([deep], 3))
+    left = int(np.argmax(free >= 0.0))
+    assert 1 <= left <= out.approach and np.all(np.diff(free[: left + 1]) > 0.0)
+    assert np.linalg.norm(np.diff(out.positions[: left + 1], axis=0), axis=1).max() <= tube.largest_step * (1 + 1e-9)
+    # Too deep to back out in 64 such steps: it says where it is, and does not move.
+    stuck = tube.reproduce_detailed(start, obstacles=[{"kind": "sphere", "center": [0.2, 0.0, 0.0], "radius": 3.0}])
+    assert stuck.blocked is not None and stuck.blocked.reason in ("start", "closed")
     assert stuck.positions.shape == (1, 3)
 
 
@@ -344,3 +352,33 @@ def test_free_distances_in_blocks_match_the_table_of_every_obstacle() -> None:
     spheres = scene_from_list(items[:5], 3)
     np.testing.assert_array_equal(free_distances(points, spheres),
                                   obstacle_free_distances(points, spheres).min(axis=1))
+
+
+def test_a_start_within_a_clearance_deeper_than_a_step_can_swerve_backs_out_first() -> None:
+    # A start 5-7 mm from a sphere whose clearance is 10 mm, in a canal whose demonstrations
+    # barely move sideways: the ratio rule's first step cannot leave the clearance, and the
+    # reproduction was blocked at the start, with no move, where the live pass backs the
+    # robot out. It now backs out first, in steps no longer than the demonstrations' largest,
+    # each further from the sphere, then follows the canal.
+    x = np.linspace(0.0, 1.0, 80)
+    demos = []
+    for j in range(5):
+        a = 2.0 * np.pi * j / 5
+        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
+                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
+    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    start = np.array([0.0, 0.01, 0.0])
+    for depth in (0.003, 0.005):
+        ball = {"kind": "sphere", "center": [0.0, 0.04 - depth, 0.0], "radius": 0.02, "clearance": 0.01}
+        scene = scene_from_list([ball], 3)
+        result = canal.reproduce_detailed(start, obstacles=scene)
+        assert result.start_clearance is not None and result.start_clearance < 0.0
+        assert result.blocked is None, (depth, result.blocked)
+        free = free_distances(result.positions, scene)
+        out = int(np.argmax(free >= 0.0))
+        assert out >= 1 and (free[out:] >= -1e-12).all()
+        assert np.all(np.diff(free[: out + 1]) > 0.0)  # backing out: ever further
+        steps = np.linalg.norm(np.diff(result.positions, axis=0), axis=1)
+        assert steps[:out].max() <= canal.largest_step * (1.0 + 1e-9)
+        assert result.approach >= out - 1
+        assert np.all(np.diff(result.times) > 0.0)
