@@ -13,20 +13,15 @@ import re
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
-from typing import Any, Literal, Protocol, TypeVar
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import numpy.typing as npt
-from sqlalchemy.exc import IntegrityError
 
 import canal_core
-from canal_core.corrections import Correction as Correction_
-from canal_core.corrections import checked_correction, corrected_canal, correction_glitches
 from canal_core.routes import RouteChoice, Routes, routes_from_dict, served_model, single_route
 from canal_protocol import schemas
 from canal_protocol.options import RecordingKind
@@ -34,7 +29,6 @@ from canal_protocol.options import RecordingKind
 from . import uploads
 from .errors import (
     CanalRejected,
-    CorrectionNotInLatest,
     Disabled,
     InvalidInput,
     ModelVersionNotFound,
@@ -42,28 +36,26 @@ from .errors import (
     RecordingFailed,
     ReproductionCancelled,
     ReproductionTooSlow,
-    SkillNotFound,
-    VersionConflict,
 )
 from .fitting import FitJob, FitRunner
 from .listeners import FitListeners, SceneListeners
 from .metrics import Metrics
-from .model_cache import CacheKey, CanalCache, model_cache_key
-from .storage import Correction, Database, Demonstration, ModelVersion, Skill, arrays
+from .model_cache import CanalCache, model_cache_key
+from .model_corrections import ModelCorrections, reapplied
+from .storage import Database, Demonstration, ModelVersion, Skill, arrays
 from .storage import repository as repo
 from .validation import (
     DemoArrays,
-    check_correction_inputs,
     check_demonstration,
     check_finite_answer,
     check_obstacles,
     check_reproduction_inputs,
+    check_route,
 )
+from .versions import NewVersion, StoredLineage, VersionStore, model_summary
 
 log = logging.getLogger("canal_service")
 
-_VERSION_RETRIES = 5
-T = TypeVar("T")
 #: Which model: (its skill's creation time in ns, its version).
 Revision = tuple[int, int]
 #: Which replica answered (host and process), as exports name it.
@@ -133,6 +125,9 @@ def unit_notes(positions: list[arrays.FloatArray], demo_ids: list[int]) -> list[
 class CanalService:
     """Use cases of the REST API, independent of HTTP.
 
+    Model versions are made and stored by its :class:`VersionStore` (``versions``), the
+    corrections of models by its :class:`ModelCorrections` (``corrections``).
+
     Parameters
     ----------
     db : Database
@@ -166,7 +161,8 @@ class CanalService:
         self.cache = CanalCache(cache_size)
         self.fit_listeners = fit_listeners if fit_listeners is not None else FitListeners()
         self.scene_listeners = SceneListeners()
-        self._making = SkillLocks()
+        self.versions = VersionStore(db, self.cache, self.fit_listeners, self._record)
+        self.corrections = ModelCorrections(db, self.versions, metrics, self.load_routes)
 
     # ---- recorder ---------------------------------------------------------------------------
 
@@ -376,15 +372,15 @@ class CanalService:
         def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
             # The corrections kept are those of the latest version when the fit is stored,
             # not when it started: one a person made while the fit ran is re-applied too.
-            kept = self._latest_corrections(name) if body.keep_corrections else None
+            kept = self.corrections.latest(name) if body.keep_corrections else None
             if not kept:
-                (fit,) = self._store_versions(name, [plain], kept=None if kept is None else [],
-                                              instance=instance)
+                (fit,) = self.versions.store(name, [plain], kept=None if kept is None else [],
+                                             instance=instance)
                 fit.summary.notes = route_notes
-                return fit.summary, partial(self._tell_stored, name, fit)
+                return fit.summary, partial(self.versions.tell, name, fit)
             # The skill's corrections, re-applied to the new canal (a version of its own, whose
             # parent is the plain fit); one that no longer applies is left behind and said so.
-            refined, applied, notes = self._reapplied(routes, kept)
+            refined, applied, notes = reapplied(routes, kept)
             made_on = {c.id: c.route for c in kept}
             moved = {c.id: c.route for c in applied if c.route != made_on[c.id]}
 
@@ -395,18 +391,18 @@ class CanalService:
                 return ids
 
             lineage = StoredLineage(None, None, [c.id for c in applied], follow if moved else None)
-            fit, corrected = self._store_versions(name, [plain, NewVersion(
+            fit, corrected = self.versions.store(name, [plain, NewVersion(
                 used_options, demo_ids, served_model(refined).to_dict(), 0.0, refined, lineage)],
                 kept=[c.id for c in kept], instance=instance)
             corrected.summary.notes = route_notes + notes
 
             def tell() -> None:
-                self._tell_stored(name, fit, notify=False)
-                self._tell_stored(name, corrected)
+                self.versions.tell(name, fit, notify=False)
+                self.versions.tell(name, corrected)
 
             return corrected.summary, tell
 
-        summary = self._on_latest(name, "fit", build)
+        summary = self.versions.on_latest(name, "fit", build)
         self.metrics.fits.inc()
         self.metrics.fit_seconds.observe(seconds)
         return summary
@@ -445,134 +441,13 @@ class CanalService:
                          "once more to learn its own width, or delete it if it was a slip")
         return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
-    def _on_latest(self, name: str, what: str,
-                   build: Callable[[], tuple[T, Callable[[], None]]]) -> T:
-        """Make a new model version of a skill on its latest version.
-
-        ``build`` reads the latest version, makes the new one and stores it with that latest
-        as its base (:meth:`_store_versions`); it answers the result and what to tell once
-        the version is stored (the recorder, the fit listeners), told here after the skill is
-        let go. This replica's requests that make versions of one skill (fits, corrections,
-        undos) run ``build`` one at a time, so each one builds on the one before; a version
-        another replica stored meanwhile makes the store refuse, and ``build`` runs again on
-        the new latest.
-        """
-        stale: _StaleBase | None = None
-        with self._making.hold(name):
-            for _attempt in range(_VERSION_RETRIES):
-                try:
-                    result, tell = build()
-                    break
-                except _StaleBase as exc:
-                    stale = exc
-            else:
-                assert stale is not None
-                raise VersionConflict(
-                    f"other replicas stored new versions of skill {name!r} while this {what} "
-                    f"was made on the latest, {_VERSION_RETRIES} times in a row (the latest is "
-                    f"now version {stale.found}); send it again", field="model") from stale
-        tell()
-        return result
-
-    def _store_versions(self, name: str, made: Sequence[NewVersion], *, instance: str,
-                        base: int | None = None, kept: Sequence[int] | None = None
-                        ) -> list[StoredVersion]:
-        """Store new model versions, numbered one after the other, in one transaction (a fit
-        and its version with the corrections re-applied go in together: nobody sees the fit
-        alone as the latest), with their lineage and what ``lineage.in_transaction`` writes
-        in the same transaction (a new correction, an undone mark).
-
-        What they were made on must still be the latest, else nothing is stored and
-        :class:`_StaleBase` says which version is the latest now: ``base``, the latest
-        version a correction or an undo was made on; ``kept``, the corrections of the latest
-        version a refit re-applied (any version with those same corrections will do: a fit
-        is made of demonstrations, not of the version before it). Neither stores them
-        whatever the latest is: a fit that keeps no correction, a correction of the version
-        a request named. ``instance``: the skill the versions were made from
-        (:func:`repo.skill_instance`, read with what they were made of); one deleted and
-        created again under its name meanwhile is another skill, and gets none of them.
-        """
-        # Versions are max + 1 under a unique constraint, read with the skill's row locked
-        # (next_model_version): the latest cannot change between the check and the insert.
-        # Should two replicas still take one number, one wins, the other retries.
-        clash: IntegrityError | None = None
-        for _attempt in range(_VERSION_RETRIES):
-            try:
-                with self.db.write() as s:
-                    skill = repo.get_skill(s, name)
-                    if repo.skill_instance(skill.id, skill.created_at) != instance:
-                        raise SkillNotFound(f"skill {name!r} was deleted while a new version of it "
-                                            "was being made (a skill of that name was created "
-                                            "since)", field="name")
-                    first = repo.next_model_version(s, skill)
-                    if base is not None and first - 1 != base:
-                        raise _StaleBase(first - 1)
-                    if kept is not None:
-                        latest, ids = repo.latest_corrections(s, skill)
-                        if ids != list(kept):
-                            raise _StaleBase(latest)
-                    return [self._add_version(s, skill, version, each)
-                            for version, each in enumerate(made, start=first)]
-            except IntegrityError as exc:
-                clash = exc
-        raise VersionConflict(
-            f"concurrent fits of skill {name!r} took {_VERSION_RETRIES} version numbers in a "
-            "row; fit again", field="version") from clash
-
-    def _add_version(self, s: Any, skill: Skill, version: int, made: NewVersion
-                     ) -> StoredVersion:
-        canal = made.routes.pooled
-        row = repo.add_model(s, skill, version, made.options, made.demo_ids, made.serialized,
-                             made.fit_seconds, int(canal.n_sections), str(canal.section_kind))
-        found = repo.Lineage(None, version, [])
-        lineage = made.lineage
-        if lineage is not None:
-            # None: the fit stored just before it, in the same transaction
-            parent = version - 1 if lineage.parent_version is None else lineage.parent_version
-            fit = version - 1 if lineage.fit_version is None else lineage.fit_version
-            ids = list(lineage.correction_ids)
-            if lineage.in_transaction is not None:
-                ids = lineage.in_transaction(s, skill, version, ids)
-            found = repo.Lineage(parent, fit, ids)
-            repo.add_lineage(s, row, parent, fit, ids)
-        return StoredVersion(model_cache_key(row.id, skill.created_at),
-                             self._model_summary(row, skill.dim, found, len(made.demo_ids)),
-                             repo.skill_instance(skill.id, skill.created_at), made.routes)
-
-    def _tell_stored(self, name: str, stored: StoredVersion, notify: bool = True) -> None:
-        """Keep a stored version decoded, tell the recorder and (``notify``) the fit
-        listeners: they serve it from the next pose on."""
-        self.cache.put(stored.key, stored.routes)  # the next reproduction needs no decoding
-        served = served_model(stored.routes)
-        version, instance = stored.summary.version, stored.instance
-        created = stored.summary.created_at
-        stored_ns = None if created is None else repo.created_ns(created)
-        self._record("model_fitted", lambda r: r.model_fitted(name, version, served,
-                                                              t_ns=stored_ns, instance=instance))
-        if notify:
-            self.fit_listeners.notify(name, version, served)
-
-    @staticmethod
-    def _model_summary(row: ModelVersion, dim: int, lineage: repo.Lineage,
-                       n_demos: int | None = None) -> schemas.ModelSummary:
-        return schemas.ModelSummary(
-            parent_version=lineage.parent_version, corrections=list(lineage.correction_ids),
-            version=row.version, created_at=row.created_at, demo_ids=list(row.demo_ids),
-            options=dict(row.options), dim=dim,
-            n_demos=len(row.demo_ids) if n_demos is None else n_demos,
-            n_sections=row.n_sections, section_kind=row.section_kind, fit_seconds=row.fit_seconds,
-            has_orientation=bool(dict(row.options).get("orientation", False)),
-            routes=int(dict(row.options).get("routes", 1)),
-            demo_routes=dict(row.options).get("demo_routes"),
-        )
-
     def list_models(self, name: str, offset: int, limit: int) -> schemas.Page[schemas.ModelSummary]:
         """A page of model versions, newest first."""
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
             rows, total = repo.list_models(s, skill, offset, limit)
             found = repo.lineages(s, rows)
-            items = [self._model_summary(r, skill.dim, found[r.id]) for r in rows]
+            items = [model_summary(r, skill.dim, found[r.id]) for r in rows]
         return schemas.Page[schemas.ModelSummary](items=items, total=total, offset=offset,
                                                    limit=limit)
 
@@ -648,7 +523,7 @@ class CanalService:
             routes = routes_from_dict(row.canal)
             self.cache.put(key, routes)
         canal = routes.pooled
-        summary = self._model_summary(row, dim, lineage)
+        summary = model_summary(row, dim, lineage)
         data = row.canal
         pooled_data = data.get("pooled", data) if routes.n_routes > 1 else data
         sections = pooled_data.get("sections") if isinstance(pooled_data, dict) else None
@@ -676,153 +551,18 @@ class CanalService:
 
     # ---- corrections ------------------------------------------------------------------------
 
-    def _latest_corrections(self, name: str) -> list[StoredCorrection]:
-        """The corrections of the skill's latest model version, in the order applied."""
-        with self.db.read() as s:
-            skill = repo.get_skill(s, name)
-            _version, ids = repo.latest_corrections(s, skill)
-            return [StoredCorrection.of(r) for r in repo.get_corrections(s, skill, ids)]
-
-    @staticmethod
-    def _reapplied(routes: Routes, kept: Sequence[StoredCorrection]
-                   ) -> tuple[Routes, list[StoredCorrection], list[str]]:
-        """``routes`` with each correction re-applied in turn (to the route its samples lie
-        along, or to every canal it passes through: :func:`corrected_routes`), those applied
-        (with the route they went to) and notes; those that fail are skipped."""
-        applied, notes = [], []
-        for stored in kept:
-            route = stored.route
-            if route is not None and routes.n_routes > 1:
-                route = canal_core.routes.way_of(routes, stored.correction.samples, keep=route)
-                if route != stored.route:
-                    notes.append(f"correction {stored.id} follows its way: route {stored.route} "
-                                 f"is now route {route}")
-            try:
-                routes, _first = corrected_routes(routes, stored.correction, route)
-            except canal_core.CanalError as exc:
-                notes.append(f"correction {stored.id} no longer applies and was left out: "
-                             f"{exc.message}")
-                continue
-            applied.append(replace(stored, route=route))
-        return routes, applied, notes
-
-    def _store_refined(self, name: str, options: dict[str, Any], demo_ids: list[int],
-                       routes: Routes, lineage: StoredLineage, notes: list[str], *,
-                       instance: str, base: int | None
-                       ) -> tuple[schemas.ModelSummary, Callable[[], None]]:
-        """Store a refined model as the new latest version of the skill ``instance``, made on
-        ``base`` (:meth:`_store_versions`); what to tell once stored, as :meth:`_on_latest`
-        takes it."""
-        (stored,) = self._store_versions(name, [NewVersion(
-            options, demo_ids, served_model(routes).to_dict(), 0.0, routes, lineage)],
-            instance=instance, base=base)
-        stored.summary.notes = notes
-        return stored.summary, partial(self._tell_stored, name, stored)
-
     def correct(self, name: str, body: schemas.CorrectionIn) -> schemas.CorrectedModel:
-        """Refine a model version (the latest by default) by a person's correction; the
-        result is the new latest version. Nothing is stored when canal_core refuses it.
-
-        The latest is the latest when the correction is stored: a fit, correction or undo
-        that lands meanwhile is what it is applied to (a version the request names is
-        corrected whatever landed since)."""
-        version = None if body.model == "latest" else int(body.model)
-        made: list[Correction] = []
-
-        def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
-            routes, base_version, dim = self.load_routes(name, version)
-            route = check_route(body.route, routes.n_routes, "route")
-            canal = routes.pooled if route is None else routes.canals[route]
-            with self.db.read() as s:
-                skill = repo.get_skill(s, name)
-                instance = repo.skill_instance(skill.id, skill.created_at)
-                base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
-                lineage = repo.lineages(s, [base])[base.id]
-                options, demo_ids = dict(base.options), list(base.demo_ids)
-            check_correction_inputs(canal.directrix, canal.radii, body.samples, body.plan,
-                                    body.timestamps)
-            try:
-                correction = checked_correction(body.kind, body.samples, dim, body.weight,
-                                                body.label, body.timestamps, body.orientations,
-                                                body.plan)
-                refined, applied = corrected_routes(routes, correction, route)
-            except canal_core.CanalError as exc:
-                raise CanalRejected(exc, exc.message, field=exc.field) from exc
-            for each in refined.every_canal:
-                check_finite_answer({"directrix": each.directrix, "radii": each.radii},
-                                    "samples, plan")
-
-            def store(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
-                row = repo.insert_correction(
-                    s, skill, correction.kind, correction.label, correction.weight,
-                    correction.samples, correction.timestamps, correction.orientations,
-                    correction.plan, base_version, version, applied.first, applied.last, route)
-                made.append(row)
-                return [*ids, row.id]
-
-            return self._store_refined(
-                name, options, demo_ids, refined,
-                StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
-                _glitch_notes(correction.samples), instance=instance,
-                base=base_version if version is None else None)
-
-        summary = self._on_latest(name, "correction", build)
-        row = made[-1]
-        self.metrics.corrections.labels(row.kind).inc()
-        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(row))
+        """Refine a model version by a person's correction (:meth:`ModelCorrections.correct`)."""
+        return self.corrections.correct(name, body)
 
     def list_corrections(self, name: str, offset: int, limit: int
                          ) -> schemas.Page[schemas.CorrectionOut]:
         """A page of the skill's corrections, oldest first (undone ones say so)."""
-        with self.db.read() as s:
-            skill = repo.get_skill(s, name)
-            rows, total = repo.list_corrections(s, skill, offset, limit)
-            items = [_correction_out(r) for r in rows]
-        return schemas.Page[schemas.CorrectionOut](items=items, total=total, offset=offset,
-                                                    limit=limit)
+        return self.corrections.list_corrections(name, offset, limit)
 
     def undo_correction(self, name: str, correction_id: int) -> schemas.CorrectedModel:
-        """A new latest version without one correction: the others re-applied to the fit.
-
-        The others are those of the latest version when the undo is stored: a correction
-        that lands meanwhile is kept."""
-        undone: list[Correction] = []
-
-        def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
-            with self.db.read() as s:
-                skill = repo.get_skill(s, name)
-                instance = repo.skill_instance(skill.id, skill.created_at)
-                target = repo.get_corrections(s, skill, [correction_id])[0]
-                ref = repo.require_model_ref(s, skill, None)
-                latest = repo.get_model(s, ref[0])
-                lineage = repo.lineages(s, [latest])[latest.id]
-                if correction_id not in lineage.correction_ids:
-                    raise CorrectionNotInLatest(
-                        f"correction {correction_id} is not part of the latest model version "
-                        f"{latest.version} of skill {name!r} (undone already, or left behind by "
-                        "a refit)", field="id")
-                rest = [StoredCorrection.of(r) for r in repo.get_corrections(
-                    s, skill, [i for i in lineage.correction_ids if i != correction_id])]
-                options, demo_ids = dict(latest.options), list(latest.demo_ids)
-                latest_version = latest.version
-            base, _v, _dim = self.load_routes(name, lineage.fit_version)
-            refined, applied, notes = self._reapplied(base, rest)
-
-            def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
-                repo.get_corrections(s, skill, [correction_id])[0].undone = True
-                return ids
-
-            undone.append(target)
-            return self._store_refined(
-                name, options, demo_ids, refined,
-                StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark),
-                notes, instance=instance, base=latest_version)
-
-        summary = self._on_latest(name, "undo", build)
-        self.metrics.corrections_undone.inc()
-        target = undone[-1]
-        target.undone = True
-        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(target))
+        """A new latest version without one correction (:meth:`ModelCorrections.undo_correction`)."""
+        return self.corrections.undo_correction(name, correction_id)
 
     # ---- reproductions ----------------------------------------------------------------------
 
@@ -1033,175 +773,6 @@ class CanalService:
             raise RecordingFailed(f"could not rebuild the recording of {name!r}: {exc}",
                                   field="recordings") from exc
         return {"skill": name, **result}
-
-
-@dataclass(frozen=True)
-class StoredCorrection:
-    """A stored correction as canal_core takes it."""
-
-    id: int
-    correction: Correction_
-    #: The route it corrects; None: every route (and every canal of one route).
-    route: int | None = None
-
-    @classmethod
-    def of(cls, row: Correction) -> StoredCorrection:
-        samples = arrays.unpack(row.samples, row.n_points, row.dim)
-        times = None if row.timestamps is None else arrays.unpack(row.timestamps, row.n_points)
-        quats = None if row.orientations is None else arrays.unpack(row.orientations, row.n_points, 4)
-        plan = None if row.plan is None else arrays.unpack(row.plan, len(row.plan) // (8 * row.dim),
-                                                           row.dim)
-        return cls(row.id, Correction_(row.kind, samples, row.weight, row.label, times, quats, plan),
-                   row.route)
-
-
-InTransaction = Callable[[Any, Skill, int, list[int]], list[int]]
-
-
-@dataclass(frozen=True)
-class StoredLineage:
-    """The lineage a new version is stored with; ``in_transaction(session, skill, version,
-    ids)`` writes what must commit with it and answers the version's correction ids.
-
-    ``parent_version`` and ``fit_version`` None: the fit stored just before it, in the same
-    transaction (a refit's version with the corrections re-applied)."""
-
-    parent_version: int | None
-    fit_version: int | None
-    correction_ids: list[int]
-    in_transaction: InTransaction | None = None
-
-
-@dataclass(frozen=True)
-class NewVersion:
-    """A model version to store: its options, demonstrations, serialised model, fit time,
-    the model itself and, for a refined one, its lineage (None: a fit)."""
-
-    options: dict[str, Any]
-    demo_ids: list[int]
-    serialized: dict[str, Any]
-    fit_seconds: float
-    routes: Routes
-    lineage: StoredLineage | None = None
-
-
-@dataclass(frozen=True)
-class StoredVersion:
-    """A model version just stored: its cache key, its summary, the skill's instance (for
-    the recorder) and the model."""
-
-    key: CacheKey
-    summary: schemas.ModelSummary
-    instance: str
-    routes: Routes
-
-
-class _StaleBase(Exception):
-    """A new version was made on a latest version that is no longer the latest (another
-    replica stored one meanwhile); nothing was stored. Never leaves the service: the
-    request is made again on the new latest."""
-
-    def __init__(self, found: int) -> None:
-        super().__init__(f"the latest is now version {found}")
-        self.found = found
-
-
-class SkillLocks:
-    """One lock per skill name, held by the requests of this process that make model
-    versions of it; a skill's lock is dropped when nobody holds it or waits for it."""
-
-    def __init__(self) -> None:
-        self._guard = threading.Lock()
-        self._locks: dict[str, tuple[threading.Lock, int]] = {}
-
-    @contextmanager
-    def hold(self, name: str) -> Iterator[None]:
-        with self._guard:
-            lock, users = self._locks.get(name, (None, 0))
-            if lock is None:
-                lock = threading.Lock()
-            self._locks[name] = (lock, users + 1)
-        try:
-            with lock:
-                yield
-        finally:
-            with self._guard:
-                users = self._locks[name][1] - 1
-                if users:
-                    self._locks[name] = (lock, users)
-                else:
-                    del self._locks[name]
-
-
-def _correction_out(row: Correction) -> schemas.CorrectionOut:
-    return schemas.CorrectionOut(
-        id=row.id, kind=row.kind, label=row.label, weight=row.weight, n_points=row.n_points,
-        base_version=row.base_version, model_version=row.model_version,
-        first_section=row.first_section, last_section=row.last_section,
-        created_at=row.created_at, undone=bool(row.undone), route=row.route)
-
-
-def check_route(route: int | None, n_routes: int, field: str) -> int | None:
-    """A route a request names, checked against the model's routes (None stays None)."""
-    if route is not None and not 0 <= route < n_routes:
-        raise InvalidInput(f"expected {field} in 0..{n_routes - 1} (the model has {n_routes} "
-                           f"route{'s' if n_routes > 1 else ''}), got {route}", field=field)
-    return route
-
-
-#: Glitch samples a correction's note names by number; more are counted only.
-GLITCHES_NAMED = 10
-
-
-def _glitch_notes(samples: arrays.FloatArray) -> list[str]:
-    """A note on the samples of a correction path left out as glitches (none: no note)."""
-    rows = np.flatnonzero(correction_glitches(samples)).tolist()
-    if not rows:
-        return []
-    named = ", ".join(map(str, rows[:GLITCHES_NAMED])) + (", ..." if len(rows) > GLITCHES_NAMED else "")
-    one = len(rows) == 1
-    return [f"{len(rows)} of the {samples.shape[0]} samples {'was' if one else 'were'} left out as "
-            f"{'a glitch' if one else 'glitches'} (far off the path and straight back, the rule "
-            f"demonstrations are cleaned by at fit): sample{'' if one else 's'} {named}"]
-
-
-def corrected_routes(routes: Routes, correction: Correction_, route: int | None
-                     ) -> tuple[Routes, Any]:
-    """``routes`` refined by ``correction``, and the first route's applied correction (the
-    canal of all's when no route took it).
-
-    One route: its canal, as a single-canal model (``route`` is 0 or None). Several:
-    ``route`` names the one canal corrected; None corrects every canal the samples pass
-    through (each route's and the canal of all), refused only when none of them takes it.
-    """
-    if routes.n_routes == 1:
-        refined = corrected_canal(routes.pooled, correction)
-        return single_route(refined), refined.corrections[-1]
-    canals = list(routes.canals)
-    if route is not None:
-        canals[route] = corrected_canal(canals[route], correction)
-        return Routes(tuple(canals), routes.pooled, routes.labels), canals[route].corrections[-1]
-    taken: list[Any] = []
-    refusal: canal_core.CanalError | None = None
-
-    def attempt(canal: canal_core.Canal) -> canal_core.Canal:
-        nonlocal refusal
-        try:
-            out = corrected_canal(canal, correction)
-        except canal_core.CanalError as exc:
-            refusal = refusal or exc
-            return canal
-        taken.append(out.corrections[-1])
-        return out
-
-    canals = [attempt(c) for c in canals]
-    pooled = attempt(routes.pooled)
-    if not taken:
-        assert refusal is not None
-        raise refusal
-    # The span stored is a route's (the first that took it): the canal of all is followed by
-    # no reproduction, and its sections are not the ones a person corrected.
-    return Routes(tuple(canals), pooled, routes.labels), taken[0]
 
 
 def _tell_reproduction(skill: str, version: int, result: canal_core.Reproduction,

@@ -276,3 +276,11 @@ def check_correction_inputs(directrix: FloatArray, radii: FloatArray, samples: A
                           f"{field}[{i}]")
     if timestamps is not None:
         _core_checked(bounds.check_times, timestamps, "timestamps")
+
+
+def check_route(route: int | None, n_routes: int, field: str) -> int | None:
+    """A route a request names, checked against the model's routes (None stays None)."""
+    if route is not None and not 0 <= route < n_routes:
+        raise InvalidInput(f"expected {field} in 0..{n_routes - 1} (the model has {n_routes} "
+                           f"route{'s' if n_routes > 1 else ''}), got {route}", field=field)
+    return route
