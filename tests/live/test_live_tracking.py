@@ -322,3 +322,50 @@ def test_a_refit_whose_canal_grew_at_its_start_does_not_send_a_stream_back(live)
         t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
         assert t is not None and t.model_version == 2 and t.status == "ok", t
         assert np.linalg.norm(np.asarray(t.target) - x) < 0.1, (t.target, x)
+
+
+@pytest.mark.parametrize("what", ["demonstration", "correction", "steered run"])
+def test_a_capture_ends_with_the_skill_it_was_started_on(live, what):
+    # A capture begun on a skill that was then deleted and created again under its name was
+    # stored, at the stop, into the new, unrelated skill: the old skill's poses as a
+    # demonstration (source zenoh) or as a correction of the new skill's model.
+    from canal_client.live import LiveError
+
+    name = f"gone-{what.split()[0]}"
+    make_skill(live.client, name, 3)
+    poses = np.column_stack([np.linspace(0.0, 0.9, 30), np.full(30, 0.01), np.zeros(30)])
+    with PoseStreamer(name, "arm", endpoint=live.endpoint, encoding="json") as ps:
+        first = ps.wait_for(ps.send(poses[0]), timeout=5.0)
+        assert first is not None and first.status == "ok", first
+        steered = what == "steered run"
+        start, stop = {
+            "demonstration": (ps.start_demo, ps.stop_demo),
+            "correction": (lambda: ps.start_correction("include"), ps.stop_correction),
+            "steered run": (lambda: None, ps.keep_steered)}[what]
+        start()
+        for p in poses:
+            if steered:  # the run in progress is kept: no need to wait for its end
+                ps.steer(0.2, 0.0)
+            assert ps.wait_for(ps.send(p), timeout=5.0) is not None
+        assert live.client.delete(f"/skills/{name}").status_code == 204
+        make_skill(live.client, name, 3)  # another skill under the same name, fitted
+        with pytest.raises(LiveError) as err:
+            stop()
+        error = err.value.body["error"]
+        assert error["type"] == "conflict" and error["field"] == "skill", error
+        assert "created again" in error["message"], error
+        # nothing of the old skill's capture reached the new skill
+        skill = live.client.get(f"/skills/{name}").json()
+        assert skill["n_demonstrations"] == 4 and skill["latest_model_version"] == 1, skill
+        # the capture is over: a new one starts and is stored into the new skill
+        start()
+        for p in poses:
+            if steered:
+                ps.steer(0.2, 0.0)
+            assert ps.wait_for(ps.send(p), timeout=5.0) is not None
+        stored = stop()
+        if what == "demonstration":
+            assert stored["n_points"] == 30, stored
+        else:
+            assert stored["version"] == 2, stored
+    assert live.client.delete(f"/skills/{name}").status_code == 204

@@ -79,6 +79,7 @@ from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
 from ..memory import release_memory
 from ..record_batches import encode_record_batch
 from ..service import CanalService
+from ..storage import repository as repo
 from ..validation import check_demonstration
 from .config import BridgeOptions, access_of, config_value, per_mode, shard_of, zenoh_config
 from .models import ModelEntry, ModelTable
@@ -552,10 +553,12 @@ class Bridge:
         now = time.monotonic()
         if st.steer is None:
             st.steer_at = now
+            instance = self._skill_instance(skill)
             with st.lock:  # the steered run is kept (steer/keep) unless a capture runs
                 if st.capture is None:
                     st.capture, st.capture_from = [], st.last_seq + 1
                     st.capture_kind, st.capture_label = "steer", None
+                    st.capture_instance = instance
         st.steer = (u, v, now)
         self.counts.steers += 1
         return True
@@ -641,8 +644,14 @@ class Bridge:
                        kind: str | None, weight: float = 1.0) -> None:
         from_seq = body.get("from_seq")
         label = body.get("label")
+        instance = self._skill_instance(st.skill)
+        if instance is None:
+            _reply_error(query, "not_found", f"unknown skill '{st.skill}'", "skill")
+            return
         with st.lock:
-            if st.capture is not None and st.capture_kind not in (kind, "steer"):
+            # a capture begun on a skill deleted since is over: it is not in the way
+            if (st.capture is not None and st.capture_kind not in (kind, "steer")
+                    and st.capture_instance == instance):
                 busy = "a demonstration" if st.capture_kind is None else "a correction"
                 # the field names what is being captured: what to stop first
                 _reply_error(query, "conflict", f"{busy} is being captured on this stream; "
@@ -652,6 +661,7 @@ class Bridge:
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
             st.capture_label = label if isinstance(label, str) else None
             st.capture_kind, st.capture_weight = kind, weight
+            st.capture_instance = instance
         query.reply(query.key_expr, orjson.dumps({"capturing": True,
                                                   "from_seq": st.capture_from}),
                     encoding=ENC_JSON)
@@ -664,13 +674,17 @@ class Bridge:
             deadline = time.monotonic() + _STOP_WAIT_S
             while st.last_seq < last_seq and time.monotonic() < deadline:
                 time.sleep(0.001)
+        instance = self._skill_instance(st.skill)
         with st.lock:
             poses = st.capture if st.capture_kind in kinds else None
+            started_on = st.capture_instance
             if poses is not None:
                 st.capture, st.capture_kind = None, None
         if poses is None:
             _reply_error(query, "conflict", f"no {what} is being captured on this stream",
                          what.split()[0])
+            return None
+        if not _same_skill(query, st.skill, started_on, instance, what):
             return None
         if isinstance(last_seq, int):
             poses = [p for p in poses if p.seq <= last_seq]
@@ -702,13 +716,17 @@ class Bridge:
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         """Keep the stream's last steered run (or the one in progress) as an include."""
+        instance = self._skill_instance(st.skill)
         with st.lock:
             if st.capture_kind == "steer":
-                poses, st.capture, st.capture_kind, st.steer = st.capture, None, None, None
+                poses, started_on = st.capture, st.capture_instance
+                st.capture, st.capture_kind, st.steer = None, None, None
             else:
-                poses, st.steered = st.steered, None
+                poses, started_on, st.steered = st.steered, st.steered_instance, None
         if not poses:
             _reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
+            return
+        if not _same_skill(query, st.skill, started_on, instance, "steered run"):
             return
         weight, label = body.get("weight"), body.get("label")
         self._store_correction(query, st, "include", poses,
@@ -753,6 +771,12 @@ class Bridge:
         except Exception:  # a start no section brackets: the service's default plan
             return None
         return plan.positions.tolist()  # type: ignore[no-any-return]
+
+    def _skill_instance(self, skill: str) -> str | None:
+        """The skill now under the name (:func:`..storage.repository.skill_instance`), None
+        when there is none."""
+        with self.service.db.read() as s:
+            return repo.skill_instances(s, skill).get(skill)
 
     def _store_demo(self, skill: str, poses: list[Any], label: str | None) -> dict[str, Any]:
         dim = self.service.skill_dim(skill)
@@ -801,6 +825,20 @@ def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
     dims = " or ".join(map(str, sorted({len(p.position) for p in poses})))
     raise InvalidInput(f"expected {field} with {dim} coordinates for this {dim}-D skill, got "
                        f"{len(poses)} poses with {dims}", field=field)
+
+
+def _same_skill(query: Any, skill: str, started_on: str | None, now: str | None,
+               what: str) -> bool:
+    """Whether the skill under the name is still the one the capture began on; if not, the
+    capture is over with it and the query is answered ``conflict`` on ``skill``."""
+    if started_on is not None and started_on == now:
+        return True
+    got = ("no skill: it was deleted" if now is None
+           else "another skill: it was deleted and created again under its name")
+    _reply_error(query, "conflict", f"expected the skill '{skill}' this {what} was captured "
+                 f"on, got {got} since the capture began; nothing is stored, start the capture "
+                 "again", "skill")
+    return False
 
 
 #: Streams expired since the last trim that call for handing their memory back.

@@ -197,6 +197,7 @@ class Stepper(Answers):
             with st.lock:
                 if st.capture_kind == "steer":
                     st.steered, st.capture, st.capture_kind = st.capture, None, None
+                    st.steered_instance = st.capture_instance
             return
         bank, slot = st.bank, st.slot
         dt = min(max(now - st.steer_at, 0.0), STEER_MAX_DT)

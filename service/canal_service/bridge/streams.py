@@ -70,11 +70,17 @@ class Stream:
     #: the poses of a steered run (kept in ``steered`` when the steering ends)
     capture_kind: str | None = None
     capture_weight: float = 1.0
+    #: the skill the capture was started on (:func:`..storage.repository.skill_instance`):
+    #: one deleted and created again under the name is another skill, and the capture ends
+    #: with the one it began on
+    capture_instance: str | None = None
     #: the last steering input (u, v, time.monotonic() it arrived), None when not steered
     steer: tuple[float, float, float] | None = None
     steer_at: float = 0.0
     #: the poses of the last steered run (for ``steer/keep``)
     steered: list[wire.Pose] | None = None
+    #: ... and the skill they were steered on (as ``capture_instance``)
+    steered_instance: str | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
     closed: bool = False
     # the recording: count deltas since the last batch, the rows kept, the rate limit
