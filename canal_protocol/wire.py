@@ -44,8 +44,9 @@ without extras is 36 bytes.
 Target (kind 2) after the header: ``<iiddH`` = int32 model version (-1 none), int32 section
 index (-1 none), float64 progress in [0, 1], float64 eta (NaN when none), uint16 status
 code; then ``D x float64`` target position; then, if flag 0x08, ``uint16`` length and that
-many bytes of UTF-8 message. Target flags: 0x01 inside, 0x02 done, 0x04 seq is known (not
-set when the pose could not be read), 0x08 has message. A 3-D target is 62 bytes.
+many bytes of UTF-8 message. Target flags: 0x01 inside, 0x02 done, 0x04 seq is known (set on
+every answer to a pose whose header was read, errors too; not set when the header could not
+be read), 0x08 has message. A 3-D target is 62 bytes.
 Optional extras follow, each present when its flag is set, in this order: 0x10 ``4 x
 float64`` target orientation (x, y, z, w); 0x20 ``D x float64`` feed-forward velocity;
 0x40 ``uint32`` poses of this stream coalesced so far; 0x80 ``uint16`` the route the stream
@@ -75,7 +76,8 @@ JSON target::
 pose's own (null when the pose had none); ``velocity`` is there only when the model gives
 one; ``coalesced`` counts this stream's poses skipped under overload so far (latest wins).
 
-``seq`` is null when the pose could not be read; ``target``, ``eta``, ``section`` and
+``seq`` is the pose's on every answer, errors too, and null only when the pose's ``seq``
+could not be read (not JSON, not an object, no integer ``seq``); ``target``, ``eta``, ``section`` and
 ``model_version`` are null when there is none. JSON has no NaN: a JSON pose with NaN is
 not JSON (nor is a number that overflows to infinity) and is answered ``bad_payload``.
 

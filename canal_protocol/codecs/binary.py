@@ -101,25 +101,31 @@ def _check_header(data: bytes, kind: int) -> tuple[int, int, int]:
 
 
 def decode_pose(data: bytes) -> Pose:
-    """A binary pose; WireError (bad_payload, non_finite) when it cannot be used."""
+    """A binary pose; WireError (bad_payload, non_finite) when it cannot be used, with the
+    pose's seq once its header was read."""
     flags, dim, seq = _check_header(data, KIND_POSE)
-    if not 1 <= dim <= MAX_DIM:
-        raise WireError("bad_payload", f"expected a dimension in 1..{MAX_DIM}, got {dim}")
-    s = _pose_struct(dim, flags)
-    if len(data) != s.size:
-        raise WireError("bad_payload", f"expected {s.size} bytes for this pose, got {len(data)}")
-    values = s.unpack(data)
-    position = values[5 : 5 + dim]
-    # the common pose in one test: a norm within the bound means finite coordinates within
-    # it (NaN and infinity give NaN or infinity)
-    if not flags and _hypot(*position) <= MAX_COORDINATE:
-        return plain_pose(seq, position)
-    orientation = values[5 + dim : 9 + dim] if flags & POSE_ORIENTATION else None
-    t = values[-1] if flags & POSE_TIME else None
-    # a finite sum means finite numbers; one that overflows takes the check one by one
-    if not _isfinite(sum(values[5:])) and not all_finite(values[5:]):
-        raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
-    check_pose_numbers(position, orientation, t)
+    try:
+        if not 1 <= dim <= MAX_DIM:
+            raise WireError("bad_payload", f"expected a dimension in 1..{MAX_DIM}, got {dim}")
+        s = _pose_struct(dim, flags)
+        if len(data) != s.size:
+            raise WireError("bad_payload",
+                            f"expected {s.size} bytes for this pose, got {len(data)}")
+        values = s.unpack(data)
+        position = values[5 : 5 + dim]
+        # the common pose in one test: a norm within the bound means finite coordinates
+        # within it (NaN and infinity give NaN or infinity)
+        if not flags and _hypot(*position) <= MAX_COORDINATE:
+            return plain_pose(seq, position)
+        orientation = values[5 + dim : 9 + dim] if flags & POSE_ORIENTATION else None
+        t = values[-1] if flags & POSE_TIME else None
+        # a finite sum means finite numbers; one that overflows takes the check one by one
+        if not _isfinite(sum(values[5:])) and not all_finite(values[5:]):
+            raise WireError("non_finite", "expected finite numbers, got NaN or infinity")
+        check_pose_numbers(position, orientation, t)
+    except WireError as exc:
+        exc.seq = seq  # the header was read: the answer says which pose it refuses
+        raise
     return Pose(seq, position, orientation, t, bool(flags & POSE_RESTART))  # type: ignore[arg-type]
 
 

@@ -99,6 +99,15 @@ def _checked_pose_json(body: Any) -> Pose:
     if type(seq) is not int or not 0 <= seq <= SEQ_MAX:
         came = "no 'seq'" if "seq" not in body else _shown(seq)
         raise WireError("bad_payload", f"expected 'seq', an integer in [0, 2**64), got {came}")
+    try:
+        return _pose_fields(body, seq)
+    except WireError as exc:
+        exc.seq = seq  # the seq was read: the answer says which pose it refuses
+        raise
+
+
+def _pose_fields(body: dict[str, Any], seq: int) -> Pose:
+    """The pose of a JSON object whose ``seq`` was read, its other fields checked."""
     if "position" not in body:
         raise WireError("bad_payload", "expected 'position', got the keys "
                                        f"{', '.join(map(str, body))[:80]}")

@@ -60,12 +60,15 @@ FORMAT_CDR = 2
 
 
 class WireError(ValueError):
-    """A message that cannot be read; ``key`` is the status key to answer with."""
+    """A message that cannot be read; ``key`` is the status key to answer with, ``seq`` the
+    seq of the pose refused when it could be read (a binary pose's header, a JSON pose's
+    ``seq``), else None: the answer then carries it, so the robot knows which pose it was."""
 
-    def __init__(self, key: str, message: str) -> None:
+    def __init__(self, key: str, message: str, seq: int | None = None) -> None:
         super().__init__(message)
         self.key = key
         self.message = message
+        self.seq = seq
 
 
 

@@ -60,6 +60,55 @@ def test_malformed_payloads_are_answered_and_counted(live):
     assert live.client.get("/healthz").json()["bridge"]["status"] == "ok"
 
 
+def _pose_header(seq: int, dim: int, flags: int = 0) -> bytes:
+    return struct.pack("<BBBBQ", 1, 1, flags, dim, seq)
+
+
+#: Poses refused after their seq was read: the answer says which pose it refuses.
+SEQ_READ = [
+    ("nan", _pose_header(13, 3) + struct.pack("<3d", float("nan"), 0.0, 0.0), False,
+     "non_finite", 13),
+    ("t=1e300", _pose_header(18, 3, 0x02) + struct.pack("<4d", 0.1, 0.01, 0.0, 1e300), False,
+     "bad_payload", 18),
+    ("coordinate 1e16", _pose_header(19, 3) + struct.pack("<3d", 1e16, 0.0, 0.0), False,
+     "bad_payload", 19),
+    ("quaternion of norm 7", _pose_header(20, 3, 0x01)
+     + struct.pack("<7d", 0.1, 0.0, 0.0, 7.0, 0.0, 0.0, 0.0), False, "bad_payload", 20),
+    ("a byte short", _pose_header(21, 3) + struct.pack("<3d", 0.1, 0.0, 0.0)[:-1], False,
+     "bad_payload", 21),
+    ("dimension 0", _pose_header(22, 0), False, "bad_payload", 22),
+    ("2-D on a 3-D skill", _pose_header(15, 2) + struct.pack("<2d", 0.0, 0.0), False,
+     "wrong_dimension", 15),
+    ("json coordinate 1e16", b'{"seq": 31, "position": [1e16, 0, 0]}', True, "bad_payload", 31),
+    ("json t=1e300", b'{"seq": 32, "position": [0.1, 0, 0], "t": 1e300}', True,
+     "bad_payload", 32),
+    ("json strings", b'{"seq": 33, "position": ["a", 0, 0]}', True, "bad_payload", 33),
+    ("json restart 1", b'{"seq": 34, "position": [0.1, 0, 0], "restart": 1}', True,
+     "bad_payload", 34),
+    ("json no position", b'{"seq": 35}', True, "bad_payload", 35),
+    # no seq to read: none is claimed
+    ("wrong version", bytes([9]) + GOOD[1:], False, "bad_payload", None),
+    ("header cut short", GOOD[:6], False, "bad_payload", None),
+    ("json seq -1", b'{"seq": -1, "position": [0.1, 0, 0]}', True, "bad_payload", None),
+    ("json not json", b'{"seq": 36, "position": [0.1', True, "bad_payload", None),
+]
+
+
+@pytest.mark.parametrize(("skill", "robot"), [("arc3", "which"), ("no-such-skill", "which")])
+def test_a_refused_pose_is_answered_with_its_seq_when_it_could_be_read(live, skill, robot):
+    # A binary pose with a readable header but a NaN coordinate or t = 1e300, or a JSON pose
+    # with a number out of range, was answered without its seq (flag 0x04 unset, seq 0;
+    # JSON seq null): the robot could not tell which pose was refused.
+    with PoseStreamer(skill, robot, endpoint=live.endpoint) as ps:
+        for name, payload, as_json, status, seq in SEQ_READ:
+            ps._latest = None
+            ps.send_raw(payload, json=as_json)
+            got = _wait_status(ps, 2.0)
+            want = status if skill == "arc3" else "unknown_skill"
+            # (a binary answer's seq reads as None unless its flag 0x04 is set)
+            assert got.status == want and got.seq == seq, (name, got)
+
+
 def _wait_status(ps, timeout=1.0):
     import time
 

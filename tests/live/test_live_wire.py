@@ -96,6 +96,27 @@ def test_binary_pose_with_non_finite_number_is_refused(bad, where):
     assert exc.value.key == "non_finite"
 
 
+@pytest.mark.parametrize(("data", "seq"), [
+    (wire.encode_pose(13, [NAN, 0.0, 0.0]), 13),
+    (wire.encode_pose(18, [0.1, 0.0, 0.0], t=1e300), 18),
+    (wire.encode_pose(19, [1e16, 0.0, 0.0]), 19),
+    (wire.encode_pose(20, [0.1, 0.0, 0.0])[:-1], 20),
+    (wire.encode_pose(20, [0.1, 0.0, 0.0])[:6], None),
+    (bytes([9]) + wire.encode_pose(20, [0.1, 0.0, 0.0])[1:], None),
+    (b'{"seq": 31, "position": [1e16, 0, 0]}', 31),
+    (b'{"seq": 32, "position": [0.1, 0, 0], "t": 1e300}', 32),
+    (b'{"seq": 33, "position": [0.1, 0, 0], "orientation": [0, 0, 0, 7]}', 33),
+    (b'{"seq": 34}', 34),
+    (b'{"seq": -1, "position": [0.1, 0, 0]}', None),
+    (b'{"position": [0.1, 0, 0]}', None),
+])
+def test_a_refused_pose_keeps_its_seq_when_it_could_be_read(data, seq):
+    decode = wire.decode_pose_json if data[:1] == b"{" else wire.decode_pose
+    with pytest.raises(wire.WireError) as exc:
+        decode(data)
+    assert exc.value.seq == seq
+
+
 def test_binary_pose_flags_are_kept():
     pose = wire.decode_pose(wire.encode_pose(9, [1.0, 2.0], (0.0, 0.0, 0.0, 1.0), 2.5, True))
     assert pose == wire.Pose(9, (1.0, 2.0), (0.0, 0.0, 0.0, 1.0), 2.5, True)

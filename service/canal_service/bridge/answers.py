@@ -9,7 +9,6 @@ one-robot bridge measurably; :mod:`.tap` hands the rows on.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from typing import Any
 
@@ -159,8 +158,10 @@ class Answers(StreamTable):
         seq: int | None = None
         fmt = wire.pose_format(encoding, data)
         if fmt != _FCDR:
-            with contextlib.suppress(wire.WireError):
+            try:
                 seq = wire.decode_pose_as(fmt, data)[0].seq
+            except wire.WireError as exc:  # the seq when it could be read
+                seq = exc.seq
         answer = wire.Target(seq=seq, status=entry.status, message=entry.message)
         base = key[: -len(keyspace.POSE)]
         if fmt == _FJSON:

@@ -106,7 +106,7 @@ class Decoder(Answers):
                     check_pose_numbers(pose.position, pose.orientation, None)
         except wire.WireError as exc:
             if answer:
-                self.error(st, None, exc.key, exc.message, fmt)
+                self.error(st, exc.seq, exc.key, exc.message, fmt)
             return None
         st.last_seq = pose.seq
         if st.capture is not None:
