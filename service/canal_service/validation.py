@@ -28,6 +28,10 @@ MIN_POINTS = 4
 #: Longest demonstration, in seconds: a longer span is almost always stamps in ms, us or ns
 #: read as seconds (a ROS log's nanoseconds made a 10 s demo last 317 years)
 MAX_DEMO_SECONDS = 3600.0
+#: Shortest demonstration, in seconds: one tick of a 1 kHz controller, the shortest
+#: reproduction ``duration`` (:data:`canal_core.bounds.MIN_DURATION`). A demonstration
+#: stamped shorter is reproduced as fast: 1e-12 s made velocities of 1e7 m/s.
+MIN_DEMO_SECONDS = bounds.MIN_DURATION
 
 
 @dataclass(frozen=True)
@@ -96,8 +100,11 @@ def check_positions(value: Any, dim: int) -> FloatArray:
     return positions
 
 
-def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> FloatArray:
-    """Timestamps as a finite (T,) array of seconds, spanning at most ``MAX_DEMO_SECONDS``.
+def check_timestamps(value: Any, n_points: int, unit: str | None = None,
+                     min_span: float = MIN_DEMO_SECONDS) -> FloatArray:
+    """Timestamps as a finite (T,) array of seconds, spanning at most ``MAX_DEMO_SECONDS``
+    and, when they advance at all, at least ``min_span`` (a demonstration's
+    ``MIN_DEMO_SECONDS``; stamps that never advance are the fit's rule's to refuse).
 
     With ``unit`` (a key of :data:`TIME_UNITS`) other than seconds they are converted to
     seconds from the first sample (subtracting first keeps epoch nanoseconds exact to the
@@ -132,6 +139,14 @@ def check_timestamps(value: Any, n_points: int, unit: str | None = None) -> Floa
             f"hour), got a span of {span:.3g} s: are they milliseconds, microseconds or "
             f"nanoseconds? An upload says so with ?time_unit=ms, us or ns (a live pose's t "
             f"is in seconds)",
+            field="timestamps",
+        )
+    if 0.0 < span < min_span:
+        raise InvalidInput(
+            f"expected timestamps in seconds spanning at least {min_span:g} s (one tick of a "
+            f"1 kHz controller, the shortest reproduction), got a span of {span:.3g} s: are "
+            f"they in seconds? An upload says which unit they are in with ?time_unit=s, ms, us "
+            f"or ns (a live capture's span is that of its poses' t, in seconds)",
             field="timestamps",
         )
     _core_checked(bounds.check_times, times, "timestamps")
@@ -186,7 +201,9 @@ def check_demonstration(
     if timestamps is None and time_unit is not None:
         raise InvalidInput(f"time_unit={time_unit} was given, but the demonstration has no "
                            "timestamps (no time column)", field="time_unit")
-    times = None if timestamps is None else check_timestamps(timestamps, n, time_unit)
+    # a correction's path is held to the rules a JSON correction is (canal_core.corrections)
+    times = None if timestamps is None else check_timestamps(
+        timestamps, n, time_unit, MIN_DEMO_SECONDS if fittable else 0.0)
     quats = None if orientations is None else check_orientations(orientations, n)
     if fittable:
         check_fittable(checked, times)

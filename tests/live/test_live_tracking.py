@@ -199,6 +199,25 @@ def test_live_capture_with_nanosecond_t_is_refused_saying_t_is_seconds(live):
             ps.stop_demo()
 
 
+def test_live_capture_whose_t_spans_less_than_a_control_tick_is_refused(live):
+    # Poses stamped 1e-11 s apart were stored as a demonstration lasting 2e-10 s, and a
+    # by-time fit reproduced it at 1e8 m/s.
+    from canal_client.live import LiveError
+
+    pts = np.column_stack([np.linspace(0, 1, 20), np.linspace(0, 0.5, 20), np.zeros(20)])
+    before = live.client.get("/skills/arc3").json()["n_demonstrations"]
+    with PoseStreamer("arc3", "fast-clock", endpoint=live.endpoint) as ps:
+        ps.start_demo()
+        for k, p in enumerate(pts):
+            ps.send(p, None, 100.0 + k * 1e-11)
+        with pytest.raises(LiveError) as err:
+            ps.stop_demo()
+    error = err.value.body["error"]
+    assert error["type"] == "invalid_input" and error["field"] == "timestamps", error
+    assert "at least 0.001 s" in error["message"] and "poses' t" in error["message"], error
+    assert live.client.get("/skills/arc3").json()["n_demonstrations"] == before
+
+
 def _stream_until(ps, x, canal, steps, gain=0.5):
     answers = []
     for _ in range(steps):

@@ -346,3 +346,39 @@ def test_a_ragged_row_is_named_also_where_only_some_columns_are_read(
     r = client.post(f"/skills/{skill}/demonstrations",
                     files={"file": ("r.csv", head + b"\n".join(good) + b"\n")})
     assert r.status_code == 201, r.text
+
+
+def test_stamps_spanning_less_than_a_control_tick_are_refused(live_server) -> None:  # type: ignore[no-untyped-def]
+    # Stamps spanning 1e-12 s were stored, and a by-time fit reproduced the motion in 1e-7 s
+    # at 1e7 m/s, although a reproduction's own duration below 1 ms is refused.
+    import httpx
+
+    with httpx.Client(base_url=live_server.url, timeout=60) as http:
+        assert http.post("/skills", json={"name": "tick", "dim": 3}).status_code == 201
+        positions = demo_positions(0)
+        n = positions.shape[0]
+        for span in (1e-12, 5e-4):
+            r = http.post("/skills/tick/demonstrations",
+                          json={"positions": positions.tolist(),
+                                "timestamps": np.linspace(0.0, span, n).tolist()})
+            error = _error(r)
+            assert error["field"] == "timestamps", error
+            assert "at least 0.001 s" in error["message"], error
+            assert f"span of {span:.3g} s" in error["message"], error
+        # a file: the time column read in the unit it is said to be in (seconds sent as ns)
+        csv = "t,x,y,z\n" + "\n".join(
+            f"{float(t)!r},{p[0]!r},{p[1]!r},{p[2]!r}"
+            for t, p in zip(np.linspace(0.0, 2.0, n), positions.tolist(), strict=True))
+        r = http.post("/skills/tick/demonstrations?time_unit=ns",
+                      files={"file": ("run.csv", csv.encode())})
+        error = _error(r)
+        assert error["field"] == "timestamps" and "at least 0.001 s" in error["message"], error
+        assert http.get("/skills/tick/demonstrations").json()["total"] == 0
+        # from one control tick on, stamps are taken
+        for j, span in enumerate((1e-3, 2.0)):
+            r = http.post("/skills/tick/demonstrations",
+                          json={"positions": demo_positions(j).tolist(),
+                                "timestamps": np.linspace(0.0, span, n).tolist()})
+            assert r.status_code == 201, r.text
+        r = http.post("/skills/tick/demonstrations", files={"file": ("run.csv", csv.encode())})
+        assert r.status_code == 201, r.text
