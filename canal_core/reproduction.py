@@ -5,7 +5,7 @@ functions of :mod:`canal_core.reproduce`, :mod:`canal_core.timing` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -426,24 +426,13 @@ def _after_backing_out(
                                  canal.sections)
         ratios = np.concatenate([[eta], between, rest.ratios])
     detoured = rest.detoured if rest.detoured is not None else np.zeros(rest.positions.shape[0] - 1, dtype=bool)
-    return Reproduction(
-        positions=positions,
-        start=point,
-        inside=inside,
-        eta=min(eta, 1.0),
-        section_index=index,
-        projected=eta > 1.0,
-        times=times,
-        velocities=None if times is None else finite_velocities(positions, times),
-        orientations=orientations,
-        orientation_eta=rest.orientation_eta,
-        goal=rest.goal,
-        blocked=rest.blocked,
-        detoured=np.concatenate([np.ones(n, dtype=bool), detoured]),
-        start_clearance=start_clearance,
-        entry_index=0 if inside else n + rest.entry_index,
-        approach=n + rest.approach,
-        ratios=ratios,
+    # The rest (goal, blocked, orientation_eta) is the reproduction from the way out's end.
+    return replace(
+        rest, positions=positions, start=point, inside=inside, eta=min(eta, 1.0), section_index=index,
+        projected=eta > 1.0, times=times, velocities=None if times is None else finite_velocities(positions, times),
+        orientations=orientations, detoured=np.concatenate([np.ones(n, dtype=bool), detoured]),
+        start_clearance=start_clearance, entry_index=0 if inside else n + rest.entry_index,
+        approach=n + rest.approach, ratios=ratios,
     )
 
 

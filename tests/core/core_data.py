@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canal_core import Canal, datasets
+from canal_core import Canal, datasets, fit
 
 
 def tube_demos(radius: float = 0.5, n_demos: int = 6, n_points: int = 80) -> list[np.ndarray]:
@@ -30,6 +30,23 @@ def sleeve_demos(radius: float = 0.05, n_demos: int = 6) -> list[np.ndarray]:
     _, n, b = rotation_minimizing_frames(base)
     angles = np.linspace(0.0, 2.0 * np.pi, n_demos, endpoint=False) + 0.3
     return [base + radius * (np.cos(a) * n + np.sin(a) * b) for a in angles]
+
+
+def ring_demos() -> list[np.ndarray]:
+    """Five straight 1 m strokes around a 6 cm ring, each wavering by about a centimetre; with
+    times 0..2 s they move at 0.5 m/s (:func:`ring_canal`)."""
+    x = np.linspace(0.0, 1.0, 80)
+    demos = []
+    for j in range(5):
+        a = 2.0 * np.pi * j / 5
+        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
+                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
+    return demos
+
+
+def ring_canal() -> Canal:
+    """The canal of :func:`ring_demos`, timed, 100 sections."""
+    return fit(ring_demos(), [np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
 
 
 def tracker_starts(canal: Canal, n: int, rng: np.random.Generator) -> np.ndarray:

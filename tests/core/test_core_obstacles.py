@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from core_data import tube_demos
+from core_data import ring_canal, tube_demos
 
 import canal_core
 from canal_core import InvalidInputError
@@ -360,13 +360,7 @@ def test_a_start_within_a_clearance_deeper_than_a_step_can_swerve_backs_out_firs
     # reproduction was blocked at the start, with no move, where the live pass backs the
     # robot out. It now backs out first, in steps no longer than the demonstrations' largest,
     # each further from the sphere, then follows the canal.
-    x = np.linspace(0.0, 1.0, 80)
-    demos = []
-    for j in range(5):
-        a = 2.0 * np.pi * j / 5
-        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
-                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
-    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    canal = ring_canal()
     start = np.array([0.0, 0.01, 0.0])
     for depth in (0.003, 0.005):
         ball = {"kind": "sphere", "center": [0.0, 0.04 - depth, 0.0], "radius": 0.02, "clearance": 0.01}

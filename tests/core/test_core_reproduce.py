@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from core_data import helix_demos, sleeve_demos
+from core_data import helix_demos, ring_canal, sleeve_demos
 
 import canal_core
 from canal_core import OutsideCanalError, datasets
@@ -303,13 +303,7 @@ def test_a_start_past_the_canal_end_or_far_beside_it_moves_no_faster_than_the_de
     given one step to the end in 1 ns (2e7 m/s); one far away, a single step of 1.7 km; one
     beside the last sections, a landing at 6 m/s. Every step now takes at least the time the
     fastest demonstration needed for it, and an approach has at most one point per section."""
-    x = np.linspace(0.0, 1.0, 80)
-    demos = []
-    for j in range(5):
-        a = 2.0 * np.pi * j / 5
-        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
-                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
-    canal = canal_core.fit(demos, timestamps=[np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    canal = ring_canal()
     for start in ([1.02, 0.0, 0.0], [1.5, 0.0, 0.0], [1.0, 0.3, 0.0], [1000.0, 1000.0, 1000.0],
                   [0.99, 0.3, 0.0], [-1.0, 0.0, 0.0], [0.5, 0.3, 0.0]):
         result = canal.reproduce_detailed(start)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from canal_testing import arc_demo
-from core_data import tube_demos
+from core_data import ring_canal, tube_demos
 
 import canal_core
 from canal_core.obstacles import free_distances, rotation_parameters, scene_from_list
@@ -191,13 +191,7 @@ def test_a_robot_held_beside_an_obstacle_over_the_goal_is_done_not_blocked() -> 
     # A sphere over the canal's end: a reproduction ends beside it, unblocked. A live robot
     # that follows its targets arrives there too and is held; it was told `blocked` with
     # `done` for good, as though the scene closed the canal ahead of a robot that finished.
-    x = np.linspace(0.0, 1.0, 80)
-    demos = []
-    for j in range(5):
-        a = 2.0 * np.pi * j / 5
-        demos.append(np.column_stack([x, 0.06 * np.cos(a) + 0.012 * np.sin(7 * x + j),
-                                      0.06 * np.sin(a) + 0.012 * np.cos(9 * x + 2 * j)]))
-    canal = canal_core.fit(demos, [np.linspace(0.0, 2.0, 80)] * 5, n_samples=100)
+    canal = ring_canal()
     scene = scene_from_list([{"kind": "sphere", "center": [1.0, 0.0, 0.0], "radius": 0.03}], 3)
     assert canal.reproduce_detailed([0.0, 0.01, 0.0], obstacles=scene).blocked is None
     bank = TrackerBank(canal.tracker_geometry(), 2, compiled=False)
