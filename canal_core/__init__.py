@@ -20,6 +20,7 @@ from .errors import (
     InvalidInputError,
     ModelFormatError,
     OutsideCanalError,
+    TooSlowError,
 )
 from .fit import fit
 from .model import Canal
@@ -48,6 +49,7 @@ __all__ = [
     "RouteChoice",
     "Routes",
     "SectionKind",
+    "TooSlowError",
     "Tracker",
     "TrackerTarget",
     "__version__",

@@ -45,10 +45,15 @@ class ModelFormatError(CanalError, ValueError):
     """A serialised model this version cannot read."""
 
 
+class TooSlowError(CanalError):
+    """A computation given a deadline (``time.monotonic()``) did not finish by it."""
+
+
 __all__ = [
     "CanalError",
     "DegenerateCanalError",
     "InvalidInputError",
     "ModelFormatError",
     "OutsideCanalError",
+    "TooSlowError",
 ]

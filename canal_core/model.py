@@ -264,6 +264,7 @@ class Canal:
         end_decay: float = END_DECAY,
         persistence: str = "learned",
         obstacles: Any = None,
+        deadline: float | None = None,
     ) -> Reproduction:
         """Reproduce from ``start`` (D,) by the ratio rule (Alg. 1 lines 7-15): see
         :func:`canal_core.reproduction.reproduce`.
@@ -307,10 +308,13 @@ class Canal:
         obstacles : Scene or list of obstacle dicts, optional
             What stands in the canal (:mod:`canal_core.obstacles`): the path detours through
             the free part of each section, or stops short saying ``blocked``.
+        deadline : float, optional
+            ``time.monotonic()`` by which a detour around ``obstacles`` must be found, else
+            :class:`~canal_core.errors.TooSlowError`.
         """
         return reproduction.reproduce(self, start, outside, start_orientation, goal, duration,
                                       entry=entry, end_decay=end_decay, persistence=persistence,
-                                      obstacles=obstacles)
+                                      obstacles=obstacles, deadline=deadline)
 
     @cached_property
     def largest_step(self) -> float:

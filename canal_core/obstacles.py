@@ -26,6 +26,7 @@ and why (:class:`Blocked`); it never returns a path through an obstacle.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -34,7 +35,7 @@ from typing import Any, Literal, get_args
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
-from .errors import InvalidInputError
+from .errors import InvalidInputError, TooSlowError
 from .validation import BoolArray, FloatArray
 
 ObstacleKind = Literal["sphere", "disc", "box", "capsule"]
@@ -774,6 +775,7 @@ def avoided_path(
     sections: CrossSections,
     scene: Scene,
     largest_step: float,
+    deadline: float | None = None,
 ) -> Avoidance:
     """The ratio rule's path, detoured through the free part of the sections where obstacles are.
 
@@ -790,6 +792,9 @@ def avoided_path(
     largest_step : float
         The longest step a detour may take (:func:`demonstrated_largest_step`); a step of
         the ratio rule's own path that is longer is allowed at its place.
+    deadline : float, optional
+        ``time.monotonic()`` by which the detour must be found: the search stops there with
+        :class:`~canal_core.errors.TooSlowError` (among many obstacles it takes seconds).
 
     Returns
     -------
@@ -827,7 +832,8 @@ def avoided_path(
     windows = _windows(rows, margin, k_total)
     detoured = nothing.copy()
     for lo, hi in windows:  # rows lo..hi (inclusive) are free to move
-        rows_path, blocked = _window_path(path, free, lo, hi, first, centres, basis, sections, scene, largest_step, steps)
+        rows_path, blocked = _window_path(path, free, lo, hi, first, centres, basis, sections, scene, largest_step, steps,
+                                          deadline)
         end = lo + rows_path.shape[0]
         path[lo:end] = rows_path
         detoured[lo - 1 : end - 1] = np.any(rows_path != nominal[lo - 1 : end - 1], axis=1)
@@ -838,6 +844,12 @@ def avoided_path(
                 blocked = Blocked(blocked.section, "start", blocked.obstacles)
             return Avoidance(path[:kept], blocked, detoured[: kept - 1], start_free)
     return Avoidance(path, None, detoured, start_free)
+
+
+def _check_deadline(deadline: float | None) -> None:
+    if deadline is not None and time.monotonic() > deadline:
+        raise TooSlowError("expected a detour around the obstacles within the time given, got a search "
+                           "still running: give fewer obstacles near the path, or more time", field="obstacles")
 
 
 def _windows(rows: Any, margin: int, k_total: int) -> list[tuple[int, int]]:
@@ -984,6 +996,7 @@ def _window_path(
     scene: Scene,
     largest_step: float,
     steps: FloatArray,
+    deadline: float | None = None,
 ) -> tuple[FloatArray, Blocked | None]:
     """Rows lo..hi of the path through the free part of their sections, and where it blocks.
 
@@ -1022,6 +1035,7 @@ def _window_path(
     levels = int(min(SHIFT_LEVELS, np.ceil(reach / h) + 1))
     inward = -np.einsum("wd,wkd->k", nom - centres[sec[:end]], basis[sec[:end]])
     for angle in _shift_angles(basis.shape[1], inward):
+        _check_deadline(deadline)
         cand, inside = _shift_candidates(nom, sec[:end], centres, basis, sections, angle, h, levels)
         cfree = free_distances(cand.reshape(-1, d), scene).reshape(cand.shape[:2])
         cfree[~inside] = -1e300  # unusable (finite: inf + -inf would be NaN)

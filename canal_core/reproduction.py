@@ -214,6 +214,7 @@ def reproduce(
     end_decay: float = END_DECAY,
     persistence: str = "learned",
     obstacles: Any = None,
+    deadline: float | None = None,
 ) -> Reproduction:
     """Reproduce from ``start`` (D,) on ``canal`` by the ratio rule (Alg. 1 lines 7-15).
 
@@ -263,6 +264,9 @@ def reproduce(
         free part of each section, keeps every clearance, steps no further than the
         demonstrations' largest step, and stops short, saying ``blocked``, where the
         obstacles close the canal.
+    deadline : float, optional
+        ``time.monotonic()`` by which a detour around ``obstacles`` must be found, else
+        :class:`~canal_core.errors.TooSlowError` (a server's bound on one request).
     """
     point = check_reach(check_point(start, canal.dim, "start"), *canal.extent, "start")
     scene = None if obstacles is None else scene_from_list(obstacles, canal.dim)
@@ -303,7 +307,8 @@ def reproduce(
     blocked, detoured, start_clearance = None, None, None
     if scene is not None:
         largest = demonstrated_largest_step(canal.directrix, canal.basis, canal.section_points)
-        avoided = avoided_path(point, path, first, canal.directrix, canal.basis, canal.sections, scene, largest)
+        avoided = avoided_path(point, path, first, canal.directrix, canal.basis, canal.sections, scene, largest,
+                               deadline)
         positions, blocked, detoured = avoided.positions, avoided.blocked, avoided.detoured
         start_clearance = avoided.start_clearance
         if blocked is not None and blocked.reason == "start":
@@ -312,7 +317,8 @@ def reproduce(
             way_out = backed_out_path(point, scene, largest)
             if way_out is not None:
                 rest = reproduce(canal, way_out[-1], "project", start_orientation, goal, None, entry=entry,
-                                 end_decay=end_decay, persistence=persistence, obstacles=scene)
+                                 end_decay=end_decay, persistence=persistence, obstacles=scene,
+                                 deadline=deadline)
                 return _after_backing_out(canal, point, way_out, rest, eta, index, inside, seconds,
                                           avoided.start_clearance)
     shares = np.ones(1)

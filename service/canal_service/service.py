@@ -571,8 +571,10 @@ class CanalService:
                   ) -> schemas.ReproductionOut | schemas.ReproductionBatchOut:
         """Reproduce from one start or a batch; every start is checked before any is computed.
 
-        A batch is stopped before its next start once it has run ``reproduce_max_seconds``
-        (``CANAL_REPRODUCE_MAX_SECONDS``), or once ``cancel`` is set (its client left)."""
+        A request is stopped once it has run ``reproduce_max_seconds``
+        (``CANAL_REPRODUCE_MAX_SECONDS``): before its next start, or inside a start's detour
+        search; a batch also stops before its next start once ``cancel`` is set (its client
+        left)."""
         began = time.monotonic()
         version = None if body.model == "latest" else int(body.model)
         routes, _row, ref = self._load_routes(name, version)
@@ -616,7 +618,14 @@ class CanalService:
                 result = routes.canal_for(choice).reproduce_detailed(
                     start, outside=body.outside, goal=inputs.goal, duration=inputs.duration,
                     start_orientation=start_orientation, obstacles=scene,
-                    persistence=body.persistence)
+                    persistence=body.persistence, deadline=began + self.reproduce_max_seconds)
+            except canal_core.TooSlowError as exc:
+                self.metrics.reproductions_stopped.labels("too_slow").inc()
+                raise ReproductionTooSlow(
+                    f"expected the reproductions within CANAL_REPRODUCE_MAX_SECONDS = "
+                    f"{self.reproduce_max_seconds:g} s of server time, got a detour search still "
+                    f"running at {field} after {len(results)} of {len(fields)} starts: give fewer "
+                    "obstacles near the path, or fewer starts at once", field=field) from exc
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field

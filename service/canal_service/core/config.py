@@ -95,9 +95,9 @@ class Settings(BaseSettings):
                     "once, one running longer is stopped (422 fit_too_slow).")
     reproduce_max_seconds: float = Field(
         30.0, gt=0,
-        description="Server time one reproduction request may take: a batch still running "
-                    "then is stopped before its next start (422 reproduction_too_slow); one "
-                    "start is not cut short (a detour among many obstacles takes seconds).")
+        description="Server time one reproduction request may take: one still running then "
+                    "is stopped before its next start or inside a start's detour search (422 "
+                    "reproduction_too_slow).")
     memory_trim_idle_s: float = Field(
         1.0, ge=0,
         description="Seconds without a request after which freed memory is handed back to "
