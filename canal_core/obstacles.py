@@ -27,7 +27,7 @@ and why (:class:`Blocked`); it never returns a path through an obstacle.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Literal, get_args
@@ -36,7 +36,7 @@ import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
 from .errors import InvalidInputError, TooSlowError
-from .validation import BoolArray, FloatArray
+from .validation import BoolArray, FloatArray, IntArray
 
 ObstacleKind = Literal["sphere", "disc", "box", "capsule"]
 OBSTACLE_KINDS: tuple[ObstacleKind, ...] = get_args(ObstacleKind)
@@ -156,6 +156,14 @@ class Scene:
             np.array([o.b for o in obs]),
             np.array([o.radius + o.clearance for o in obs]),
         )
+
+    @cached_property
+    def round_groups(self) -> list[tuple[IntArray, FloatArray, FloatArray, FloatArray]]:
+        """:attr:`round_arrays` split into the spheres and the capsules (each group that has
+        any): their indices in the scene, segment starts, ends and reach."""
+        a, b, reach = self.round_arrays
+        point = ~(b != a).any(axis=1)
+        return [(self.round_index[part], a[part], b[part], reach[part]) for part in (point, ~point) if part.any()]
 
     @cached_property
     def box_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -356,6 +364,17 @@ def _box_distances(points: FloatArray, centres: FloatArray, rotations: FloatArra
     return np.asarray(outside + np.minimum(q.max(axis=2), 0.0))
 
 
+def _free_parts(points: FloatArray, scene: Scene) -> Iterator[tuple[IntArray, FloatArray]]:
+    """Signed distance minus clearance from each point (M, D) to the spheres, the capsules and
+    the boxes in turn: each group's columns in the scene and its (M, k) distances. Spheres
+    apart from capsules: a sphere's distance needs no projection onto a segment."""
+    for index, a, b, reach in scene.round_groups:
+        yield index, _point_segment_distances(points, a, b) - reach[None, :]
+    if scene.box_index.size:
+        c, rot, half, clearance = scene.box_arrays
+        yield scene.box_index, _box_distances(points, c, rot, half) - clearance[None, :]
+
+
 def obstacle_free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     """Signed distance minus clearance from each point to each obstacle, shape (M, O).
 
@@ -367,18 +386,8 @@ def obstacle_free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     scene : Scene
     """
     out = np.full((points.shape[0], len(scene)), np.inf)
-    if scene.round_index.size:
-        a, b, reach = scene.round_arrays
-        point = ~(b != a).any(axis=1)  # spheres apart from capsules: the cheaper distance
-        if point.all() or not point.any():
-            out[:, scene.round_index] = _point_segment_distances(points, a, b) - reach[None, :]
-        else:
-            index = scene.round_index
-            out[:, index[point]] = _point_segment_distances(points, a[point], b[point]) - reach[point][None, :]
-            out[:, index[~point]] = _point_segment_distances(points, a[~point], b[~point]) - reach[~point][None, :]
-    if scene.box_index.size:
-        c, rot, half, clearance = scene.box_arrays
-        out[:, scene.box_index] = _box_distances(points, c, rot, half) - clearance[None, :]
+    for index, distances in _free_parts(points, scene):
+        out[:, index] = distances
     return out
 
 
@@ -386,23 +395,12 @@ def free_distances(points: FloatArray, scene: Scene) -> FloatArray:
     """Smallest :func:`obstacle_free_distances` per point, shape (M,) (inf with no obstacle)."""
     m = points.shape[0]
     out = np.full(m, np.inf)
-    if not len(scene):
-        return out
-    # A detour asks for tens of thousands of candidates at once: in blocks, each kind's
+    # A detour asks for tens of thousands of candidates at once: in blocks, each group's
     # smallest straight away, without the (M, O) table (a third of the time, and memory).
     for lo in range(0, m, FREE_BLOCK):
-        block = points[lo : lo + FREE_BLOCK]
-        if scene.round_index.size:
-            a, b, reach = scene.round_arrays
-            point = ~(b != a).any(axis=1)
-            for part in (point, ~point):
-                if part.any():
-                    d = _point_segment_distances(block, a[part], b[part]) - reach[part][None, :]
-                    np.minimum(out[lo : lo + FREE_BLOCK], d.min(axis=1), out=out[lo : lo + FREE_BLOCK])
-        if scene.box_index.size:
-            c, rot, half, clearance = scene.box_arrays
-            d = _box_distances(block, c, rot, half) - clearance[None, :]
-            np.minimum(out[lo : lo + FREE_BLOCK], d.min(axis=1), out=out[lo : lo + FREE_BLOCK])
+        block = out[lo : lo + FREE_BLOCK]
+        for _, distances in _free_parts(points[lo : lo + FREE_BLOCK], scene):
+            np.minimum(block, distances.min(axis=1), out=block)
     return out
 
 
