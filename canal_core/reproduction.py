@@ -323,27 +323,25 @@ def reproduce(
                                           avoided.start_clearance)
     shares = np.ones(1)
     behind = index == 0 and loc.axial[0] < 0.0
-    if behind and positions.shape[0] > 1:
-        # (E4): behind the first plane, the first point is a straight line away; the path
-        # takes it in the directrix's own first steps. The line is the one the obstacle
-        # check cleared (a detour starts after it), so its points need no second check.
-        shares = approach_shares(canal.arclength, float(np.linalg.norm(positions[1] - point)))
+    if positions.shape[0] > 1:
+        far = float(np.linalg.norm(positions[1] - point))
+        if behind:
+            # (E4): behind the first plane, the first point is a straight line away; the path
+            # takes it in the directrix's own first steps.
+            shares = approach_shares(canal.arclength, far)
+        elif not inside and entry != 0.0:
+            # (E5) A start outside whose first point lies farther than the demonstrations ever
+            # stepped there (the tube's cap, F1, brought the entry down to meet it at their
+            # pace) goes there along the straight line, one demonstrated step at a time.
+            # ``entry=0`` is the paper's clamp, onto the wall at once, and keeps it.
+            shares = paced_approach_shares(far, float(canal.section_steps[first]), canal.n_sections)
+    if shares.size > 1:
+        # The line is the one the obstacle check cleared (a detour starts after it), so its
+        # points need no second check.
         approach = point + shares[:-1, None] * (positions[1] - point)
         positions = np.vstack([point, approach, positions[1:]])
         if detoured is not None:
             detoured = np.concatenate([np.zeros(shares.size - 1, dtype=bool), detoured])
-    elif not inside and entry != 0.0 and positions.shape[0] > 1:
-        # (E5) A start outside whose first point lies farther than the demonstrations ever
-        # stepped there (the tube's cap, F1, brought the entry down to meet it at their pace)
-        # goes there along the straight line, one demonstrated step at a time. ``entry=0`` is
-        # the paper's clamp, onto the wall at once, and keeps it.
-        shares = paced_approach_shares(float(np.linalg.norm(positions[1] - point)), float(canal.section_steps[first]),
-                                       canal.n_sections)
-        if shares.size > 1:
-            approach = point + shares[:-1, None] * (positions[1] - point)
-            positions = np.vstack([point, approach, positions[1:]])
-            if detoured is not None:
-                detoured = np.concatenate([np.zeros(shares.size - 1, dtype=bool), detoured])
     n_approach = shares.size - 1
     times = None
     # Seconds from the stamps; a steady logger's pace only once a duration says how long.
