@@ -620,12 +620,9 @@ class CanalService:
                     start_orientation=start_orientation, obstacles=scene,
                     persistence=body.persistence, deadline=began + self.reproduce_max_seconds)
             except canal_core.TooSlowError as exc:
-                self.metrics.reproductions_stopped.labels("too_slow").inc()
-                raise ReproductionTooSlow(
-                    f"expected the reproductions within CANAL_REPRODUCE_MAX_SECONDS = "
-                    f"{self.reproduce_max_seconds:g} s of server time, got a detour search still "
-                    f"running at {field} after {len(results)} of {len(fields)} starts: give fewer "
-                    "obstacles near the path, or fewer starts at once", field=field) from exc
+                raise self._too_slow(f"a detour search still running at {field} after "
+                                     f"{len(results)} of {len(fields)} starts: give fewer obstacles "
+                                     "near the path, or fewer starts at once", field) from exc
             except canal_core.CanalError as exc:
                 # canal_core names its own argument "start"; the client sent starts[i].
                 at = field if exc.field in (None, "start") else exc.field
@@ -672,12 +669,15 @@ class CanalService:
                                         field="starts")
         spent = time.monotonic() - began
         if spent > self.reproduce_max_seconds:
-            self.metrics.reproductions_stopped.labels("too_slow").inc()
-            raise ReproductionTooSlow(
-                f"expected the reproductions within CANAL_REPRODUCE_MAX_SECONDS = "
-                f"{self.reproduce_max_seconds:g} s of server time, got {done} of {total} starts "
-                f"done in {spent:.1f} s: send fewer starts at once (or fewer obstacles)",
-                field="starts")
+            raise self._too_slow(f"{done} of {total} starts done in {spent:.1f} s: send fewer "
+                                 "starts at once (or fewer obstacles)", "starts")
+
+    def _too_slow(self, got: str, field: str) -> ReproductionTooSlow:
+        """The error of a request stopped at ``CANAL_REPRODUCE_MAX_SECONDS``, counted."""
+        self.metrics.reproductions_stopped.labels("too_slow").inc()
+        return ReproductionTooSlow(f"expected the reproductions within CANAL_REPRODUCE_MAX_SECONDS = "
+                                   f"{self.reproduce_max_seconds:g} s of server time, got {got}",
+                                   field=field)
 
     def _keep_reproductions(self, name: str, ref: repo.ModelRef,
                             results: list[canal_core.Reproduction]) -> None:
