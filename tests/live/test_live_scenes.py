@@ -8,12 +8,17 @@ import time
 import numpy as np
 import orjson
 import pytest
+import zenoh
 from canal_client.live import PoseStreamer
 from live_helpers import make_skill, wait_until
 
 import canal_core
 from canal_core.obstacles import free_distances, scene_from_list
 from canal_protocol import wire
+
+# Scene puts wait for room rather than being dropped when the link is busy (a 100 kB put can
+# fill it), as the product's own pose publishers do.
+BLOCK = zenoh.CongestionControl.BLOCK
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -58,7 +63,7 @@ def test_a_scene_put_in_flight_is_gone_around_from_the_next_pose(live, scn) -> N
 
         def put(i: int) -> None:
             if i == put_at:
-                ps.session.put(f"canal/{scn}/scene", orjson.dumps({"obstacles": [ball]}))
+                ps.session.put(f"canal/{scn}/scene", orjson.dumps({"obstacles": [ball]}), congestion_control=BLOCK)
                 # the bridge measures it against the canal as it arrives (tens of ms) and
                 # stores it (shard 0): wait until it is served, then go on moving
                 bank = live.client.app.state.bridge.models.models[scn].bank
@@ -134,9 +139,9 @@ def test_a_scene_put_over_zenoh_is_held_to_the_rest_scene_s_rules(live, scn) -> 
         for body in ({"obstacles": [ball], "bogus": 1},
                      {"obstacles": [{**ball, "name": "x" * 100_000}]},
                      {"obstacles": [{**ball, "colour": "red"}]}):
-            ps.session.put(f"canal/{scn}/scene", orjson.dumps(body))
+            ps.session.put(f"canal/{scn}/scene", orjson.dumps(body), congestion_control=BLOCK)
         # a good one after them: once it is stored, the bad ones had their turn
-        ps.session.put(f"canal/{scn}/scene", orjson.dumps([{**ball, "name": "ok"}]))
+        ps.session.put(f"canal/{scn}/scene", orjson.dumps([{**ball, "name": "ok"}]), congestion_control=BLOCK)
         # a loaded machine measures four scenes in turn: time enough for all of them
         assert wait_until(lambda: live.client.get(f"/skills/{scn}/scene").json()["version"] > before,
                           timeout=30.0), (before, live.client.get(f"/skills/{scn}/scene").json())
