@@ -143,6 +143,18 @@ class CorrectionNotInLatest(Conflict):
     """An undo of a correction the latest model version does not have."""
 
 
+class SkillReplaced(Conflict):
+    """What was captured on a skill is stored only into that skill: the one under its name
+    was deleted (and perhaps created again) since the capture began."""
+
+    def __init__(self, skill: str, what: str, *, exists: bool) -> None:
+        got = ("another skill: it was deleted and created again under its name" if exists
+               else "no skill: it was deleted")
+        super().__init__(f"expected the skill '{skill}' this {what} was captured on, got "
+                         f"{got} since the capture began; nothing is stored, start the "
+                         "capture again", field="skill")
+
+
 class RecordingFailed(Conflict):
     """The recorder could not produce the recording asked for (e.g. a rebuild failed)."""
 

@@ -20,7 +20,7 @@ from canal_core.corrections import checked_correction, corrected_canal, correcti
 from canal_core.routes import Routes, served_model, single_route
 from canal_protocol import schemas
 
-from .errors import CanalRejected, CorrectionNotInLatest
+from .errors import CanalRejected, CorrectionNotInLatest, SkillReplaced
 from .metrics import Metrics
 from .storage import Correction, Database, Skill, arrays
 from .storage import repository as repo
@@ -94,9 +94,12 @@ class ModelCorrections:
         stored.summary.notes = notes
         return stored.summary, partial(self.versions.tell, name, stored)
 
-    def correct(self, name: str, body: schemas.CorrectionIn) -> schemas.CorrectedModel:
+    def correct(self, name: str, body: schemas.CorrectionIn, *,
+                instance: str | None = None) -> schemas.CorrectedModel:
         """Refine a model version (the latest by default) by a person's correction; the
         result is the new latest version. Nothing is stored when canal_core refuses it.
+        ``instance``: the skill a live capture began on (:func:`repo.skill_instance`); the
+        correction refines that skill only (:class:`SkillReplaced`).
 
         The latest is the latest when the correction is stored: a fit, correction or undo
         that lands meanwhile is what it is applied to (a version the request names is
@@ -105,12 +108,17 @@ class ModelCorrections:
         made: list[Correction] = []
 
         def build() -> tuple[schemas.ModelSummary, Callable[[], None]]:
+            if instance is not None:  # before a deleted skill's "not found"
+                with self.db.read() as s:
+                    repo.skill_of_instance(s, name, "correction", instance)
             routes, base_version, dim = self.load_routes(name, version)
             route = check_route(body.route, routes.n_routes, "route")
             canal = routes.pooled if route is None else routes.canals[route]
             with self.db.read() as s:
                 skill = repo.get_skill(s, name)
-                instance = repo.skill_instance(skill.id, skill.created_at)
+                now = repo.skill_instance(skill.id, skill.created_at)
+                if instance is not None and now != instance:
+                    raise SkillReplaced(name, "correction", exists=True)
                 base = repo.get_model(s, repo.require_model_ref(s, skill, base_version)[0])
                 lineage = repo.lineages(s, [base])[base.id]
                 options, demo_ids = dict(base.options), list(base.demo_ids)
@@ -138,7 +146,7 @@ class ModelCorrections:
             return self._store_refined(
                 name, options, demo_ids, refined,
                 StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
-                _glitch_notes(correction.samples), instance=instance,
+                _glitch_notes(correction.samples), instance=now,
                 base=base_version if version is None else None)
 
         summary = self.versions.on_latest(name, "correction", build)

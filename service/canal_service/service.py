@@ -258,10 +258,14 @@ class CanalService:
                                    fittable)
 
     def add_demonstration(self, name: str, demo: DemoArrays, label: str | None,
-                          source: str) -> schemas.DemonstrationCreated:
-        """Store a checked demonstration; its dimension was checked against the skill's."""
-        stored = repo.insert_demonstration(self.db, name, demo.positions, demo.timestamps,
-                                           demo.orientations, label, source)
+                          source: str, *, instance: str | None = None
+                          ) -> schemas.DemonstrationCreated:
+        """Store a checked demonstration; its dimension was checked against the skill's.
+        ``instance``: the skill a live capture began on (:func:`repo.skill_instance`); the
+        demonstration goes into that skill only (:class:`SkillReplaced`)."""
+        stored = repo.insert_demonstration(
+            self.db, name, demo.positions, demo.timestamps, demo.orientations, label, source,
+            captured_on=None if instance is None else ("demonstration", instance))
         created = schemas.DemonstrationCreated(id=stored.id, n_points=stored.n_points,
                                                checksum=stored.checksum)
         dim = stored.dim
@@ -551,9 +555,10 @@ class CanalService:
 
     # ---- corrections ------------------------------------------------------------------------
 
-    def correct(self, name: str, body: schemas.CorrectionIn) -> schemas.CorrectedModel:
+    def correct(self, name: str, body: schemas.CorrectionIn, *,
+                instance: str | None = None) -> schemas.CorrectedModel:
         """Refine a model version by a person's correction (:meth:`ModelCorrections.correct`)."""
-        return self.corrections.correct(name, body)
+        return self.corrections.correct(name, body, instance=instance)
 
     def list_corrections(self, name: str, offset: int, limit: int
                          ) -> schemas.Page[schemas.CorrectionOut]:

@@ -176,3 +176,49 @@ def test_recordings_that_cannot_open_fail_the_start(tmp_path: Path) -> None:
     settings = Settings(data_dir=tmp_path, recordings_dir=not_a_folder, zenoh_enabled=False)
     with pytest.raises(OSError):
         create_app(settings)
+
+
+def test_a_capture_stores_only_into_the_skill_it_began_on(service: CanalService) -> None:
+    # The live path read the skill's instance, then stored the captured poses in a second
+    # transaction: a skill deleted and created again under its name in between got the old
+    # skill's poses. The instance is now checked by the store itself.
+    from canal_service.errors import SkillReplaced
+    from canal_service.storage import repository as repo
+
+    def instance() -> str:
+        with service.db.read() as s:
+            return repo.skill_instances(s, "s")["s"]
+
+    service.create_skill(schemas.SkillCreate(name="s", dim=3))
+    for seed in range(3):
+        _add(service, "s", demo_positions(seed))
+    service.fit("s", schemas.FitRequest(n_samples=20))
+    old = instance()
+    demo = check_demonstration(demo_positions(5), 3)
+    assert service.add_demonstration("s", demo, None, "zenoh", instance=old).id > 0
+    service.delete_skill("s")
+    service.create_skill(schemas.SkillCreate(name="s", dim=3))
+    for seed in range(3):
+        _add(service, "s", demo_positions(seed))
+    service.fit("s", schemas.FitRequest(n_samples=20))
+    with pytest.raises(SkillReplaced) as replaced:
+        service.add_demonstration("s", demo, None, "zenoh", instance=old)
+    assert replaced.value.field == "skill" and "created again" in replaced.value.message
+    assert http_status(replaced.value) == (409, "conflict")
+    include = schemas.CorrectionIn.model_validate(
+        {"kind": "include", "samples": demo_positions(1).tolist()})
+    with pytest.raises(SkillReplaced):
+        service.correct("s", include, instance=old)
+    skill = service.get_skill("s")
+    assert skill.n_demonstrations == 3 and skill.latest_model_version == 1, skill
+    # the skill it began on is gone: said so, not "created again"
+    service.delete_skill("s")
+    with pytest.raises(SkillReplaced) as gone:
+        service.add_demonstration("s", demo, None, "zenoh", instance=old)
+    assert "deleted" in gone.value.message and "created again" not in gone.value.message
+    # the instance it began on stores as before
+    service.create_skill(schemas.SkillCreate(name="s", dim=3))
+    for seed in range(3):
+        _add(service, "s", demo_positions(seed))
+    service.fit("s", schemas.FitRequest(n_samples=20))
+    assert service.correct("s", include, instance=instance()).version == 2

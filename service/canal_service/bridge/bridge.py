@@ -667,14 +667,16 @@ class Bridge:
                     encoding=ENC_JSON)
 
     def _capture_stop(self, query: Any, st: Stream, body: dict[str, Any],
-                      kinds: tuple[str | None, ...], what: str) -> list[Any] | None:
-        """The captured poses (up to ``last_seq``), or None after answering the error."""
+                      kinds: tuple[str | None, ...], what: str
+                      ) -> tuple[list[Any], str] | None:
+        """The captured poses (up to ``last_seq``) and the skill instance the capture began
+        on (the store checks it: :class:`..errors.SkillReplaced`), or None after answering
+        the error."""
         last_seq = body.get("last_seq")
         if isinstance(last_seq, int):  # wait for the worker to see the last pose sent
             deadline = time.monotonic() + _STOP_WAIT_S
             while st.last_seq < last_seq and time.monotonic() < deadline:
                 time.sleep(0.001)
-        instance = self._skill_instance(st.skill)
         with st.lock:
             poses = st.capture if st.capture_kind in kinds else None
             started_on = st.capture_instance
@@ -684,19 +686,17 @@ class Bridge:
             _reply_error(query, "conflict", f"no {what} is being captured on this stream",
                          what.split()[0])
             return None
-        if not _same_skill(query, st.skill, started_on, instance, what):
-            return None
         if isinstance(last_seq, int):
             poses = [p for p in poses if p.seq <= last_seq]
-        return poses
+        return poses, _began_on(started_on)
 
     def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         label = st.capture_label
-        poses = self._capture_stop(query, st, body, (None,), "demonstration")
-        if poses is None:
+        captured = self._capture_stop(query, st, body, (None,), "demonstration")
+        if captured is None:
             return
         try:
-            created = self._store_demo(st.skill, poses, label)
+            created = self._store_demo(st.skill, *captured, label)
         except ServiceError as exc:
             _reply_error(query, error_type(exc), exc.message, exc.field)
             return
@@ -709,14 +709,13 @@ class Bridge:
 
     def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         kind, weight, label = st.capture_kind, st.capture_weight, st.capture_label
-        poses = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
-        if poses is None:
+        captured = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
+        if captured is None:
             return
-        self._store_correction(query, st, str(kind), poses, weight, label)
+        self._store_correction(query, st, str(kind), *captured, weight, label)
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         """Keep the stream's last steered run (or the one in progress) as an include."""
-        instance = self._skill_instance(st.skill)
         with st.lock:
             if st.capture_kind == "steer":
                 poses, started_on = st.capture, st.capture_instance
@@ -726,15 +725,13 @@ class Bridge:
         if not poses:
             _reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
             return
-        if not _same_skill(query, st.skill, started_on, instance, "steered run"):
-            return
         weight, label = body.get("weight"), body.get("label")
-        self._store_correction(query, st, "include", poses,
+        self._store_correction(query, st, "include", poses, _began_on(started_on),
                                1.0 if weight is None else float(weight),
                                "steered" if label is None else label)
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
-                          weight: float, label: str | None) -> None:
+                          instance: str, weight: float, label: str | None) -> None:
         try:
             poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
             times = [p.t for p in poses]
@@ -745,7 +742,7 @@ class Bridge:
                 "plan": self._live_plan(st, poses) if kind == "exclude" else None,
                 # a stream's correction refines the route it follows
                 "route": self.stream_route(st)})
-            made = self.service.correct(st.skill, body)
+            made = self.service.correct(st.skill, body, instance=instance)
         except ValidationError as exc:
             first = pydantic_detail(exc.errors(include_url=False)[0])
             _reply_error(query, "invalid_input", first["message"], first["field"])
@@ -778,7 +775,8 @@ class Bridge:
         with self.service.db.read() as s:
             return repo.skill_instances(s, skill).get(skill)
 
-    def _store_demo(self, skill: str, poses: list[Any], label: str | None) -> dict[str, Any]:
+    def _store_demo(self, skill: str, poses: list[Any], instance: str,
+                    label: str | None) -> dict[str, Any]:
         dim = self.service.skill_dim(skill)
         poses = poses_of_dim(poses, dim, "positions")
         positions = [p.position for p in poses]
@@ -788,7 +786,7 @@ class Bridge:
             positions, dim,
             times if poses and all(t is not None for t in times) else None,
             quats if poses and all(q is not None for q in quats) else None)
-        created = self.service.add_demonstration(skill, demo, label, "zenoh")
+        created = self.service.add_demonstration(skill, demo, label, "zenoh", instance=instance)
         return created.model_dump(mode="json")  # type: ignore[no-any-return]
 
     # ---- housekeeping -------------------------------------------------------------------------
@@ -827,18 +825,10 @@ def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
                        f"{len(poses)} poses with {dims}", field=field)
 
 
-def _same_skill(query: Any, skill: str, started_on: str | None, now: str | None,
-               what: str) -> bool:
-    """Whether the skill under the name is still the one the capture began on; if not, the
-    capture is over with it and the query is answered ``conflict`` on ``skill``."""
-    if started_on is not None and started_on == now:
-        return True
-    got = ("no skill: it was deleted" if now is None
-           else "another skill: it was deleted and created again under its name")
-    _reply_error(query, "conflict", f"expected the skill '{skill}' this {what} was captured "
-                 f"on, got {got} since the capture began; nothing is stored, start the capture "
-                 "again", "skill")
-    return False
+def _began_on(instance: str | None) -> str:
+    """The skill instance a capture began on, for the store to check; a steered run begun
+    while no skill had the name matches none."""
+    return "" if instance is None else instance
 
 
 #: Streams expired since the last trim that call for handing their memory back.

@@ -25,6 +25,7 @@ from ..errors import (
     NoModelYet,
     SkillExists,
     SkillNotFound,
+    SkillReplaced,
 )
 from . import arrays
 from .db import Database
@@ -145,22 +146,31 @@ _SKILL_ID_AND_DIM = select(Skill.id, Skill.dim).where(Skill.name == bindparam("n
 # One round trip: the row is inserted only when a skill of that name has the demo's
 # dimension (INSERT ... SELECT ... RETURNING); no row back means one of the two is wrong,
 # and only that error path looks up which.
-_INSERT_DEMONSTRATION = insert(Demonstration).from_select(
-    ["skill_id", "label", "n_points", "dim", "positions", "timestamps", "orientations",
-     "checksum", "source", "created_at"],
-    select(
-        Skill.id,
-        bindparam("label", type_=Demonstration.label.type),
-        bindparam("n_points", type_=Demonstration.n_points.type),
-        Skill.dim,
-        bindparam("positions", type_=Demonstration.positions.type),
-        bindparam("timestamps", type_=Demonstration.timestamps.type),
-        bindparam("orientations", type_=Demonstration.orientations.type),
-        bindparam("checksum", type_=Demonstration.checksum.type),
-        bindparam("source", type_=Demonstration.source.type),
-        bindparam("created_at", type_=Demonstration.created_at.type),
-    ).where(Skill.name == bindparam("name"), Skill.dim == bindparam("dim")),
-).returning(Demonstration.id)
+def _insert_demonstration_into(skill: Any) -> Any:
+    """INSERT ... SELECT of a demonstration into the skill ``skill`` picks out, when it has
+    the demonstration's dimension."""
+    return insert(Demonstration).from_select(
+        ["skill_id", "label", "n_points", "dim", "positions", "timestamps", "orientations",
+         "checksum", "source", "created_at"],
+        select(
+            Skill.id,
+            bindparam("label", type_=Demonstration.label.type),
+            bindparam("n_points", type_=Demonstration.n_points.type),
+            Skill.dim,
+            bindparam("positions", type_=Demonstration.positions.type),
+            bindparam("timestamps", type_=Demonstration.timestamps.type),
+            bindparam("orientations", type_=Demonstration.orientations.type),
+            bindparam("checksum", type_=Demonstration.checksum.type),
+            bindparam("source", type_=Demonstration.source.type),
+            bindparam("created_at", type_=Demonstration.created_at.type),
+        ).where(skill, Skill.dim == bindparam("dim")),
+    ).returning(Demonstration.id)
+
+
+_INSERT_DEMONSTRATION = _insert_demonstration_into(Skill.name == bindparam("name"))
+# A capture's demonstration goes into the skill row it began on, by id, with that row
+# locked and its instance checked in the same transaction.
+_INSERT_DEMONSTRATION_OF_SKILL = _insert_demonstration_into(Skill.id == bindparam("skill_id"))
 
 
 def insert_demonstration(
@@ -171,6 +181,8 @@ def insert_demonstration(
     orientations: arrays.FloatArray | None,
     label: str | None,
     source: str,
+    *,
+    captured_on: tuple[str, str] | None = None,
 ) -> StoredDemo:
     """Store a checked demonstration: one statement, committed on its own.
 
@@ -179,24 +191,43 @@ def insert_demonstration(
     recreated meanwhile cannot slip through), no ORM objects are built for a row that is
     only written, and :meth:`Database.write_one` runs it on SQLite without SQLAlchemy's
     per-execution work.
+
+    ``captured_on``: (what was captured, :func:`skill_instance`) of the skill a live capture
+    began on; the demonstration goes into that skill only, else :class:`SkillReplaced`.
     """
     packed = arrays.pack(positions)
     digest = arrays.checksum_of_packed(packed)
     n_points, dim = int(positions.shape[0]), int(positions.shape[1])
-    row = db.write_one(
-        _INSERT_DEMONSTRATION,
-        {
-            "name": skill_name, "dim": dim, "label": label, "n_points": n_points,
-            "positions": packed,
-            "timestamps": None if timestamps is None else arrays.pack(timestamps),
-            "orientations": None if orientations is None else arrays.pack(orientations),
-            "checksum": digest, "source": source, "created_at": utcnow(),
-        },
-    )
+    values = {
+        "name": skill_name, "dim": dim, "label": label, "n_points": n_points,
+        "positions": packed,
+        "timestamps": None if timestamps is None else arrays.pack(timestamps),
+        "orientations": None if orientations is None else arrays.pack(orientations),
+        "checksum": digest, "source": source, "created_at": utcnow(),
+    }
+    if captured_on is None:
+        row = db.write_one(_INSERT_DEMONSTRATION, values)
+    else:
+        with db.write() as session:
+            skill_id = skill_of_instance(session, skill_name, *captured_on, lock=True)
+            row = session.connection().execute(_INSERT_DEMONSTRATION_OF_SKILL,
+                                               {**values, "skill_id": skill_id}).first()
     if row is None:
         with db.read() as session:
             raise _refused_insert(session, skill_name, dim)
     return StoredDemo(int(row[0]), n_points, digest, dim)
+
+
+def skill_of_instance(session: Session, name: str, what: str, instance: str, *,
+                      lock: bool = False) -> int:
+    """The id of the skill under ``name`` when it is the instance ``instance``
+    (:func:`skill_instance`) a capture of ``what`` began on, else :class:`SkillReplaced`;
+    ``lock``: its row stays locked until the write transaction ends."""
+    query = select(Skill.id, Skill.created_at).where(Skill.name == name)
+    found = session.execute(query.with_for_update() if lock else query).first()
+    if found is None or skill_instance(found[0], found[1]) != instance:
+        raise SkillReplaced(name, what, exists=found is not None)
+    return int(found[0])
 
 
 def _refused_insert(session: Session, skill_name: str, dim: int) -> SkillNotFound | InvalidInput:
