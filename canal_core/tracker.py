@@ -394,6 +394,19 @@ def plausible_from(geometry: TrackerGeometry, index: int, position: FloatArray) 
     return after.strikes == 0
 
 
+def direction_in_plane(direction: FloatArray, from_basis: FloatArray,
+                       to_basis: FloatArray) -> FloatArray:
+    """The unit in-plane direction, shape (D - 1,), on a section of basis ``to_basis``
+    (D - 1, D) that points where ``direction`` (D - 1,) points on a section of basis
+    ``from_basis`` (D - 1, D): a plan carried from one canal to another (a refit), whose
+    sections' frames may turn. The default direction when the two planes are at right angles."""
+    projected = to_basis @ (np.asarray(direction, dtype=np.float64) @ from_basis)
+    norm = float(np.linalg.norm(projected))
+    if not norm > 1e-12:
+        return DEFAULT_DIRECTIONS[to_basis.shape[0]].copy()
+    return np.asarray(projected / norm, dtype=np.float64)
+
+
 def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
     """Whether a pose is far from the canal: its ratio ``eta`` above :data:`FAR_ETA` (or
     not a number), or it lies more than :data:`FAR_ETA` times the local ``reach`` outside

@@ -388,3 +388,34 @@ def test_a_capture_ends_with_the_skill_it_was_started_on(live, what):
         else:
             assert stored["version"] == 2, stored
     assert live.client.delete(f"/skills/{name}").status_code == 204
+
+
+@pytest.mark.parametrize("refit_samples", [100, 80])
+def test_a_glitch_pose_right_after_a_refit_does_not_send_the_target_to_the_end(live, refit_samples):
+    # The first pose on a new model was located afresh whenever it was not a plausible step
+    # from the section carried over: one glitch pose at the canal's end right after a refit
+    # placed the stream at its last section, and the robot was sent there.
+    x = np.linspace(0.0, 1.0, 60)
+    demos = [np.column_stack([x, 0.05 * np.sin(3 * x + j), 0.05 * np.cos(2 * x + j)])
+             for j in range(4)]
+    client, skill = live.client, f"glitchy{refit_samples}"
+    assert client.post("/skills", json={"name": skill, "dim": 3}).status_code == 201
+    for d in demos:
+        assert client.post(f"/skills/{skill}/demonstrations",
+                           json={"positions": d.tolist()}).status_code == 201
+    assert client.post(f"/skills/{skill}/fit", json={"n_samples": 100}).status_code == 201
+    d = np.mean(demos, axis=0)  # a robot that follows the canal's middle
+    with PoseStreamer(skill, "arm", endpoint=live.endpoint) as ps:
+        for p in d[:31]:
+            t = ps.wait_for(ps.send(p.tolist()), timeout=5.0)
+            assert t is not None and t.status == "ok", t
+        before = t.progress
+        assert client.post(f"/skills/{skill}/fit",
+                           json={"n_samples": refit_samples}).status_code == 201
+        glitch = ps.wait_for(ps.send(d[-1].tolist()), timeout=5.0)
+        assert glitch is not None and glitch.model_version == 2, glitch
+        assert glitch.status == "outside_canal", glitch  # suspect: told so, plan held
+        assert glitch.progress < 0.7 and glitch.target[0] < 0.75, glitch
+        t = ps.wait_for(ps.send(d[31].tolist()), timeout=5.0)
+        assert t is not None and t.status == "ok", t
+        assert abs(t.progress - before) < 0.1 and t.target[0] < 0.75, (before, t)

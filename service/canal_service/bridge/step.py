@@ -18,7 +18,7 @@ import numpy as np
 
 from canal_core.routes import way_of
 from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
-from canal_core.tracker import plausible_from, start_section
+from canal_core.tracker import direction_in_plane, plausible_from, start_section
 from canal_protocol import wire
 
 from .answers import Answers
@@ -94,6 +94,7 @@ class Stepper(Answers):
             group_jobs.append(job)
             slots.append(st.slot)
             positions.append(position)
+            st.position = position
         out = []
         for model, model_jobs, model_slots, model_positions in by_model.values():
             if not model_jobs:
@@ -145,7 +146,7 @@ class Stepper(Answers):
         """The stream's slot in the entry's bank, started at the section the robot is
         located at (a new stream, a restart); on a model switch (a fit, a correction) at
         the section it had reached, with its plan, so a stream in flight is not re-located."""
-        carried: tuple[int, float, Any, int] | None = None
+        carried: tuple[int, float, Any, Any] | None = None
         old = st.bank
         if old is not None and st.revision != entry.revision:
             self.counts.switches += 1
@@ -154,8 +155,9 @@ class Stepper(Answers):
             # share of the canal reached on the old one says nothing there.
             placed_afresh = entry.route != wire.NO_ROUTE and st.route_reason not in ("kept", "way")
             if not restart and st.revision[0] == entry.created_ns and not placed_afresh:
-                carried = (int(old.index[st.slot]), float(old.eta[st.slot]),
-                           old.direction[st.slot].copy(), old.geometry.centres.shape[0])
+                index_old = int(old.index[st.slot])
+                carried = (index_old, float(old.eta[st.slot]), old.direction[st.slot].copy(),
+                           old.geometry)
         bank = entry.bank
         assert bank is not None
         if st.bank is not bank:
@@ -164,18 +166,31 @@ class Stepper(Answers):
         st.revision = entry.revision
         point = np.array(position, dtype=np.float64)
         if carried is not None:
-            index, eta, direction, n_old = carried
-            n = bank.geometry.centres.shape[0]
+            index_old, eta, direction, old_geometry = carried
+            n, n_old = bank.geometry.centres.shape[0], old_geometry.centres.shape[0]
             # a correction (the same sections of the same route): the plan carries over too
             same_sections = n == n_old and st.route_reason != "way"
+            index = index_old
             if not same_sections:  # another fit: the same share of the canal
-                index = round(index * (n - 1) / max(n_old - 1, 1))
+                index = round(index_old * (n - 1) / max(n_old - 1, 1))
             # ... unless the robot is not there on the new canal (a route that merged with
-            # another, a canal that grew at its start): placed afresh, not sent back to it
+            # another, a canal that grew at its start): placed afresh, not sent back to it.
+            # Where the robot was a pose ago is the new canal's test, not this pose: one
+            # glitch right after a refit must not place the stream (at the canal's end, say),
+            # it is held as any suspect pose is.
             if plausible_from(bank.geometry, index, point):
                 bank.reset(st.slot, index)
                 if same_sections:
                     bank.eta[st.slot], bank.direction[st.slot] = eta, direction
+                return
+            previous = st.position
+            if (previous is not None and not math.isnan(eta)
+                    and plausible_from(bank.geometry, index, np.array(previous, dtype=np.float64))):
+                bank.reset(st.slot, index)
+                if not same_sections:
+                    direction = direction_in_plane(direction, old_geometry.basis[index_old],
+                                                   bank.geometry.basis[index])
+                bank.eta[st.slot], bank.direction[st.slot] = eta, direction
                 return
         try:
             located = int(entry.canal.reproduce_detailed(point).section_index)

@@ -57,6 +57,8 @@ class Stream:
     route: int | None = None
     route_reason: str = ""
     route_serial: int = -1
+    #: the last pose it was stepped with (the robot's position a glitch is told from)
+    position: tuple[float, ...] | None = None
     last_seen: float = 0.0
     last_seq: int = -1
     coalesced: int = 0
