@@ -336,8 +336,15 @@ class Canal:
         """
         target = check_reach(check_point(goal, self.dim, "goal"), *self.extent, "goal")
         centres = self.directrix + goal_displacements(self.arclength, target - self.directrix[-1])
-        tangents, normals, binormals = canal_frames(centres, self.options)
         steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+        # A canal of two sections bent to end where it starts shrinks to a point: no
+        # tangent, no sections' planes, nothing a robot could follow.
+        if not float(steps.sum()) > 1e-9 * max(float(self.arclength[-1]), 1e-300):
+            raise InvalidInputError(
+                f"expected a goal the canal can be bent to end at, got {target.tolist()}, where "
+                "it starts: the canal would shrink to a point; give a goal "
+                "away from the start, or fit more samples", field="goal")
+        tangents, normals, binormals = canal_frames(centres, self.options)
         return Canal(
             directrix=centres,
             tangents=tangents,

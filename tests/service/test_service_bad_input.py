@@ -107,6 +107,13 @@ def _npy(array: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def _npy_header(shape: str) -> bytes:
+    """A version 1.0 .npy header (and no data) promising an array of ``shape``."""
+    header = "{'descr': '<f8', 'fortran_order': False, 'shape': " + shape + ", }"
+    header += " " * (63 - (len(header) + 10) % 64) + "\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header.encode()
+
+
 GARBAGE = bytes(range(256)) * 8
 FILE_CASES: list[tuple[str, str, bytes, int, str]] = [
     ("garbage bytes as MCAP", "mcap", GARBAGE, 400, "file"),
@@ -118,6 +125,9 @@ FILE_CASES: list[tuple[str, str, bytes, int, str]] = [
      _npy(np.array([{"a": 1}] * 4, dtype=object)), 400, "file"),
     ("NPY of strings", "npy", _npy(np.array([["a", "b", "c"]] * 4)), 400, "file"),
     ("NPY with the wrong number of columns", "npy", _npy(np.zeros((10, 5))), 422, "file"),
+    ("NPY header with a shape past 64 bits", "npy", _npy_header("(99999999999999999999, 3)"), 400,
+     "file"),
+    ("NPY header with a negative shape", "npy", _npy_header("(-4, 3)"), 400, "file"),
     ("NPY with NaN", "npy", _npy(np.full((10, 3), np.nan)), 422, "positions[0]"),
     ("garbage bytes as CSV", "csv", GARBAGE, 400, "file"),
     ("empty file", "csv", b"", 400, "file"),
@@ -324,6 +334,25 @@ def test_a_bad_model_version_is_named_model_with_what_is_expected(
     error = assert_error(client.post(f"/skills/{fitted}/{route}", json={**body, "model": model}), 422, "model")
     assert error["field"] == "model", error
     assert f"expected 'latest' or a model version from 1 to {2**31 - 1}, got" in error["message"], error
+    assert stored(client) == (4, 1)
+
+
+@pytest.mark.parametrize("n_samples", [2, 3])
+def test_a_goal_where_a_short_canal_starts_is_refused(client: TestClient, skill: str,
+                                                      n_samples: int) -> None:
+    # A canal bent to end at its own start shrinks to a point when it has two sections: no
+    # tangent, and the request was a 500.
+    for j in range(4):
+        client.post(f"/skills/{skill}/demonstrations", json={"positions": demo_positions(j).tolist()})
+    assert client.post(f"/skills/{skill}/fit", json={"n_samples": n_samples}).status_code == 201
+    model = client.get(f"/skills/{skill}/models/latest", params={"serialized": True}).json()
+    start = model["serialized"]["directrix"][0]
+    r = client.post(f"/skills/{skill}/reproductions", json={"start": start, "goal": start})
+    if n_samples == 2:
+        error = assert_error(r, 422, "goal")
+        assert "start" in error["message"], error
+    else:
+        assert r.status_code == 200, r.text
     assert stored(client) == (4, 1)
 
 

@@ -332,3 +332,74 @@ def test_a_topic_sent_with_a_file_that_has_none_is_refused(client: TestClient, s
         assert error["field"] == "topic" and error["message"] == (
             f"expected topic only with an MCAP file, got {got}"), error
     assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
+
+
+def _pose_in_frame_mcap(payloads: list[dict[str, object]], log_times: list[int]) -> bytes:
+    buf = io.BytesIO()
+    writer = Writer(buf, compression=CompressionType.ZSTD)
+    writer.start()
+    schema_id = writer.register_schema(name="foxglove.PoseInFrame", encoding="jsonschema",
+                                       data=json.dumps({"type": "object"}).encode())
+    channel = writer.register_channel(topic="/pose", message_encoding="json", schema_id=schema_id)
+    for payload, log_time in zip(payloads, log_times, strict=True):
+        writer.add_message(channel, log_time=log_time, publish_time=log_time,
+                           data=json.dumps(payload).encode())
+    writer.finish()
+    return buf.getvalue()
+
+
+def _pose_payload(p: np.ndarray, stamp: object) -> dict[str, object]:
+    return {"timestamp": stamp, "frame_id": "base",
+            "pose": {"position": {"x": p[0], "y": p[1], "z": p[2]},
+                     "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}}
+
+
+# A stamp no clock gives (too large for 64-bit nanoseconds, fractional, of another type) was a
+# 500 (an overflow) or truncated without a word: refused, naming the message and the field.
+@pytest.mark.parametrize(("tried", "stamp", "field"), [
+    ("seconds past 64-bit nanoseconds", {"sec": 2**70, "nsec": 0}, "timestamp.sec"),
+    ("nanoseconds of 1e30", {"sec": 1, "nsec": 1e30}, "timestamp.nsec"),
+    ("fractional seconds", {"sec": 1.5, "nsec": 0}, "timestamp.sec"),
+    ("seconds as a string", {"sec": "1", "nsec": 0}, "timestamp.sec"),
+    ("seconds as true", {"sec": True, "nsec": 0}, "timestamp.sec"),
+    ("negative seconds", {"sec": -1, "nsec": 0}, "timestamp.sec"),
+    ("a billion nanoseconds", {"sec": 1, "nsec": 10**9}, "timestamp.nsec"),
+])
+def test_a_pose_in_frame_stamp_no_clock_gives_is_refused(
+        client: TestClient, skill: str, tried: str, stamp: dict[str, object], field: str) -> None:
+    p = demo_positions(1, n=6)
+    payloads = [_pose_payload(q, {"sec": 100 + i, "nsec": 0}) for i, q in enumerate(p)]
+    payloads[3] = _pose_payload(p[3], stamp)
+    r = client.post(f"/skills/{skill}/demonstrations", content=_pose_in_frame_mcap(
+        payloads, list(range(6))), headers={"content-type": "application/x-mcap"})
+    assert r.status_code == 422, (tried, r.text)
+    error = r.json()["error"]
+    assert field in error["field"] and "3" in error["field"], (tried, error)
+    assert client.get(f"/skills/{skill}/demonstrations").json()["items"] == []
+
+
+@pytest.mark.parametrize("value", ["0.5", True, None, [1]])
+def test_a_pose_in_frame_coordinate_that_is_not_a_number_is_refused(
+        client: TestClient, skill: str, value: object) -> None:
+    p = demo_positions(1, n=6)
+    payloads = [_pose_payload(q, {"sec": 100 + i, "nsec": 0}) for i, q in enumerate(p)]
+    payloads[2]["pose"]["position"]["y"] = value  # type: ignore[index]
+    r = client.post(f"/skills/{skill}/demonstrations", content=_pose_in_frame_mcap(
+        payloads, list(range(6))), headers={"content-type": "application/x-mcap"})
+    assert r.status_code == 422, (value, r.text)
+    assert "position.y" in r.json()["error"]["field"], r.json()
+    assert client.get(f"/skills/{skill}/demonstrations").json()["items"] == []
+
+
+def test_log_times_past_the_signed_64_bit_range_give_the_times_between_them(
+        client: TestClient, skill: str) -> None:
+    # MCAP log times are unsigned 64-bit: ones past 2**63 overflowed a signed array (a 500)
+    p = demo_positions(1, n=6)
+    payloads = [_pose_payload(q, {"sec": 0, "nsec": 0}) for q in p]
+    base = 2**64 - 10**9
+    r = client.post(f"/skills/{skill}/demonstrations", content=_pose_in_frame_mcap(
+        payloads, [base + i * 10**7 for i in range(6)]),
+        headers={"content-type": "application/x-mcap"})
+    assert r.status_code == 201, r.text
+    back = read_back(client, skill, r.json()["id"])
+    assert np.allclose(back["timestamps"], np.arange(6) * 0.01, atol=1e-6)

@@ -366,7 +366,7 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
         elif schema.name == FOXGLOVE_POSE:
             samples = []
             for i, (log_time, payload) in enumerate(messages):
-                samples.append(_foxglove_pose(orjson.loads(payload), log_time))
+                samples.append(_foxglove_pose(orjson.loads(payload), log_time, f"messages[{i}]"))
                 if not i & 0xFFF:
                     scan.budget.tick()
         else:
@@ -381,7 +381,8 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
             scan.budget.points(payload.count(b'"position"'), f"the {FOXGLOVE_POSES} message")
             poses = orjson.loads(payload)["poses"]
             samples = [(None, pos, quat)
-                       for _, pos, quat in (_foxglove_pose({"pose": p}, 0) for p in poses)]
+                       for pos, quat in (_pose_fields(p, f"poses[{i}]")
+                                         for i, p in enumerate(poses))]
     except (InvalidInput, TooLarge):
         raise
     except Exception as exc:  # malformed message payloads
@@ -393,8 +394,10 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
     stamps = [s[0] for s in samples]
     times: FloatArray | None = None
     if stamps and all(s is not None for s in stamps):
-        t = np.array(stamps, dtype=np.int64)
-        times = (t - t[0]).astype(np.float64) * 1e-9
+        # differences of Python integers: MCAP log times are unsigned 64-bit
+        first = stamps[0]
+        assert first is not None
+        times = np.array([s - first for s in stamps], dtype=np.float64) * 1e-9
     return ParsedUpload(np.ascontiguousarray(positions[:, :dim]), times, quats)
 
 
@@ -418,15 +421,52 @@ def _ros2_poses(schema: _Schema, channel: _Channel, messages: Iterable[tuple[int
         yield (stamp or int(log_time), list(pose.position), list(pose.orientation or ()))
 
 
-def _foxglove_pose(payload: dict[str, Any], log_time: int) -> _Sample:
+#: Largest whole seconds of a stamp: its nanoseconds still fit a signed 64-bit integer.
+MAX_STAMP_SEC = (2**63 - 1) // 1_000_000_000 - 1
+
+
+def _stamp_part(stamp: dict[str, Any], key: str, upper: int, where: str) -> int:
+    """``stamp[key]`` (0 when absent) as an integer in [0, ``upper``], else an
+    :class:`InvalidInput` naming ``where.timestamp.key`` (a fraction is not truncated, a
+    string or a boolean is not a count)."""
+    value = stamp.get(key, 0)
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= upper:
+        raise InvalidInput(
+            f"expected {where}.timestamp.{key} as a whole number in [0, {upper}], got {value!r}",
+            field=f"{where}.timestamp.{key}")
+    return value
+
+
+def _coordinates(values: dict[str, Any], keys: str, defaults: tuple[float, ...],
+                 where: str) -> list[float]:
+    """The numbers at ``keys`` of ``values`` (the ``defaults`` where absent), else an
+    :class:`InvalidInput` naming ``where.key`` (a string or a boolean is not a coordinate)."""
+    out = []
+    for key, default in zip(keys, defaults, strict=True):
+        value = values.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InvalidInput(f"expected {where}.{key} as a number, got {value!r}",
+                               field=f"{where}.{key}")
+        out.append(float(value))
+    return out
+
+
+def _foxglove_pose(payload: dict[str, Any], log_time: int, where: str) -> _Sample:
+    """One foxglove pose (a PoseInFrame message, or one pose of a PosesInFrame as
+    ``{"pose": ...}``) at ``where`` (what an error names): its stamp in nanoseconds (the
+    ``log_time`` when it has none), position and orientation."""
     stamp = payload.get("timestamp") or {}
-    ns = int(stamp.get("sec", 0)) * 1_000_000_000 + int(stamp.get("nsec", 0))
-    pose = payload["pose"]
+    if not isinstance(stamp, dict):
+        raise InvalidInput(f"expected {where}.timestamp as an object, got {stamp!r}",
+                           field=f"{where}.timestamp")
+    ns = (_stamp_part(stamp, "sec", MAX_STAMP_SEC, where) * 1_000_000_000
+          + _stamp_part(stamp, "nsec", 999_999_999, where))
+    return (ns or int(log_time), *_pose_fields(payload["pose"], f"{where}.pose"))
+
+
+def _pose_fields(pose: dict[str, Any], where: str) -> tuple[list[float], list[float]]:
+    """A foxglove Pose's position and orientation (at ``where``, what an error names)."""
     p = pose.get("position") or {}
     q = pose.get("orientation") or {}
-    return (
-        ns or int(log_time),
-        [float(p.get("x", 0.0)), float(p.get("y", 0.0)), float(p.get("z", 0.0))],
-        [float(q.get("x", 0.0)), float(q.get("y", 0.0)), float(q.get("z", 0.0)),
-         float(q.get("w", 1.0))],
-    )
+    return (_coordinates(p, "xyz", (0.0, 0.0, 0.0), f"{where}.position"),
+            _coordinates(q, "xyzw", (0.0, 0.0, 0.0, 1.0), f"{where}.orientation"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import math
 
 import numpy as np
 
@@ -34,7 +35,10 @@ def parse_npy(data: bytes, dim: int, budget: Budget | None = None) -> ParsedUplo
         raise BadUpload(f"unreadable .npy header: {exc}", field="file") from exc
     if dtype.hasobject or dtype.kind not in "fiu" or dtype.fields is not None:
         raise BadUpload(f"expected a .npy array of real numbers, got dtype {dtype}", field="file")
-    count = int(np.prod(shape, dtype=np.int64)) if shape else 1
+    if any(not isinstance(n, int) or n < 0 for n in shape):
+        raise BadUpload(f"expected a .npy shape of counts, got {shape!r}", field="file")
+    # Python integers: a hostile header's shape need not fit 64 bits
+    count = math.prod(shape)
     if count * dtype.itemsize != len(data) - stream.tell():
         raise BadUpload(
             f".npy header promises {count * dtype.itemsize} data bytes, file has "
