@@ -38,8 +38,9 @@ offset type    field
 Pose (kind 1) after the header: ``D x float64`` position, then ``4 x float64`` orientation
 quaternion (x, y, z, w) if flag 0x01, then ``float64`` timestamp in seconds if flag 0x02.
 Flag 0x04 (restart) tells Canal to re-locate the robot in the canal instead of continuing
-from the section reached so far (send it on the first pose of a new run). A 3-D pose
-without extras is 36 bytes.
+from the section reached so far (send it on the first pose of a new run); other flag bits
+are refused. A 3-D pose without extras is 36 bytes; a pose payload over
+:data:`MAX_POSE_BYTES` is refused unread.
 
 Target (kind 2) after the header: ``<iiddH`` = int32 model version (-1 none), int32 section
 index (-1 none), float64 progress in [0, 1], float64 eta (NaN when none), uint16 status
@@ -65,6 +66,8 @@ JSON pose::
 
     {"seq": 17, "position": [x, y, z], "orientation": [qx, qy, qz, qw]?, "t": 1.25?,
      "restart": false?}
+
+(no other key).
 
 JSON target::
 
@@ -133,6 +136,7 @@ from .codecs.messages import (
     KIND_POSE,
     KIND_TARGET,
     MAX_DIM,
+    MAX_POSE_BYTES,
     NO_ROUTE,
     POSE_ORIENTATION,
     POSE_RESTART,
@@ -167,6 +171,7 @@ __all__ = [
     "KIND_POSE",
     "KIND_TARGET",
     "MAX_DIM",
+    "MAX_POSE_BYTES",
     "NO_ROUTE",
     "POSE_ORIENTATION",
     "POSE_RESTART",

@@ -89,6 +89,9 @@ def encode_pose(seq: int, position: Any, orientation: Any = None, t: float | Non
                                                   seq, *values)
 
 
+_POSE_FLAGS = POSE_ORIENTATION | POSE_TIME | POSE_RESTART
+
+
 def _check_header(data: bytes, kind: int) -> tuple[int, int, int]:
     if len(data) < HEADER.size:
         raise WireError("bad_payload", f"expected at least {HEADER.size} bytes, got {len(data)}")
@@ -107,6 +110,9 @@ def decode_pose(data: bytes) -> Pose:
     try:
         if not 1 <= dim <= MAX_DIM:
             raise WireError("bad_payload", f"expected a dimension in 1..{MAX_DIM}, got {dim}")
+        if flags & ~_POSE_FLAGS:  # a flag this reader does not know would be obeyed by none
+            raise WireError("bad_payload", f"expected pose flags within 0x{_POSE_FLAGS:02x} "
+                                           f"(orientation, time, restart), got 0x{flags:02x}")
         s = _pose_struct(dim, flags)
         if len(data) != s.size:
             raise WireError("bad_payload",

@@ -106,11 +106,20 @@ def _checked_pose_json(body: Any) -> Pose:
         raise
 
 
+#: The keys of a JSON pose (canal_protocol.wire); any other is refused, as a REST body's is:
+#: a mistyped "orientaton" must not be a pose without its orientation.
+_POSE_KEYS = frozenset(("seq", "position", "orientation", "t", "restart"))
+
+
 def _pose_fields(body: dict[str, Any], seq: int) -> Pose:
     """The pose of a JSON object whose ``seq`` was read, its other fields checked."""
     if "position" not in body:
         raise WireError("bad_payload", "expected 'position', got the keys "
                                        f"{', '.join(map(str, body))[:80]}")
+    unknown = [str(key) for key in body if key not in _POSE_KEYS]
+    if unknown:
+        raise WireError("bad_payload", f"expected only the keys {', '.join(sorted(_POSE_KEYS))}, "
+                                       f"got {', '.join(unknown)[:80]}")
     position = _numbers(body["position"], "position")
     if not 1 <= len(position) <= MAX_DIM:
         raise WireError("bad_payload", f"expected 1..{MAX_DIM} coordinates in 'position', "

@@ -14,6 +14,9 @@ VERSION = 1
 KIND_POSE = 1
 KIND_TARGET = 2
 MAX_DIM = 16
+#: Largest live pose payload the bridge reads: a pose is a few hundred bytes (a PoseStamped
+#: with a long frame_id a few more); a larger one is refused before it is parsed.
+MAX_POSE_BYTES = 4096
 
 POSE_ORIENTATION = 0x01
 POSE_TIME = 0x02

@@ -35,6 +35,11 @@ CASES = [
     ("json array", b"[1, 2, 3]", True, "bad_payload"),
     ("json huge", b'{"seq": 1, "position": [1e999, 0, 0]}', True, "bad_payload"),
     ("json 4-D", b'{"seq": 1, "position": [0.1, 0, 0, 0]}', True, "wrong_dimension"),
+    # a pose is a few hundred bytes: megabytes were parsed, and an unknown key beside a good
+    # pose answered ok
+    ("json of 100 kB", b'{"seq": 1, "position": [0.1, 0, 0], "note": "' + b"a" * 100_000 + b'"}',
+     True, "bad_payload"),
+    ("binary of 100 kB", GOOD + bytes(100_000), False, "bad_payload"),
 ]
 
 
@@ -86,6 +91,11 @@ SEQ_READ = [
     ("json restart 1", b'{"seq": 34, "position": [0.1, 0, 0], "restart": 1}', True,
      "bad_payload", 34),
     ("json no position", b'{"seq": 35}', True, "bad_payload", 35),
+    # an unknown key (a typo) or flag bit would be a pose without what it meant to say
+    ("json unknown key", b'{"seq": 37, "position": [0.1, 0, 0], "orientaton": [0, 0, 0, 1]}',
+     True, "bad_payload", 37),
+    ("unknown flag 0x08", _pose_header(23, 3, 0x08) + struct.pack("<3d", 0.1, 0.01, 0.0), False,
+     "bad_payload", 23),
     # no seq to read: none is claimed
     ("wrong version", bytes([9]) + GOOD[1:], False, "bad_payload", None),
     ("header cut short", GOOD[:6], False, "bad_payload", None),

@@ -16,6 +16,7 @@ from .models import ModelEntry
 from .streams import ENC_JSON, Job, Stream
 
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
+_MAX_BYTES = wire.MAX_POSE_BYTES
 
 
 class Decoder(Answers):
@@ -93,6 +94,10 @@ class Decoder(Answers):
         if answer:
             self.counts.poses += 1
         try:
+            if len(data) > _MAX_BYTES:
+                fmt = _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
+                raise wire.WireError("bad_payload", f"expected a pose of at most {_MAX_BYTES} "
+                                                    f"bytes, got {len(data)}")
             if encoding == ENC_JSON:  # an object comparison, cheaper than str() (0.15 us)
                 fmt = _FJSON
                 pose = wire.decode_pose_json(data)
