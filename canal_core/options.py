@@ -50,10 +50,14 @@ MIN_CORRECTION_SAMPLES = 4
 MAX_CORRECTION_SAMPLES = 20_000
 #: Routes (:mod:`canal_core.routes`): ``routes`` forces a number of routes in [1, MAX_ROUTES]
 #: (each needs two demonstrations, so at most half of them); None clusters at
-#: ``route_separation``, a share of the median path length in (0, MAX_ROUTE_SEPARATION].
+#: ``route_separation``, a share of the median path length in [MIN_ROUTE_SEPARATION,
+#: MAX_ROUTE_SEPARATION].
 MAX_ROUTES = 32
 #: Measured on the sets of BENCHMARKS.md (canal_core.routes says where they split).
 DEFAULT_ROUTE_SEPARATION = 0.25
+#: Demonstrations closer than a hundredth of their length apart go one way by any measure: a
+#: smaller cut makes a route of each (their noise), none with a width of its own.
+MIN_ROUTE_SEPARATION = 0.01
 MAX_ROUTE_SEPARATION = 4.0
 
 
@@ -102,7 +106,8 @@ def route_options(routes: int | None = None,
     if routes is not None:
         routes = check_int(routes, 1, "routes", maximum=MAX_ROUTES)
     separation = check_positive(route_separation, "route_separation")
-    if separation > MAX_ROUTE_SEPARATION:
-        raise InvalidInputError(f"expected route_separation in (0, {MAX_ROUTE_SEPARATION}], got "
-                                f"{separation}", field="route_separation")
+    if not MIN_ROUTE_SEPARATION <= separation <= MAX_ROUTE_SEPARATION:
+        raise InvalidInputError(f"expected route_separation in [{MIN_ROUTE_SEPARATION}, "
+                                f"{MAX_ROUTE_SEPARATION}], got {separation}",
+                                field="route_separation")
     return routes, separation

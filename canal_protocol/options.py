@@ -27,6 +27,7 @@ __all__ = [
     "MAX_ROUTE_SEPARATION",
     "MAX_SAMPLES",
     "MIN_CORRECTION_SAMPLES",
+    "MIN_ROUTE_SEPARATION",
     "MIN_SAMPLES",
     "OUTSIDE_RULES",
     "PERSISTENCES",
@@ -57,6 +58,7 @@ MAX_FRAME_SMOOTHING = _core.MAX_FRAME_SMOOTHING
 #: Routes: how many may be forced, and the clustering's cut (canal_core.options.route_options).
 MAX_ROUTES = _core.MAX_ROUTES
 ROUTE_SEPARATION = _core.DEFAULT_ROUTE_SEPARATION
+MIN_ROUTE_SEPARATION = _core.MIN_ROUTE_SEPARATION
 MAX_ROUTE_SEPARATION = _core.MAX_ROUTE_SEPARATION
 #: canal_core's defaults: what a request that leaves an option out gets.
 DEFAULTS = _core.FitOptions()

@@ -74,6 +74,16 @@ def shown_value(value: Any) -> str:
     return "a list" if isinstance(value, list) else type(value).__name__
 
 
+def _dimension(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+    # A Literal of integers takes 3.0 (it equals 3): a dimension is a whole JSON number.
+    if type(value) is not int:
+        raise PydanticCustomError("dimension", "expected 2 or 3 (a whole number), got {got}",
+                                  {"got": shown_value(value)})
+    return handler(value)
+
+
+#: A skill's dimension: 2 or 3, a JSON integer.
+Dimension = Annotated[Literal[2, 3], WrapValidator(_dimension)]
 #: 'latest' or a model version (a JSON number, not a string of one).
 ModelRef = Annotated[Literal["latest"] | Id, WrapValidator(_model_ref)]
 # A coordinate is a JSON number: strict, so `true` or "1" is refused instead of becoming 1.0
@@ -146,7 +156,7 @@ class SkillCreate(_In):
     name: str = Field(pattern=SKILL_NAME_PATTERN, examples=["pour"],
                       description="Letters, digits, '.', '_', '-'; up to 64 characters.")
     description: str = Field("", max_length=4000, pattern=NO_NUL)
-    dim: Literal[2, 3] = Field(3, description="2 for planar skills, 3 for spatial ones.")
+    dim: Dimension = Field(3, description="2 for planar skills, 3 for spatial ones.")
 
 
 class SkillOut(BaseModel):
@@ -336,7 +346,7 @@ class FitRequest(_In):
                     "route_separation apart; 1: one canal of all, never split; N: exactly N "
                     "routes (at most half the demonstrations).")
     route_separation: float = Field(
-        options.ROUTE_SEPARATION, gt=0.0, le=options.MAX_ROUTE_SEPARATION,
+        options.ROUTE_SEPARATION, ge=options.MIN_ROUTE_SEPARATION, le=options.MAX_ROUTE_SEPARATION,
         description="Where routes split when 'routes' is left out: the demonstrations' mean "
                     "distance, as a share of their median path length.")
 

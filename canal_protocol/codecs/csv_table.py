@@ -39,7 +39,17 @@ _TIME_NAMES = ("t", "time", "timestamp", "stamp", "__time")
 #: The same names with the unit they are in (a key of ``TIME_UNITS``), as loggers write it:
 #: ``timestamp_ms``, ``time [ms]``, ``time(ms)``, ``time_usec`` (MAVLink)
 _UNIT_SPELLINGS = {**{unit: unit for unit in TIME_UNITS},
-                   "sec": "s", "msec": "ms", "usec": "us", "nsec": "ns"}
+                   "sec": "s", "msec": "ms", "usec": "us", "nsec": "ns",
+                   "secs": "s", "seconds": "s", "millis": "ms", "milliseconds": "ms",
+                   "micros": "us", "microseconds": "us", "nanos": "ns", "nanoseconds": "ns"}
+#: Time columns in units no robot clock keeps (a spreadsheet's): refused rather than dropped
+_UNREAD_TIME_UNITS = ("min", "mins", "minute", "minutes", "h", "hr", "hrs", "hour", "hours",
+                      "d", "day", "days")
+_TIME_NAMES_UNREAD = {
+    f"{name}{sep}{spelling}{close}"
+    for name in _TIME_NAMES for spelling in _UNREAD_TIME_UNITS
+    for sep, close in (("_", ""), (" [", "]"), ("[", "]"), (" (", ")"), ("(", ")"))
+}
 _TIME_NAMES_WITH_UNIT = {
     f"{name}{sep}{spelling}{close}": unit
     for name in _TIME_NAMES for spelling, unit in _UNIT_SPELLINGS.items()
@@ -337,6 +347,11 @@ def _csv_columns(header: list[str], dim: int) -> _CsvColumns:
                              field="file:header")
     if dim == 2 and found["z"]:
         raise InvalidCsv("CSV has a z column but the skill is 2-D", field="file:header")
+    unread = [n for n in header if n in _TIME_NAMES_UNREAD]
+    if unread:
+        raise InvalidCsv(f"expected a time column in {', '.join(TIME_UNITS)} (e.g. time, "
+                         f"time_ms, time [us]), got {unread[0]!r}: convert it to seconds, or "
+                         "rename the column if it is not the samples' time", field="file:header")
     times_named = [n for n in header if n in _TIME_NAMES or n in _TIME_NAMES_WITH_UNIT]
     if len(times_named) > 1:
         raise InvalidCsv(f"CSV header has several time columns ({', '.join(times_named)}); "

@@ -29,6 +29,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.exc import TimeoutError as PoolTimeout
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from canal_core.errors import (
     CanalError,
@@ -371,6 +372,23 @@ def _unparsable_body(cause: BaseException) -> str:
     return f"expected a JSON body in UTF-8, got {got}"
 
 
+#: The methods a 405 answer may name.
+_METHODS = ("DELETE", "GET", "HEAD", "PATCH", "POST", "PUT")
+
+
+def _allowed_methods(request: Request) -> str:
+    """Every method the request's path takes, sorted and comma separated: the router's own
+    405 names only the first route that matched the path (GET of a path also deleted).
+    Asked of the routes one method at a time through their public ``matches``: included
+    routers keep their routes to themselves."""
+    allowed = []
+    for method in _METHODS:
+        scope = {**request.scope, "method": method}
+        if any(route.matches(scope)[0] == Match.FULL for route in request.app.router.routes):
+            allowed.append(method)
+    return ", ".join(allowed)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Register the handlers; after this no expected error leaves as HTML or a 500."""
 
@@ -408,9 +426,11 @@ def install_error_handlers(app: FastAPI) -> None:
         if exc.status_code == 404 and exc.detail == "Not Found":
             field, message = "path", f"no route {request.method} {path} (the routes are listed at /docs)"
         elif exc.status_code == 405:
-            allow = (exc.headers or {}).get("Allow", "")
+            allow = _allowed_methods(request) or (exc.headers or {}).get("Allow", "")
             field = "method"
             message = f"{request.method} is not allowed on {path}" + (f"; allowed: {allow}" if allow else "")
+            if allow:
+                exc.headers = {**(exc.headers or {}), "Allow": allow}
         body = error_body(_HTTP_TYPES.get(exc.status_code, "http_error"), message, field)
         return JSONResponse(body, exc.status_code, headers=getattr(exc, "headers", None))
 

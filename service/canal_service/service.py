@@ -353,6 +353,13 @@ class CanalService:
         labels, route_notes = self._route_labels(positions, body.routes, body.route_separation,
                                                  demo_ids)
         route_notes = unit_notes(positions, demo_ids) + route_notes
+        unstamped = [i for i, t in zip(demo_ids, times, strict=True) if t is None]
+        if body.by_time and unstamped:  # time needs every one stamped (canal_core.clocks)
+            route_notes.append(
+                f"by_time asked, but demonstration{'s' if len(unstamped) > 1 else ''} "
+                f"{', '.join(map(str, unstamped))} {'have' if len(unstamped) > 1 else 'has'} no "
+                "time stamps: aligned by arc length (upload them with their time, or fit "
+                "only the stamped ones with demo_ids)")
         job = FitJob(positions, stamped, body.by_time, orientations, options, labels)
         try:
             fitted = self.fits.run(name, job, cancel)

@@ -838,10 +838,12 @@ def test_recordings_rebuild_counts_the_reproductions_it_logs(
 #: usage error naming the option, what it expects and what came, before any request.
 _LONG = "x" * (MAX_CORRECTION_LABEL + 100)
 _REFUSED_HERE: list[tuple[list[str], str, str, str]] = [
-    (["fit", "x", "--route-separation", "0"], "--route-separation", "a number in (0, ", "got '0'"),
-    (["fit", "x", "--route-separation", "-1"], "--route-separation", "a number in (0, ", "got '-1'"),
-    (["fit", "x", "--route-separation", "nan"], "--route-separation", "a number in (0, ", "got 'nan'"),
-    (["fit", "x", "--route-separation", "inf"], "--route-separation", "a number in (0, ", "got 'inf'"),
+    (["fit", "x", "--route-separation", "0"], "--route-separation", "a number in [0.01, 4]", "got '0'"),
+    (["fit", "x", "--route-separation", "-1"], "--route-separation", "a number in [0.01, 4]", "got '-1'"),
+    (["fit", "x", "--route-separation", "nan"], "--route-separation", "a number in [0.01, 4]", "got 'nan'"),
+    (["fit", "x", "--route-separation", "inf"], "--route-separation", "a number in [0.01, 4]", "got 'inf'"),
+    (["fit", "x", "--route-separation", "0.001"], "--route-separation", "a number in [0.01, 4]",
+     "got '0.001'"),
     (["fit", "x", "--frame-smoothing", "nan"], "--frame-smoothing", "a number in [0, ", "got 'nan'"),
     (["fit", "x", "--demo", "1", "--demo", "0"], "--demo", f"a whole number in [1, {MAX_ID}]", "got '0'"),
     (["reproduce", "x", "--start", "0,0,0", "--model", "0"], "--model",

@@ -194,6 +194,8 @@ def test_unknown_skill(client: TestClient) -> None:
     ("name with a slash", {"name": "a/b", "dim": 3}, "name"),
     ("dimension 4", {"name": "a", "dim": 4}, "dim"),
     ("dimension as text", {"name": "a", "dim": "three"}, "dim"),
+    ("dimension 3.0 (a fraction's type)", {"name": "a", "dim": 3.0}, "dim"),
+    ("dimension true", {"name": "a", "dim": True}, "dim"),
     ("missing name", {"dim": 3}, "name"),
 ])
 def test_bad_skill_is_refused(client: TestClient, tried: str, body: dict[str, Any],

@@ -172,6 +172,11 @@ def test_an_unknown_path_or_method_says_which_and_what_there_is(tmp_path: Path) 
             assert status == 405 and headers["allow"] == "POST", (headers, body)
             assert body == {"error": {"type": "method_not_allowed", "field": "method", "message":
                                       "GET is not allowed on /skills/arm/fit; allowed: POST"}}
+            # every method the path takes, not only the first route's (a skill is read and
+            # deleted at one path: the answer said "allowed: GET")
+            status, headers, body = _request(conn, "PUT", "/skills/arm")
+            assert status == 405 and headers["allow"] == "DELETE, GET", (headers, body)
+            assert body["error"]["message"].endswith("allowed: DELETE, GET"), body
             # a skill or model that is not there keeps its own message
             status, _, body = _request(conn, "GET", "/skills/nope")
             assert status == 404 and body["error"]["message"] == "no skill named 'nope'", body

@@ -162,6 +162,28 @@ def test_fit_subset_options_and_timestamps(client: TestClient, skill: str) -> No
     assert client.post(f"/skills/{skill}/fit").status_code == 201  # no body: all defaults
 
 
+def test_by_time_on_demonstrations_without_time_stamps_says_what_it_aligned_by(
+        client: TestClient, skill: str) -> None:
+    # by_time=true on demonstrations of which one has no time stamps aligns by arc length
+    # (time needs every one stamped); the answer said by_time false and nothing else.
+    ids = []
+    for j in range(3):
+        body: dict[str, object] = {"positions": demo_positions(j).tolist()}
+        if j:
+            body["timestamps"] = (np.arange(50) * 0.02).tolist()
+        ids.append(client.post(f"/skills/{skill}/demonstrations", json=body).json()["id"])
+    r = client.post(f"/skills/{skill}/fit", json={"n_samples": 30, "by_time": True})
+    assert r.status_code == 201, r.text
+    m = r.json()
+    assert m["options"]["clock"] == "arc" and m["options"]["by_time"] is False
+    (note,) = [n for n in m["notes"] if "by_time" in n]
+    assert f"demonstration {ids[0]} " in note and "arc length" in note, note
+    # every one stamped: aligned by time, no note
+    r = client.post(f"/skills/{skill}/fit", json={"n_samples": 30, "by_time": True,
+                                                 "demo_ids": ids[1:]})
+    assert r.json()["options"]["clock"] == "time" and not any("by_time" in n for n in r.json()["notes"])
+
+
 def test_two_dimensional_skill(client: TestClient) -> None:
     client.post("/skills", json={"name": "wipe", "dim": 2})
     for j in range(3):

@@ -101,6 +101,8 @@ def test_route_options_out_of_bounds_are_refused_naming_the_field(http: httpx.Cl
     add_two_route_demos(http)
     for body, field in (({"routes": 5}, "routes"), ({"routes": 0}, "routes"),
                         ({"route_separation": 0}, "route_separation"),
+                        ({"route_separation": 1e-320}, "route_separation"),
+                        ({"route_separation": 1e-6}, "route_separation"),
                         ({"routes": 2, "demo_ids": [1, 2, 3]}, "routes")):
         r = http.post("/skills/reach/fit", json={"n_samples": 40, **body})
         assert r.status_code == 422, (body, r.text)

@@ -176,7 +176,7 @@ def test_time_unit_for_json_and_where_it_does_not_apply(client: TestClient, skil
 @pytest.mark.parametrize(("name", "scale"), [
     ("timestamp_ms", 1e3), ("time_ms", 1e3), ("t_us", 1e6), ("stamp_ns", 1e9), ("time_s", 1.0),
     ("time [ms]", 1e3), ("time (ms)", 1e3), ("Time[ms]", 1e3), ("time_usec", 1e6),
-    ("timestamp_sec", 1.0)])
+    ("timestamp_sec", 1.0), ("time [seconds]", 1.0), ("t_millis", 1e3), ("stamp_nanoseconds", 1e9)])
 def test_a_time_column_that_names_its_unit_is_read_in_that_unit(client: TestClient, skill: str,
                                                                  name: str, scale: float) -> None:
     # A logger's "timestamp_ms" column used to be dropped without a word: the demonstration
@@ -192,6 +192,16 @@ def test_a_time_column_that_names_its_unit_is_read_in_that_unit(client: TestClie
     assert back["timestamps"] is not None, name
     np.testing.assert_allclose(back["timestamps"], t, atol=1e-9)
     np.testing.assert_array_equal(back["positions"], p)
+
+
+@pytest.mark.parametrize("name", ["time [min]", "time_min", "t [h]", "timestamp (hours)"])
+def test_a_time_column_in_a_unit_not_read_is_refused_not_dropped(client: TestClient, skill: str,
+                                                                 name: str) -> None:
+    # "time [min]" was not a time name: the file was stored untimed without a word.
+    body = (f"{name},x,y,z\n0,0,0,0\n1,1,0,0\n2,2,1,0\n3,3,1,1\n").encode()
+    error = _error(client.post(f"/skills/{skill}/demonstrations", files={"file": ("log.csv", body)}))
+    assert error["field"] == "file:header" and repr(name) in error["message"], error
+    assert client.get(f"/skills/{skill}/demonstrations").json()["total"] == 0
 
 
 def test_a_time_column_with_a_unit_and_another_time_column_is_refused(client: TestClient,
