@@ -127,6 +127,22 @@ class TrackerBank:
         self.eta[slot] = np.nan
         self.strikes[slot] = 0
 
+    def seed(self, slot: int, position: FloatArray, index: int) -> bool:
+        """Start ``slot`` as a stream with no plan that was stepped with ``position`` (D,)
+        from section ``index``: placed there, with the plan that step makes, when the
+        position is near the canal (True); else started over from the first section with
+        no plan (False)."""
+        self.reset(slot, index)
+        before = self.state(slot)
+        with np.errstate(all="ignore"):
+            _, after = tracker_step(self.geometry, before, np.asarray(position, dtype=np.float64),
+                                    self.lookahead, self.replan_tolerance)
+        if after is before:  # far from the canal: a stream with no plan is left as it was
+            self.reset(slot, 0)
+            return False
+        self._keep(slot, after)
+        return True
+
     def state(self, slot: int) -> TrackerState:
         """``slot``'s state as a :class:`TrackerState`."""
         eta = float(self.eta[slot])

@@ -89,3 +89,19 @@ def test_bank_answers_far_and_overflowing_rows_outside_and_reuses_slots() -> Non
     assert len(bank) == len(slots) - 1
     again = bank.add(5)
     assert again == b and bank.state(again).index == 5 and bank.state(again).eta is None
+
+
+def test_a_seeded_slot_holds_a_glitch_after_it_and_a_far_seed_places_nothing() -> None:
+    canal = canal_core.fit(sleeve_demos(), n_samples=80)
+    bank = TrackerBank(canal.tracker().geometry, lookahead=2)
+    slot = bank.add()
+    robot = canal.directrix[20]
+    assert bank.seed(slot, robot, 20)
+    state = bank.state(slot)
+    assert 19 <= state.index <= 21 and state.eta is not None  # placed with a plan
+    # the next pose a glitch at the canal's end: held, not followed there
+    got = bank.step([slot], canal.directrix[-1][None, :])
+    assert not got.inside[0] and not got.done[0] and bank.state(slot).index == state.index
+    # a seed far from the canal places nothing (no plan, the first section)
+    assert not bank.seed(slot, np.full(3, 50.0), 40)
+    assert bank.state(slot).index == 0 and bank.state(slot).eta is None

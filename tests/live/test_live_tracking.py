@@ -419,3 +419,35 @@ def test_a_glitch_pose_right_after_a_refit_does_not_send_the_target_to_the_end(l
         t = ps.wait_for(ps.send(d[31].tolist()), timeout=5.0)
         assert t is not None and t.status == "ok", t
         assert abs(t.progress - before) < 0.1 and t.target[0] < 0.75, (before, t)
+
+
+def test_a_glitch_pose_as_a_refit_splits_routes_does_not_send_the_target_to_the_end(live):
+    # A stream that followed one canal is placed afresh on a refit that splits the skill
+    # into routes: it was placed, route and section, from its first pose on the new model,
+    # so one glitch pose at a route's end sent the robot's target there.
+    s = np.linspace(0.0, 1.0, 80)
+    demos = []
+    for side in (1.0, -1.0):
+        for k in range(4):
+            y = side * 0.15 * (1 - s) + side * 0.4 * np.sin(np.pi * s) + 0.01 * (k - 2)
+            demos.append(np.column_stack([s, y, 0.02 * np.cos(3 * k) * np.sin(np.pi * s)]))
+    client, skill = live.client, "forked"
+    assert client.post("/skills", json={"name": skill, "dim": 3}).status_code == 201
+    for d in demos:
+        assert client.post(f"/skills/{skill}/demonstrations",
+                           json={"positions": d.tolist()}).status_code == 201
+    assert client.post(f"/skills/{skill}/fit", json={"n_samples": 80, "routes": 1}).status_code == 201
+    path = np.mean(demos[:4], axis=0)  # a robot on the upper way
+    with PoseStreamer(skill, "arm", endpoint=live.endpoint) as ps:
+        for p in path[:25]:
+            t = ps.wait_for(ps.send(p.tolist()), timeout=5.0)
+            assert t is not None and t.target is not None, t
+        before = t.progress
+        fitted = client.post(f"/skills/{skill}/fit", json={"n_samples": 80})
+        assert fitted.status_code == 201 and fitted.json()["routes"] == 2, fitted.text
+        glitch = ps.wait_for(ps.send(path[-1].tolist()), timeout=5.0)
+        assert glitch is not None and glitch.model_version == 2, glitch
+        assert not glitch.done and glitch.progress < 0.7 and glitch.target[0] < 0.75, glitch
+        t = ps.wait_for(ps.send(path[25].tolist()), timeout=5.0)
+        assert t is not None and t.status == "ok" and t.route == 0, t
+        assert t.progress < before + 0.2 and t.target[0] < 0.75, (before, t)

@@ -125,8 +125,10 @@ class Stepper(Answers):
             old = None if restart or st.revision[0] != entry.created_ns else st.bank
             if old is not None:  # in flight on a new version of the same skill
                 followed = st.route is not None and st.route_serial >= 0
+                # where the robot was a pose ago: this pose may be a glitch
+                at = position if st.position is None else st.position
                 way = (old.geometry.centres if followed
-                       else np.array(position, dtype=np.float64)[None, :])
+                       else np.array(at, dtype=np.float64)[None, :])
                 keep = st.route if followed and st.route is not None and st.route < len(routes) else None
                 route = way_of(entry.chooser, way, keep)
                 st.route_reason = ("nearest" if not followed else "kept" if route == st.route
@@ -147,6 +149,7 @@ class Stepper(Answers):
         located at (a new stream, a restart); on a model switch (a fit, a correction) at
         the section it had reached, with its plan, so a stream in flight is not re-located."""
         carried: tuple[int, float, Any, Any] | None = None
+        anchor: tuple[float, ...] | None = None  # where the robot was, placed afresh in flight
         old = st.bank
         if old is not None and st.revision != entry.revision:
             self.counts.switches += 1
@@ -154,10 +157,13 @@ class Stepper(Answers):
             # skill) and on a route chosen from the robot's position (another canal): the
             # share of the canal reached on the old one says nothing there.
             placed_afresh = entry.route != wire.NO_ROUTE and st.route_reason not in ("kept", "way")
-            if not restart and st.revision[0] == entry.created_ns and not placed_afresh:
+            in_flight = not restart and st.revision[0] == entry.created_ns
+            if in_flight and not placed_afresh:
                 index_old = int(old.index[st.slot])
                 carried = (index_old, float(old.eta[st.slot]), old.direction[st.slot].copy(),
                            old.geometry)
+            elif in_flight:
+                anchor = st.position
         bank = entry.bank
         assert bank is not None
         if st.bank is not bank:
@@ -191,6 +197,16 @@ class Stepper(Answers):
                     direction = direction_in_plane(direction, old_geometry.basis[index_old],
                                                    bank.geometry.basis[index])
                 bank.eta[st.slot], bank.direction[st.slot] = eta, direction
+                return
+        if anchor is not None:
+            # placed afresh (another route) from where the robot was a pose ago, with the
+            # plan that pose gives: this pose is then a step as any (a glitch is held)
+            was = np.array(anchor, dtype=np.float64)
+            try:
+                located = int(entry.canal.reproduce_detailed(was).section_index)
+            except Exception:  # a pose no section brackets: placed from this one below
+                located = -1
+            if located >= 0 and bank.seed(st.slot, was, located):
                 return
         try:
             located = int(entry.canal.reproduce_detailed(point).section_index)
