@@ -22,13 +22,13 @@ def checksum(positions: np.ndarray) -> str:
 
 
 def ros2_mcap(positions: np.ndarray, topic: str = "/ee_pose", extra_topic: bool = False,
-              frame_ids: tuple[str, ...] = ("base",), zero_stamps: bool = False) -> bytes:
+              frame_ids: tuple[str, ...] = ("base",), zero_stamps: bool = False,
+              t0: int = 1_700_000_000_000_000_000) -> bytes:
     from mcap_ros2.writer import Writer as Ros2Writer
 
     buf = io.BytesIO()
     writer = Ros2Writer(buf)
     schema = writer.register_msgdef("geometry_msgs/msg/PoseStamped", POSE_STAMPED_MSGDEF)
-    t0 = 1_700_000_000_000_000_000
     for i, p in enumerate(positions):
         stamp = t0 + i * 10_000_000
         sec, nsec = (0, 0) if zero_stamps else (stamp // 10**9, stamp % 10**9)
@@ -400,6 +400,12 @@ def test_log_times_past_the_signed_64_bit_range_give_the_times_between_them(
     r = client.post(f"/skills/{skill}/demonstrations", content=_pose_in_frame_mcap(
         payloads, [base + i * 10**7 for i in range(6)]),
         headers={"content-type": "application/x-mcap"})
+    assert r.status_code == 201, r.text
+    back = read_back(client, skill, r.json()["id"])
+    assert np.allclose(back["timestamps"], np.arange(6) * 0.01, atol=1e-6)
+    # and a PoseStamped whose stamps are unset (the log time is taken), read column-wise
+    r = client.post(f"/skills/{skill}/demonstrations", content=ros2_mcap(
+        p, zero_stamps=True, t0=base), headers={"content-type": "application/x-mcap"})
     assert r.status_code == 201, r.text
     back = read_back(client, skill, r.json()["id"])
     assert np.allclose(back["timestamps"], np.arange(6) * 0.01, atol=1e-6)

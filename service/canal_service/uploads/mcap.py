@@ -357,9 +357,11 @@ def _poses_of(scan: _McapScan, dim: int, topic: str | None) -> ParsedUpload:
             if columns is not None:
                 scan.budget.tick()
                 fast_positions, fast_quats, stamps = columns
-                log_times = np.array([m[0] for m in messages], dtype=np.int64)
-                stamps = np.where(stamps == 0, log_times, stamps)  # unset stamps: the log time
-                fast_times = (stamps - stamps[0]).astype(np.float64) * 1e-9
+                if np.any(stamps == 0):  # unset stamps: the log time (unsigned 64-bit)
+                    ns = [int(s) or int(m[0]) for s, m in zip(stamps.tolist(), messages, strict=True)]
+                    fast_times = np.array([v - ns[0] for v in ns], dtype=np.float64) * 1e-9
+                else:
+                    fast_times = (stamps - stamps[0]).astype(np.float64) * 1e-9
                 return ParsedUpload(np.ascontiguousarray(fast_positions[:, :dim]), fast_times,
                                     fast_quats)
             samples = list(_ros2_poses(schema, channel, messages, scan.budget))
