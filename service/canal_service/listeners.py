@@ -62,13 +62,15 @@ class Listeners(Generic[P]):
 
 #: ``listener(skill, version, model)``: the model is the canal, or :class:`Routes` when it
 #: has several routes.
-FitListener = Callable[[str, int, "canal_core.Canal | Routes"], None]
+FitListener = Callable[[str, int, "canal_core.Canal | Routes | None"], None]
 #: ``listener(skill, version, scene)``
 SceneListener = Callable[[str, int, "canal_core.obstacles.Scene"], None]
 
 
-class FitListeners(Listeners[[str, int, "canal_core.Canal | Routes"]]):
-    """Who hears of each committed fit, as ``listener(skill, version, model)`` (the bridge).
+class FitListeners(Listeners[[str, int, "canal_core.Canal | Routes | None"]]):
+    """Who hears of each committed fit, as ``listener(skill, version, model)`` (the bridge),
+    and of each deleted skill, as ``listener(skill, 0, None)`` (the model is read again: a
+    skill that is gone is answered as unknown).
 
     Built by ``create_app`` and handed to both the service (which notifies) and the bridge
     (which subscribes when it starts and unsubscribes when it stops).

@@ -203,6 +203,9 @@ class CanalService:
         with self.db.write() as s:
             repo.delete_skill(s, name)
         self.fits.cancel_skill(name)
+        # The bridge stops serving it now, as it serves a fit now: its robots are answered
+        # unknown_skill from their next pose, not steered by a deleted canal until a refresh.
+        self.fit_listeners.notify(name, 0, None)
         self._record("skill_deleted", lambda r: r.skill_deleted(name))
 
     @staticmethod

@@ -451,3 +451,15 @@ def test_a_glitch_pose_as_a_refit_splits_routes_does_not_send_the_target_to_the_
         t = ps.wait_for(ps.send(path[25].tolist()), timeout=5.0)
         assert t is not None and t.status == "ok" and t.route == 0, t
         assert t.progress < before + 0.2 and t.target[0] < 0.75, (before, t)
+
+
+def test_a_deleted_skill_stops_steering_its_robots_at_once(live):
+    # A delete did not reach the bridge: robots went on getting targets from the deleted
+    # skill's canal until the next refresh (every 2 s by default).
+    make_shifted(live, "gone", 0.0)
+    with PoseStreamer("gone", "arm", endpoint=live.endpoint) as ps:
+        got = ps.wait_for(ps.send([0.5, 0.0, 0.0]), timeout=5.0)
+        assert got is not None and got.status == "ok", got
+        assert live.client.delete("/skills/gone").status_code == 204
+        got = ps.wait_for(ps.send([0.5, 0.0, 0.0]), timeout=5.0)
+        assert got is not None and got.status == "unknown_skill" and got.target is None, got
