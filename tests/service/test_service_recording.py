@@ -163,6 +163,11 @@ def test_no_snapshot_is_left_behind_whatever_the_answer(tmp_path: Path) -> None:
             far = c.get(url, headers={"range": "bytes=999999999-"})
             assert far.status_code == 416, (url, far.status_code)
             assert far.headers["content-range"].startswith("bytes */")
+            # in the one JSON error shape every 4xx has (it was an empty text/plain)
+            assert far.json()["error"]["type"] == "range_not_satisfiable", far.text
+            assert far.json()["error"]["field"] == "Range", far.text
+            several = c.get(url, headers={"range": "bytes=0-3, 999999999-"})
+            assert several.status_code == 416 and several.json()["error"]["field"] == "Range"
             assert c.head(url, headers={"range": "bytes=999999999-"}).status_code == 416
             assert c.head(url).status_code == 200
             assert c.get(url, headers={"range": "bytes=0-3"}).status_code == 206

@@ -8,13 +8,14 @@ from typing import Any, Literal
 
 from fastapi import APIRouter, Query
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, JSONResponse
 from starlette.types import Receive, Scope, Send
 
 from canal_protocol.options import RecordingKind
 from canal_protocol.schemas import ErrorResponse
 
 from ..deps import ServiceDep, SkillName
+from ..errors import error_body
 from ..service import CanalService
 
 router = APIRouter(prefix="/skills/{name}", tags=["recordings"])
@@ -39,6 +40,16 @@ def _answerable(value: str) -> bool:
     return True
 
 
+def _past_the_end(value: str, size: int) -> bool:
+    """Whether an answerable Range header (:func:`_answerable`) asks for a range that starts
+    at or past the end of a file of ``size`` bytes (what Starlette answers 416)."""
+    for part in value.split("=", 1)[1].split(","):
+        first = part.strip().partition("-")[0]
+        if (first and int(first) >= size) or (not first and size == 0):
+            return True
+    return False
+
+
 class _Download(FileResponse):
     """A snapshot file, with a Range header it cannot answer ignored (RFC 9110, 14.2 lets a
     server do so) instead of Starlette's plain-text 400: a download tool that sent one gets
@@ -48,9 +59,19 @@ class _Download(FileResponse):
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         headers = scope.get("headers", [])
         asked = next((v for k, v in headers if k == b"range"), None)
-        if asked is not None and not _answerable(asked.decode("latin-1")):
+        text = None if asked is None else asked.decode("latin-1")
+        if text is not None and not _answerable(text):
             scope = {**scope, "headers": [(k, v) for k, v in headers if k != b"range"]}
+            text = None
         try:
+            size = Path(self.path).stat().st_size
+            if text is not None and _past_the_end(text, size):
+                # Starlette's own 416 is an empty text/plain: every error here is JSON
+                refused = JSONResponse(error_body(
+                    "range_not_satisfiable", f"expected a Range within the file's {size} bytes, "
+                    f"got {text[:80]!r}", "Range"), 416, headers={"Content-Range": f"bytes */{size}"})
+                await refused(scope, receive, send)
+                return
             await super().__call__(scope, receive, send)
         finally:
             # Not a background task: Starlette runs those only after a complete send, not
