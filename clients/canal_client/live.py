@@ -16,10 +16,12 @@ callback threads never run user code); ``on_target`` is called from that thread.
 
 from __future__ import annotations
 
+import atexit
 import math
 import re
 import threading
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -219,6 +221,7 @@ class PoseStreamer:
             self._thread = threading.Thread(target=self._receive, name="canal-pose-streamer",
                                             daemon=True)
             self._thread.start()
+            _OPEN.add(self)
         except BaseException:
             self.close()
             raise
@@ -361,6 +364,7 @@ class PoseStreamer:
         if self._closed:
             return
         self._closed = True
+        _OPEN.discard(self)
         with self._cond:
             self._cond.notify_all()
         for name in ("_sub", "_pub", "_steer_pub"):
@@ -380,6 +384,21 @@ class PoseStreamer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+#: Streamers not closed yet: closed at exit. A receiving thread still blocked in Zenoh when
+#: the interpreter tears down aborts the process (SIGABRT, "exception not rethrown"): a
+#: robot program that never reached close() would end with a crash.
+_OPEN: weakref.WeakSet[PoseStreamer] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_streamers() -> None:
+    for streamer in list(_OPEN):
+        try:
+            streamer.close()
+        except Exception:
+            pass
 
 
 __all__ = ["LiveError", "PoseStreamer", "client_config", "query_json"]

@@ -132,3 +132,16 @@ def test_standalone_bridge_process(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_program_that_never_closes_its_streamer_exits_cleanly(live) -> None:
+    # A PoseStreamer left open at exit aborted the process (SIGABRT, "FATAL: exception not
+    # rethrown"): its receiving thread was torn down while blocked in Zenoh.
+    script = ("import sys\nfrom canal_client.live import PoseStreamer\n"
+              f"ps = PoseStreamer('arc3', 'forgotten', endpoint={live.endpoint!r})\n"
+              "ps.wait_for(ps.send([0.1, 0.05, 0.01]), 5.0)\nprint('sent')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          env=env, timeout=60)
+    assert done.returncode == 0 and "sent" in done.stdout, (done.returncode, done.stderr[-2000:])
+    assert "FATAL" not in done.stderr, done.stderr[-2000:]
