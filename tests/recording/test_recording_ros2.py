@@ -81,3 +81,24 @@ def test_ros2_profile_reads_back_with_rosbags(recorder: Recorder, demos3: list[n
     assert np.allclose([q.x, q.y, q.z, q.w], quats[-1])
     assert len(timed.poses) == n
     assert by_topic["/canal/live/arm_1/pose"][0].header.frame_id == "canal"
+
+
+def test_robots_whose_names_make_one_ros_token_keep_topics_of_their_own(
+        recorder: Recorder, demos3: list[np.ndarray], canal3: Any) -> None:
+    # arm-1, arm.1, arm_1 and arm:1 all became /canal/live/arm_1/...: four robots in one
+    # topic, with one frame_id, that no reader could tell apart.
+    robots = ["arm-1", "arm.1", "arm_1", "arm:1"]
+    tracker = canal3.tracker()
+    for i, robot in enumerate(robots):
+        for k in range(i + 2):  # 2, 3, 4, 5 poses: each robot's count is its own
+            p = demos3[1][k]
+            recorder.live("pour", robot, p, tracker.step(p), t_ns=1_000_000_000 * (i + 1) + k)
+    counts = Counter(topic for topic, _, _ in _read(recorder.export_mcap("pour", profile="ros2"))
+                     if topic.startswith("/canal/live/") and topic.endswith("/pose"))
+    assert len(counts) == 4, counts
+    assert counts["/canal/live/arm_1/pose"] == 4  # the name that is a token keeps it
+    assert sorted(counts.values()) == [2, 3, 4, 5], counts
+    # the same topics in every export
+    again = Counter(topic for topic, _, _ in _read(recorder.export_mcap("pour", profile="ros2"))
+                    if topic.startswith("/canal/live/") and topic.endswith("/pose"))
+    assert again == counts

@@ -33,8 +33,9 @@ type and are left out of this profile.
 
 from __future__ import annotations
 
+import hashlib
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,23 @@ def ros_name(part: str) -> str:
     """``part`` as a valid ROS 2 name token (letters, digits, ``_``; not starting with a digit)."""
     token = _TOKEN.sub("_", part) or "_"
     return "_" + token if token[0].isdigit() else token
+
+
+def robot_tokens(robots: Iterable[str]) -> dict[str, str]:
+    """Each robot name's ROS name token (:func:`ros_name`), one per robot: names that become
+    the same token (``arm-1``, ``arm.1``, ``arm_1``) keep it only when it is the name itself;
+    the others get a short digest of their name (``arm_1_3f9c2a``), so no two robots share a
+    topic, whichever order they come in."""
+    by_token: dict[str, list[str]] = {}
+    for robot in set(robots):
+        by_token.setdefault(ros_name(robot), []).append(robot)
+    out = {}
+    for token, names in by_token.items():
+        for robot in names:
+            clash = len(names) > 1 and robot != token
+            digest = hashlib.sha1(robot.encode("utf-8", "surrogatepass")).hexdigest()[:6]
+            out[robot] = f"{token}_{digest}" if clash else token
+    return out
 
 
 def _header(stamp: dict[str, int], frame_id: str) -> dict[str, Any]:
@@ -149,16 +167,20 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
     """(topic, ROS type, message dict, log time) of the Foxglove recording, in log order."""
     poses_at: dict[int, list[dict[str, float]]] = {}
     demo_poses: dict[tuple[str, int], list[dict[str, float]]] = {}
+    robots: set[str] = set()
     with open(src, "rb") as f:
         reader = make_reader(f)
         for _, channel, m in reader.iter_messages(log_time_order=False):
-            if channel.topic == "/canal/reproduction_poses":
+            if channel.topic.startswith("/live/"):
+                robots.add(channel.topic.split("/")[2])
+            elif channel.topic == "/canal/reproduction_poses":
                 msg = orjson.loads(m.data)
                 poses_at[m.log_time] = [p["orientation"] for p in msg["poses"]]
             elif channel.topic.startswith("/canal/demo_poses/"):
                 msg = orjson.loads(m.data)
                 demo_poses[(channel.topic.rsplit("/", 1)[1], m.log_time)] = [
                     p["orientation"] for p in msg["poses"]]
+    tokens = robot_tokens(robots)
     with open(src, "rb") as f:
         reader = make_reader(f)
         for _, channel, m in reader.iter_messages(log_time_order=True):
@@ -177,7 +199,7 @@ def _messages(src: Path) -> Iterator[tuple[str, str, Any, int]]:
                 parts = topic.split("/")
                 if len(parts) != 4 or parts[3] not in ("pose", "target"):
                     continue
-                yield (f"/canal/live/{ros_name(parts[2])}/{parts[3]}",
+                yield (f"/canal/live/{tokens[parts[2]]}/{parts[3]}",
                        "geometry_msgs/msg/PoseStamped",
                        {"header": _header(msg["timestamp"], msg["frame_id"]),
                         "pose": _pose(msg["pose"]["position"], msg["pose"]["orientation"])}, t)
