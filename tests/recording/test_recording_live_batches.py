@@ -344,3 +344,35 @@ def test_rerun_chunks_are_what_the_archetype_columns_build(dim: int) -> None:
             assert array.type == want[name].type and array.offsets.equals(want[name].offsets)
             assert np.array_equal(_leaves(array), _leaves(want[name]), equal_nan=True), (
                 entity, name)
+
+
+def test_many_robot_names_are_counted_in_sums_not_one_by_one_for_ever(tmp_path: Path) -> None:
+    # Every (skill, robot) ever heard kept its own counters in the service process, and every
+    # /healthz copied and sorted them all: robot names are the clients' to choose.
+    from canal_service.recording.live import MAX_COUNTED_STREAMS
+
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.05)
+    sub = LiveSubscriber(rec, LiveOptions())
+    key = keyspace.recorder_key("b", "canal")
+    n = MAX_COUNTED_STREAMS + 100
+    try:
+        many = [("pour", f"r{i}", 3, 3, 0, 0, 2, _rows3()[:1]) for i in range(n)]
+        assert sub.take(key, record_batches.encode_record_batch("b", 0, many)) is True
+        deadline = time.monotonic() + 30
+        while sum(rec.live_stream_counts()[0].values()) < n:  # every row written and flushed
+            assert time.monotonic() < deadline, "the rows were not flushed"
+            time.sleep(0.05)
+        one = [("pour", "last", 3, 3, 0, 0, 2, _rows3()[:1])]
+        assert sub.take(key, record_batches.encode_record_batch("b", 1, one)) is True
+        assert len(sub.stats.streams) <= MAX_COUNTED_STREAMS // 2 + 1
+        assert ("pour", "last") in sub.stats.streams  # the stream heard last keeps its own
+        assert len(rec.live_stream_counts()[0]) <= MAX_COUNTED_STREAMS // 2 + 1
+        live = sub.health()
+        # the totals are exact: the retired streams' counts are in them
+        assert (live["poses"], live["kept"], live["decimated"]) == (3 * (n + 1), n + 1, 2 * (n + 1))
+        assert live["recorded"] + live["pending"] == n + 1 and live["dropped"] == 0
+        assert live["complete"] is True and len(live["streams"]) <= 64
+    finally:
+        rec.close()
+    live = sub.health()
+    assert live["recorded"] == n + 1 and live["pending"] == 0

@@ -236,6 +236,14 @@ class RecorderQueue:
         with self._live_lock:
             return dict(self._live_recorded), dict(self._live_dropped)
 
+    def forget_live_streams(self, keys: list[tuple[str, str]]) -> None:
+        """Stop counting these (skill, robot) streams one by one (their counts were summed by
+        the live source: :meth:`~.live.LiveSubscriber.health`)."""
+        with self._live_lock:
+            for key in keys:
+                self._live_recorded.pop(key, None)
+                self._live_dropped.pop(key, None)
+
     def _live_count(self, skill: str, robot: str, n: int) -> None:
         unflushed = self._live_unflushed.setdefault(skill, {})
         unflushed[robot] = unflushed.get(robot, 0) + n

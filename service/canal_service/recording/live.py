@@ -44,6 +44,11 @@ log = logging.getLogger("canal_service.recording")
 
 #: Streams listed one by one in /healthz (all of them are counted in the totals).
 HEALTH_STREAMS = 64
+#: Streams whose counts are kept one by one. Beyond it the settled streams (every row kept
+#: recorded or dropped) heard from least recently are summed into ``LiveStats.retired``:
+#: totals stay exact, and robot names, which clients choose, cannot grow the table (and the
+#: work of every /healthz) without bound.
+MAX_COUNTED_STREAMS = 1024
 _COUNTS = ("poses", "answered", "coalesced", "errors", "decimated", "kept")
 
 
@@ -144,6 +149,12 @@ class LiveStats:
     streams: dict[tuple[str, str], dict[str, int]] = field(
         default_factory=lambda: defaultdict(lambda: dict.fromkeys(_COUNTS, 0)))
     last_n: dict[str, int] = field(default_factory=dict)
+    #: per stream, the batch it was last heard in
+    heard: dict[tuple[str, str], int] = field(default_factory=dict)
+    #: the summed counts (and ``recorded``, ``dropped``) of the streams no longer counted
+    #: one by one (:data:`MAX_COUNTED_STREAMS`)
+    retired: dict[str, int] = field(
+        default_factory=lambda: dict.fromkeys((*_COUNTS, "recorded", "dropped"), 0))
 
 
 class LiveSubscriber:
@@ -249,6 +260,7 @@ class LiveSubscriber:
         stats.batches += 1
         chunks: list[LiveRows] = []
         for st in batch.streams:
+            stats.heard[(st.skill, st.robot)] = stats.batches
             tally = stats.streams[(st.skill, st.robot)]
             tally["poses"] += st.poses
             tally["answered"] += st.answered
@@ -260,32 +272,61 @@ class LiveSubscriber:
                 chunks.append(rows_of(st))
         if chunks:
             self.recorder.live_rows(chunks)
+        if len(stats.streams) > MAX_COUNTED_STREAMS:
+            self._retire()
         return True
+
+    def _retire(self) -> None:
+        """Sum the settled streams heard from least recently into ``stats.retired`` until
+        half of :data:`MAX_COUNTED_STREAMS` are counted one by one (fewer are retired when
+        fewer are settled: a stream with rows on their way keeps its own counts)."""
+        stats = self.stats
+        recorded, dropped = self.recorder.live_stream_counts()
+        settled = [key for key, t in stats.streams.items()
+                   if t["kept"] == recorded.get(key, 0) + dropped.get(key, 0)]
+        settled.sort(key=lambda key: stats.heard.get(key, 0))
+        gone = settled[:max(len(stats.streams) - MAX_COUNTED_STREAMS // 2, 0)]
+        retired = stats.retired
+        for key in gone:
+            tally = stats.streams.pop(key)
+            stats.heard.pop(key, None)
+            for k in _COUNTS:
+                retired[k] += tally[k]
+            retired["recorded"] += recorded.get(key, 0)
+            retired["dropped"] += dropped.get(key, 0)
+        if gone:
+            self.recorder.forget_live_streams(gone)
 
     # ---- state --------------------------------------------------------------------------------
 
     def stream_counts(self) -> dict[tuple[str, str], dict[str, int]]:
         """Per stream: the bridges' counts and the recorder's ``recorded`` (written and
         flushed), ``dropped`` and ``pending`` (kept, not yet flushed or dropped)."""
+        return self._counts()[0]
+
+    def _counts(self) -> tuple[dict[tuple[str, str], dict[str, int]], dict[str, int]]:
+        """:meth:`stream_counts` and the retired streams' sums, read together (no stream is
+        retired between the two)."""
         with self._lock:
             tallies = {k: dict(v) for k, v in self.stats.streams.items()}
-        recorded, dropped = self.recorder.live_stream_counts()
+            retired = dict(self.stats.retired)
+            recorded, dropped = self.recorder.live_stream_counts()
         for key, t in tallies.items():
             t["recorded"] = recorded.get(key, 0)
             t["dropped"] = dropped.get(key, 0)
             t["pending"] = t["kept"] - t["recorded"] - t["dropped"]
-        return tallies
+        return tallies, retired
 
     def health(self) -> dict[str, Any]:
         """Status, totals and (up to :data:`HEALTH_STREAMS`) streams. ``complete``: nothing
         lost on the way (no lost batch, nothing dropped); when ``pending`` is 0 as well,
         ``recorded + decimated == poses`` for every stream."""
-        per = self.stream_counts()
-        totals = dict.fromkeys((*_COUNTS, "recorded", "dropped", "pending"), 0)
+        per, retired = self._counts()
+        stats = self.stats
+        totals = {**retired, "pending": 0}
         for t in per.values():
             for k in totals:
                 totals[k] += t[k]
-        stats = self.stats
         return {"status": stats.status, "detail": stats.detail, "batches": stats.batches,
                 "lost_batches": stats.lost_batches, "bad_payload": stats.bad_payload,
                 "bridges": len(stats.last_n), **totals,
