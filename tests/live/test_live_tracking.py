@@ -463,3 +463,24 @@ def test_a_deleted_skill_stops_steering_its_robots_at_once(live):
         assert live.client.delete("/skills/gone").status_code == 204
         got = ps.wait_for(ps.send([0.5, 0.0, 0.0]), timeout=5.0)
         assert got is not None and got.status == "unknown_skill" and got.target is None, got
+
+
+def test_a_glitch_pose_as_a_skill_is_created_again_does_not_send_the_target_to_the_end(live):
+    # A stream whose skill was deleted and created again under its name was placed from its
+    # first pose on the new skill's canal: one glitch there sent the robot to its end.
+    make_shifted(live, "again", 0.0)
+    with PoseStreamer("again", "arm", endpoint=live.endpoint) as ps:
+        x = np.array([0.1, 0.0, 0.0])
+        for _ in range(30):
+            t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+            assert t is not None and t.target is not None, t
+            x = x + 0.5 * (np.asarray(t.target) - x)
+        assert live.client.delete("/skills/again").status_code == 204
+        make_shifted(live, "again", 0.01)  # the same task, shown again
+        end = live.client.get("/skills/again/models/latest").json()["directrix"][-1]
+        glitch = ps.wait_for(ps.send(end), timeout=5.0)
+        assert glitch is not None and glitch.status != "unknown_skill", glitch
+        assert not glitch.done and abs(glitch.target[0] - end[0]) > 0.2, (glitch, x)
+        t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+        assert t is not None and t.status == "ok" and not t.done, t
+        assert np.linalg.norm(np.asarray(t.target) - x) < 0.1, (t.target, x)

@@ -135,8 +135,11 @@ class Stepper(Answers):
                                    else "way")
                 st.route = route
             else:
+                # a skill created again under its name: chosen from where the robot was a
+                # pose ago (this pose may be a glitch); a restart, from this pose
+                at = position if restart or st.position is None else st.position
                 try:
-                    choice = entry.chooser.choose(np.array(position, dtype=np.float64))
+                    choice = entry.chooser.choose(np.array(at, dtype=np.float64))
                     st.route, st.route_reason = choice.route, choice.reason
                 except Exception:  # a pose no route can place: the canal of all
                     st.route, st.route_reason = None, "shared"
@@ -157,12 +160,12 @@ class Stepper(Answers):
             # skill) and on a route chosen from the robot's position (another canal): the
             # share of the canal reached on the old one says nothing there.
             placed_afresh = entry.route != wire.NO_ROUTE and st.route_reason not in ("kept", "way")
-            in_flight = not restart and st.revision[0] == entry.created_ns
-            if in_flight and not placed_afresh:
+            same_skill = st.revision[0] == entry.created_ns
+            if not restart and same_skill and not placed_afresh:
                 index_old = int(old.index[st.slot])
                 carried = (index_old, float(old.eta[st.slot]), old.direction[st.slot].copy(),
                            old.geometry)
-            elif in_flight:
+            elif not restart:  # another route, or a skill created again under the name
                 anchor = st.position
         bank = entry.bank
         assert bank is not None
