@@ -184,12 +184,16 @@ class TrackerBank:
             return self._compiled_rows(kernel, slots, p)
         return self._rows_of_batch(self._numpy_step(slots, p))
 
-    def avoid_packed(self, rows: FloatArray, positions: FloatArray) -> NDArray[np.int8] | None:
+    def avoid_packed(self, rows: FloatArray, positions: FloatArray,
+                     slots: Any = None) -> NDArray[np.int8] | None:
         """Correct packed answers (:meth:`step_packed`) for the bank's scene, in place, in one
         vectorised pass (:func:`canal_core.tracker_obstacles.avoided_targets`); each row's
         obstacle status (0 ok, 1 detour, 2 blocked, 3 in_obstacle), or None without a scene.
         Rows whose target the scene moved get a zero feed-forward velocity; a row that is
-        done is never blocked (nothing lies ahead of it).
+        done is never blocked (nothing lies ahead of it). Given the rows' ``slots`` (those
+        just stepped), a pose the tracker held as suspect (a glitch: see "Plausible steps" in
+        :mod:`canal_core.tracker`) is not where the scene is judged from either: its row is
+        judged from its held target, so one glitch pose inside an obstacle cannot move it.
 
         The scene is read once, so a new one set by another thread applies from the next call.
         """
@@ -199,9 +203,13 @@ class TrackerBank:
         d = self.geometry.centres.shape[1]
         n = self.geometry.centres.shape[0]
         section = rows[:, d + 2].astype(np.intp)
+        where = np.array(positions, dtype=np.float64)
+        if slots is not None:
+            strikes = self.strikes[np.asarray(slots, dtype=np.intp)]
+            held = (strikes > 0) & ((strikes < SUSTAIN) | ~np.isfinite(rows[:, d + 1]))
+            where[held] = rows[held, :d]
         target, status = avoided_targets(
-            tables, np.asarray(positions, dtype=np.float64), rows[:, :d], section,
-            np.minimum(section + self.lookahead, n - 1))
+            tables, where, rows[:, :d], section, np.minimum(section + self.lookahead, n - 1))
         rows[:, :d] = target
         # A robot that has arrived has nothing ahead for the scene to close: held beside an
         # obstacle over the goal, it ends where a reproduction ends, off its path.

@@ -207,3 +207,26 @@ def test_a_robot_held_beside_an_obstacle_over_the_goal_is_done_not_blocked() -> 
         pos = pos + 0.5 * (rows[:, :3] - pos)
     assert seen[-1][1]  # the robot finished
     assert not any(status == BLOCKED for status, _ in seen)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_glitch_pose_inside_an_obstacle_does_not_move_the_target(
+        tube: canal_core.Canal, compiled: bool) -> None:
+    # The tracker held a glitch pose (the plan kept), but the obstacle pass judged the scene
+    # from the glitch itself and backed the "robot" out of an obstacle near the canal's end:
+    # one bad sample moved the target most of the canal's length.
+    ball = {"kind": "sphere", "center": tube.directrix[-3].tolist(), "radius": 0.15}
+    bank = TrackerBank(tube.tracker_geometry(), 2, compiled=compiled)
+    bank.scene = scene_tables(bank.geometry, scene_from_list([ball], 3), tube.section_steps)
+    slot = bank.add(0)
+    x = tube.directrix[0].copy()
+    for _ in range(40):
+        rows = bank.step_packed([slot], x[None])
+        assert bank.avoid_packed(rows, x[None], [slot])[0] == OK
+        x = x + 0.6 * (rows[0, :3] - x)
+    before = rows[0, :3].copy()
+    glitch = tube.directrix[-3][None]
+    rows = bank.step_packed([slot], glitch)
+    status = int(bank.avoid_packed(rows, glitch, [slot])[0])
+    assert status == OK and rows[0, 6] == 0.0, (status, rows[0])  # held: outside, no obstacle
+    assert np.linalg.norm(rows[0, :3] - before) < 3 * tube.largest_step, (rows[0, :3], before)

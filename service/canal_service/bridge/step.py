@@ -104,7 +104,7 @@ class Stepper(Answers):
             p = np.array(model_positions, dtype=np.float64)
             rows = bank.step_packed(model_slots, p)
             # With a scene, the answers go around it (corrected in place, one vectorised pass).
-            status = None if bank.scene is None else bank.avoid_packed(rows, p)
+            status = None if bank.scene is None else bank.avoid_packed(rows, p, model_slots)
             out.append((model, model_jobs, rows.tolist(),
                         None if status is None else status.tolist()))
         return out
