@@ -38,8 +38,9 @@ more than :data:`FAR_ETA` local radii before the first plane or beyond the last)
 pose changes nothing: it is answered from the stream's last plausible state (the target
 ``lookahead`` sections past the section reached, on the kept plan), as outside the canal,
 with its own live ratio. :data:`SUSTAIN` consecutive suspect poses that agree (each within
-:data:`FAR_ETA` local radii of the one before, or near the canal and ahead of the one
-before along its section's tangent) are a real displacement (a push, a robot moved by
+:data:`FAR_ETA` local radii of the one before, or near the canal, ahead of the one
+before along its section's tangent and within :data:`FAR_ETA` local radii of the line
+through it along that tangent) are a real displacement (a push, a robot moved by
 hand along the canal): the last of them is taken as any pose is, as if it had come first,
 and so is every next one that agrees. A stream with no
 plan yet (a new stream, a restart) has no plausible state to hold: a pose near the canal is
@@ -322,8 +323,8 @@ def tracker_step(
         if not planned:  # nothing plausible to hold: the entry, the stream left unplaced
             unplaced = True
         else:
-            onward = not far and state.pending is not None and float(
-                g.tangents[index] @ (position - state.pending)) > 0.0
+            onward = not far and state.pending is not None and is_onward(
+                g.tangents[index], position - state.pending, reach)
             strikes = suspect_strikes(state.pending, state.strikes, position, reach, onward)
             pending = np.array(position, dtype=np.float64)
             if strikes < SUSTAIN or not math.isfinite(eta):  # an overflow is never followed
@@ -413,6 +414,16 @@ def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
     the pair of planes it was located between (``d0`` < 0: behind the first of them, ``d1``
     > 0: beyond the second; signed plane distances)."""
     return not eta <= FAR_ETA or d0 < -FAR_ETA * reach or d1 > FAR_ETA * reach
+
+
+def is_onward(tangent: FloatArray, gap: FloatArray, reach: float) -> bool:
+    """Whether a suspect pose near the canal ran on from the suspect pose before it, ``gap``
+    (D,) behind it: ahead along the pose's section ``tangent`` (D,), and within
+    :data:`FAR_ETA` local ``reach`` of the line through the pose before along that tangent
+    (an arm moved along the canal, not a glitch on the canal after a pose held beside it)."""
+    along = float(tangent @ gap)
+    across = float(gap @ gap) - along * along
+    return along > 0.0 and across <= (FAR_ETA * reach) ** 2
 
 
 def suspect_strikes(pending: FloatArray | None, strikes: int, position: FloatArray,

@@ -421,7 +421,9 @@ def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
         moved = p[rows] - pending[rows]
         agree = _row_norms(moved) <= FAR_ETA * reach[rows]
         # near the canal and ahead of the last suspect pose: an arm moved along it
-        agree |= ~far[rows] & (_row_dots(moved, tangents[index[rows]]) > 0.0)
+        along = _row_dots(moved, tangents[index[rows]])
+        across = _row_dots(moved, moved) - along * along
+        agree |= ~far[rows] & (along > 0.0) & (across <= (FAR_ETA * reach[rows]) ** 2)
         agree &= strikes[rows] > 0
         streak = np.where(agree, np.minimum(strikes[rows] + 1, SUSTAIN), 1)
         new_strikes[rows] = streak

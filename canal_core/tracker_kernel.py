@@ -204,7 +204,9 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
                         e = p[r, j] - pending[slot, j]
                         gap += e * e
                         onward += tangents[at, j] * e
-                    if (not far and onward > 0.0) or math.sqrt(gap) <= far_eta * reach:
+                    across = gap - onward * onward
+                    if (not far and onward > 0.0 and across <= (far_eta * reach) ** 2) \
+                            or math.sqrt(gap) <= far_eta * reach:
                         streak = min(strikes[slot] + 1, sustain)
                 held = streak < sustain or not math.isfinite(live_eta)
         if held:

@@ -206,6 +206,26 @@ def test_a_robot_pushed_far_out_beside_its_section_is_followed(tube: canal_core.
 
 
 @pytest.mark.parametrize("path", PATHS)
+def test_a_glitch_after_a_followed_displacement_off_the_canal_is_held(
+        tube: canal_core.Canal, path: str) -> None:
+    """A person holds the arm well off the canal (followed after SUSTAIN poses); one glitch
+    on the canal near its end was then taken as the arm moved on along the canal (ahead of
+    the held pose), and the target went to the end. A pose that agrees by running ahead
+    must also stay within FAR_ETA radii of the line the last one ran along."""
+    step = stream(tube, path)
+    walk(tube, step, 8, 12)
+    out = tube.directrix[12] + 2.0 * FAR_ETA * float(tube.radii[12]) * tube.normals[12]
+    held = [step(out + 1e-4 * k * tube.normals[12]) for k in range(SUSTAIN + 2)]
+    assert held[-1].section_index <= 13
+    glitch = step(tube.directrix[-1])
+    assert not glitch.done and not glitch.inside, glitch
+    assert glitch.section_index <= held[-1].section_index + 2, glitch
+    np.testing.assert_allclose(glitch.target, held[-1].target, atol=0.3 * tube.radii.max())
+    again = step(out)  # the arm, still held there
+    assert again.section_index <= held[-1].section_index + 2 and not again.done
+
+
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("glitch", ["beyond the end", "far off", "overflowing"])
 def test_a_stream_whose_first_pose_is_a_glitch_starts_where_its_next_pose_is(
         tube: canal_core.Canal, path: str, glitch: str) -> None:
