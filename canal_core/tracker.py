@@ -39,8 +39,9 @@ pose changes nothing: it is answered from the stream's last plausible state (the
 ``lookahead`` sections past the section reached, on the kept plan), as outside the canal,
 with its own live ratio. :data:`SUSTAIN` consecutive suspect poses that agree (each within
 :data:`FAR_ETA` local radii of the one before, or near the canal, ahead of the one
-before along its section's tangent and within :data:`FAR_ETA` local radii of the line
-through it along that tangent) are a real displacement (a push, a robot moved by
+before along its section's tangent, within :data:`FAR_ETA` local radii of the line
+through it along that tangent and at most :data:`MAX_ONWARD` sections ahead of it) are a
+real displacement (a push, a robot moved by
 hand along the canal): the last of them is taken as any pose is, as if it had come first,
 and so is every next one that agrees. A stream with no
 plan yet (a new stream, a restart) has no plausible state to hold: a pose near the canal is
@@ -75,6 +76,10 @@ MAX_ADVANCE = 8
 #: A pose whose ratio exceeds this, or that lies more than this many local radii beyond the
 #: first or the last plane, is far from the canal: suspect.
 FAR_ETA = 3.0
+#: Most sections a suspect pose may run ahead of the one before and still agree with it
+#: (measured as the chord of that many sections before the pose's; see "Plausible steps" in
+#: the module docstring).
+MAX_ONWARD = 4 * MAX_ADVANCE
 #: Consecutive suspect poses, each within :data:`FAR_ETA` local radii of the one before,
 #: taken as a real displacement: the SUSTAIN-th is followed as any pose is.
 SUSTAIN = 4
@@ -324,7 +329,8 @@ def tracker_step(
             unplaced = True
         else:
             onward = not far and state.pending is not None and is_onward(
-                g.tangents[index], position - state.pending, reach)
+                g.tangents[index], position - state.pending, reach,
+                float(np.linalg.norm(g.centres[index] - g.centres[max(index - MAX_ONWARD, 0)])))
             strikes = suspect_strikes(state.pending, state.strikes, position, reach, onward)
             pending = np.array(position, dtype=np.float64)
             if strikes < SUSTAIN or not math.isfinite(eta):  # an overflow is never followed
@@ -416,14 +422,15 @@ def is_far(eta: float, d0: float, d1: float, reach: float) -> bool:
     return not eta <= FAR_ETA or d0 < -FAR_ETA * reach or d1 > FAR_ETA * reach
 
 
-def is_onward(tangent: FloatArray, gap: FloatArray, reach: float) -> bool:
+def is_onward(tangent: FloatArray, gap: FloatArray, reach: float, most: float) -> bool:
     """Whether a suspect pose near the canal ran on from the suspect pose before it, ``gap``
-    (D,) behind it: ahead along the pose's section ``tangent`` (D,), and within
-    :data:`FAR_ETA` local ``reach`` of the line through the pose before along that tangent
-    (an arm moved along the canal, not a glitch on the canal after a pose held beside it)."""
+    (D,) behind it: ahead along the pose's section ``tangent`` (D,) by at most ``most`` (the
+    chord of :data:`MAX_ONWARD` sections), and within :data:`FAR_ETA` local ``reach`` of the
+    line through the pose before along that tangent (an arm moved along the canal, not a
+    glitch on the canal after a pose held beside it or stale poses from behind)."""
     along = float(tangent @ gap)
     across = float(gap @ gap) - along * along
-    return along > 0.0 and across <= (FAR_ETA * reach) ** 2
+    return 0.0 < along <= most and across <= (FAR_ETA * reach) ** 2
 
 
 def suspect_strikes(pending: FloatArray | None, strikes: int, position: FloatArray,

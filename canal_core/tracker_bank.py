@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from .tracker import (
     FAR_ETA,
     MAX_ADVANCE,
+    MAX_ONWARD,
     MAX_PLAN_ETA,
     REPLAN_TOLERANCE,
     SUSTAIN,
@@ -262,7 +263,8 @@ class TrackerBank:
         kernel(*self._kernel_arrays, np.array(slots, dtype=np.intp),
                np.ascontiguousarray(p), self.index, self.eta, self.direction, self.pending,
                self.strikes, self.lookahead, WINDOW, self.replan_tolerance, MAX_PLAN_ETA,
-               float(g.done_tolerance), MAX_ADVANCE, FAR_ETA, SUSTAIN, TUBE_MARGIN, out)
+               float(g.done_tolerance), MAX_ADVANCE, MAX_ONWARD, FAR_ETA, SUSTAIN, TUBE_MARGIN,
+               out)
         return out
 
     def _batch_of_rows(self, rows: FloatArray) -> TrackerBatch:

@@ -20,6 +20,7 @@ from .tracker import (
     DEFAULT_DIRECTIONS,
     FAR_ETA,
     MAX_ADVANCE,
+    MAX_ONWARD,
     MAX_PLAN_ETA,
     REPLAN_TOLERANCE,
     SUSTAIN,
@@ -378,7 +379,7 @@ def batched_tracker_step(
                 plan_dir, old_eta, old_dir, new_index, new_pending, new_strikes,
                 p if pending is None else pending,
                 np.zeros(b, dtype=np.intp) if strikes is None else strikes, p, reach, n,
-                g.tangents)
+                g.tangents, g.centres)
         # aimed from the section reached (as tracker_step)
         target_index = np.maximum(index, last_index) + max(int(lookahead), 1)
         np.minimum(target_index, n - 1, out=target_index)
@@ -405,8 +406,8 @@ def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
                   old_dir: FloatArray, new_index: NDArray[np.intp],
                   new_pending: FloatArray, new_strikes: NDArray[np.intp],
                   pending: FloatArray, strikes: NDArray[np.intp], p: FloatArray,
-                  reach: FloatArray, n: int,
-                  tangents: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+                  reach: FloatArray, n: int, tangents: FloatArray,
+                  centres: FloatArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """:func:`batched_tracker_step`'s suspect rows by :func:`tracker_step`'s rules, written
     into its arrays in place: a held row answers from its last plausible state (section,
     plan) and keeps its state but the streak; a row with no plan is answered as located
@@ -423,7 +424,10 @@ def _suspect_rows(suspect: NDArray[np.bool_], planned: NDArray[np.bool_],
         # near the canal and ahead of the last suspect pose: an arm moved along it
         along = _row_dots(moved, tangents[index[rows]])
         across = _row_dots(moved, moved) - along * along
-        agree |= ~far[rows] & (along > 0.0) & (across <= (FAR_ETA * reach[rows]) ** 2)
+        at = index[rows]
+        most = _row_norms(centres[at] - centres[np.maximum(at - MAX_ONWARD, 0)])
+        agree |= (~far[rows] & (along > 0.0) & (along <= most)
+                  & (across <= (FAR_ETA * reach[rows]) ** 2))
         agree &= strikes[rows] > 0
         streak = np.where(agree, np.minimum(strikes[rows] + 1, SUSTAIN), 1)
         new_strikes[rows] = streak

@@ -37,8 +37,8 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
               times: Any, orientations: Any, default_direction: Any, slots: Any, p: Any,
               index: Any, eta: Any, direction: Any, pending: Any, strikes: Any,
               lookahead: int, window: int, tolerance: float, max_plan_eta: float,
-              done_tolerance: float, max_advance: int, far_eta: float, sustain: int,
-              tube_margin: float, out: Any) -> None:
+              done_tolerance: float, max_advance: int, max_onward: int, far_eta: float,
+              sustain: int, tube_margin: float, out: Any) -> None:
     """Step the trackers of ``slots`` (B,) at live positions ``p`` (B, D) in place, the
     answers packed in the rows of ``out`` (see :func:`packed_width`).
 
@@ -77,9 +77,10 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
     tolerance, max_plan_eta, done_tolerance : float
         The replan tolerance (a fraction of the reach), the largest planned ratio and the
         distance to the last plane that counts as reached.
-    max_advance, far_eta, sustain
+    max_advance, max_onward, far_eta, sustain
         The plausible-step rule's :data:`~canal_core.tracker.MAX_ADVANCE`,
-        :data:`~canal_core.tracker.FAR_ETA` and :data:`~canal_core.tracker.SUSTAIN`.
+        :data:`~canal_core.tracker.MAX_ONWARD`, :data:`~canal_core.tracker.FAR_ETA` and
+        :data:`~canal_core.tracker.SUSTAIN`.
     tube_margin : float
         :data:`~canal_core.tube.TUBE_MARGIN` (an argument, not a global: numba's cache would
         keep a global's value from the compile).
@@ -205,7 +206,13 @@ def step_rows(centres: Any, tangents: Any, offsets: Any, basis: Any, radius: Any
                         gap += e * e
                         onward += tangents[at, j] * e
                     across = gap - onward * onward
-                    if (not far and onward > 0.0 and across <= (far_eta * reach) ** 2) \
+                    back = max(at - max_onward, 0)
+                    most = 0.0
+                    for j in range(d):
+                        e = centres[at, j] - centres[back, j]
+                        most += e * e
+                    if (not far and 0.0 < onward and onward * onward <= most
+                            and across <= (far_eta * reach) ** 2) \
                             or math.sqrt(gap) <= far_eta * reach:
                         streak = min(strikes[slot] + 1, sustain)
                 held = streak < sustain or not math.isfinite(live_eta)
@@ -354,7 +361,7 @@ def _run_once(kernel: Callable[..., None]) -> None:
            np.zeros((0, 4)), np.array([1.0, 0.0]), np.zeros(1, dtype=np.intp),
            np.array([[0.5, 0.1, 0.0]]), np.zeros(1, dtype=np.intp), np.full(1, np.nan),
            np.zeros((1, d - 1)), np.zeros((1, d)), np.zeros(1, dtype=np.intp),
-           1, 16, 0.25, 0.9, 1e-9, 8, 3.0, 4, 0.95, np.empty((1, packed_width(d))))
+           1, 16, 0.25, 0.9, 1e-9, 8, 32, 3.0, 4, 0.95, np.empty((1, packed_width(d))))
 
 
 __all__ = ["compile_step_rows", "compiled_step_rows", "numba_available", "packed_width",

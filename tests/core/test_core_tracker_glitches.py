@@ -226,6 +226,22 @@ def test_a_glitch_after_a_followed_displacement_off_the_canal_is_held(
 
 
 @pytest.mark.parametrize("path", PATHS)
+def test_a_glitch_far_ahead_after_stale_poses_behind_is_held(tube: canal_core.Canal,
+                                                             path: str) -> None:
+    """Stale poses replayed from behind (an old log, a second publisher on the key) are
+    followed as a displacement; one glitch at the canal's end after them ran ahead of the
+    last and was taken. A pose agrees by running ahead only up to MAX_ONWARD sections ahead
+    of the one before: an arm moved faster than that on a slow stream is followed once its
+    poses agree by distance."""
+    step = stream(tube, path)
+    walk(tube, step, 20, 12)
+    stale = [step(tube.directrix[8] + 0.01 * tube.normals[8]) for _ in range(SUSTAIN + 1)]
+    assert not stale[-1].done
+    glitch = step(tube.directrix[-1])
+    assert not glitch.done and not glitch.inside and glitch.section_index < 30, glitch
+
+
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("glitch", ["beyond the end", "far off", "overflowing"])
 def test_a_stream_whose_first_pose_is_a_glitch_starts_where_its_next_pose_is(
         tube: canal_core.Canal, path: str, glitch: str) -> None:
