@@ -280,6 +280,16 @@ def shifted_demos(dy: float, dim: int = 3) -> list[list[list[float]]]:
     return out
 
 
+def follow(ps: PoseStreamer, x: np.ndarray, poses: int) -> np.ndarray:
+    """A first-order robot from ``x`` that moves half-way to each target, for ``poses``
+    poses; where it ends."""
+    for _ in range(poses):
+        t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
+        assert t is not None and t.target is not None, t
+        x = x + 0.5 * (np.asarray(t.target) - x)
+    return x
+
+
 def make_shifted(live, name: str, dy: float, dim: int = 3) -> None:
     assert live.client.post("/skills", json={"name": name, "dim": dim}).status_code == 201
     for demo in shifted_demos(dy, dim):
@@ -327,11 +337,7 @@ def test_a_refit_whose_canal_grew_at_its_start_does_not_send_a_stream_back(live)
            for d in demos(0.0)]
     assert client.post("/skills/grown/fit", json={"n_samples": 100}).status_code == 201
     with PoseStreamer("grown", "arm", endpoint=live.endpoint) as ps:
-        x = np.array([0.05, 0.0, 0.0])
-        for _ in range(60):
-            t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
-            assert t is not None and t.target is not None, t
-            x = x + 0.5 * (np.asarray(t.target) - x)
+        x = follow(ps, np.array([0.05, 0.0, 0.0]), 60)
         assert 0.3 < x[0] < 0.9, x
         for demo_id in ids:
             assert client.delete(f"/skills/grown/demonstrations/{demo_id}").status_code == 204
@@ -470,11 +476,7 @@ def test_a_glitch_pose_as_a_skill_is_created_again_does_not_send_the_target_to_t
     # first pose on the new skill's canal: one glitch there sent the robot to its end.
     make_shifted(live, "again", 0.0)
     with PoseStreamer("again", "arm", endpoint=live.endpoint) as ps:
-        x = np.array([0.1, 0.0, 0.0])
-        for _ in range(30):
-            t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
-            assert t is not None and t.target is not None, t
-            x = x + 0.5 * (np.asarray(t.target) - x)
+        x = follow(ps, np.array([0.1, 0.0, 0.0]), 30)
         assert live.client.delete("/skills/again").status_code == 204
         make_shifted(live, "again", 0.01)  # the same task, shown again
         end = live.client.get("/skills/again/models/latest").json()["directrix"][-1]
