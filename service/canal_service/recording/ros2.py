@@ -69,9 +69,11 @@ def robot_tokens(robots: Iterable[str]) -> dict[str, str]:
     out = {}
     for token, names in by_token.items():
         for robot in names:
-            clash = len(names) > 1 and robot != token
-            digest = hashlib.sha1(robot.encode("utf-8", "surrogatepass")).hexdigest()[:6]
-            out[robot] = f"{token}_{digest}" if clash else token
+            if len(names) > 1 and robot != token:
+                digest = hashlib.sha1(robot.encode("utf-8", "surrogatepass")).hexdigest()[:6]
+                out[robot] = f"{token}_{digest}"
+            else:
+                out[robot] = token
     return out
 
 

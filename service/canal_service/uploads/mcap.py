@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 import orjson
 
+from canal_core.errors import InvalidInputError
+from canal_core.validation import check_int
 from canal_protocol import codecs
 
 from ..errors import BadUpload, InvalidInput, TooLarge
@@ -427,18 +429,6 @@ def _ros2_poses(schema: _Schema, channel: _Channel, messages: Iterable[tuple[int
 MAX_STAMP_SEC = (2**63 - 1) // 1_000_000_000 - 1
 
 
-def _stamp_part(stamp: dict[str, Any], key: str, upper: int, where: str) -> int:
-    """``stamp[key]`` (0 when absent) as an integer in [0, ``upper``], else an
-    :class:`InvalidInput` naming ``where.timestamp.key`` (a fraction is not truncated, a
-    string or a boolean is not a count)."""
-    value = stamp.get(key, 0)
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= upper:
-        raise InvalidInput(
-            f"expected {where}.timestamp.{key} as a whole number in [0, {upper}], got {value!r}",
-            field=f"{where}.timestamp.{key}")
-    return value
-
-
 def _coordinates(values: dict[str, Any], keys: str, defaults: tuple[float, ...],
                  where: str) -> list[float]:
     """The numbers at ``keys`` of ``values`` (the ``defaults`` where absent), else an
@@ -461,8 +451,14 @@ def _foxglove_pose(payload: dict[str, Any], log_time: int, where: str) -> _Sampl
     if not isinstance(stamp, dict):
         raise InvalidInput(f"expected {where}.timestamp as an object, got {stamp!r}",
                            field=f"{where}.timestamp")
-    ns = (_stamp_part(stamp, "sec", MAX_STAMP_SEC, where) * 1_000_000_000
-          + _stamp_part(stamp, "nsec", 999_999_999, where))
+    # canal_core's integer check: a fraction is not truncated, a string or a boolean is not
+    # a count (raised as the upload's InvalidInput, not as a message it cannot decode)
+    try:
+        ns = (check_int(stamp.get("sec", 0), 0, f"{where}.timestamp.sec", MAX_STAMP_SEC)
+              * 1_000_000_000
+              + check_int(stamp.get("nsec", 0), 0, f"{where}.timestamp.nsec", 999_999_999))
+    except InvalidInputError as exc:
+        raise InvalidInput(exc.message, field=exc.field) from exc
     return (ns or int(log_time), *_pose_fields(payload["pose"], f"{where}.pose"))
 
 
