@@ -401,6 +401,17 @@ def plausible_from(geometry: TrackerGeometry, index: int, position: FloatArray) 
     return after.strikes == 0
 
 
+def poses_agree(geometry: TrackerGeometry, position: FloatArray, previous: FloatArray) -> bool:
+    """Whether ``position``, shape (D,), lies within :data:`FAR_ETA` radii of the canal's
+    widest section of ``previous`` (D,), the pose before it: whether two poses of a robot
+    that jumped (a restart to be confirmed) are one place, wherever along the canal that is
+    (a canal narrow at its goal must not keep a robot that left it from agreeing with
+    itself)."""
+    radius = float(np.max(section_radii(geometry.sections)))
+    gap = np.asarray(position, dtype=np.float64) - np.asarray(previous, dtype=np.float64)
+    return bool(math.sqrt(float(gap @ gap)) <= FAR_ETA * radius)
+
+
 def direction_in_plane(direction: FloatArray, from_basis: FloatArray,
                        to_basis: FloatArray) -> FloatArray:
     """The unit in-plane direction, shape (D - 1,), on a section of basis ``to_basis``

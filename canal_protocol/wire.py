@@ -38,7 +38,8 @@ offset type    field
 Pose (kind 1) after the header: ``D x float64`` position, then ``4 x float64`` orientation
 quaternion (x, y, z, w) if flag 0x01, then ``float64`` timestamp in seconds if flag 0x02.
 Flag 0x04 (restart) tells Canal to re-locate the robot in the canal instead of continuing
-from the section reached so far (send it on the first pose of a new run); other flag bits
+from the section reached so far (send it on the first pose of a new run; a restart pose that
+jumps while the stream runs waits for poses that confirm it); other flag bits
 are refused. A 3-D pose without extras is 36 bytes; a pose payload over
 :data:`MAX_POSE_BYTES` is refused unread.
 
@@ -92,12 +93,19 @@ code key               target meaning
 0    ok                yes    inside the canal (or done)
 1    outside_canal     yes    the pose is outside the canal; the target is on the boundary of
                               the section ahead, the way back in
+2    detour            yes    the target goes around an obstacle of the skill's scene
+3    blocked           yes    an obstacle closes the section ahead: the robot is held before it
+4    in_obstacle       yes    the robot is inside an obstacle: the target backs it out
 16   bad_payload       no     not a pose: garbage, truncated, wrong version/kind, missing fields
 17   wrong_dimension   no     D differs from the skill's dimension
 18   non_finite        no     NaN or infinity in the position, orientation or time
 19   unknown_skill     no     no skill of that name
 20   no_model          no     the skill has no fitted model yet
 21   internal_error    no     a bug; logged by the service
+22   too_many_streams  no     a new robot while the bridge process serves its most streams
+                              (``zenoh_max_streams``); idle streams are forgotten
+23   restart_pending   no     a restart pose that jumped while the stream runs: nothing
+                              moves; the restart is made once 4 poses agree
 ==== ================= ====== ================================================================
 """
 

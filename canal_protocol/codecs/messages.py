@@ -49,6 +49,8 @@ STATUS_CODES: dict[str, int] = {
     "unknown_skill": 19,
     "no_model": 20,
     "internal_error": 21,
+    "too_many_streams": 22,
+    "restart_pending": 23,
 }
 STATUS_KEYS: dict[int, str] = {code: key for key, code in STATUS_CODES.items()}
 USABLE = frozenset({"ok", "outside_canal", "detour", "blocked", "in_obstacle"})

@@ -58,7 +58,8 @@ class SimResult:
     n_steps: int
     positions: np.ndarray  # (n_steps, D): every pose sent
     targets: list[wire.Target]  # the answer used at each step (None-free: missing answers skipped)
-    inside: np.ndarray  # (n_steps,) bool: the bridge's inside (or done) flag per answered pose
+    inside: np.ndarray  # bool: the bridge's inside (or done) flag per answered pose, but
+    # restart_pending (it says nothing of where the robot is)
     min_eta: float
     max_eta: float
     duration: float
@@ -291,18 +292,22 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                 answer = got
                 targets.append(got)
                 statuses[got.status] = statuses.get(got.status, 0) + 1
-                inside.append(bool(got.inside or got.done))
-                progress = got.progress
-                if applied:
-                    last = applied[-1]
-                    if last.inside_after is None:
-                        last.inside_after = inside[-1]
-                    elif not last.inside_after and last.back_inside_s is None and inside[-1]:
-                        last.back_inside_s = time.monotonic() - t0 - last.at_s
-                version = got.model_version
-                if got.done:
-                    reached = True
-                    break
+                # restart_pending: the run's first pose jumped from where this robot's last
+                # run left off; no word on where it is and no target: the sim holds still
+                # until the restart is made
+                if got.status != "restart_pending":
+                    inside.append(bool(got.inside or got.done))
+                    progress = got.progress
+                    if applied:
+                        last = applied[-1]
+                        if last.inside_after is None:
+                            last.inside_after = inside[-1]
+                        elif not last.inside_after and last.back_inside_s is None and inside[-1]:
+                            last.back_inside_s = time.monotonic() - t0 - last.at_s
+                    version = got.model_version
+                    if got.done:
+                        reached = True
+                        break
             if answer is not None and answer.usable and answer.target is not None:
                 goal = np.asarray(answer.target)
                 if lag == "first-order":

@@ -296,3 +296,14 @@ def test_a_glitch_changes_nothing_on_ellipse_sections(path: str, glitch: str) ->
         a = glitched(glitches(canal)[glitch])
     assert not a.inside and a.section_index <= before.section_index + 1
     same_answer(glitched(x0), clean(x0))
+
+
+def test_poses_agree_within_three_radii_of_the_widest_section(tube: canal_core.Canal) -> None:
+    from canal_core.tracker import poses_agree
+
+    g = tube.tracker_geometry()
+    r = float(tube.radii.max())
+    here = tube.directrix[10]
+    assert poses_agree(g, here + [0.0, 0.9 * FAR_ETA * r, 0.0], here)
+    assert not poses_agree(g, here + [0.0, 1.1 * FAR_ETA * r, 0.0], here)
+    assert not poses_agree(g, tube.directrix[-1], here)  # a jump along the canal

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from canal_client.live import PoseStreamer
 
+from canal_core.tracker import SUSTAIN
+
 pytestmark = pytest.mark.timeout(60)
 
 
@@ -39,6 +41,8 @@ def test_a_glitch_between_good_poses_changes_nothing(live, glitch: str, burst: i
             assert got.status == "outside_canal" and not got.done
             # the way back in from where the robot was, not a target at the canal's end
             assert got.section <= before.section + 1
+            # the progress reached is kept (it read up to one section lower)
+            assert before.progress <= got.progress <= before.progress + 0.02, (before, got)
             assert np.linalg.norm(np.array(got.target) - np.array(before.target)) < 0.05
         after, expected = _answer(ps, x), _answer(clean, x)
         assert after.status == "ok" and after.section == expected.section
@@ -65,3 +69,117 @@ def test_a_robot_moved_by_hand_is_followed_after_a_few_poses(live) -> None:
         answers = [_answer(ps, there) for _ in range(4)]
         assert [a.status for a in answers] == ["outside_canal"] * 3 + ["ok"]
         assert answers[-1].section == 60
+
+
+def _follow(ps: PoseStreamer, x: np.ndarray, n: int):  # type: ignore[no-untyped-def]
+    """``n`` poses of a robot that moves half-way to each target; (its position, last answer)."""
+    answer = None
+    for _ in range(n):
+        answer = _answer(ps, x)
+        x = x + 0.5 * (np.array(answer.target) - x)
+    return x, answer
+
+
+def _restart(ps: PoseStreamer, x: np.ndarray):  # type: ignore[no-untyped-def]
+    got = ps.wait_for(ps.send(x.tolist(), restart=True), 2.0)
+    assert got is not None, "no answer"
+    return got
+
+
+def test_a_glitch_sent_as_a_restart_never_sends_the_robot_to_the_canals_end(live) -> None:
+    # A glitch pose at the canal's end with the restart flag re-located the stream there:
+    # progress never goes back, so every next target was the canal's end.
+    c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
+    with PoseStreamer("arc3", "restart-glitch", endpoint=live.endpoint) as ps:
+        x, before = _follow(ps, c[3] + 0.005, 8)
+        held = _restart(ps, c[-1])
+        # no target: nothing moves, and the stream is as it was
+        assert held.status == "restart_pending" and held.target is None, held
+        assert not held.usable and "agree" in held.message
+        # the robot goes on where it is: the restart it asked for is made there, at once
+        answers = [_answer(ps, x) for _ in range(3)]
+        assert all(a.status == "ok" and not a.done for a in answers), answers
+        assert all(a.section <= before.section + 1 for a in answers), answers
+        assert all(a.progress < 0.2 for a in answers), answers
+
+
+def test_a_restart_that_jumps_is_made_once_sustain_poses_agree(live) -> None:
+    c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
+    with PoseStreamer("arc3", "restart-jump", endpoint=live.endpoint) as ps:
+        x, before = _follow(ps, c[40] + 0.002, 5)
+        start = c[5] + 0.002  # a new run, started at once from another place
+        held = [_restart(ps, start)] + [_answer(ps, start) for _ in range(SUSTAIN - 2)]
+        assert all(a.status == "restart_pending" and a.target is None for a in held), held
+        got = _answer(ps, start)  # the SUSTAIN-th agreeing pose: the restart is made
+        assert got.status == "ok" and got.section <= 6, got
+        _, later = _follow(ps, start, 5)
+        assert later.status == "ok" and later.section <= 10, later
+
+
+def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -> None:
+    import time
+
+    c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
+    with PoseStreamer("arc3", "restart-near", endpoint=live.endpoint) as ps:
+        x, _ = _follow(ps, c[5] + 0.002, 5)
+        got = _restart(ps, x)
+        assert got.status == "ok", got
+        _follow(ps, c[40] + 0.002, 5)
+        time.sleep(0.6)  # the robot was moved to another start while nothing was sent
+        got = _restart(ps, c[5] + 0.002)
+        assert got.status == "ok" and got.section <= 6, got
+
+
+@pytest.mark.parametrize("turns", [1.9, 1.95])
+def test_a_restart_glitch_near_the_robot_but_far_along_the_canal_is_held(live, turns) -> None:
+    # On a canal that comes back near its start (a loop), a glitch at the end lay within 3
+    # local radii of the robot at the start: the restart was made there, and every next
+    # target was the canal's end. So was a glitch repeated once (a poller's stale sample),
+    # and, closer still, one the plan took as a step but the restart re-located at the end.
+    client = live.client
+    name = f"loop{int(turns * 100)}"
+    client.post("/skills", json={"name": name, "dim": 3})
+    t = np.linspace(0.0, turns * np.pi, 120)
+    for j in range(4):
+        radius = 0.3 + 0.04 * (j - 1.5)
+        demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
+                                0.002 * np.random.default_rng(j).standard_normal(120)])
+        assert client.post(f"/skills/{name}/demonstrations",
+                           json={"positions": demo.tolist()}).status_code == 201
+    assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
+    c = np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+    with PoseStreamer(name, "looped", endpoint=live.endpoint) as ps:
+        x, before = _follow(ps, c[3] + 0.002, 5)
+        glitches = [ps.wait_for(ps.send(c[k].tolist(), restart=True), 2.0) for k in (-1, -4)]
+        glitches.append(_answer(ps, c[-1]))  # repeated once, without the flag
+        for a in glitches:
+            assert a is not None and not a.done, a
+            assert a.status == "restart_pending" or a.section <= before.section + 1, a
+        answers = [_answer(ps, x) for _ in range(3)]
+        assert all(a.status == "ok" and not a.done and a.section <= before.section + 1
+                   for a in answers), answers
+
+
+def test_a_restart_on_a_canal_narrow_at_its_goal_is_made_for_a_noisy_arm(live) -> None:
+    # Poses of a robot that jumped were told to agree within 3 radii of the section it left:
+    # after a run that ended where the canal is 0.3 mm wide, an arm back at the start with
+    # 1 mm of sensor noise was answered restart_pending for as long as it streamed.
+    client = live.client
+    client.post("/skills", json={"name": "funnel", "dim": 3})
+    s = np.linspace(0.0, 1.0, 100)[:, None]
+    for j in range(4):
+        side = np.array([0.0, np.cos(j * np.pi / 2), np.sin(j * np.pi / 2)]) * 0.03
+        demo = s * np.array([0.6, 0.0, 0.0]) + (1.0 - s) * side
+        assert client.post("/skills/funnel/demonstrations",
+                           json={"positions": demo.tolist()}).status_code == 201
+    assert client.post("/skills/funnel/fit", json={"n_samples": 100}).status_code == 201
+    c = np.array(client.get("/skills/funnel/models/latest").json()["directrix"])
+    rng = np.random.default_rng(0)
+    with PoseStreamer("funnel", "noisy", endpoint=live.endpoint) as ps:
+        x, last = _follow(ps, c[0], 400)
+        assert last.done, last
+        answers = [ps.wait_for(ps.send((c[3] + 1e-3 * rng.standard_normal(3)).tolist(),
+                                       restart=k == 0), 2.0) for k in range(SUSTAIN + 2)]
+        statuses = [a.status for a in answers]
+        assert statuses[:SUSTAIN - 1] == ["restart_pending"] * (SUSTAIN - 1), statuses
+        assert answers[SUSTAIN - 1].status == "ok" and answers[-1].section <= 6, answers

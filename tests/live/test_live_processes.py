@@ -137,7 +137,7 @@ def test_canal_serve_passes_every_bridge_setting_to_its_bridge_processes(tmp_pat
                if name.startswith("zenoh_") and f.annotation in (int, float)}
     assert numeric - {"zenoh_processes"} <= set(PASSED_SETTINGS)
     changed = {"zenoh_prefix": "fleet", "log_level": "warning", "recordings_live_hz": 25.0,
-               "zenoh_queue_capacity": 999, "zenoh_coalesce_backlog": 32, "zenoh_idle_s": 7.5,
+               "zenoh_queue_capacity": 999, "zenoh_coalesce_backlog": 32, "zenoh_idle_s": 7.5, "zenoh_max_streams": 77,
                "zenoh_refresh_s": 0.25, "zenoh_lookahead": 3, "zenoh_preload_max": 0,
                "zenoh_preload_keep_s": 12.5, "model_cache_size": 9}
     assert set(changed) == set(PASSED_SETTINGS)

@@ -202,3 +202,16 @@ def test_a_stream_keeps_its_way_when_a_refit_numbers_the_routes_afresh(live: Any
         # and the robot goes on along its way to the end
         x, answers = _follow(ps, x, 200)
         assert answers[-1].done and all(t.target[1] < 0.05 for t in answers), answers[-1]
+
+
+def test_a_glitch_sent_as_a_restart_does_not_switch_the_route(live: Any, reach: str) -> None:
+    # A restart pose chose the route again wherever it was: one glitch at the other way's
+    # start, sent with the flag, put the robot on the other route.
+    with PoseStreamer(reach, "restart-glitch", endpoint=live.endpoint, encoding="json") as ps:
+        x, answers = _follow(ps, np.array(ROUTE_STARTS[1]), 10)
+        route = answers[-1].route
+        held = ps.wait_for(ps.send(list(ROUTE_STARTS[0]), restart=True), timeout=5.0)
+        assert held is not None and held.status == "restart_pending", held
+        assert held.target is None, held
+        x, answers = _follow(ps, x, 5)
+        assert all(t.route == route and t.target[1] < 0.0 for t in answers), answers

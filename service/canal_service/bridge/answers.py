@@ -76,6 +76,9 @@ class Answers(StreamTable):
                 code = _OUTSIDE
                 status = "outside_canal"
                 progress, target, eta = self._outside(entry, row, section, target, eta)
+                if progress < st.progress:
+                    progress = st.progress
+            st.progress = progress
             if obstacles is not None and obstacles[i]:
                 status = _OBSTACLE_KEYS[obstacles[i]]
                 code = _OBSTACLE_CODES[obstacles[i]]
@@ -151,7 +154,8 @@ class Answers(StreamTable):
         st.rec_errors += 1
 
     def answer_unknown(self, key: str, sample: Any, entry: ModelEntry) -> None:
-        """An unknown skill's answer, on a put without a declared publisher (no stream)."""
+        """The answer to a pose that has no stream (an unknown skill, a new robot past
+        ``max_streams``), on a put without a declared publisher."""
         self.counts.poses += 1
         data = sample.payload.to_bytes()
         encoding = str(sample.encoding)

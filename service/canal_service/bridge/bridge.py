@@ -547,10 +547,17 @@ class Bridge:
         try:
             u, v = codecs.decode_steer(encoding, data)
         except wire.WireError as exc:
-            log.warning("steering input on %s refused: %s", key, exc.message)
+            self.path.warn("steering input on %s refused: %s", key, exc.message)
+            return False
+        if self.models.entry(skill).status == "unknown_skill":
+            self.path.warn("steering input on %s refused: unknown skill %r", key, skill)
             return False
         st = self.path.stream(keyspace.stream_keys(skill, robot, self.prefix).pose, skill, robot)
+        if st is None:
+            self.path.warn("steering input on %s refused: %s", key, self.path.full_message(robot))
+            return False
         now = time.monotonic()
+        st.last_seen = now  # steered: not idle
         if st.steer is None:
             st.steer_at = now
             instance = self._skill_instance(skill)
@@ -615,6 +622,9 @@ class Bridge:
                 return
             stream = self.path.stream(keyspace.stream_keys(skill, robot, self.prefix).pose,
                                       skill, robot)
+            if stream is None:
+                _reply_error(query, "too_many_streams", self.path.full_message(robot), "robot")
+                return
             what = (parts[2], parts[3])
             if what == ("demo", "start"):
                 self._demo_start(query, stream, body)

@@ -56,6 +56,7 @@ class BridgeOptions:
     queue_capacity: int = 4096
     coalesce_backlog: int = 16
     idle_s: float = 30.0
+    max_streams: int = 4096
     refresh_s: float = 2.0
     lookahead: int = 2
     shard: int = 0
@@ -94,6 +95,7 @@ class BridgeOptions:
             connect=tuple(settings.zenoh_connect), config_file=settings.zenoh_config,
             queue_capacity=settings.zenoh_queue_capacity,
             coalesce_backlog=settings.zenoh_coalesce_backlog, idle_s=settings.zenoh_idle_s,
+            max_streams=settings.zenoh_max_streams,
             refresh_s=settings.zenoh_refresh_s, lookahead=settings.zenoh_lookahead,
             preload_max=settings.zenoh_preload_max,
             preload_keep_s=settings.zenoh_preload_keep_s,

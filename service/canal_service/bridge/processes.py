@@ -46,7 +46,7 @@ STATUS_PERIOD_S = 0.5
 #: environment variables, see ``BridgeProcesses._env``): every one ``BridgeOptions`` or the
 #: bridge's service reads, so that no ``canal serve --zenoh-*`` flag is silently ignored.
 PASSED_SETTINGS = ("zenoh_prefix", "log_level", "recordings_live_hz", "zenoh_queue_capacity",
-                   "zenoh_coalesce_backlog", "zenoh_idle_s", "zenoh_refresh_s",
+                   "zenoh_coalesce_backlog", "zenoh_idle_s", "zenoh_max_streams", "zenoh_refresh_s",
                    "zenoh_lookahead", "zenoh_preload_max", "zenoh_preload_keep_s",
                    "model_cache_size")
 _STALE_S = 3.0

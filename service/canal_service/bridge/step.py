@@ -6,7 +6,17 @@ model switch; a steered stream's plan moved by its person's input.
 A model of several routes steps each route's streams in that route's bank: a stream takes the
 route whose entry holds its first pose (the nearest entry when none or several do) and keeps
 it while the model version stays; on a new version it keeps its route number when the new
-model has it, else it is chosen again from its pose; a restart chooses again."""
+model has it, else it is chosen again from its pose; a restart chooses again.
+
+A restart pose the stream's plan takes as a step anyway (near the canal, at most MAX_ADVANCE
+sections on) is taken as one: the robot is where the plan has it. A restart is made afresh
+(re-located where the pose lies) :data:`RESTART_PAUSE_S` or more after the stream's last
+pose, or on a stream with no plan to keep. One glitch pose sent with the flag (at the
+canal's end, say) would otherwise re-locate the stream there, and progress never goes back:
+a restart pose that jumps is answered ``restart_pending`` with no target and changes
+nothing, and the restart is made afresh once SUSTAIN consecutive poses from it on agree (a
+new run started at once from another place: SUSTAIN - 1 poses late), or the first pose the
+plan takes as a step again is taken as one (the restart pose was a glitch)."""
 
 from __future__ import annotations
 
@@ -18,7 +28,13 @@ import numpy as np
 
 from canal_core.routes import way_of
 from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
-from canal_core.tracker import direction_in_plane, plausible_from, start_section
+from canal_core.tracker import (
+    SUSTAIN,
+    direction_in_plane,
+    plausible_from,
+    poses_agree,
+    start_section,
+)
 from canal_protocol import wire
 
 from .answers import Answers
@@ -28,6 +44,16 @@ from .streams import Job, Stream, release_slot
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 #: Longest time step a steering input is applied over (a stream that paused does not jump).
 STEER_MAX_DT = 0.05
+#: A restart pose this long after the pose before it is made at once, wherever it is (the
+#: robot was moved to another start while nothing was sent); a glitch rides on a running stream.
+RESTART_PAUSE_S = 0.5
+#: How a restart is made (:meth:`Stepper.restart_of`): re-located where the pose lies, taken
+#: as a step of the plan, or not yet.
+AFRESH, AS_STEP, PENDING = 0, 1, 2
+_RESTART_PENDING = ("expected a restart pose the stream's plan would take as a step, got a "
+                    f"jump: nothing moves until {SUSTAIN} poses from the restart pose on "
+                    "agree (a new run) or a pose is a step of the plan again (the restart "
+                    "pose was a glitch)")
 
 
 class Stepper(Answers):
@@ -50,6 +76,7 @@ class Stepper(Answers):
         group_jobs: list[Job] = []
         slots: list[int] = []
         positions: list[tuple[float, ...]] = []
+        now = time.monotonic()
         for job in jobs:
             st, pose, fmt, _ros = job
             if st.skill != last_skill:
@@ -78,23 +105,31 @@ class Stepper(Answers):
                                f"expected {entry.dim} coordinates for skill {st.skill!r}, "
                                f"got {len(position)}", fmt)
                     continue
+            restart = False
+            if pose.restart or st.restart_at is not None:
+                how = self.restart_of(st, position, now)
+                if how == PENDING:
+                    st.position_at = now  # the stream is not silent: no pause ends the wait
+                    self.error(st, pose.seq, "restart_pending", _RESTART_PENDING, fmt)
+                    continue
+                restart = how == AFRESH
             tracked = entry
             if entry.routes is not None:
-                tracked = self._route_of(st, entry, position, pose.restart)
+                tracked = self._route_of(st, entry, position, restart)
                 group = by_model.get(id(tracked))
                 if group is None:
                     group = by_model[id(tracked)] = (tracked, [], [], [])
                 _, group_jobs, slots, positions = group
             elif st.route is not None:  # a model of one route has no route number to keep
                 st.route, st.route_serial = None, -1
-            if st.bank is not tracked.bank or st.revision != tracked.revision or pose.restart:
-                self._seed(st, tracked, position, pose.restart)
+            if st.bank is not tracked.bank or st.revision != tracked.revision or restart:
+                self._seed(st, tracked, position, restart)
             if st.steer is not None:
                 self._steer(st, tracked)
             group_jobs.append(job)
             slots.append(st.slot)
             positions.append(position)
-            st.position = position
+            st.position, st.position_at = position, now
         out = []
         for model, model_jobs, model_slots, model_positions in by_model.values():
             if not model_jobs:
@@ -108,6 +143,36 @@ class Stepper(Answers):
             out.append((model, model_jobs, rows.tolist(),
                         None if status is None else status.tolist()))
         return out
+
+    @staticmethod
+    def restart_of(st: Stream, position: tuple[float, ...], now: float) -> int:
+        """How a restart asked for (by this pose or one before it) is made at this
+        ``position``: :data:`AFRESH` (re-located where it lies) on a stream with no plan to
+        keep (its first pose, or none near the canal yet), :data:`RESTART_PAUSE_S` after the
+        stream's last pose, or once SUSTAIN consecutive poses from the restart pose on agree
+        (:func:`canal_core.tracker.poses_agree`: a jump confirmed, as a push is);
+        :data:`AS_STEP` when the plan takes the pose as a step (near the canal, at most
+        MAX_ADVANCE sections on: the robot is where the plan has it, and re-locating it
+        anywhere else, at the end of a canal that comes back near its start, say, would be
+        the jump); else :data:`PENDING`."""
+        previous, bank, jumped = st.position, st.bank, st.restart_at
+        how = AFRESH
+        if not (previous is None or bank is None or now - st.position_at >= RESTART_PAUSE_S
+                or len(previous) != len(position) or math.isnan(bank.eta[st.slot])):
+            assert bank is not None
+            geometry = bank.geometry
+            here = np.array(position, dtype=np.float64)
+            if plausible_from(geometry, int(bank.index[st.slot]), here):
+                how = AS_STEP
+            else:
+                agrees = jumped is not None and len(jumped) == len(position) and poses_agree(
+                    geometry, here, np.array(jumped, dtype=np.float64))
+                st.restart_streak = st.restart_streak + 1 if agrees else 1
+                st.restart_at = position
+                if st.restart_streak < SUSTAIN:
+                    return PENDING
+        st.restart_at, st.restart_streak = None, 0
+        return how
 
     @staticmethod
     def _route_of(st: Stream, entry: ModelEntry, position: tuple[float, ...],
@@ -151,6 +216,7 @@ class Stepper(Answers):
         """The stream's slot in the entry's bank, started at the section the robot is
         located at (a new stream, a restart); on a model switch (a fit, a correction) at
         the section it had reached, with its plan, so a stream in flight is not re-located."""
+        st.progress = 0.0  # placed afresh or on another canal: its own progress from here
         carried: tuple[int, float, Any, Any] | None = None
         anchor: tuple[float, ...] | None = None  # where the robot was, placed afresh in flight
         old = st.bank

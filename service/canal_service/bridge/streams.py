@@ -34,7 +34,12 @@ ENC_CDR = zenoh.Encoding.APPLICATION_CDR
 #: Skills whose first samples wait for the loader thread at once (then the worker loads)
 PARK_MAX = 256
 ERROR_KEYS = ("outside_canal", "bad_payload", "wrong_dimension", "non_finite",
-              "unknown_skill", "no_model", "internal_error", "bad_key")
+              "unknown_skill", "no_model", "internal_error", "bad_key", "too_many_streams",
+              "restart_pending")
+
+#: A stream capturing a demonstration or a correction is forgotten (and the capture with it)
+#: this many times ``idle_s`` after its last pose: a person may pause, not leave it open.
+CAPTURE_IDLE_FACTOR = 10
 
 Job = tuple["Stream", wire.Pose, int, Any]
 
@@ -59,6 +64,15 @@ class Stream:
     route_serial: int = -1
     #: the last pose it was stepped with (the robot's position a glitch is told from)
     position: tuple[float, ...] | None = None
+    #: the progress its last answer reported: an answer outside the canal never reports
+    #: less (a held answer knows the section reached, not the fraction past it)
+    progress: float = 0.0
+    #: when its last pose was answered, ``restart_pending`` too (``time.monotonic``)
+    position_at: float = 0.0
+    #: a restart waiting to be confirmed (:meth:`..step.Stepper.restart_of`): the last pose
+    #: that asked for it or was answered ``restart_pending``, and how many agreeing in a row
+    restart_at: tuple[float, ...] | None = None
+    restart_streak: int = 0
     last_seen: float = 0.0
     last_seq: int = -1
     coalesced: int = 0
@@ -174,7 +188,7 @@ class StreamTable:
         self.streams: dict[str, Stream] = {}
         self.streams_lock = threading.Lock()
         self.others: set[str] = set()  # keys of other shards' streams (a stray delivery)
-        self._bad_key_logged = 0.0
+        self._warned_at = 0.0
         hz = options.record_hz
         #: None: not recording; else the least time between two kept rows of a stream
         self.record_period_ns: int | None = None if hz is None else (
@@ -192,18 +206,20 @@ class StreamTable:
 
     def bad_key(self, key: str) -> None:
         self.counts.errors["bad_key"] += 1
-        now = time.monotonic()
-        if now - self._bad_key_logged > 1.0:  # a flood must not flood the log
-            self._bad_key_logged = now
-            log.warning("refused a pose on %r: skill and robot must be plain key chunks "
-                        "(no '*', '**', '$*', '?', '#', '@'); not answered", key)
+        self.warn("refused a pose on %r: skill and robot must be plain key chunks "
+                  "(no '*', '**', '$*', '?', '#', '@'); not answered", key)
 
-    def stream(self, key: str, skill: str, robot: str) -> Stream:
-        """The stream of ``key``, created (with its target publisher) on first use."""
+    def stream(self, key: str, skill: str, robot: str) -> Stream | None:
+        """The stream of ``key``, created (with its target publisher) on first use; None
+        when that would pass ``max_streams`` (:meth:`full_message` says so)."""
         with self.streams_lock:
             st = self.streams.get(key)
             if st is not None and not st.closed:
                 return st
+            if len(self.streams) >= self.options.max_streams:
+                # every robot name makes a stream (a publisher, a tracker slot, a recording
+                # entity): a client inventing names must not grow the process without bound
+                return None
             k = keyspace.stream_keys(skill, robot, self.prefix)
             # Not express: an express put writes to the socket on the calling thread (10-35 us
             # measured here), a batched one hands over to Zenoh's TX task (< 1 us).
@@ -241,13 +257,37 @@ class StreamTable:
         entry = self.models.entry(skill)
         if entry.status == "unknown_skill":
             return entry
-        return self.stream(key, skill, robot)
+        st = self.stream(key, skill, robot)
+        if st is None:
+            return ModelEntry("too_many_streams", message=self.full_message(robot))
+        return st
+
+    def full_message(self, robot: str) -> str:
+        """Why a new ``robot`` gets no stream: the process serves ``max_streams`` already."""
+        return (f"expected at most {self.options.max_streams} live streams in this bridge "
+                f"process, got a new robot {robot!r}; a stream is forgotten "
+                f"{self.options.idle_s:g} s after its last pose or steering input")
+
+    def warn(self, message: str, *args: Any) -> None:
+        """Log a refused input at most once a second (a flood must not flood the log)."""
+        now = time.monotonic()
+        if now - self._warned_at > 1.0:
+            self._warned_at = now
+            log.warning(message, *args)
 
     def forget_idle(self, now: float) -> set[str]:
-        """Close the streams idle for ``idle_s`` (not capturing); the skills still live."""
+        """Close the streams idle for ``idle_s`` (a demonstration or correction being
+        captured: for :data:`CAPTURE_IDLE_FACTOR` times that); the skills still live."""
+        idle_s = self.options.idle_s
+        held_s = CAPTURE_IDLE_FACTOR * idle_s
         with self.rec_lock, self.streams_lock:
+            # A steered run's poses are kept as a capture, but only a demonstration or a
+            # correction someone started holds its stream, and not for good: one started
+            # with no poses after it would keep a slot (max_streams) for as long as it went on.
             idle = [k for k, st in self.streams.items()
-                    if now - st.last_seen > self.options.idle_s and st.capture is None]
+                    if now - st.last_seen > idle_s
+                    and (st.capture is None or st.capture_kind == "steer"
+                         or now - st.last_seen > held_s)]
             gone = [self.streams.pop(k) for k in idle]
             live_skills = {st.skill for st in self.streams.values()}
             if self.record_period_ns is not None:

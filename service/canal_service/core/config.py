@@ -63,6 +63,10 @@ class Settings(BaseSettings):
         100.0, ge=0.0,
         description="Live poses kept in the recordings per (skill, robot) stream and second; "
                     "changes of the inside/done flags are always kept; 0 keeps every pose.")
+    recordings_max_robots: int = Field(
+        1024, ge=1,
+        description="Robots whose live poses a skill's recording draws; the poses of robots "
+                    "past them are counted as dropped (robot names are the clients' choice).")
     recordings_reproductions_kept: int = Field(
         1000, ge=0, le=1_000_000,
         description="Reproductions kept in the database per skill for the recordings (the "
@@ -138,6 +142,10 @@ class Settings(BaseSettings):
         16, ge=1, description="Per stream: above this many queued poses, answer only the newest."
     )
     zenoh_idle_s: float = Field(30.0, gt=0, description="Forget a stream after this long silent.")
+    zenoh_max_streams: int = Field(
+        4096, ge=1, description="Most live streams (skill, robot) one bridge process serves at "
+        "once; a pose from a new robot beyond them is answered too_many_streams."
+    )
     zenoh_refresh_s: float = Field(
         2.0, gt=0, description="How often the bridge re-checks each skill's latest model version."
     )
