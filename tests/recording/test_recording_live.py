@@ -31,7 +31,7 @@ from canal_service.app import create_app
 from canal_service.core.config import Settings
 from canal_service.recording.live import LiveOptions
 from canal_testing import arc_demo, free_port
-from recording_helpers import mcap_messages
+from recording_helpers import mcap_counts, mcap_messages
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
@@ -318,3 +318,24 @@ def test_two_bridge_processes_both_feed_the_recorder(tmp_path):
             assert stream["poses"] >= 20  # more when a first pose was resent
             assert (stream["recorded"] + stream["decimated"] == stream["poses"]
                     and stream["recorded"] >= 1)
+
+
+def test_robots_past_the_cap_of_a_skills_recording_are_counted_not_drawn(tmp_path):
+    # Every robot name a client invented became entities in the skill's recording, without
+    # bound: past about 12,000 names the exported .rrd no longer passed `rerun rrd verify`.
+    client, endpoint = _app(tmp_path, recordings_live_hz=0.0, recordings_max_robots=2)
+    with client:
+        directrix = _make_skill(client, "crowd")
+        with PoseStreamer("crowd", "r0", endpoint=endpoint) as first:
+            for name in ("r0", "r1", "r2"):
+                with PoseStreamer("crowd", name, session=first.session) as ps:
+                    for k in range(5):
+                        assert ps.wait_for(ps.send(directrix[10 + k]), 2.0) is not None
+        live = _settled(client, 15)
+        streams = live["streams"]
+        assert [streams[f"crowd/r{i}"]["recorded"] for i in range(3)] == [5, 5, 0]
+        assert streams["crowd/r2"]["dropped"] == 5  # counted, not drawn
+        assert live["complete"] is False  # and the recording says it does not hold them
+        topics = set(mcap_counts(_mcap(client, "crowd", tmp_path)))
+        assert "/live/r0/pose" in topics and "/live/r1/pose" in topics
+        assert not any(t.startswith("/live/r2/") for t in topics), topics

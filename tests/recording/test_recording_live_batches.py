@@ -351,10 +351,11 @@ def test_many_robot_names_are_counted_in_sums_not_one_by_one_for_ever(tmp_path: 
     # /healthz copied and sorted them all: robot names are the clients' to choose.
     from canal_service.recording.live import MAX_COUNTED_STREAMS
 
-    rec = Recorder(tmp_path / "rec", flush_interval_s=0.05)
+    n = MAX_COUNTED_STREAMS + 100
+    # every robot drawn (the recording's own robot cap is another test's)
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.05, max_robots=2 * n)
     sub = LiveSubscriber(rec, LiveOptions())
     key = keyspace.recorder_key("b", "canal")
-    n = MAX_COUNTED_STREAMS + 100
     try:
         many = [("pour", f"r{i}", 3, 3, 0, 0, 2, _rows3()[:1]) for i in range(n)]
         assert sub.take(key, record_batches.encode_record_batch("b", 0, many)) is True

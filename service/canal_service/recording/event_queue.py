@@ -56,8 +56,14 @@ class RecorderQueue:
                  event_queue_size: int = 10_000, idle_close_s: float = 60.0,
                  export_timeout_s: float = 30.0, source: DbSource | None = None,
                  coordinates: str = "RIGHT_HAND_Z_UP", quiet_s: float = 0.25,
-                 max_lag_s: float = 30.0) -> None:
+                 max_lag_s: float = 30.0, max_robots: int = 1024) -> None:
         self.quiet_s = float(quiet_s)
+        #: Robots whose live rows a skill's recording draws (robot names are the clients'
+        #: choice: each one is entities of their own, and a recording of tens of thousands
+        #: no longer reads back); the rows of robots past it are counted as dropped.
+        self.max_robots = int(max_robots)
+        self._robots: dict[str, set[str]] = {}
+        self._robots_full: set[str] = set()
         self.max_lag_s = float(max_lag_s)
         self._last_put = 0.0
         self._urgent = 0  # urgent events queued (export, rebuild, reconcile, stop)

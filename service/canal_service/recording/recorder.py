@@ -81,12 +81,13 @@ class Recorder(Exporter, Reconciler):
                  event_queue_size: int = 10_000, idle_close_s: float = 60.0,
                  export_timeout_s: float = 30.0, source: DbSource | None = None,
                  coordinates: str = "RIGHT_HAND_Z_UP", quiet_s: float = 0.25,
-                 max_lag_s: float = 30.0) -> None:
+                 max_lag_s: float = 30.0, max_robots: int = 1024) -> None:
         super().__init__(
             root, enabled=enabled, flush_interval_s=flush_interval_s, live_max_hz=live_max_hz,
             live_queue_size=live_queue_size, event_queue_size=event_queue_size,
             idle_close_s=idle_close_s, export_timeout_s=export_timeout_s, source=source,
-            coordinates=coordinates, quiet_s=quiet_s, max_lag_s=max_lag_s)
+            coordinates=coordinates, quiet_s=quiet_s, max_lag_s=max_lag_s,
+            max_robots=max_robots)
         if enabled:
             self._thread = threading.Thread(target=self._run, name="canal-recorder", daemon=True)
             self._thread.start()

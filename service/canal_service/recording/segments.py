@@ -138,6 +138,8 @@ class SegmentWriter(RecorderQueue):
         with self._skill_lock(skill):
             SkillDir.of(self.root, skill).remove()
         self._dims.pop(skill, None)
+        self._robots.pop(skill, None)
+        self._robots_full.discard(skill)
         self._clear(skill)
 
     def _owner(self, skill: str, instance: str | None, events: int = 1) -> bool:
@@ -242,6 +244,20 @@ class SegmentWriter(RecorderQueue):
                     key = (skill, robot)
                     self._live_dropped[key] = self._live_dropped.get(key, 0) + len(rows)
                 continue  # the skill is gone
+            robots = self._robots.setdefault(skill, set())
+            if robot not in robots:
+                if len(robots) >= self.max_robots:
+                    with self._live_lock:
+                        self.dropped_live += 2 * len(rows)
+                        key = (skill, robot)
+                        self._live_dropped[key] = self._live_dropped.get(key, 0) + len(rows)
+                    if skill not in self._robots_full:  # said once per skill
+                        self._robots_full.add(skill)
+                        log.warning("recording of %s draws its first %d robots; the poses of "
+                                    "robots after them are counted as dropped", skill,
+                                    self.max_robots)
+                    continue
+                robots.add(robot)
             if skill not in self._dims:
                 self._dims[skill] = self._source_dim(skill)
             try:
