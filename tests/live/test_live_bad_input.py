@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import time
 
 import numpy as np
+import orjson
 import pytest
 import zenoh
 from canal_client.live import PoseStreamer
@@ -209,10 +211,10 @@ def test_step_histogram_counts_every_pose(live):
     assert live.metric("canal_live_step_seconds_sum") > before_sum
 
 
-def test_a_client_inventing_robot_names_is_held_to_the_stream_cap(tmp_path):
-    # Every new robot name made a stream (a declared publisher, a tracker slot, a recording
-    # entity) with no bound: a client that sent each pose under a new name grew the bridge
-    # for as long as it went on.
+@contextlib.contextmanager
+def _capped(tmp_path, max_streams: int, idle_s: float):  # type: ignore[no-untyped-def]
+    """An app whose bridge serves at most ``max_streams`` streams, forgotten after
+    ``idle_s``; skill 'arc3' fitted. Yields the Live and a point on its directrix."""
     import warnings
 
     from canal_service.app import create_app
@@ -226,110 +228,78 @@ def test_a_client_inventing_robot_names_is_held_to_the_stream_cap(tmp_path):
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
-                        zenoh_processes=0, zenoh_max_streams=2, zenoh_idle_s=0.5,
+                        zenoh_processes=0, zenoh_max_streams=max_streams, zenoh_idle_s=idle_s,
                         zenoh_refresh_s=0.1)
     with TestClient(create_app(settings)) as client:
         make_skill(client, "arc3", 3)
-        live = Live(client, endpoint, settings)
         x = np.array(client.get("/skills/arc3/models/latest").json()["directrix"])[3]
-        with PoseStreamer("arc3", "a", endpoint=endpoint) as a, \
-                PoseStreamer("arc3", "b", session=a.session) as b, \
-                PoseStreamer("arc3", "c", session=a.session, encoding="json") as c:
-            assert a.wait_for(a.send(x), 2.0).status == "ok"
-            assert b.wait_for(b.send(x), 2.0).status == "ok"
-            refused = c.wait_for(c.send(x), 2.0)
-            assert refused is not None and refused.status == "too_many_streams", refused
-            assert refused.target is None and "at most 2" in refused.message, refused
-            assert a.wait_for(a.send(x), 2.0).status == "ok"  # the streams it has go on
-            assert live.metric("canal_live_errors_total", 'status="too_many_streams"') == 1
-            # a stream forgotten (idle) makes room for another
-            def room() -> bool:
-                got = c.wait_for(c.send(x), 0.5)
-                return got is not None and got.status == "ok"
+        yield Live(client, endpoint, settings), x
 
-            assert wait_until(room, 10.0)
+
+def _ok_once_room(ps: PoseStreamer, x: np.ndarray, timeout: float) -> bool:
+    def room() -> bool:
+        got = ps.wait_for(ps.send(x), 0.5)
+        return got is not None and got.status == "ok"
+
+    return bool(wait_until(room, timeout))
+
+
+def test_a_client_inventing_robot_names_is_held_to_the_stream_cap(tmp_path):
+    # Every new robot name made a stream (a declared publisher, a tracker slot, a recording
+    # entity) with no bound: a client that sent each pose under a new name grew the bridge
+    # for as long as it went on.
+    with _capped(tmp_path, 2, 0.5) as (live, x), \
+            PoseStreamer("arc3", "a", endpoint=live.endpoint) as a, \
+            PoseStreamer("arc3", "b", session=a.session) as b, \
+            PoseStreamer("arc3", "c", session=a.session, encoding="json") as c:
+        assert a.wait_for(a.send(x), 2.0).status == "ok"
+        assert b.wait_for(b.send(x), 2.0).status == "ok"
+        refused = c.wait_for(c.send(x), 2.0)
+        assert refused is not None and refused.status == "too_many_streams", refused
+        assert refused.target is None and "at most 2" in refused.message, refused
+        assert a.wait_for(a.send(x), 2.0).status == "ok"  # the streams it has go on
+        assert live.metric("canal_live_errors_total", 'status="too_many_streams"') == 1
+        assert _ok_once_room(c, x, 10.0)  # a stream forgotten (idle) makes room for another
 
 
 def test_steering_inputs_and_stream_queries_are_held_to_the_stream_cap(tmp_path):
     # A steering input made a stream for any skill name, past the cap, and pinned it (its
     # steered run was a capture, and a stream capturing is never forgotten); a stream query
     # (demo/start ...) made one past the cap too.
-    import time
-    import warnings
-
-    import orjson
-    from canal_service.app import create_app
-    from canal_service.core.config import Settings
-    from canal_testing import free_port
-    from live_helpers import make_skill
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        from fastapi.testclient import TestClient
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
-                        zenoh_processes=0, zenoh_max_streams=3, zenoh_idle_s=0.5,
-                        zenoh_refresh_s=0.1)
-    with TestClient(create_app(settings)) as client:
-        make_skill(client, "arc3", 3)
-        bridge = client.app.state.bridge  # type: ignore[attr-defined]
-        x = np.array(client.get("/skills/arc3/models/latest").json()["directrix"])[3]
-        with PoseStreamer("arc3", "a", endpoint=endpoint) as a:
-            session = a.session
-            for i in range(20):
-                session.put(f"canal/nosuchskill/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
-                session.put(f"canal/arc3/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
-            time.sleep(0.5)
-            assert len(bridge.streams) <= 3
-            assert not any("nosuchskill" in k for k in bridge.streams)
-            assert len(bridge.streams) == 3  # a (the robot) and two steered
-            replies = list(session.get("canal/arc3/q9/demo/start", payload=orjson.dumps({})))
-            assert len(bridge.streams) == 3 and replies[0].err is not None
-            body = orjson.loads(replies[0].err.payload.to_bytes())
-            assert body["error"]["type"] == "too_many_streams", body
-            # steered streams that go silent are forgotten like any other
-            assert wait_until(lambda: a.wait_for(a.send(x), 0.5) is not None
-                              and len(bridge.streams) <= 1, 10.0), list(bridge.streams)
+    with _capped(tmp_path, 3, 0.5) as (live, x), \
+            PoseStreamer("arc3", "a", endpoint=live.endpoint) as a:
+        bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
+        session = a.session
+        for i in range(20):
+            session.put(f"canal/nosuchskill/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
+            session.put(f"canal/arc3/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
+        time.sleep(0.5)
+        assert not any("nosuchskill" in k for k in bridge.streams)
+        assert len(bridge.streams) == 3  # a (the robot) and two steered
+        replies = list(session.get("canal/arc3/q9/demo/start", payload=orjson.dumps({})))
+        assert len(bridge.streams) == 3 and replies[0].err is not None
+        body = orjson.loads(replies[0].err.payload.to_bytes())
+        assert body["error"]["type"] == "too_many_streams", body
+        # steered streams that go silent are forgotten like any other
+        assert wait_until(lambda: a.wait_for(a.send(x), 0.5) is not None
+                          and len(bridge.streams) <= 1, 10.0), list(bridge.streams)
 
 
 def test_a_capture_with_no_poses_does_not_hold_its_stream_for_good(tmp_path):
     # demo/start with no poses after it held its stream until demo/stop, so one query per
     # slot kept every new robot out (too_many_streams) until the service restarted.
-    import warnings
-
-    import orjson
-    from canal_service.app import create_app
     from canal_service.bridge.streams import CAPTURE_IDLE_FACTOR
-    from canal_service.core.config import Settings
-    from canal_testing import free_port
-    from live_helpers import make_skill
 
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        from fastapi.testclient import TestClient
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     idle = 0.2
-    settings = Settings(data_dir=tmp_path, recordings_enabled=False, zenoh_listen=[endpoint],
-                        zenoh_processes=0, zenoh_max_streams=2, zenoh_idle_s=idle,
-                        zenoh_refresh_s=0.1)
-    with TestClient(create_app(settings)) as client:
-        make_skill(client, "arc3", 3)
-        bridge = client.app.state.bridge  # type: ignore[attr-defined]
-        x = np.array(client.get("/skills/arc3/models/latest").json()["directrix"])[3]
-        with PoseStreamer("arc3", "late", endpoint=endpoint) as late:
-            for i in range(2):
-                replies = list(late.session.get(f"canal/arc3/w{i}/demo/start",
-                                                payload=orjson.dumps({})))
-                assert replies[0].ok is not None, replies[0].err.payload.to_bytes()
-            assert late.wait_for(late.send(x), 2.0).status == "too_many_streams"
-            # still held a while after the idle time: a person may pause a demonstration
-            time.sleep(2 * idle)
-            assert len(bridge.streams) == 2
-
-            def room() -> bool:
-                got = late.wait_for(late.send(x), 0.5)
-                return got is not None and got.status == "ok"
-
-            assert wait_until(room, CAPTURE_IDLE_FACTOR * idle + 5.0)
+    with _capped(tmp_path, 2, idle) as (live, x), \
+            PoseStreamer("arc3", "late", endpoint=live.endpoint) as late:
+        bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
+        for i in range(2):
+            replies = list(late.session.get(f"canal/arc3/w{i}/demo/start",
+                                            payload=orjson.dumps({})))
+            assert replies[0].ok is not None, replies[0].err.payload.to_bytes()
+        assert late.wait_for(late.send(x), 2.0).status == "too_many_streams"
+        # still held a while after the idle time: a person may pause a demonstration
+        time.sleep(2 * idle)
+        assert len(bridge.streams) == 2
+        assert _ok_once_room(late, x, CAPTURE_IDLE_FACTOR * idle + 5.0)
