@@ -412,6 +412,13 @@ def poses_agree(geometry: TrackerGeometry, position: FloatArray, previous: Float
     return bool(math.sqrt(float(gap @ gap)) <= FAR_ETA * radius)
 
 
+def located_section(geometry: TrackerGeometry, position: FloatArray) -> int:
+    """The section the whole canal places ``position``, shape (D,), at, ignoring where a
+    stream has reached: of the plane pairs that bracket it, the one whose centre is nearest
+    (the search :func:`tracker_step` makes ahead of a stream, made from the first section)."""
+    return _nearest_crossing_ahead(geometry, 0, np.asarray(position, dtype=np.float64))
+
+
 def direction_in_plane(direction: FloatArray, from_basis: FloatArray,
                        to_basis: FloatArray) -> FloatArray:
     """The unit in-plane direction, shape (D - 1,), on a section of basis ``to_basis``

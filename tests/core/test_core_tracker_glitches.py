@@ -307,3 +307,11 @@ def test_poses_agree_within_three_radii_of_the_widest_section(tube: canal_core.C
     assert poses_agree(g, here + [0.0, 0.9 * FAR_ETA * r, 0.0], here)
     assert not poses_agree(g, here + [0.0, 1.1 * FAR_ETA * r, 0.0], here)
     assert not poses_agree(g, tube.directrix[-1], here)  # a jump along the canal
+
+
+def test_located_section_is_where_the_whole_canal_places_a_point(tube: canal_core.Canal) -> None:
+    from canal_core.tracker import located_section
+
+    g = tube.tracker_geometry()
+    for k in (0, 17, 40):
+        assert abs(located_section(g, 0.5 * (tube.directrix[k] + tube.directrix[k + 1])) - k) <= 1

@@ -183,3 +183,26 @@ def test_a_restart_on_a_canal_narrow_at_its_goal_is_made_for_a_noisy_arm(live) -
         statuses = [a.status for a in answers]
         assert statuses[:SUSTAIN - 1] == ["restart_pending"] * (SUSTAIN - 1), statuses
         assert answers[SUSTAIN - 1].status == "ok" and answers[-1].section <= 6, answers
+
+
+def test_a_new_run_on_a_loop_is_re_located_at_its_start(live) -> None:
+    # On a canal that comes back near its start, the start of a new run lies within reach of
+    # the end: the restart pose was taken as a step of the finished run, and every next
+    # target stayed at the end while the robot went round the loop.
+    client = live.client
+    client.post("/skills", json={"name": "loop180", "dim": 3})
+    t = np.linspace(0.0, 1.8 * np.pi, 120)
+    for j in range(4):
+        radius = 0.3 + 0.04 * (j - 1.5)
+        demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
+                                0.002 * np.random.default_rng(j).standard_normal(120)])
+        assert client.post("/skills/loop180/demonstrations",
+                           json={"positions": demo.tolist()}).status_code == 201
+    assert client.post("/skills/loop180/fit", json={"n_samples": 100}).status_code == 201
+    c = np.array(client.get("/skills/loop180/models/latest").json()["directrix"])
+    with PoseStreamer("loop180", "rerun", endpoint=live.endpoint) as ps:
+        _, last = _follow(ps, c[0], 400)
+        assert last.done, last
+        answers = [_restart(ps, c[0])] + [_answer(ps, c[k]) for k in range(1, 30)]
+        assert not any(a.done for a in answers[1:]), answers
+        assert answers[-1].status == "ok" and 25 <= answers[-1].section <= 33, answers[-1]

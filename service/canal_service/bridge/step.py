@@ -9,14 +9,16 @@ it while the model version stays; on a new version it keeps its route number whe
 model has it, else it is chosen again from its pose; a restart chooses again.
 
 A restart pose the stream's plan takes as a step anyway (near the canal, at most MAX_ADVANCE
-sections on) is taken as one: the robot is where the plan has it. A restart is made afresh
-(re-located where the pose lies) :data:`RESTART_PAUSE_S` or more after the stream's last
-pose, or on a stream with no plan to keep. One glitch pose sent with the flag (at the
-canal's end, say) would otherwise re-locate the stream there, and progress never goes back:
-a restart pose that jumps is answered ``restart_pending`` with no target and changes
-nothing, and the restart is made afresh once SUSTAIN consecutive poses from it on agree (a
-new run started at once from another place: SUSTAIN - 1 poses late), or the first pose the
-plan takes as a step again is taken as one (the restart pose was a glitch)."""
+sections on) is taken as one: the robot is where the plan has it; unless the canal places
+it more than MAX_ADVANCE sections behind the section reached (a new run on a canal that
+comes back near its start), where it is re-located. A restart is made afresh (re-located
+where the pose lies) :data:`RESTART_PAUSE_S` or more after the stream's last pose, or on a
+stream with no plan to keep. One glitch pose sent with the flag (at the canal's end, say)
+would otherwise re-locate the stream there, and progress never goes back: a restart pose
+that jumps is answered ``restart_pending`` with no target and changes nothing, and the
+restart is made afresh once SUSTAIN consecutive poses from it on agree (a new run started
+at once from another place: SUSTAIN - 1 poses late), or the first pose the plan takes as a
+step again is taken as one (the restart pose was a glitch)."""
 
 from __future__ import annotations
 
@@ -29,8 +31,10 @@ import numpy as np
 from canal_core.routes import way_of
 from canal_core.steering import STEER_TIMEOUT_S, steered_plan, steering_axes
 from canal_core.tracker import (
+    MAX_ADVANCE,
     SUSTAIN,
     direction_in_plane,
+    located_section,
     plausible_from,
     poses_agree,
     start_section,
@@ -153,8 +157,9 @@ class Stepper(Answers):
         (:func:`canal_core.tracker.poses_agree`: a jump confirmed, as a push is);
         :data:`AS_STEP` when the plan takes the pose as a step (near the canal, at most
         MAX_ADVANCE sections on: the robot is where the plan has it, and re-locating it
-        anywhere else, at the end of a canal that comes back near its start, say, would be
-        the jump); else :data:`PENDING`."""
+        at the end of a canal that comes back near its start, say, would be the jump),
+        though :data:`AFRESH` when the canal places it more than MAX_ADVANCE sections behind
+        the section reached (that canal's start: a new run); else :data:`PENDING`."""
         previous, bank, jumped = st.position, st.bank, st.restart_at
         how = AFRESH
         if not (previous is None or bank is None or now - st.position_at >= RESTART_PAUSE_S
@@ -162,8 +167,13 @@ class Stepper(Answers):
             assert bank is not None
             geometry = bank.geometry
             here = np.array(position, dtype=np.float64)
-            if plausible_from(geometry, int(bank.index[st.slot]), here):
-                how = AS_STEP
+            index = int(bank.index[st.slot])
+            if plausible_from(geometry, index, here):
+                # Near where the plan has the robot: a step, unless the canal places the
+                # pose well behind the section reached (a new run on a canal that comes back
+                # near its start): re-located there, where the run starts
+                how = AS_STEP if located_section(geometry, here) >= index - MAX_ADVANCE \
+                    else AFRESH
             else:
                 agrees = jumped is not None and len(jumped) == len(position) and poses_agree(
                     geometry, here, np.array(jumped, dtype=np.float64))
