@@ -206,3 +206,30 @@ def test_a_new_run_on_a_loop_is_re_located_at_its_start(live) -> None:
         answers = [_restart(ps, c[0])] + [_answer(ps, c[k]) for k in range(1, 30)]
         assert not any(a.done for a in answers[1:]), answers
         assert answers[-1].status == "ok" and 25 <= answers[-1].section <= 33, answers[-1]
+
+
+@pytest.mark.parametrize("restart_pose", ["own", "glitch"])
+def test_a_robot_on_the_second_turn_of_a_loop_stays_on_it(live, restart_pose) -> None:
+    # On a canal whose second turn lies over its first, the whole canal placed a pose of the
+    # second turn on the first, more than 8 sections behind: a robot that sent a restart on
+    # its own pose, or whose next pose followed a restart glitch, was sent back a turn.
+    client = live.client
+    name = "turns175"
+    if client.get(f"/skills/{name}").status_code == 404:
+        client.post("/skills", json={"name": name, "dim": 3})
+        t = np.linspace(0.0, 1.75 * 2 * np.pi, 160)
+        for j in range(4):
+            radius = 0.36 + 0.04 * (j - 1.5)
+            demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
+                                    0.002 * np.random.default_rng(j).standard_normal(160)])
+            assert client.post(f"/skills/{name}/demonstrations",
+                               json={"positions": demo.tolist()}).status_code == 201
+        assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
+    c = np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+    with PoseStreamer(name, f"second-{restart_pose}", endpoint=live.endpoint) as ps:
+        answers = [_answer(ps, c[k]) for k in range(83)]
+        assert answers[-1].section >= 80, answers[-1]
+        sent = c[82] + 0.002 if restart_pose == "own" else np.array([5.0, 5.0, 5.0])
+        _restart(ps, sent)
+        after = [_answer(ps, c[k]) for k in range(83, 88)]
+        assert all(a.section >= 80 and not a.done for a in after), after

@@ -9,9 +9,9 @@ it while the model version stays; on a new version it keeps its route number whe
 model has it, else it is chosen again from its pose; a restart chooses again.
 
 A restart pose the stream's plan takes as a step anyway (near the canal, at most MAX_ADVANCE
-sections on) is taken as one: the robot is where the plan has it; unless the canal places
-it more than MAX_ADVANCE sections behind the section reached (a new run on a canal that
-comes back near its start), where it is re-located. A restart is made afresh (re-located
+sections on) is taken as one: the robot is where the plan has it; after a finished run, one
+the canal places more than MAX_ADVANCE sections behind (a new run on a canal that comes
+back near its start) is re-located there. A restart is made afresh (re-located
 where the pose lies) :data:`RESTART_PAUSE_S` or more after the stream's last pose, or on a
 stream with no plan to keep. One glitch pose sent with the flag (at the canal's end, say)
 would otherwise re-locate the stream there, and progress never goes back: a restart pose
@@ -158,8 +158,8 @@ class Stepper(Answers):
         :data:`AS_STEP` when the plan takes the pose as a step (near the canal, at most
         MAX_ADVANCE sections on: the robot is where the plan has it, and re-locating it
         at the end of a canal that comes back near its start, say, would be the jump),
-        though :data:`AFRESH` when the canal places it more than MAX_ADVANCE sections behind
-        the section reached (that canal's start: a new run); else :data:`PENDING`."""
+        though :data:`AFRESH` after a finished run when the canal places it more than
+        MAX_ADVANCE sections behind (that canal's start: a new run); else :data:`PENDING`."""
         previous, bank, jumped = st.position, st.bank, st.restart_at
         how = AFRESH
         if not (previous is None or bank is None or now - st.position_at >= RESTART_PAUSE_S
@@ -169,11 +169,13 @@ class Stepper(Answers):
             here = np.array(position, dtype=np.float64)
             index = int(bank.index[st.slot])
             if plausible_from(geometry, index, here):
-                # Near where the plan has the robot: a step, unless the canal places the
-                # pose well behind the section reached (a new run on a canal that comes back
-                # near its start): re-located there, where the run starts
-                how = AS_STEP if located_section(geometry, here) >= index - MAX_ADVANCE \
-                    else AFRESH
+                # Near where the plan has the robot: a step; but a finished run's restart
+                # that the canal places well behind is a new run on a canal that comes back
+                # near its start, re-located there. Not before the end: where a canal's
+                # turns lie over each other, a pose of the second is placed on the first.
+                finished = index >= geometry.centres.shape[0] - 2
+                how = AFRESH if finished and \
+                    located_section(geometry, here) < index - MAX_ADVANCE else AS_STEP
             else:
                 agrees = jumped is not None and len(jumped) == len(position) and poses_agree(
                     geometry, here, np.array(jumped, dtype=np.float64))
