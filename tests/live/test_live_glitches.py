@@ -130,24 +130,31 @@ def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -
         assert got.status == "ok" and got.section <= 6, got
 
 
+def _loop(client, name: str, angle: float, radius: float = 0.3,  # type: ignore[no-untyped-def]
+          n: int = 120) -> np.ndarray:
+    """The directrix of skill ``name``: four circles of radius about ``radius`` swept over
+    ``angle`` radians (a canal that comes back near its start, or over itself), fitted once."""
+    if client.get(f"/skills/{name}").status_code == 404:
+        client.post("/skills", json={"name": name, "dim": 3})
+        t = np.linspace(0.0, angle, n)
+        for j in range(4):
+            r = radius + 0.04 * (j - 1.5)
+            demo = np.column_stack([r * np.cos(t), r * np.sin(t),
+                                    0.002 * np.random.default_rng(j).standard_normal(n)])
+            assert client.post(f"/skills/{name}/demonstrations",
+                               json={"positions": demo.tolist()}).status_code == 201
+        assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
+    return np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+
+
 @pytest.mark.parametrize("turns", [1.9, 1.95])
 def test_a_restart_glitch_near_the_robot_but_far_along_the_canal_is_held(live, turns) -> None:
     # On a canal that comes back near its start (a loop), a glitch at the end lay within 3
     # local radii of the robot at the start: the restart was made there, and every next
     # target was the canal's end. So was a glitch repeated once (a poller's stale sample),
     # and, closer still, one the plan took as a step but the restart re-located at the end.
-    client = live.client
     name = f"loop{int(turns * 100)}"
-    client.post("/skills", json={"name": name, "dim": 3})
-    t = np.linspace(0.0, turns * np.pi, 120)
-    for j in range(4):
-        radius = 0.3 + 0.04 * (j - 1.5)
-        demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
-                                0.002 * np.random.default_rng(j).standard_normal(120)])
-        assert client.post(f"/skills/{name}/demonstrations",
-                           json={"positions": demo.tolist()}).status_code == 201
-    assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
-    c = np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+    c = _loop(live.client, name, turns * np.pi)
     with PoseStreamer(name, "looped", endpoint=live.endpoint) as ps:
         x, before = _follow(ps, c[3] + 0.002, 5)
         glitches = [ps.wait_for(ps.send(c[k].tolist(), restart=True), 2.0) for k in (-1, -4)]
@@ -189,17 +196,7 @@ def test_a_new_run_on_a_loop_is_re_located_at_its_start(live) -> None:
     # On a canal that comes back near its start, the start of a new run lies within reach of
     # the end: the restart pose was taken as a step of the finished run, and every next
     # target stayed at the end while the robot went round the loop.
-    client = live.client
-    client.post("/skills", json={"name": "loop180", "dim": 3})
-    t = np.linspace(0.0, 1.8 * np.pi, 120)
-    for j in range(4):
-        radius = 0.3 + 0.04 * (j - 1.5)
-        demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
-                                0.002 * np.random.default_rng(j).standard_normal(120)])
-        assert client.post("/skills/loop180/demonstrations",
-                           json={"positions": demo.tolist()}).status_code == 201
-    assert client.post("/skills/loop180/fit", json={"n_samples": 100}).status_code == 201
-    c = np.array(client.get("/skills/loop180/models/latest").json()["directrix"])
+    c = _loop(live.client, "loop180", 1.8 * np.pi)
     with PoseStreamer("loop180", "rerun", endpoint=live.endpoint) as ps:
         _, last = _follow(ps, c[0], 400)
         assert last.done, last
@@ -213,19 +210,8 @@ def test_a_robot_on_the_second_turn_of_a_loop_stays_on_it(live, restart_pose) ->
     # On a canal whose second turn lies over its first, the whole canal placed a pose of the
     # second turn on the first, more than 8 sections behind: a robot that sent a restart on
     # its own pose, or whose next pose followed a restart glitch, was sent back a turn.
-    client = live.client
     name = "turns175"
-    if client.get(f"/skills/{name}").status_code == 404:
-        client.post("/skills", json={"name": name, "dim": 3})
-        t = np.linspace(0.0, 1.75 * 2 * np.pi, 160)
-        for j in range(4):
-            radius = 0.36 + 0.04 * (j - 1.5)
-            demo = np.column_stack([radius * np.cos(t), radius * np.sin(t),
-                                    0.002 * np.random.default_rng(j).standard_normal(160)])
-            assert client.post(f"/skills/{name}/demonstrations",
-                               json={"positions": demo.tolist()}).status_code == 201
-        assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
-    c = np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+    c = _loop(live.client, name, 1.75 * 2 * np.pi, radius=0.36, n=160)
     with PoseStreamer(name, f"second-{restart_pose}", endpoint=live.endpoint) as ps:
         answers = [_answer(ps, c[k]) for k in range(83)]
         assert answers[-1].section >= 80, answers[-1]
