@@ -17,7 +17,7 @@ def recorder_from_settings(settings: Any, db: Any = None) -> Recorder:
     recorder = Recorder(
         root, enabled=True, live_max_hz=settings.recordings_live_hz or None,
         source=None if db is None else DbSource(db),
-        max_robots=getattr(settings, "recordings_max_robots", 1024),
+        max_robots=settings.recordings_max_robots,
         coordinates=getattr(settings, "recordings_view_coordinates", "RIGHT_HAND_Z_UP"))
     if settings.zenoh_enabled:
         from .live import LiveOptions, LiveSubscriber

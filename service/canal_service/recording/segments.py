@@ -239,18 +239,12 @@ class SegmentWriter(RecorderQueue):
         for (skill, robot), parts in streams.items():
             rows = concat_rows(parts)
             if not self._owner(skill, None, events=0):  # counted as dropped rows instead
-                with self._live_lock:
-                    self.dropped_live += 2 * len(rows)
-                    key = (skill, robot)
-                    self._live_dropped[key] = self._live_dropped.get(key, 0) + len(rows)
+                self._drop_live(skill, robot, len(rows))
                 continue  # the skill is gone
             robots = self._robots.setdefault(skill, set())
             if robot not in robots:
                 if len(robots) >= self.max_robots:
-                    with self._live_lock:
-                        self.dropped_live += 2 * len(rows)
-                        key = (skill, robot)
-                        self._live_dropped[key] = self._live_dropped.get(key, 0) + len(rows)
+                    self._drop_live(skill, robot, len(rows))
                     if skill not in self._robots_full:  # said once per skill
                         self._robots_full.add(skill)
                         log.warning("recording of %s draws its first %d robots; the poses of "
@@ -270,6 +264,12 @@ class SegmentWriter(RecorderQueue):
                 self._live_count(skill, robot, len(rows))
                 self._live_settle(skill, self._live_dropped)
                 self._note(skill, f"{type(exc).__name__}: {exc}")
+
+    def _drop_live(self, skill: str, robot: str, n: int) -> None:
+        """Count ``n`` live rows of (skill, robot) as dropped, not written."""
+        with self._live_lock:
+            self.dropped_live += 2 * n
+            self._live_dropped[(skill, robot)] = self._live_dropped.get((skill, robot), 0) + n
 
     def _source_dim(self, skill: str) -> int:
         if self.source is None:
