@@ -96,6 +96,8 @@ def test_a_glitch_sent_as_a_restart_never_sends_the_robot_to_the_canals_end(live
         # no target: nothing moves, and the stream is as it was
         assert held.status == "restart_pending" and held.target is None, held
         assert not held.usable and "agree" in held.message
+        # the stream's progress, as a held answer reports it: not reset to 0 by a glitch
+        assert held.progress == pytest.approx(before.progress), (held, before)
         # the robot goes on where it is: the restart it asked for is made there, at once
         answers = [_answer(ps, x) for _ in range(3)]
         assert all(a.status == "ok" and not a.done for a in answers), answers

@@ -141,7 +141,10 @@ class Answers(StreamTable):
 
     def error(self, st: Stream, seq: int | None, key: str, message: str | None,
               fmt: int) -> None:
-        answer = wire.Target(seq=seq, status=key, message=message, coalesced=st.coalesced)
+        # the progress the stream had reached: a glitch held back does not move it, and a
+        # client showing progress should not see it fall to 0 and back
+        answer = wire.Target(seq=seq, status=key, message=message, coalesced=st.coalesced,
+                             progress=st.progress)
         if fmt == _FJSON:
             st.publisher.put(wire.target_json(answer), encoding=ENC_JSON)
         elif fmt == _FBIN:
