@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 from canal_service.metrics import Metrics
 from canal_service.recording import Recorder
+from canal_service.recording.events import live_rows
 from canal_service.recording.source import DbSource
 from canal_service.service import CanalService
 from canal_service.storage import Database
@@ -58,3 +61,45 @@ def test_a_deleted_skills_files_are_collected_and_its_late_events_dropped(tmp_pa
     assert mcap_messages(path, "/canal/reproductions") == []
     assert [e["id"] for m in mcap_messages(path, "/canal/demos") for e in m["entities"]] == []
     assert ids  # the old skill's demos were stored and are gone with it
+
+
+def _rows(t0: int, pts: np.ndarray) -> Any:
+    m = len(pts)
+    return live_rows("pour", "arm1", t0 + 1_000_000 * np.arange(m), pts, None, pts, None,
+                     np.linspace(0, 0.2, m), np.ones(m), np.arange(m), np.ones(m, bool),
+                     np.zeros(m, bool))
+
+
+def test_live_rows_of_a_skill_created_again_outlive_the_delete_of_the_old_one(
+        tmp_path: Path) -> None:
+    # A robot streaming at once on a skill deleted and created again under its name: its
+    # rows reached the new skill's recording before the writer handled the delete, which
+    # then deleted them with the old skill's files (counted as recorded, missing from the
+    # export). quiet_s keeps the delete queued (the writer yields to requests) while they come.
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    source = DbSource(db)
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.05, quiet_s=2.0, source=source)
+    service = CanalService(db, Metrics(), recorder=rec)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        service.add_json_demonstration("pour", DemonstrationIn(positions=helix_demo(0).tolist()))
+        rec.export_mcap("pour").unlink()  # the old skill's files, with its instance
+        before = time.time_ns() - 10_000_000
+
+        service.delete_skill("pour")
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        pts = helix_demo(1)[:9]
+        # the old skill's last rows, still on their way, then the new skill's
+        rec.live_rows([_rows(before, helix_demo(2)[:4]), _rows(time.time_ns(), pts)])
+        path = rec.export_mcap("pour")
+        recorded, dropped = rec.live_stream_counts()
+    finally:
+        rec.close()
+        db.dispose()
+    poses = mcap_messages(path, "/live/arm1/pose")
+    assert len(poses) == len(pts) == recorded[("pour", "arm1")]  # in the export, as counted
+    assert dropped[("pour", "arm1")] == 4  # the deleted skill's, not drawn in the new one's
+    xs = [[p["pose"]["position"][c] for c in "xyz"] for p in poses]
+    assert np.allclose(xs, pts)
+    assert mcap_messages(path, "/canal/demos") == []  # the old skill's demo went with it

@@ -34,6 +34,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("canal_service.recording")
 
+# A deleted skill's delete time is kept to tell its late live rows from those of a skill
+# created again under its name; rows are minutes late at worst, so older times are
+# forgotten once many names have been deleted.
+_DELETES_KEPT = 256
+_DELETE_HORIZON_NS = 600 * 1_000_000_000
+
 
 def _route(value: Any) -> int:
     """A target's route as a live row's column: -1 for none."""
@@ -110,6 +116,9 @@ class RecorderQueue:
         self._live_unflushed: dict[str, dict[str, int]] = {}
         self._live_recorded: dict[tuple[str, str], int] = {}
         self._live_dropped: dict[tuple[str, str], int] = {}
+        # Each deleted skill's last delete time: live rows answered before it are that
+        # skill's, never those of a skill created again under its name.
+        self._deleted_ns: dict[str, int] = {}
         self._closed = not enabled
         self.live_source: Any = None  # a LiveSubscriber feeding live_rows()
         self._thread: threading.Thread | None = None
@@ -268,10 +277,15 @@ class RecorderQueue:
         if self._closed:
             return
         try:
+            t = time.time_ns()
             with self._live_lock:
                 for key in [k for k in self._live_last if k[0] == skill]:
                     del self._live_last[key]
-            self._put(SkillDeleted(time.time_ns(), skill))
+                self._deleted_ns[skill] = t
+                if len(self._deleted_ns) > _DELETES_KEPT:  # many names deleted: forget old ones
+                    cutoff = t - _DELETE_HORIZON_NS
+                    self._deleted_ns = {k: v for k, v in self._deleted_ns.items() if v > cutoff}
+            self._put(SkillDeleted(t, skill))
         except Exception:
             self._caller_error("skill_deleted")
 

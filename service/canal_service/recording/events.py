@@ -218,6 +218,11 @@ class LiveRows:
         start = len(self) - k
         return LiveRows(self.skill, self.robot, *(getattr(self, f)[start:] for f in _COLUMNS))
 
+    def after(self, t_ns: int) -> LiveRows:
+        """The rows later than ``t_ns``."""
+        keep = self.t_ns > t_ns
+        return LiveRows(self.skill, self.robot, *(getattr(self, f)[keep] for f in _COLUMNS))
+
 
 _COLUMNS = ("t_ns", "position", "orientation", "target", "target_orientation", "progress",
             "eta", "section_index", "inside", "done", "route")

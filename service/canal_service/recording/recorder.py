@@ -268,7 +268,7 @@ class Recorder(Exporter, Reconciler):
                 self._close_segment(open_state)
             self._recover(SkillDir.of(self.root, event.skill))
         elif isinstance(event, SkillDeleted):
-            self._delete(event.skill)
+            self._delete(event.skill, deleted=True)
         elif isinstance(event, Rebuild):
             self._delete(event.skill)
             event.result.update(self._reconcile_skill(event.skill, full=True))
@@ -278,7 +278,11 @@ class Recorder(Exporter, Reconciler):
         elif isinstance(event, Reconcile):
             event.result.update(self._reconcile(event.skill))
 
-    def _delete(self, skill: str) -> None:
+    def _delete(self, skill: str, *, deleted: bool = False) -> None:
+        """Delete the skill's recording, its queued live rows written first. ``deleted``: the
+        skill was deleted; a recording of the skill created again under its name since (its
+        robots' rows can come before this event) is the new skill's, and is kept."""
         self._drain_live()
-        self._wipe(skill)
+        if not (deleted and self._records_current(skill)):
+            self._wipe(skill)
         self._current.pop(skill, None)  # deleted here: what comes next is another instance

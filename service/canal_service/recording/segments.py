@@ -170,6 +170,14 @@ class SegmentWriter(RecorderQueue):
             state.dir.write_instance(skill, current)
         return True
 
+    def _records_current(self, skill: str) -> bool:
+        """Whether the skill's files record the skill the database holds under its name now
+        (read afresh, not from ``_current``: a skill deleted since this pass began is not)."""
+        if self.source is None:
+            return False
+        recorded = self._state(skill).instance
+        return recorded is not None and recorded == self.source.instance(skill)
+
     def _state(self, skill: str) -> SkillState:
         state = self._skills.get(skill)
         if state is None:
@@ -238,6 +246,15 @@ class SegmentWriter(RecorderQueue):
             streams.setdefault((chunk.skill, chunk.robot), []).append(chunk)
         for (skill, robot), parts in streams.items():
             rows = concat_rows(parts)
+            deleted = self._deleted_ns.get(skill)
+            if deleted is not None and int(rows.t_ns.min()) <= deleted:
+                # The deleted skill's rows (queued, or on their way, when it was created again
+                # under its name): not the new skill's.
+                later = rows.after(deleted)
+                self._drop_live(skill, robot, len(rows) - len(later))
+                if not len(later):
+                    continue
+                rows = later
             if not self._owner(skill, None, events=0):  # counted as dropped rows instead
                 self._drop_live(skill, robot, len(rows))
                 continue  # the skill is gone
