@@ -47,8 +47,10 @@ def test_sim_from_random_starts_reaches_the_end_inside(live, encoding):
         # canal_live_poses_coalesced_total)
         assert r.missed <= max(2, r.n_steps // 20)
         assert r.targets[-1].done and r.targets[-1].progress == 1.0
-        progress = np.array([t.progress for t in r.targets])
-        assert (np.diff(progress) >= 0).all()  # never goes back
+        # never goes back once the run began (a pending restart still reports the progress
+        # of the run before it)
+        progress = np.array([t.progress for t in r.targets if t.status == "ok"])
+        assert (np.diff(progress) >= 0).all()
 
 
 def test_push_midway_is_recovered(live):
