@@ -1,0 +1,251 @@
+"""What a person captures on a live stream: a demonstration, a correction, a steered run kept.
+
+The queries ``demo/start|stop``, ``correction/start|stop`` and ``steer/keep`` under
+``{prefix}/{skill}/{robot}/`` (their bodies checked in :mod:`.queries`) begin and end a
+capture on the stream. The worker adds the stream's poses to it as they come
+(:mod:`.posepath`); the stop stores them as a demonstration or a correction of the skill
+instance the capture began on, on the control thread, never on the pose path.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import orjson
+from pydantic import ValidationError
+
+from canal_core.options import CORRECTION_KINDS
+from canal_protocol.schemas import CorrectionIn
+
+from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
+from ..service import CanalService
+from ..storage import repository as repo
+from ..validation import check_demonstration
+from .models import ModelTable
+from .streams import ENC_JSON, Stream
+
+log = logging.getLogger("canal_service.bridge")
+
+#: How long a stop with ``last_seq`` waits for the worker to see that pose.
+_STOP_WAIT_S = 2.0
+
+
+class Captures:
+    """Begin, end and store the captures of live streams for a bridge."""
+
+    def __init__(self, service: CanalService, models: ModelTable,
+                 route_of: Callable[[Stream], int | None]) -> None:
+        self.service = service
+        self.models = models
+        #: the route a stream follows in its skill's model now (the bridge's)
+        self.route_of = route_of
+
+    def answer(self, query: Any, st: Stream, what: tuple[str, str], body: dict[str, Any]) -> None:
+        """Answer the query ``what`` (a key of :data:`.queries.STREAM_QUERIES`) on the stream,
+        its body already checked."""
+        if what == ("demo", "start"):
+            self._capture_start(query, st, body, None)
+        elif what == ("demo", "stop"):
+            self._demo_stop(query, st, body)
+        elif what == ("correction", "start"):
+            self._correction_start(query, st, body)
+        elif what == ("correction", "stop"):
+            self._correction_stop(query, st, body)
+        else:
+            self._steer_keep(query, st, body)
+
+    def begin_steered(self, st: Stream) -> None:
+        """The stream's first steering input: the run from here on is kept (``steer/keep``)
+        unless a capture runs."""
+        instance = self.skill_instance(st.skill)
+        with st.lock:
+            if st.capture is None:
+                st.capture, st.capture_from = [], st.last_seq + 1
+                st.capture_kind, st.capture_label = "steer", None
+                st.capture_instance = instance
+
+    def _capture_start(self, query: Any, st: Stream, body: dict[str, Any],
+                       kind: str | None, weight: float = 1.0) -> None:
+        from_seq = body.get("from_seq")
+        label = body.get("label")
+        instance = self.skill_instance(st.skill)
+        if instance is None:
+            reply_error(query, "not_found", f"unknown skill '{st.skill}'", "skill")
+            return
+        with st.lock:
+            # a capture begun on a skill deleted since is over: it is not in the way
+            if (st.capture is not None and st.capture_kind not in (kind, "steer")
+                    and st.capture_instance == instance):
+                busy = "a demonstration" if st.capture_kind is None else "a correction"
+                # the field names what is being captured: what to stop first
+                reply_error(query, "conflict", f"{busy} is being captured on this stream; "
+                             "stop it first", "demo" if st.capture_kind is None else "correction")
+                return
+            st.capture = []
+            st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
+            st.capture_label = label if isinstance(label, str) else None
+            st.capture_kind, st.capture_weight = kind, weight
+            st.capture_instance = instance
+        query.reply(query.key_expr, orjson.dumps({"capturing": True,
+                                                  "from_seq": st.capture_from}),
+                    encoding=ENC_JSON)
+
+    def _capture_stop(self, query: Any, st: Stream, body: dict[str, Any],
+                      kinds: tuple[str | None, ...], what: str
+                      ) -> tuple[list[Any], str] | None:
+        """The captured poses (up to ``last_seq``) and the skill instance the capture began
+        on (the store checks it: :class:`..errors.SkillReplaced`), or None after answering
+        the error."""
+        last_seq = body.get("last_seq")
+        if isinstance(last_seq, int):  # wait for the worker to see the last pose sent
+            deadline = time.monotonic() + _STOP_WAIT_S
+            while st.last_seq < last_seq and time.monotonic() < deadline:
+                time.sleep(0.001)
+        with st.lock:
+            poses = st.capture if st.capture_kind in kinds else None
+            started_on = st.capture_instance
+            if poses is not None:
+                st.capture, st.capture_kind = None, None
+        if poses is None:
+            reply_error(query, "conflict", f"no {what} is being captured on this stream",
+                         what.split()[0])
+            return None
+        if isinstance(last_seq, int):
+            poses = [p for p in poses if p.seq <= last_seq]
+        return poses, _began_on(started_on)
+
+    def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        label = st.capture_label
+        captured = self._capture_stop(query, st, body, (None,), "demonstration")
+        if captured is None:
+            return
+        try:
+            created = self._store_demo(st.skill, *captured, label)
+        except ServiceError as exc:
+            reply_error(query, error_type(exc), exc.message, exc.field)
+            return
+        query.reply(query.key_expr, orjson.dumps(created), encoding=ENC_JSON)
+
+    def _correction_start(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        weight = body.get("weight")
+        self._capture_start(query, st, body, str(body["kind"]),
+                            1.0 if weight is None else float(weight))
+
+    def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        kind, weight, label = st.capture_kind, st.capture_weight, st.capture_label
+        captured = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
+        if captured is None:
+            return
+        self._store_correction(query, st, str(kind), *captured, weight, label)
+
+    def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
+        """Keep the stream's last steered run (or the one in progress) as an include."""
+        with st.lock:
+            if st.capture_kind == "steer":
+                poses, started_on = st.capture, st.capture_instance
+                st.capture, st.capture_kind, st.steer = None, None, None
+            else:
+                poses, started_on, st.steered = st.steered, st.steered_instance, None
+        if not poses:
+            reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
+            return
+        weight, label = body.get("weight"), body.get("label")
+        self._store_correction(query, st, "include", poses, _began_on(started_on),
+                               1.0 if weight is None else float(weight),
+                               "steered" if label is None else label)
+
+    def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
+                          instance: str, weight: float, label: str | None) -> None:
+        try:
+            poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
+            times = [p.t for p in poses]
+            body = CorrectionIn.model_validate({
+                "kind": kind, "samples": [list(p.position) for p in poses],
+                "timestamps": times if poses and all(t is not None for t in times) else None,
+                "weight": weight, "label": label or "",
+                "plan": self._live_plan(st, poses) if kind == "exclude" else None,
+                # a stream's correction refines the route it follows
+                "route": self.route_of(st)})
+            made = self.service.correct(st.skill, body, instance=instance)
+        except ValidationError as exc:
+            first = pydantic_detail(exc.errors(include_url=False)[0])
+            reply_error(query, "invalid_input", first["message"], first["field"])
+            return
+        except ServiceError as exc:
+            reply_error(query, error_type(exc), exc.message, exc.field)
+            return
+        query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
+
+    def _live_plan(self, st: Stream, poses: list[Any]) -> list[list[float]] | None:
+        """What the robot was on before the push: the live tracker keeps its ratio from the
+        first captured pose on (the paper's constant ratio, no end decay), in the canal of
+        the route the stream follows."""
+        entry = self.models.entry(st.skill)
+        if entry.status != "ok" or not poses or len(poses[0].position) != entry.dim:
+            return None
+        route = self.route_of(st)
+        canal = entry.canal if route is None or entry.routes is None else entry.routes[route].canal
+        try:
+            plan = canal.reproduce_detailed(
+                np.array(poses[0].position, dtype=np.float64), persistence="constant",
+                entry=0.0, end_decay=0.0)
+        except Exception:  # a start no section brackets: the service's default plan
+            return None
+        return plan.positions.tolist()  # type: ignore[no-any-return]
+
+    def skill_instance(self, skill: str) -> str | None:
+        """The skill now under the name (:func:`..storage.repository.skill_instance`), None
+        when there is none."""
+        with self.service.db.read() as s:
+            return repo.skill_instances(s, skill).get(skill)
+
+    def _store_demo(self, skill: str, poses: list[Any], instance: str,
+                    label: str | None) -> dict[str, Any]:
+        dim = self.service.skill_dim(skill)
+        poses = poses_of_dim(poses, dim, "positions")
+        positions = [p.position for p in poses]
+        times = [p.t for p in poses]
+        quats = [p.orientation for p in poses]
+        demo = check_demonstration(
+            positions, dim,
+            times if poses and all(t is not None for t in times) else None,
+            quats if poses and all(q is not None for q in quats) else None)
+        created = self.service.add_demonstration(skill, demo, label, "zenoh", instance=instance)
+        return created.model_dump(mode="json")  # type: ignore[no-any-return]
+
+
+def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
+    """The captured poses with the skill's ``dim`` coordinates. The others were answered
+    ``wrong_dimension`` as they came and never tracked: a glitch does not cost the person the
+    whole capture. InvalidInput on ``field`` when none is left."""
+    kept = [p for p in poses if len(p.position) == dim]
+    if kept:
+        return kept
+    if not poses:
+        raise InvalidInput(f"expected {field} captured between start and stop, got no pose",
+                           field=field)
+    dims = " or ".join(map(str, sorted({len(p.position) for p in poses})))
+    raise InvalidInput(f"expected {field} with {dim} coordinates for this {dim}-D skill, got "
+                       f"{len(poses)} poses with {dims}", field=field)
+
+
+def _began_on(instance: str | None) -> str:
+    """The skill instance a capture began on, for the store to check; a steered run begun
+    while no skill had the name matches none."""
+    return "" if instance is None else instance
+
+
+def reply_error(query: Any, key: str, message: str, field: str | None = None) -> None:
+    """Answer a live query with an error: its type, the field it names, the message."""
+    body = {"error": {"type": key, "field": field, "message": message}}
+    try:
+        query.reply_err(orjson.dumps(body), encoding=ENC_JSON)
+    except Exception:
+        log.exception("could not answer a live query")
+
+
+__all__ = ["Captures", "poses_of_dim", "reply_error"]
