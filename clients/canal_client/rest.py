@@ -151,7 +151,15 @@ class Endpoint:
 
     def url(self, **params: object) -> str:
         """``path`` with its ``{...}`` parameters filled in, each percent-encoded."""
-        return self.path.format(**{k: quote(str(v), safe="") for k, v in params.items()})
+        return self.path.format(**{k: _segment(v) for k, v in params.items()})
+
+
+def _segment(value: object) -> str:
+    """``value`` as one percent-encoded path segment. A '.' or '..' is encoded too: left as
+    it is, the URL would drop it with the segment before (``/skills/../fit`` is ``/fit``),
+    where the service refuses it as a skill name."""
+    text = quote(str(value), safe="")
+    return text.replace(".", "%2E") if text in (".", "..") else text
 
 
 _PAGED = ("offset", "limit")

@@ -26,7 +26,14 @@ from .lanes import Lane
 from .listeners import FitListeners
 from .memory import MemoryReleaser, ReleaseMemoryWhenIdle
 from .metrics import Metrics
-from .middleware import BearerAuth, BodySizeLimit, CatchUnexpected, JsonNewline, RequestMetrics
+from .middleware import (
+    BearerAuth,
+    BodySizeLimit,
+    CatchUnexpected,
+    EncodedSlash,
+    JsonNewline,
+    RequestMetrics,
+)
 from .routes import api_router, docs, health, view
 from .service import CanalService, RecorderLike
 from .storage import Database
@@ -155,6 +162,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins,
                            allow_methods=["*"], allow_headers=["*"])
+    app.add_middleware(EncodedSlash)
     app.add_middleware(BodySizeLimit, limit=settings.max_body_bytes)
     if settings.token is not None:
         app.add_middleware(BearerAuth, token=settings.token.get_secret_value(),

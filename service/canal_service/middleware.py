@@ -160,6 +160,31 @@ class BodySizeLimit:
                           f"request body larger than the limit of {self.limit} bytes", "body")
 
 
+class EncodedSlash:
+    """Answer 422 to a path holding an encoded '/' (``%2F``).
+
+    Routing sees the decoded path, so a skill named ``a%2Fdemonstrations%2F7`` would reach
+    demonstration 7 of skill ``a`` (and ``DELETE`` it) instead of being refused as a name. No
+    path segment of the API holds a '/', so such a path is nobody's.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        raw = scope.get("raw_path") if scope["type"] == "http" else None
+        if raw is not None:
+            at = raw.lower().find(b"%2f")
+            if at >= 0:
+                shown = raw[:200].decode("latin-1")
+                await _send_json(send, 422, error_body(
+                    "invalid_input", "expected a path whose parts hold no '/' (a skill name has "
+                    f"none), got {raw[at:at + 3].decode('latin-1')} (an encoded '/') in {shown!r}",
+                    "path"))
+                return
+        await self.app(scope, receive, send)
+
+
 class BearerAuth:
     """Require ``Authorization: Bearer <token>`` everywhere except the open paths. The scheme
     is taken in any case (``bearer``, RFC 9110 section 11.1), the token exactly."""

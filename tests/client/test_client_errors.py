@@ -70,6 +70,24 @@ def test_invalid_input_names_the_field(client: CanalClient,
     assert client.get_skill(name).n_demonstrations == 0  # nothing stored
 
 
+@pytest.mark.parametrize("bad", ["..", ".", "{name}/demonstrations/{demo}", "{name}/scene"])
+def test_a_name_that_is_a_path_reaches_no_other_resource(
+        client: CanalClient, unique_name: Callable[[str], str], bad: str) -> None:
+    # The client sent ".." as it is (the URL normalised it away: a reproduction of skill ".."
+    # went to POST /reproductions), and a name holding '/' reached, and deleted, another
+    # skill's demonstration or scene.
+    name = unique_name("path")
+    client.create_skill(name)
+    demo = client.add_demo(name, demo_positions(0)).id
+    with pytest.raises(InvalidInputError) as info:
+        client.delete_skill(bad.format(name=name, demo=demo))
+    assert info.value.status == 422 and info.value.field in ("name", "path"), info.value
+    with pytest.raises(InvalidInputError):
+        client.reproduce(bad.format(name=name, demo=demo), [0.0, 0.0, 0.0])
+    assert client.get_demo(name, demo).id == demo
+    assert client.get_skill(name).n_demonstrations == 1
+
+
 def test_outside_canal_raise(client: CanalClient, fitted: str) -> None:
     with pytest.raises(OutsideCanalError) as info:
         client.reproduce(fitted, [0.0, 5.0, 0.0], outside="raise")

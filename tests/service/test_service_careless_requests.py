@@ -115,3 +115,25 @@ def test_demonstrations_below_the_canals_resolution_are_not_called_identical(
     assert "identical" not in error["message"]
     assert "cannot be told apart" in error["message"] and "resolution" in error["message"]
     assert http.get("/skills/far").json()["n_models"] == 0
+
+
+@pytest.mark.parametrize("encoded", ["%2F", "%2f"])
+def test_an_encoded_slash_in_a_skill_name_reaches_no_other_resource(
+        http: httpx.Client, encoded: str) -> None:
+    # A skill name with an encoded '/' was decoded before routing: deleting the "skill"
+    # victim%2Fdemonstrations%2F<id> deleted demonstration <id> of skill victim, and
+    # victim%2Fscene cleared its scene.
+    assert http.post("/skills", json={"name": "victim", "dim": 3}).status_code == 201
+    made = http.post("/skills/victim/demonstrations", json={"positions": demo_positions(0).tolist()})
+    demo = made.json()["id"]
+    for method, path in [("DELETE", f"/skills/victim{encoded}demonstrations{encoded}{demo}"),
+                         ("DELETE", f"/skills/victim{encoded}scene"),
+                         ("GET", f"/skills/victim{encoded}demonstrations"),
+                         ("POST", f"/skills/victim{encoded}fit")]:
+        r = http.request(method, path, json={} if method == "POST" else None)
+        assert r.status_code == 422, (path, r.status_code, r.text)
+        error = r.json()["error"]
+        assert error["type"] == "invalid_input" and error["field"] == "path", error
+        assert "'/'" in error["message"] and encoded in error["message"], error
+    assert http.get(f"/skills/victim/demonstrations/{demo}").status_code == 200
+    assert http.delete("/skills/victim").status_code == 204
