@@ -131,17 +131,18 @@ def test_an_obstacle_on_the_robot_says_so_and_backs_it_away(live, scn) -> None:
 
 def test_a_scene_put_over_zenoh_is_held_to_the_rest_scene_s_rules(live, scn) -> None:
     # A scene put on the Zenoh key skipped the REST scene's schema: a field it does not take
-    # and a 100,000-character obstacle name were stored as a new scene version.
+    # and a 100,000-character obstacle name were stored as a new scene version; a bare list
+    # (REST refuses it) was taken as the obstacles: `[]` removed every obstacle.
     canal = canal_of(live, scn)
     ball = {"kind": "sphere", "center": canal.directrix[5].tolist(), "radius": 0.01}
     before = live.client.get(f"/skills/{scn}/scene").json()["version"]
     with PoseStreamer(scn, "putter", endpoint=live.endpoint) as ps:
         for body in ({"obstacles": [ball], "bogus": 1},
                      {"obstacles": [{**ball, "name": "x" * 100_000}]},
-                     {"obstacles": [{**ball, "colour": "red"}]}):
+                     {"obstacles": [{**ball, "colour": "red"}]}, [], [ball]):
             ps.session.put(f"canal/{scn}/scene", orjson.dumps(body), congestion_control=BLOCK)
         # a good one after them: once it is stored, the bad ones had their turn
-        ps.session.put(f"canal/{scn}/scene", orjson.dumps([{**ball, "name": "ok"}]), congestion_control=BLOCK)
+        ps.session.put(f"canal/{scn}/scene", orjson.dumps({"obstacles": [{**ball, "name": "ok"}]}), congestion_control=BLOCK)
         # a loaded machine measures four scenes in turn: time enough for all of them
         assert wait_until(lambda: live.client.get(f"/skills/{scn}/scene").json()["version"] > before,
                           timeout=30.0), (before, live.client.get(f"/skills/{scn}/scene").json())

@@ -470,8 +470,8 @@ class Bridge:
                 log.exception("could not announce the new scene of %r", skill)
 
     def _hear_scene(self, sample: Any) -> None:
-        """A scene put (``{prefix}/{skill}/scene``, JSON ``{"obstacles": [...]}`` or a bare
-        list) or another bridge's scene notice. Every bridge serves a put scene at once;
+        """A scene put (``{prefix}/{skill}/scene``, JSON ``{"obstacles": [...]}``) or another
+        bridge's scene notice. Every bridge serves a put scene at once;
         shard 0 also stores it (a new version of the skill's scene, announced as REST's are)."""
         try:
             found = keyspace.scene_of_key(str(sample.key_expr), self.prefix)
@@ -485,7 +485,8 @@ class Bridge:
                     self.scene_updated(skill, version)
                 return
             # The REST scene's own model: one set of rules for both ways in (fields, lengths).
-            checked = SceneIn.model_validate(body if isinstance(body, dict) else {"obstacles": body})
+            # A bare list is refused as REST refuses it: `[]` would remove every obstacle.
+            checked = SceneIn.model_validate(body)
             dim = self.service.skill_dim(skill)
             scene = canal_core.obstacles.scene_from_list(
                 [o.as_dict() for o in checked.obstacles], dim)
