@@ -303,3 +303,24 @@ def test_a_capture_with_no_poses_does_not_hold_its_stream_for_good(tmp_path):
         time.sleep(2 * idle)
         assert len(bridge.streams) == 2
         assert _ok_once_room(late, x, CAPTURE_IDLE_FACTOR * idle + 5.0)
+
+
+def test_stops_without_a_capture_hold_up_no_other_robot(live):
+    # A stop query waited up to 2 s for the pose last_seq names before looking for a capture,
+    # on the one thread that answers every stream query: ten stops with a last_seq no pose
+    # will reach held another robot's demo/start for 20 s.
+    replies: list = []
+    with PoseStreamer("arc3", "honest", endpoint=live.endpoint) as ps:
+        for i in range(10):
+            for what in ("demo/stop", "correction/stop"):
+                ps.session.get(f"canal/arc3/idle{i}/{what}", replies.append, timeout=30.0,
+                               payload=orjson.dumps({"last_seq": 2**64 - 1}))
+        started = list(ps.session.get("canal/arc3/honest/demo/start", payload=orjson.dumps({}),
+                                      timeout=5.0))
+        assert started and started[0].ok is not None, "demo/start was held up behind the stops"
+        assert wait_until(lambda: len(replies) == 20, 10.0), len(replies)
+        kinds = {orjson.loads(r.err.payload.to_bytes())["error"]["type"] for r in replies}
+        assert kinds == {"conflict"}, kinds
+        stopped = list(ps.session.get("canal/arc3/honest/demo/stop",
+                                      payload=orjson.dumps({"last_seq": 2**64 - 1}), timeout=5.0))
+        assert stopped  # its capture has no pose: refused, at once

@@ -32,6 +32,8 @@ log = logging.getLogger("canal_service.bridge")
 
 #: How long a stop with ``last_seq`` waits for the worker to see that pose.
 _STOP_WAIT_S = 2.0
+#: ... and stops waiting when no pose of the stream came for this long.
+_STALL_S = 0.5
 
 
 class Captures:
@@ -101,10 +103,8 @@ class Captures:
         on (the store checks it: :class:`..errors.SkillReplaced`), or None after answering
         the error."""
         last_seq = body.get("last_seq")
-        if isinstance(last_seq, int):  # wait for the worker to see the last pose sent
-            deadline = time.monotonic() + _STOP_WAIT_S
-            while st.last_seq < last_seq and time.monotonic() < deadline:
-                time.sleep(0.001)
+        if isinstance(last_seq, int) and st.capture_kind in kinds and st.capture is not None:
+            _wait_for_pose(st, last_seq)
         with st.lock:
             poses = st.capture if st.capture_kind in kinds else None
             started_on = st.capture_instance
@@ -216,6 +216,20 @@ class Captures:
             quats if poses and all(q is not None for q in quats) else None)
         created = self.service.add_demonstration(skill, demo, label, "zenoh", instance=instance)
         return created.model_dump(mode="json")  # type: ignore[no-any-return]
+
+
+def _wait_for_pose(st: Stream, seq: int) -> None:
+    """Wait until the worker has seen the pose ``seq`` (the last one the robot sent before
+    its stop), for at most ``_STOP_WAIT_S``, and no longer once the stream's poses stop
+    coming: this runs on the thread that answers every stream's queries, and a ``seq`` no
+    pose will reach must not hold the other robots' queries up."""
+    now = time.monotonic()
+    deadline, seen, moved = now + _STOP_WAIT_S, st.last_seq, now
+    while st.last_seq < seq and now < deadline and now - moved < _STALL_S:
+        time.sleep(0.001)
+        now = time.monotonic()
+        if st.last_seq != seen:
+            seen, moved = st.last_seq, now
 
 
 def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
