@@ -253,6 +253,36 @@ def test_a_live_correction_leaves_out_the_glitch_pose_its_tracker_rejected(live:
     assert (canal_of(live, "glitchy").radii / canal.radii).max() < 1.5
 
 
+@pytest.mark.parametrize("kind", ["include", "exclude"])
+def test_one_pose_beyond_reach_does_not_cost_the_person_the_correction(
+        live: Any, kind: str) -> None:
+    # One pose a billion metres out (a sensor spike the decoder takes: it is a finite
+    # number) made the stop fail on samples[20] "within 1e+06 canal sizes", and the capture
+    # was gone with it: the person's whole push was lost.
+    name = f"spiked{kind}"
+    make_skill(live.client, name, 3)
+    canal = canal_of(live, name)
+    idx = np.arange(20, 61)
+    side = 0.9 if kind == "include" else 0.4
+    # an include runs along near the wall, an exclude is pushed from there half-way across
+    push = 0.0 if kind == "include" else 0.8 * np.sin(np.linspace(0.0, np.pi, idx.size))
+    path = canal.directrix[idx] + ((side - push) * canal.radii[idx])[:, None] * canal.normals[idx]
+    path[20] = [1e9, 0.0, 0.0]
+    with PoseStreamer(name, "spiked", endpoint=live.endpoint, encoding="json") as ps:
+        for i in range(20):
+            ps.wait_for(ps.send((canal.directrix[i] + side * canal.radii[i] * canal.normals[i]).tolist(),
+                                restart=(i == 0)), 10.0)
+        ps.start_correction(kind, label="one pose far off")
+        for q in path:
+            ps.wait_for(ps.send(q.tolist()), 10.0)
+        made = ps.stop_correction()
+    assert made["correction"]["n_points"] == 40, made
+    far = [n for n in made["notes"] if "beyond" in n]
+    assert len(far) == 1 and "1 of the 41 captured poses" in far[0], made["notes"]
+    after = canal_of(live, name)
+    assert np.isfinite(after.radii).all() and (after.radii / canal.radii).max() < 1.5
+
+
 def test_steering_moves_the_plan_left_and_the_canal_keeps_it_inside(live: Any) -> None:
     make_skill(live.client, "steer3", 3)
     canal = canal_of(live, "steer3")

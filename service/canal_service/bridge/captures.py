@@ -18,6 +18,7 @@ import numpy as np
 import orjson
 from pydantic import ValidationError
 
+from canal_core import bounds
 from canal_core.options import CORRECTION_KINDS
 from canal_protocol.schemas import CorrectionIn
 
@@ -160,8 +161,12 @@ class Captures:
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
                           instance: str, weight: float, label: str | None) -> None:
+        far = 0
         try:
             poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
+            captured = len(poses)
+            poses = self._within_reach(st, poses)
+            far = captured - len(poses)
             times = [p.t for p in poses]
             body = CorrectionIn.model_validate({
                 "kind": kind, "samples": [list(p.position) for p in poses],
@@ -171,6 +176,10 @@ class Captures:
                 # a stream's correction refines the route it follows
                 "route": self.route_of(st)})
             made = self.service.correct(st.skill, body, instance=instance)
+            if far:
+                made.notes = [*made.notes, f"{far} of the {captured} captured poses "
+                              f"{'was' if far == 1 else 'were'} left out, beyond the canal's "
+                              f"reach (more than {bounds.MAX_REACH:g} canal sizes from it)"]
         except ValidationError as exc:
             first = pydantic_detail(exc.errors(include_url=False)[0])
             reply_error(query, "invalid_input", first["message"], first["field"])
@@ -179,6 +188,19 @@ class Captures:
             reply_error(query, error_type(exc), exc.message, exc.field)
             return
         query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
+
+    def _within_reach(self, st: Stream, poses: list[Any]) -> list[Any]:
+        """The captured poses within the reach a correction's samples are held to (a
+        sensor spike a billion metres out is a finite pose the tracker answered
+        ``outside_canal``): one such pose must not cost the person the whole push."""
+        entry = self.models.entry(st.skill)
+        if entry.status != "ok" or entry.canal is None:
+            return poses  # the service answers for the model
+        centre, size = bounds.canal_extent(entry.canal.directrix, entry.canal.radii)
+        reach = bounds.MAX_REACH * size
+        kept = [p for p in poses
+                if float(np.linalg.norm(np.asarray(p.position, dtype=np.float64) - centre)) <= reach]
+        return kept if kept else poses  # none left: the service says what came
 
     def _live_plan(self, st: Stream, poses: list[Any]) -> list[list[float]] | None:
         """What the robot was on before the push: the live tracker keeps its ratio from the
