@@ -191,10 +191,12 @@ REPRODUCE_MANY = Endpoint("POST", "/skills/{name}/reproductions", ReproductionRe
 GET_SCENE = Endpoint("GET", "/skills/{name}/scene", response=SceneOut)
 PUT_SCENE = Endpoint("PUT", "/skills/{name}/scene", SceneIn, SceneOut)
 DELETE_SCENE = Endpoint("DELETE", "/skills/{name}/scene", status=204)
-CORRECT = Endpoint("POST", "/skills/{name}/corrections", CorrectionIn, CorrectedModel, status=201)
+CORRECT = Endpoint("POST", "/skills/{name}/corrections", CorrectionIn, CorrectedModel,
+                   query=("time_unit",), status=201)
 # A correction's path as a file (its other fields travel in the query string).
 CORRECT_FILE = Endpoint("POST", "/skills/{name}/corrections/file", None, CorrectedModel,
-                        query=("kind", "weight", "label", "model", "route", "format", "topic"),
+                        query=("kind", "weight", "label", "model", "route", "format", "topic",
+                               "time_unit"),
                         status=201, media_type="multipart/form-data")
 LIST_CORRECTIONS = Endpoint("GET", "/skills/{name}/corrections", response=Page[CorrectionOut],
                             query=_PAGED)
@@ -539,15 +541,17 @@ def _fit(skill: str, *, cross_section: CrossSection | None = None,
 
 def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"] = "include", *,
              model: Version = "latest", weight: float = 1.0, label: str = "",
-             timestamps: ArrayLike | None = None, route: int | None = None
-             ) -> _Steps[CorrectedModel]:
+             timestamps: ArrayLike | None = None, route: int | None = None,
+             time_unit: str | None = None) -> _Steps[CorrectedModel]:
     """Refine the skill's canal by a correction, a path (M, D) over part of it: ``include``
     (this path is right too: the canal grows locally to hold it, the centre moves towards it
     by ``weight`` demonstrations) or ``exclude`` (the robot was pushed away from where it
     went: the canal narrows on that side). Answers the new latest model version with the
     stored correction (its ``id`` undoes it). A model of several routes: ``route`` names the
-    route corrected (None: every route the samples pass through)."""
-    return (yield _request(CORRECT, name=skill, body={
+    route corrected (None: every route the samples pass through). ``time_unit`` (``"ms"``,
+    ``"us"``, ``"ns"``; seconds by default) is the timestamps' unit."""
+    params = None if time_unit is None else {"time_unit": time_unit}
+    return (yield _request(CORRECT, name=skill, params=params, body={
         "kind": kind, "samples": _rows(samples, "samples"), "model": _model_ref(model),
         "weight": float(weight), "label": label, "route": route,
         "timestamps": _vector(timestamps, "timestamps")}))
@@ -556,7 +560,8 @@ def _correct(skill: str, samples: ArrayLike, kind: Literal["include", "exclude"]
 def _correct_file(skill: str, path: str | os.PathLike[str],
                   kind: Literal["include", "exclude"] = "include", *, model: Version = "latest",
                   weight: float = 1.0, label: str | None = None, route: int | None = None,
-                  format: str | None = None, topic: str | None = None) -> _Steps[CorrectedModel]:
+                  format: str | None = None, topic: str | None = None,
+                  time_unit: str | None = None) -> _Steps[CorrectedModel]:
     """:meth:`correct` by a path recorded in a file: CSV, NPY or MCAP (``topic`` picks the pose
     topic) are uploaded as they are and read as a demonstration file is (the label defaults
     to the file's name); a JSON file (rows, ``{"samples": rows, "timestamps"?: ...}`` or a
@@ -569,10 +574,11 @@ def _correct_file(skill: str, path: str | os.PathLike[str],
         rows, times = _json_correction_file(p, data)
         return (yield from _correct(skill, rows, kind, model=model, weight=weight,
                                     label=p.name if label is None else label, route=route,
-                                    timestamps=times))
+                                    timestamps=times, time_unit=time_unit))
     params = {k: v for k, v in (("kind", kind), ("weight", _number(weight, "weight")),
                                 ("label", label), ("model", _model_ref(model)),
-                                ("route", route), ("format", fmt), ("topic", topic))
+                                ("route", route), ("format", fmt), ("topic", topic),
+                                ("time_unit", time_unit))
               if v is not None}
     return (yield _Request(CORRECT_FILE.method, CORRECT_FILE.url(name=skill),
                            _read(CorrectedModel), params=params,

@@ -51,6 +51,7 @@ from .validation import (
     check_obstacles,
     check_reproduction_inputs,
     check_route,
+    check_timestamps,
 )
 from .versions import NewVersion, StoredLineage, VersionStore, model_summary
 
@@ -243,9 +244,6 @@ class CanalService:
                                ) -> schemas.DemonstrationCreated:
         """Parse (within ``limits``), check and store a demonstration uploaded as a file;
         ``time_unit`` is the unit of a CSV or NPY time column."""
-        if fmt == "mcap" and time_unit is not None:
-            raise InvalidInput("time_unit applies to a CSV or NPY time column; an MCAP "
-                               "file's times are read from its message stamps", field="time_unit")
         demo = self.read_file(name, fmt, data, topic, limits, time_unit)
         return self.add_demonstration(name, demo, label, fmt)
 
@@ -254,6 +252,9 @@ class CanalService:
                   fittable: bool = True) -> DemoArrays:
         """The checked arrays of a file sent for the skill, parsed within ``limits`` for the
         skill's dimension: a demonstration, or (``fittable=False``) a correction's path."""
+        if fmt == "mcap" and time_unit is not None:
+            raise InvalidInput("time_unit applies to a CSV or NPY time column; an MCAP "
+                               "file's times are read from its message stamps", field="time_unit")
         dim = self.skill_dim(name)
         parsed = uploads.parse_upload(fmt, data, dim, topic, limits)
         return check_demonstration(parsed.positions, dim, parsed.timestamps, parsed.orientations,
@@ -565,9 +566,14 @@ class CanalService:
 
     # ---- corrections ------------------------------------------------------------------------
 
-    def correct(self, name: str, body: schemas.CorrectionIn, *,
-                instance: str | None = None) -> schemas.CorrectedModel:
-        """Refine a model version by a person's correction (:meth:`ModelCorrections.correct`)."""
+    def correct(self, name: str, body: schemas.CorrectionIn, *, instance: str | None = None,
+                time_unit: str | None = None) -> schemas.CorrectedModel:
+        """Refine a model version by a person's correction (:meth:`ModelCorrections.correct`).
+        Its timestamps (in ``time_unit``, seconds when None) are held to a demonstration's
+        rules and stored as seconds."""
+        if body.timestamps is not None:
+            times = check_timestamps(body.timestamps, len(body.samples), time_unit)
+            body = body.model_copy(update={"timestamps": times.tolist()})
         return self.corrections.correct(name, body, instance=instance)
 
     def list_corrections(self, name: str, offset: int, limit: int

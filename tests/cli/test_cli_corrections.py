@@ -51,6 +51,15 @@ def test_correct_list_and_undo(run: Run, service: LiveService, unique_name: Call
     for weight in ("0", "5000", "nan"):
         r = run("correct", name, str(path), "--weight", weight)
         assert r.exit_code == 2 and "(0, 1000]" in r.output, r.output
+    # a logger's nanoseconds, said with --time-unit as for a demonstration
+    stamped = tmp_path / "stamped.csv"
+    t_ns = np.arange(len(wider)) * 8_000_000
+    np.savetxt(stamped, np.column_stack([t_ns, wider]), delimiter=",", header="t,x,y,z",
+               comments="", fmt=["%d", "%.17g", "%.17g", "%.17g"])
+    r = run("correct", name, str(stamped))
+    assert r.exit_code == 1 and "time_unit" in r.stderr, r.output
+    r = run("correct", name, str(stamped), "--time-unit", "ns")
+    assert r.exit_code == 0, r.output
 
 
 

@@ -255,6 +255,38 @@ def test_a_file_correction_refused_names_the_part_and_changes_nothing(
     assert http.get("/skills/pour/corrections").json()["total"] == 0
 
 
+def test_a_corrections_time_unit_is_read_as_a_demonstrations_is(http: httpx.Client) -> None:
+    # The file route did not read ?time_unit= (a query it did not take was dropped) while
+    # its refusal of stamps in nanoseconds told the client to send it; a JSON correction's
+    # stamps spanning 4 hours (milliseconds sent as seconds) were taken as they came.
+    samples = np.asarray(wider_path(served_canal(http)))
+    t_ns = np.arange(len(samples)) * 8_000_000
+    csv = "t,x,y,z\n" + "".join(f"{t_ns[i]},{x:.17g},{y:.17g},{z:.17g}\n"
+                                for i, (x, y, z) in enumerate(samples))
+    before = http.get("/skills/pour/models").json()["total"]
+    for params, field in (({"kind": "include"}, "timestamps"),
+                          ({"kind": "include", "time_unit": "h"}, "time_unit")):
+        r = http.post("/skills/pour/corrections/file", params=params, content=csv.encode(),
+                      headers={"content-type": "text/csv"})
+        assert r.status_code == 422 and r.json()["error"]["field"] == field, r.text
+    bag = foxglove_pose_mcap(samples)
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include", "time_unit": "ms"},
+                  files={"file": ("pushed.mcap", bag, "application/octet-stream")})
+    assert r.status_code == 422 and r.json()["error"]["field"] == "time_unit", r.text
+    long = {"kind": "include", "samples": samples.tolist(), "timestamps": (t_ns / 1e4).tolist()}
+    r = http.post("/skills/pour/corrections", json=long)
+    assert r.status_code == 422 and r.json()["error"]["field"] == "timestamps", r.text
+    assert "time_unit" in r.json()["error"]["message"], r.text
+    assert http.get("/skills/pour/models").json()["total"] == before
+
+    r = http.post("/skills/pour/corrections/file", params={"kind": "include", "time_unit": "ns"},
+                  content=csv.encode(), headers={"content-type": "text/csv"})
+    assert r.status_code == 201, r.text
+    r = http.post("/skills/pour/corrections", params={"time_unit": "ms"}, json=long)
+    assert r.status_code == 201, r.text
+    assert http.get("/skills/pour/corrections").json()["total"] == 2
+
+
 def test_a_file_corrections_label_is_held_to_a_corrections_length(http: httpx.Client) -> None:
     # A multipart label of 201 characters was cut to 200 without a word; a long file name
     # is cut to its last 200 characters, as a demonstration's to its last 256.

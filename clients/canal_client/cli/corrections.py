@@ -53,6 +53,9 @@ def correct(
                                "(default: every route the path passes through).")] = None,
     topic: Annotated[str | None, typer.Option(
         "--topic", help="The pose topic of an .mcap file that has several.")] = None,
+    time_unit: Annotated[str | None, typer.Option(
+        "--time-unit", help="Unit of the file's time column or timestamps: s (default), ms, "
+                            "us or ns (a ROS log's nanoseconds). Not for MCAP.")] = None,
 ) -> None:
     """Refine the skill's canal by a correction: a new model version."""
     try:
@@ -63,7 +66,8 @@ def correct(
     existing_file(file, "FILE")
     with connected(ctx) as c:
         made = c.correct_file(skill, file, kind, model=model, weight=weight,
-                              label=label or None, route=route, topic=topic)
+                              label=label or None, route=route, topic=topic,
+                              time_unit=time_unit)
     if options(ctx).json:
         print_json(made)
         return

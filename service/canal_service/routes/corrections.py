@@ -26,7 +26,15 @@ from canal_protocol.schemas import (
 from ..deps import Limit, Offset, ServiceDep, SkillName, parse_version
 from ..service import CanalService
 from ..uploads import UploadFormat, UploadLimits, detect_format
-from .file_bodies import Format, Topic, file_body, file_content, upload_lane, upload_limits
+from .file_bodies import (
+    Format,
+    TimeUnit,
+    Topic,
+    file_body,
+    file_content,
+    upload_lane,
+    upload_limits,
+)
 
 router = APIRouter(prefix="/skills/{name}/corrections", tags=["corrections"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
@@ -50,11 +58,12 @@ _FILE_BODY: dict[str, Any] = {
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=CorrectedModel,
              responses=_ERRORS)
-def correct(name: SkillName, body: CorrectionIn, service: ServiceDep) -> CorrectedModel:
+def correct(name: SkillName, body: CorrectionIn, service: ServiceDep,
+            time_unit: TimeUnit = None) -> CorrectedModel:
     """Refine the latest model version (or ``model``) by a correction: ``include`` grows the
     canal locally to hold the path, ``exclude`` narrows it on the side the robot was pushed
     from. Answers the new latest version, with ``parent_version`` and ``corrections``."""
-    return service.correct(name, body)
+    return service.correct(name, body, time_unit=time_unit)
 
 
 @router.get("", response_model=Page[CorrectionOut], responses=_ERRORS)
@@ -90,6 +99,7 @@ async def correct_from_file(
                                        description="The route whose canal is corrected.")] = None,
     format: Format = None,
     topic: Topic = None,
+    time_unit: TimeUnit = None,
 ) -> CorrectedModel:
     """The same correction as ``POST /corrections``, its path sent as a file (a logger's CSV,
     a ROS 2 bag) and read as a demonstration upload is; the other fields are query
@@ -102,14 +112,14 @@ async def correct_from_file(
               "model": "latest" if version is None else version,
               "label": label if label is not None else upload.label or ""}
     return await upload_lane(request).run(_correct_from_file, service, name, fmt, upload.data,
-                                          topic, upload_limits(request), fields)
+                                          topic, upload_limits(request), fields, time_unit)
 
 
 def _correct_from_file(service: CanalService, name: str, fmt: UploadFormat, data: bytes,
                        topic: str | None, limits: UploadLimits, fields: dict[str, Any],
-                       ) -> CorrectedModel:
+                       time_unit: str | None) -> CorrectedModel:
     """Parse the file (on the upload lane, as a demonstration upload) and correct by it."""
-    path = service.read_file(name, fmt, data, topic, limits, fittable=False)
+    path = service.read_file(name, fmt, data, topic, limits, time_unit, fittable=False)
     try:
         body = CorrectionIn(
             samples=path.positions.tolist(),

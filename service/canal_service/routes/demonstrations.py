@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.exceptions import RequestValidationError
@@ -23,7 +23,15 @@ from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
 from ..errors import InvalidInput, TooLarge
 from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
-from .file_bodies import Format, Topic, file_body, file_content, upload_lane, upload_limits
+from .file_bodies import (
+    Format,
+    TimeUnit,
+    Topic,
+    file_body,
+    file_content,
+    upload_lane,
+    upload_limits,
+)
 
 router = APIRouter(prefix="/skills/{name}/demonstrations", tags=["demonstrations"])
 
@@ -46,10 +54,6 @@ _ERRORS: dict[int | str, dict[str, Any]] = {
 
 Label = Annotated[str | None, Query(max_length=MAX_DEMO_LABEL, pattern=r"^[^\x00]*$",
                                     description="Label for a file upload.")]
-TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(
-    description="Unit of the timestamps (JSON) or of the CSV/NPY time column, seconds when "
-                "omitted; with ms, us or ns they are stored as seconds from the first sample. "
-                "Not for MCAP (its message stamps are read as such).")]
 
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=DemonstrationCreated,

@@ -25,6 +25,10 @@ BINARY: dict[str, Any] = {"type": "string", "format": "binary"}
 Format = Annotated[Literal["csv", "npy", "mcap"] | None,
                    Query(description="File format; guessed when omitted.")]
 Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
+TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(
+    description="Unit of the timestamps (JSON) or of the CSV/NPY time column, seconds when "
+                "omitted; with ms, us or ns they are stored as seconds from the first sample. "
+                "Not for MCAP (its message stamps are read as such).")]
 
 
 def file_content(max_label: int) -> dict[str, Any]:
