@@ -7,7 +7,7 @@ request, to read an attribute.
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import Depends, Path, Query, Request
 
@@ -35,6 +35,38 @@ async def get_settings(request: Request) -> Settings:
     """The settings the app was built with."""
     settings: Settings = request.app.state.settings
     return settings
+
+
+def _query_names(dependant: Any) -> frozenset[str]:
+    """The query parameters a route takes, its dependencies' included."""
+    names = {p.alias for p in dependant.query_params}
+    for sub in dependant.dependencies:
+        names |= _query_names(sub)
+    return frozenset(names)
+
+
+#: (method, path template) -> the query parameters the route takes
+_TAKEN: dict[tuple[str, str], frozenset[str]] = {}
+
+
+async def known_query(request: Request) -> None:
+    """Refuse a query parameter the route does not take, as a body's unknown field is: a
+    misspelt ``?wieght=2`` would otherwise leave the default in its place without a word."""
+    if not request.query_params:
+        return
+    route = request.scope.get("route")
+    dependant = getattr(route, "dependant", None)
+    if dependant is None:
+        return
+    key = (request.method, str(getattr(route, "path", "")))
+    taken = _TAKEN.get(key)
+    if taken is None:
+        taken = _TAKEN[key] = _query_names(dependant)
+    for name in request.query_params:
+        if name not in taken:
+            expected = ", ".join(sorted(taken)) if taken else "none"
+            raise InvalidInput(f"expected only the query parameters this route takes ({expected}), "
+                               f"got {name!r}", field=name)
 
 
 ServiceDep = Annotated[CanalService, Depends(get_service)]

@@ -137,3 +137,24 @@ def test_an_encoded_slash_in_a_skill_name_reaches_no_other_resource(
         assert "'/'" in error["message"] and encoded in error["message"], error
     assert http.get(f"/skills/victim/demonstrations/{demo}").status_code == 200
     assert http.delete("/skills/victim").status_code == 204
+
+
+def test_a_query_parameter_a_route_does_not_take_is_refused(http: httpx.Client) -> None:
+    # A misspelt query parameter was dropped without a word: `?wieght=2` left the default
+    # weight, `?time_unit=` on a route without it left the stamps as seconds.
+    models = http.get("/skills/pour/models").json()["total"]
+    for method, path, params in [("GET", "/skills", {"limt": "5"}),
+                                 ("POST", "/skills/pour/demonstrations", {"time_units": "ms"}),
+                                 ("POST", "/skills/pour/fit", {"routes": "1"})]:
+        r = http.request(method, path, params=params,
+                         json=None if method == "GET" else {"positions": demo_positions(9).tolist()})
+        assert r.status_code == 422, (path, r.text)
+        error = r.json()["error"]
+        name = next(iter(params))
+        assert error["type"] == "invalid_input" and error["field"] == name, error
+        assert repr(name) in error["message"] and "expected" in error["message"], error
+    assert http.get("/skills/pour").json()["n_demonstrations"] == 3  # nothing stored
+    assert http.get("/skills/pour/models").json()["total"] == models
+    # the pages a browser opens keep theirs (the viewer reads ?url= itself)
+    assert http.get("/skills", params={"limit": 5}).status_code == 200
+    assert http.get("/healthz", params={"probe": "1"}).status_code == 200

@@ -1,7 +1,8 @@
 """HTTP routes, one module per resource. Routes validate and translate; nothing else."""
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 
+from ..deps import known_query
 from . import (
     corrections,
     demonstrations,
@@ -13,7 +14,9 @@ from . import (
     skills,
 )
 
-api_router = APIRouter()
+# The API refuses a query parameter a route does not take; the pages a browser opens (the
+# viewer reads its own ?url=) and the health probes do not.
+api_router = APIRouter(dependencies=[Depends(known_query)])
 api_router.include_router(skills.router)
 api_router.include_router(demonstrations.router)
 api_router.include_router(models.router)
