@@ -151,7 +151,8 @@ def test_view_link_opens_rerun_web_viewer_on_the_skill_recording(viewer_service)
         assert wasm.headers["content-type"] == "application/wasm"
         # Only the viewer's own files, and only known skills.
         assert client.get(f"{url}/viewer/canal.sqlite3").status_code == 404
-        assert client.get(f"{url}/viewer/..%2Fcanal.sqlite3").status_code == 404
+        assert client.get(f"{url}/viewer/..%2Fcanal.sqlite3").status_code == 422  # %2F: no path
+        assert client.get(f"{url}/viewer/%2E%2E").status_code == 404
         missing = client.get(f"{url}/skills/nope/view")
         assert missing.status_code == 404 and missing.json()["error"]["type"] == "not_found"
 
