@@ -324,3 +324,28 @@ def test_stops_without_a_capture_hold_up_no_other_robot(live):
         stopped = list(ps.session.get("canal/arc3/honest/demo/stop",
                                       payload=orjson.dumps({"last_seq": 2**64 - 1}), timeout=5.0))
         assert stopped  # its capture has no pose: refused, at once
+
+
+def test_stops_naming_a_pose_never_sent_hold_up_no_other_robot(live):
+    # With a capture running, a stop waited for its last_seq for 2 s (or until the
+    # stream's poses stopped for 0.5 s), one stop after another: twelve robots capturing,
+    # each stopping with a last_seq far beyond any pose it sent, held every other robot's
+    # queries for seconds.
+    replies: list = []
+    names = [f"far{i}" for i in range(12)]
+    robots = [PoseStreamer("arc3", name, endpoint=live.endpoint) for name in names]
+    try:
+        for name, ps in zip(names, robots, strict=True):
+            assert ps.wait_for(ps.send([0.1, 0.05, 0.01]), 5.0) is not None
+            list(ps.session.get(f"canal/arc3/{name}/demo/start", payload=orjson.dumps({})))
+            ps.send([0.11, 0.05, 0.01])
+        session = robots[0].session
+        for name, ps in zip(names, robots, strict=True):
+            session.get(f"canal/arc3/{name}/demo/stop", replies.append, timeout=30.0,
+                        payload=orjson.dumps({"last_seq": ps.next_seq + 10**9}))
+        model = list(session.get("canal/arc3/model", timeout=3.0))
+        assert model and model[0].ok is not None, "the model query was held up behind the stops"
+        assert wait_until(lambda: len(replies) == 12, 10.0), len(replies)
+    finally:
+        for ps in robots:
+            ps.close()

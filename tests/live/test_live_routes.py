@@ -24,6 +24,7 @@ from canal_testing import (
 from live_helpers import wait_until
 
 import canal_core
+from canal_core import bounds
 from canal_protocol import wire
 
 with warnings.catch_warnings():
@@ -92,6 +93,32 @@ def test_a_live_correction_refines_the_route_its_stream_follows(live: Any, reach
     after = canal_core.routes.routes_from_dict(live.client.get(
         f"/skills/{reach}/models/latest", params={"serialized": True}).json()["serialized"])
     assert len(after.canals[1].corrections) == 1 and not after.canals[0].corrections
+
+
+def test_a_pose_beyond_the_followed_routes_reach_is_left_out_of_its_correction(
+        live: Any) -> None:
+    # The bridge measured a captured pose's reach against the canal of all routes, the
+    # service against the route the stream follows: a pose within the first and beyond the
+    # second was kept, and the service refused the whole push for it.
+    fit_two_route_skill(live.client, "reachfar", 80)
+    body = live.client.get("/skills/reachfar/models/latest", params={"serialized": True}).json()
+    routes = canal_core.routes.routes_from_dict(body["serialized"])
+    canal = routes.canals[1]
+    pooled, pooled_size = bounds.canal_extent(routes.pooled.directrix, routes.pooled.radii)
+    own, own_size = bounds.canal_extent(canal.directrix, canal.radii)
+    far = pooled + 0.9999 * bounds.MAX_REACH * pooled_size * np.array([0.0, 0.0, 1.0])
+    assert np.linalg.norm(far - own) > bounds.MAX_REACH * own_size  # beyond the route's reach
+    idx = np.arange(25, 46)
+    wider = canal.directrix[idx] + 1.5 * canal.radii[idx, None] * canal.normals[idx]
+    with PoseStreamer("reachfar", "spiked", endpoint=live.endpoint, encoding="json") as ps:
+        first = ps.wait_for(ps.send(ROUTE_STARTS[1]), timeout=10.0)
+        assert first is not None and first.route == 1
+        ps.start_correction("include", label="one pose far off")
+        for k, point in enumerate(wider):
+            ps.send((far if k == 10 else point).tolist())
+        made = ps.stop_correction()
+    assert made["correction"]["route"] == 1 and made["correction"]["n_points"] == len(idx) - 1
+    assert any("beyond the canal's reach" in n for n in made["notes"]), made["notes"]
 
 
 def test_a_json_answer_says_the_route_only_for_a_model_of_several() -> None:

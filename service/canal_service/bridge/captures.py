@@ -35,6 +35,9 @@ log = logging.getLogger("canal_service.bridge")
 _STOP_WAIT_S = 2.0
 #: ... and stops waiting when no pose of the stream came for this long.
 _STALL_S = 0.5
+#: ... and waits only for a pose at most this many poses ahead of the last one seen (a
+#: second of poses at 1 kHz): the poses still on their way, not ones never sent.
+_IN_FLIGHT = 1000
 
 
 class Captures:
@@ -189,14 +192,23 @@ class Captures:
             return
         query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
 
+    def _followed_canal(self, st: Stream) -> Any:
+        """The canal the stream follows (its route's, in a model of several routes), which a
+        correction from it refines; None when the skill has no model here."""
+        entry = self.models.entry(st.skill)
+        if entry.status != "ok" or entry.canal is None:
+            return None
+        route = self.route_of(st)
+        return entry.canal if route is None or entry.routes is None else entry.routes[route].canal
+
     def _within_reach(self, st: Stream, poses: list[Any]) -> list[Any]:
         """The captured poses within the reach a correction's samples are held to (a
         sensor spike a billion metres out is a finite pose the tracker answered
         ``outside_canal``): one such pose must not cost the person the whole push."""
-        entry = self.models.entry(st.skill)
-        if entry.status != "ok" or entry.canal is None:
+        canal = self._followed_canal(st)
+        if canal is None:
             return poses  # the service answers for the model
-        centre, size = bounds.canal_extent(entry.canal.directrix, entry.canal.radii)
+        centre, size = bounds.canal_extent(canal.directrix, canal.radii)
         reach = bounds.MAX_REACH * size
         kept = [p for p in poses
                 if float(np.linalg.norm(np.asarray(p.position, dtype=np.float64) - centre)) <= reach]
@@ -206,11 +218,9 @@ class Captures:
         """What the robot was on before the push: the live tracker keeps its ratio from the
         first captured pose on (the paper's constant ratio, no end decay), in the canal of
         the route the stream follows."""
-        entry = self.models.entry(st.skill)
-        if entry.status != "ok" or not poses or len(poses[0].position) != entry.dim:
+        canal = self._followed_canal(st)
+        if canal is None or not poses or len(poses[0].position) != canal.dim:
             return None
-        route = self.route_of(st)
-        canal = entry.canal if route is None or entry.routes is None else entry.routes[route].canal
         try:
             plan = canal.reproduce_detailed(
                 np.array(poses[0].position, dtype=np.float64), persistence="constant",
@@ -243,8 +253,11 @@ class Captures:
 def _wait_for_pose(st: Stream, seq: int) -> None:
     """Wait until the worker has seen the pose ``seq`` (the last one the robot sent before
     its stop), for at most ``_STOP_WAIT_S``, and no longer once the stream's poses stop
-    coming: this runs on the thread that answers every stream's queries, and a ``seq`` no
-    pose will reach must not hold the other robots' queries up."""
+    coming. Only a ``seq`` at most ``_IN_FLIGHT`` poses ahead is waited for: this runs on
+    the thread that answers every stream's queries, and a ``seq`` no pose will reach must not
+    hold the other robots' queries up."""
+    if not 0 < seq - st.last_seq <= _IN_FLIGHT:
+        return
     now = time.monotonic()
     deadline, seen, moved = now + _STOP_WAIT_S, st.last_seq, now
     while st.last_seq < seq and now < deadline and now - moved < _STALL_S:
