@@ -571,8 +571,12 @@ class CanalService:
         """Refine a model version by a person's correction (:meth:`ModelCorrections.correct`).
         Its timestamps (in ``time_unit``, seconds when None) are held to a demonstration's
         rules and stored as seconds."""
+        if body.timestamps is None and time_unit is not None:
+            raise InvalidInput(f"time_unit={time_unit} was given, but the correction has no "
+                               "timestamps", field="time_unit")
         if body.timestamps is not None:
-            times = check_timestamps(body.timestamps, len(body.samples), time_unit)
+            # a correction's path is not fitted on its own: no shortest span, as from a file
+            times = check_timestamps(body.timestamps, len(body.samples), time_unit, 0.0)
             body = body.model_copy(update={"timestamps": times.tolist()})
         return self.corrections.correct(name, body, instance=instance)
 
