@@ -121,3 +121,29 @@ class Metrics:
         self.live_steers = Counter("canal_live_steer_inputs_total",
                                    "Steering inputs the bridges held for their streams",
                                    registry=r)
+
+    def stored_counts(self) -> dict[str, float]:
+        """What this process stored that a bridge process reports to the service (a bridge
+        process has its own ``Metrics``): the live demonstrations and corrections, by label."""
+        out: dict[str, float] = {}
+        for key, (sample, label, values) in _STORED.items():
+            for value in values:
+                got = self.registry.get_sample_value(sample, {label: value})
+                if got:
+                    out[f"{key}:{value}"] = got
+        return out
+
+    def add_stored_counts(self, now: dict[str, float], before: dict[str, float]) -> None:
+        """Add a bridge process's :meth:`stored_counts` growth since ``before``."""
+        for name, n in now.items():
+            grown = n - before.get(name, 0.0)
+            key, _, value = name.partition(":")
+            if grown > 0 and key in _STORED:
+                getattr(self, key).labels(value).inc(grown)
+
+
+#: Metrics attribute -> (sample name, label, label values) that a bridge process reports.
+_STORED: dict[str, tuple[str, str, tuple[str, ...]]] = {
+    "demos_stored": ("canal_demonstrations_stored_total", "source", ("zenoh",)),
+    "corrections": ("canal_corrections_total", "kind", ("include", "exclude")),
+}

@@ -79,6 +79,22 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
                 return answer is not None and answer.model_version == 2
 
             assert wait_until(version, 3.0)
+        # what a bridge process stores (a demonstration, a correction captured live) is
+        # counted too: the process's own counters never reached /metrics
+        with PoseStreamer("s", "teacher", endpoint=endpoint) as ps:
+            ps.wait_for(ps.send(directrix[0].tolist(), restart=True), timeout=5.0)
+            ps.start_demo()
+            for point in directrix[::3]:
+                ps.wait_for(ps.send(point.tolist()), timeout=5.0)
+            ps.stop_demo()
+            ps.start_correction("include")
+            for point in directrix[20:40]:
+                ps.send((point + [0.0, 0.0, 0.002]).tolist())
+            ps.stop_correction()
+        assert wait_until(lambda: metric(client, "canal_demonstrations_stored_total",
+                                         'source="zenoh"') == 1, 5.0)
+        assert wait_until(lambda: metric(client, "canal_corrections_total",
+                                         'kind="include"') == 1, 5.0)
         # the bridge process dies: /healthz says the service is degraded
         bridges = client.app.state.bridge  # type: ignore[attr-defined]
         bridges.children[0].proc.send_signal(signal.SIGKILL)

@@ -78,7 +78,8 @@ def _read_fits(bridge: Bridge, stop: threading.Event, announce: bool) -> None:
 def _report(bridge: Bridge, stop: threading.Event) -> None:
     out = sys.stdout
     while not stop.is_set():
-        body: dict[str, Any] = {"health": bridge.health(), "counts": bridge.counts.snapshot()}
+        body: dict[str, Any] = {"health": bridge.health(), "counts": bridge.counts.snapshot(),
+                                "stored": bridge.service.metrics.stored_counts()}
         try:
             out.write(orjson.dumps(body).decode() + "\n")
             out.flush()

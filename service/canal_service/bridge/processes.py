@@ -65,6 +65,8 @@ class _Child:
         self.proc = proc
         self.health: dict[str, Any] = {}
         self.counts: dict[str, Any] = {}
+        #: what the process stored (live demonstrations, corrections), cumulative
+        self.stored: dict[str, float] = {}
         self.seen = time.monotonic()
         self.ready = threading.Event()
         self.ready_line = ""
@@ -82,6 +84,7 @@ class BridgeProcesses:
         self.state = "stopped"
         self.detail: str | None = None
         self._flushed: dict[int, dict[str, Any]] = {}
+        self._stored: dict[int, dict[str, float]] = {}
         self._stopping = False
 
     def _argv(self, shard: int, shards: int) -> list[str]:
@@ -173,6 +176,7 @@ class BridgeProcesses:
             with child.lock:
                 child.health = body.get("health", {})
                 child.counts = body.get("counts", {})
+                child.stored = body.get("stored", {})
                 child.seen = time.monotonic()
             self._apply(child)
             child.ready.set()  # ready, and its first health is known
@@ -198,6 +202,8 @@ class BridgeProcesses:
             if delta > 0:
                 m.live_errors.labels(key).inc(delta)
         self._flushed[child.shard] = {**now, "errors": dict(now.get("errors", {}))}
+        m.add_stored_counts(child.stored, self._stored.get(child.shard, {}))
+        self._stored[child.shard] = dict(child.stored)
         m.live_streams.set(sum(int(c.health.get("streams", 0)) for c in self.children))
 
     def _on_fit(self, skill: str, version: int, canal: Any) -> None:
