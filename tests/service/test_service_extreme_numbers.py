@@ -164,7 +164,7 @@ def test_obstacles_beyond_the_coordinate_range_are_refused_and_not_stored(
 @pytest.mark.parametrize(("change", "field"), [
     ({"samples": [[1e308, 0, 0]] + [[0.1 * k, 0.0, 0.0] for k in range(1, 8)]}, "samples[0]"),
     ({"samples": [[0.1 * k, 0.0, 0.0] for k in range(8)],
-      "timestamps": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1e300]}, "timestamps[7]"),
+      "timestamps": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 1e300]}, "timestamps"),  # its span
     ({"kind": "exclude", "samples": [[0.1 * k, 0.0, 0.0] for k in range(8)],
       "plan": [[0.1 * k, -1e200, 0.0] for k in range(8)]}, "plan[0]"),
 ])
