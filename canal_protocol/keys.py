@@ -69,6 +69,18 @@ def check_chunk(name: str, what: str) -> str:
     return name
 
 
+def check_prefix(prefix: str) -> str:
+    """``prefix`` if it is one or more plain key chunks (``canal``, ``site1/canal``), else
+    ValueError: a wildcard there would put and answer on every key it matches."""
+    for chunk in prefix.split("/"):
+        if not chunk:
+            raise ValueError(f"expected a key prefix of chunks that are not empty, got {prefix!r}")
+        if any(c in _BAD_CHUNK for c in chunk) or chunk[0] == "@":
+            raise ValueError(f"expected a key prefix of plain chunks (without '*', '$', '?', '#' "
+                             f"or a leading '@'), got {prefix!r}")
+    return prefix
+
+
 def is_plain_chunk(name: str) -> bool:
     """Whether ``name`` is one literal key chunk (no wildcard, DSL or verbatim marker)."""
     if not name or name[0] == "@":
@@ -293,7 +305,8 @@ def shard_pose_keys(shard: int, shards: int, prefix: str = "canal") -> list[str]
 
 
 __all__ = [
-    "RECORDER", "SHARD_ALPHABET", "Keys", "bridge_of_batch", "check_chunk", "everything",
+    "RECORDER", "SHARD_ALPHABET", "Keys", "bridge_of_batch", "check_chunk", "check_prefix",
+    "everything",
     "head", "is_plain_chunk", "keys", "model_key", "model_updated_key",
     "model_updated_wildcard", "pose_wildcard", "query_of", "recorder_key",
     "recorder_wildcard", "shard_of", "shard_pose_keys", "skill_of_update", "steer_wildcard",

@@ -809,6 +809,15 @@ def test_sim_says_the_wait_it_used_and_that_a_robot_needs_a_name(run: Run) -> No
         said_all = " ".join(r.output.replace("│", " ").split())
         assert r.exit_code == 2, (robot, r.output)
         assert f"Invalid value for --robot: {said}" in said_all, (robot, said_all)
+    # a prefix with a wildcard published on every skill's keys it matches; a push a
+    # thousand light years long made every later pose a bad_payload
+    for args, flag, said in ((["--prefix", "x/*"], "--prefix", "'*'"),
+                             (["--prefix", "a//b"], "--prefix", "empty"),
+                             (["--push", "0.3:1e300,0,0"], "--push", "1e+15")):
+        r = run("sim", "x", "--endpoint", f"tcp/127.0.0.1:{free_port()}", *args,
+                url=closed_port_url())
+        said_all = " ".join(r.output.replace("│", " ").split())
+        assert r.exit_code == 2 and flag in said_all and said in said_all, (args, said_all)
 
 
 def test_recordings_rebuild_counts_the_reproductions_it_logs(

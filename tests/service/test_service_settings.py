@@ -74,6 +74,9 @@ def test_flags_override_the_environment_which_overrides_defaults(
     (["--log-level", "loud"], "--log-level"),
     (["--log-level", "trace"], "--log-level"),
     (["--token", "s3cret "], "--token"),
+    # a wildcard prefix: the bridge would subscribe to, and answer on, every key it matches
+    (["--zenoh-prefix", "canal/*"], "--zenoh-prefix"),
+    (["--zenoh-prefix", "a//b"], "--zenoh-prefix"),
 ])
 def test_a_bad_value_is_a_usage_error_naming_the_flag(
         argv: list[str], named: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -13,7 +13,9 @@ import numpy as np
 import typer
 from rich.markup import escape
 
+from canal_core.bounds import MAX_COORDINATE
 from canal_core.validation import FloatArray
+from canal_protocol import keys
 from canal_protocol.keys import check_chunk
 
 from ..errors import (
@@ -57,7 +59,19 @@ def parse_push(text: str) -> tuple[float | str, FloatArray]:
                                  f"like 1.5:0,0.05,0 or 50%:0,0.05,0, got {text!r}",
                                  param_hint="--push")
     when = when_text if when_text.endswith("%") else value
-    return when, parse_point(offset, "--push")
+    push = parse_point(offset, "--push")
+    if not np.all(np.abs(push) <= MAX_COORDINATE):
+        raise typer.BadParameter(f"expected an offset of coordinates within +-{MAX_COORDINATE:g} "
+                                 f"(a pose's), got {text!r}", param_hint="--push")
+    return when, push
+
+
+def parse_prefix(text: str) -> str:
+    """A Zenoh key prefix of plain chunks (:func:`canal_protocol.keys.check_prefix`)."""
+    try:
+        return keys.check_prefix(text)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--prefix") from None
 
 
 def live_endpoint(health: dict[str, Any], url: str) -> tuple[list[str], str]:
@@ -137,7 +151,8 @@ def sim(
                            "comma-separated (default: the ones the service's /healthz "
                            "reports).")] = None,
     prefix: Annotated[str | None, typer.Option(
-        "--prefix", help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
+        "--prefix", parser=parse_prefix,
+        help="Zenoh key prefix (default: the service's, from /healthz).")] = None,
     zenoh_config: Annotated[Path | None, typer.Option("--zenoh-config",
                                                       help="Zenoh config file.")] = None,
     encoding: Annotated[Encoding | None, typer.Option(

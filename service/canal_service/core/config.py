@@ -19,6 +19,7 @@ from pydantic import Field, SecretStr, field_validator
 from pydantic_core import PydanticCustomError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from canal_protocol import keys as keyspace
 from canal_protocol.credentials import token_problem
 
 DEFAULT_MAX_BODY_BYTES = 64 * 1024 * 1024
@@ -172,6 +173,11 @@ class Settings(BaseSettings):
     @classmethod
     def _log_level_in_any_case(cls, value: Any) -> Any:
         return value.lower() if isinstance(value, str) else value
+
+    @field_validator("zenoh_prefix")
+    @classmethod
+    def _plain_prefix(cls, value: str) -> str:
+        return keyspace.check_prefix(value)
 
     @field_validator("token")
     @classmethod
