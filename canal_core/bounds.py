@@ -72,7 +72,8 @@ def check_coordinates(values: Any, field: str, limit: float = MAX_COORDINATE) ->
         return array
     where = field if array.ndim < 2 else f"{field}[{at // array.shape[-1]}]"
     raise InvalidInputError(
-        f"expected {where} within +-{limit:g}, got {float(array.ravel()[at]):.6g}",
+        # the shortest exact form: a value just past the limit must not read as the limit
+        f"expected {where} within +-{limit:g}, got {float(array.ravel()[at])!r}",
         field=where,
     )
 

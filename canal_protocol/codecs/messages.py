@@ -138,7 +138,7 @@ def check_pose_numbers(position: Any, orientation: Any, t: Any) -> None:
     if not (-MAX_COORDINATE <= min(position) and max(position) <= MAX_COORDINATE):
         i = next(i for i, v in enumerate(position) if not abs(v) <= MAX_COORDINATE)
         raise WireError("bad_payload", f"expected position coordinates within "
-                        f"+-{MAX_COORDINATE:g}, got {position[i]:.6g} at position[{i}]")
+                        f"+-{MAX_COORDINATE:g}, got {float(position[i])!r} at position[{i}]")
     if orientation is not None:
         norm = math.hypot(*orientation)
         if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:

@@ -173,3 +173,16 @@ def test_json_target_round_trips_with_nan_and_inf_as_null(target, eta, extras):
 def test_a_refused_json_pose_shows_the_value_as_json(data, shown):
     key, message = _outcome(wire.decode_pose_json, data)
     assert key == "bad_payload" and message.endswith(shown), message
+
+
+@pytest.mark.parametrize("encode", ["json", "binary"])
+def test_a_coordinate_just_past_the_bound_is_not_shown_as_the_bound(encode):
+    # 1.0000001e15 was refused as "got 1e+15": it read as within +-1e+15.
+    position = [1.0000001e15, 0.0, 0.0]
+    data = (orjson.dumps({"seq": 1, "position": position}) if encode == "json"
+            else wire.encode_pose(1, position))
+    decode = wire.decode_pose_json if encode == "json" else wire.decode_pose
+    with pytest.raises(wire.WireError) as refused:
+        decode(data)
+    assert "got 1e+15" not in refused.value.message
+    assert repr(1.0000001e15) in refused.value.message, refused.value.message
