@@ -316,7 +316,11 @@ def run_sim(skill: str, *, robot: str = "sim", start: Sequence[float] | None = N
                     v = v + dt * (gain * (goal - x) - 2.0 * math.sqrt(gain) * v)
                     x = x + dt * v
             next_tick += dt
-            delay = next_tick - time.monotonic()
+            now = time.monotonic()
+            delay = next_tick - now
+            if next_tick > t0 + timeout_s:  # the next tick is past the timeout: the run ends
+                time.sleep(max(t0 + timeout_s - now, 0.0))
+                break
             if delay > 0:
                 time.sleep(delay)
             else:

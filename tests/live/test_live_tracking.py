@@ -493,3 +493,10 @@ def test_a_glitch_pose_as_a_skill_is_created_again_does_not_send_the_target_to_t
         t = ps.wait_for(ps.send(x.tolist()), timeout=5.0)
         assert t is not None and t.status == "ok" and not t.done, t
         assert np.linalg.norm(np.asarray(t.target) - x) < 0.1, (t.target, x)
+
+
+def test_a_slow_sim_ends_at_its_timeout_not_a_tick_later(live):
+    # At 0.1 Hz with a 3 s timeout the run took 10 s: it slept to its next tick first.
+    r = run_sim("arc3", robot="slow", rate_hz=0.25, timeout_s=1.0, endpoint=live.endpoint)
+    assert r.n_steps == 1 and not r.reached_end
+    assert r.duration < 4.0 - 0.5, r.duration  # the next tick was 4 s away
