@@ -151,14 +151,19 @@ class Endpoint:
 
     def url(self, **params: object) -> str:
         """``path`` with its ``{...}`` parameters filled in, each percent-encoded."""
-        return self.path.format(**{k: _segment(v) for k, v in params.items()})
+        return self.path.format(**{k: _segment(k, v) for k, v in params.items()})
 
 
-def _segment(value: object) -> str:
+def _segment(key: str, value: object) -> str:
     """``value`` as one percent-encoded path segment. A '.' or '..' is encoded too: left as
     it is, the URL would drop it with the segment before (``/skills/../fit`` is ``/fit``),
-    where the service refuses it as a skill name."""
+    where the service refuses it as a skill name. An empty one is refused here: it would
+    name another route (``/skills/`` redirects to the list)."""
     text = quote(str(value), safe="")
+    if not text:
+        what = "a skill name" if key == "name" else f"a {key}"
+        raise ArgumentError("skill" if key == "name" else key, f"{what} that is not empty",
+                            repr(value))
     return text.replace(".", "%2E") if text in (".", "..") else text
 
 

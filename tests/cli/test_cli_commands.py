@@ -920,3 +920,13 @@ def test_a_missing_file_is_a_usage_error_naming_it(run: Run, tmp_path: Path) -> 
         said = " ".join(r.output.replace("│", " ").split())
         assert r.exit_code == 2, (args, said)
         assert "Invalid value for" in said and f"no file {args[-1]!r}" in said, said
+
+
+def test_an_empty_skill_name_is_named_in_the_error(run: Run) -> None:
+    # `canal skill show ''` printed "error: HTTP 307".
+    demo = Path(__file__).resolve().parents[2] / "examples" / "demos" / "demo_1.csv"
+    for args in (("skill", "show", ""), ("demo", "add", "", str(demo)),
+                 ("fit", ""), ("skill", "delete", "", "--yes")):
+        r = run(*args)
+        assert r.exit_code == 1 and r.stderr.startswith("error: skill: expected a skill name"), (
+            args, r.output)

@@ -88,6 +88,17 @@ def test_a_name_that_is_a_path_reaches_no_other_resource(
     assert client.get_skill(name).n_demonstrations == 1
 
 
+def test_an_empty_skill_name_is_refused_before_anything_is_sent(client: CanalClient) -> None:
+    # An empty name made /skills/ or /skills//fit: a bare "HTTP 307" or "no route" answer
+    # that did not say the name was missing.
+    for call in (lambda: client.get_skill(""), lambda: client.delete_skill(""),
+                 lambda: client.fit(""), lambda: client.add_demo("", demo_positions(0)),
+                 lambda: client.reproduce("", [0.0, 0.0, 0.0])):
+        with pytest.raises(ArgumentError) as info:
+            call()
+        assert info.value.argument == "skill" and "name" in info.value.expected, info.value
+
+
 def test_outside_canal_raise(client: CanalClient, fitted: str) -> None:
     with pytest.raises(OutsideCanalError) as info:
         client.reproduce(fitted, [0.0, 5.0, 0.0], outside="raise")

@@ -286,3 +286,40 @@ def test_deleting_a_skill_right_after_uploads_drops_nothing(
     assert health["dropped"] == 0 and health["status"] == "ok", health
     assert not (tmp_path / "rec" / "pour").exists()
     assert "Dropping data" not in capfd.readouterr().err
+
+
+def test_an_export_overlapping_a_rebuild_holds_the_whole_recording(tmp_path: Path) -> None:
+    # A download answered while a rebuild ran was a valid, empty file (200): the export's
+    # segment was closed, then the rebuild wiped the files before the export listed them.
+    # Here the export's request and the rebuild's wait behind the same uploads, so the
+    # writer takes them one right after the other.
+    import threading
+
+    from canal_protocol.schemas import DemonstrationIn, FitRequest, SkillCreate
+
+    db, service, rec = _service_with_recorder(tmp_path)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        for k in range(3):
+            service.add_json_demonstration("pour", DemonstrationIn(
+                positions=helix_demo(k).tolist()))
+        service.fit("pour", FitRequest(n_samples=30))
+        held = []
+        for attempt in range(4):
+            ids = [service.add_json_demonstration("pour", DemonstrationIn(
+                positions=helix_demo(k).tolist())).id for k in range(12)]
+            paths: list[Path] = []
+            export = threading.Thread(target=lambda out=paths: out.append(rec.export_mcap("pour")))
+            export.start()
+            time.sleep(0.005)  # the export's rotate queued behind the uploads, then the rebuild
+            rec.rebuild("pour")
+            export.join()
+            demos = {e["id"] for m in mcap_messages(paths[0], "/canal/demos")
+                     for e in m["entities"]}
+            held.append((attempt, {f"demo/{i}" for i in ids} <= demos,
+                         len(mcap_messages(paths[0], "/canal/model_info"))))
+            paths[0].unlink()
+    finally:
+        rec.close()
+        db.dispose()
+    assert all(full and models == 1 for _, full, models in held), held

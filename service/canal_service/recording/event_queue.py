@@ -95,7 +95,7 @@ class RecorderQueue:
         self._period_ns = int(1e9 / live_max_hz) if live_max_hz else 0
         self._wake = threading.Event()
         self._state_lock = threading.Lock()
-        self._skill_locks: dict[str, threading.Lock] = {}
+        self._skill_locks: dict[str, threading.RLock] = {}
         self._errors: dict[str, str] = {}
         self._skills: dict[str, SkillState] = {}
         self._rerun_env: dict[str, str] | None = None
@@ -321,6 +321,8 @@ class RecorderQueue:
         with self._state_lock:
             self._errors.pop(key, None)
 
-    def _skill_lock(self, skill: str) -> threading.Lock:
+    def _skill_lock(self, skill: str) -> threading.RLock:
+        """The lock an export lists the skill's closed files under. Reentrant: the writer
+        holds it over a whole rebuild, whose wipe takes it again."""
         with self._state_lock:
-            return self._skill_locks.setdefault(skill, threading.Lock())
+            return self._skill_locks.setdefault(skill, threading.RLock())

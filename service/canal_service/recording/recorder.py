@@ -270,11 +270,14 @@ class Recorder(Exporter, Reconciler):
         elif isinstance(event, SkillDeleted):
             self._delete(event.skill, deleted=True)
         elif isinstance(event, Rebuild):
-            self._delete(event.skill)
-            event.result.update(self._reconcile_skill(event.skill, full=True))
-            rebuilt = self._skills.get(event.skill)
-            if rebuilt is not None:
-                self._close_segment(rebuilt)
+            # Held from the wipe to the closed rebuilt files: an export overlapping the
+            # rebuild lists the files before or after it, never the emptied folder between.
+            with self._skill_lock(event.skill):
+                self._delete(event.skill)
+                event.result.update(self._reconcile_skill(event.skill, full=True))
+                rebuilt = self._skills.get(event.skill)
+                if rebuilt is not None:
+                    self._close_segment(rebuilt)
         elif isinstance(event, Reconcile):
             event.result.update(self._reconcile(event.skill))
 
