@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -118,3 +119,20 @@ def test_every_file_a_demonstration_is_read_from_is_read_as_a_correction_too(
     said = " ".join(r.output.replace("\u2502", " ").split())
     assert r.exit_code == 2 and "expected a .csv, .npy, .mcap or .json file, got 'pushed.xls'" in said, said
     assert "format=" not in said, said  # the command has no such option
+
+
+def test_a_folder_or_a_device_is_not_a_file_to_read(run: Run, tmp_path: Path) -> None:
+    # A folder named like a CSV ended `canal correct` in a traceback (IsADirectoryError),
+    # `canal demo add` called /dev/null "no such file" and `canal scene set` of a named pipe
+    # waited for ever.
+    (tmp_path / "pushed.csv").mkdir()
+    r = run("correct", "any", str(tmp_path / "pushed.csv"), "--kind", "include")
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "expected a file, got the folder" in r.output, r.output
+    os.mkfifo(tmp_path / "piped.csv")
+    r = run("correct", "any", str(tmp_path / "piped.csv"), "--kind", "include")
+    assert r.exit_code == 2 and "expected a regular file" in r.output, r.output
+    r = run("demo", "add", "any", "/dev/null")
+    assert r.exit_code == 2 and "expected a regular file" in r.output, r.output
+    r = run("scene", "set", "any", str(tmp_path / "piped.csv"))  # waited for a writer
+    assert r.exit_code == 2 and "expected a regular file" in r.output, r.output

@@ -102,7 +102,7 @@ def demo_add(
     exit code is then 1. A path that is not there is bad usage (exit code 2), before anything
     is uploaded. Prints each new demonstration's id."""
     for path in paths:
-        existing_file(path, "PATHS")
+        existing_file(path, "PATHS", folder=True)
     opts = options(ctx)
     files, failed = expand_paths(paths)
     results: list[dict[str, Any]] = []

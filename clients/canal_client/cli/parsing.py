@@ -123,11 +123,18 @@ def model_version(text: object) -> str:
 stored_id = contract_parser(Id)
 
 
-def existing_file(path: Path, hint: str) -> None:
-    """A file the command reads must be there (a folder too where the command takes one):
-    a usage error naming the path, before any request."""
+def existing_file(path: Path, hint: str, *, folder: bool = False) -> None:
+    """A file the command reads must be there, a regular file (or a folder, with ``folder``,
+    where the command takes one): a usage error naming the path, before any request."""
     if not path.exists():
         raise typer.BadParameter(f"no file {str(path)!r}", param_hint=hint)
+    if path.is_dir():
+        if not folder:
+            raise typer.BadParameter(f"expected a file, got the folder {str(path)!r}",
+                                     param_hint=hint)
+    elif not path.is_file():
+        raise typer.BadParameter(f"expected a regular file, got {str(path)!r} (a device, pipe "
+                                 "or socket)", param_hint=hint)
 
 
 _NEGATIVE_NUMBER = re.compile(r"-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")

@@ -10,7 +10,7 @@ import typer
 from rich.markup import escape
 
 from .output import out, print_json
-from .parsing import has_box, parse_obstacle
+from .parsing import existing_file, has_box, parse_obstacle
 from .session import connected, options
 
 app = typer.Typer(help="Set, show and clear a skill's scene (its obstacles).", no_args_is_help=True)
@@ -18,6 +18,7 @@ app = typer.Typer(help="Set, show and clear a skill's scene (its obstacles).", n
 
 def read_scene_file(path: Path) -> list[dict[str, Any]]:
     """A scene file: JSON ``{"obstacles": [...]}`` or a bare list of obstacles."""
+    existing_file(path, "SCENE")  # a pipe would wait for a writer for ever
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
