@@ -322,8 +322,14 @@ def pydantic_detail(error: Mapping[str, Any]) -> dict[str, Any]:
     kind = str(error.get("type", ""))
     if kind == "value_error":
         message = message.removeprefix("Value error, ")  # how the check was written
-    if kind == "string_pattern_mismatch" and (error.get("ctx") or {}).get("pattern") == SKILL_NAME_PATTERN:
+    ctx = error.get("ctx") or {}
+    if kind == "string_pattern_mismatch" and ctx.get("pattern") == SKILL_NAME_PATTERN:
         message = SKILL_NAME_WORDS  # not the regular expression
+    if kind in ("too_short", "too_long") and "actual_length" in ctx:
+        # pydantic's "List should have at least 2 items after validation, not 1"
+        bound = ("at least", ctx.get("min_length")) if kind == "too_short" else (
+            "at most", ctx.get("max_length"))
+        message = f"expected {bound[0]} {bound[1]} items, got {ctx['actual_length']}"
     value = error.get("input")
     if ("input" in error and kind not in _NO_VALUE_SHOWN and " got " not in f" {message} "
             and not (field == "body" and isinstance(value, dict))):

@@ -130,7 +130,7 @@ def check_timestamps(value: Any, n_points: int, unit: str | None = None,
     _check_finite(times[:, None], "timestamps")
     # Stamps near the float limits overflow to an infinite span, which the check below refuses.
     with np.errstate(over="ignore"):
-        if unit is not None and unit != "s":
+        if unit is not None and unit != "s" and times.size:
             times = (times - times[0]) * TIME_UNITS[unit]
         span = float(times.max() - times.min()) if times.size else 0.0
     if span > MAX_DEMO_SECONDS:

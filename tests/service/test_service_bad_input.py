@@ -391,6 +391,9 @@ def test_bad_ids_and_versions_in_paths(client: TestClient, fitted: str) -> None:
     ("/skills/pour/fit", {"n_samples": [200]}, "n_samples", "got a list"),
     ("/skills", {"name": "a name", "dim": 3}, "name", 'got "a name"'),
     ("/skills", {"name": "arm", "dim": {"d": 3}}, "dim", "got an object"),
+    # pydantic's "List should have at least 2 items after validation, not 1" was followed by
+    # "got a list"
+    ("/skills/pour/fit", {"demo_ids": [1]}, "demo_ids", "expected at least 2 items, got 1"),
 ])
 def test_a_refused_value_is_shown_beside_what_was_expected(
     client: TestClient, fitted: str, path: str, body: dict[str, Any], field: str, got: str

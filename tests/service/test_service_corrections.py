@@ -276,6 +276,10 @@ def test_a_corrections_time_unit_is_read_as_a_demonstrations_is(http: httpx.Clie
     r = http.post("/skills/pour/corrections", params={"time_unit": "ms"},
                   json={"kind": "include", "samples": samples.tolist()})  # no timestamps
     assert r.status_code == 422 and r.json()["error"]["field"] == "time_unit", r.text
+    # no samples and no stamps, in microseconds: a 500 (the unit's shift read the first stamp)
+    r = http.post("/skills/pour/corrections", params={"time_unit": "us"},
+                  json={"kind": "include", "samples": [], "timestamps": []})
+    assert r.status_code == 422 and r.json()["error"]["field"] == "samples", r.text
     long = {"kind": "include", "samples": samples.tolist(), "timestamps": (t_ns / 1e4).tolist()}
     r = http.post("/skills/pour/corrections", json=long)
     assert r.status_code == 422 and r.json()["error"]["field"] == "timestamps", r.text
