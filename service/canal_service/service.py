@@ -36,6 +36,7 @@ from .errors import (
     RecordingFailed,
     ReproductionCancelled,
     ReproductionTooSlow,
+    SkillNotFound,
 )
 from .fitting import FitJob, FitRunner
 from .listeners import FitListeners, SceneListeners
@@ -806,6 +807,9 @@ class CanalService:
         except RuntimeError as exc:
             raise RecordingFailed(f"could not rebuild the recording of {name!r}: {exc}",
                                   field="recordings") from exc
+        if result.get("gone"):
+            raise SkillNotFound(f"skill {name!r} was deleted while its recording was being "
+                                "rebuilt", field="name")
         return {"skill": name, **result}
 
 

@@ -323,3 +323,38 @@ def test_an_export_overlapping_a_rebuild_holds_the_whole_recording(tmp_path: Pat
         rec.close()
         db.dispose()
     assert all(full and models == 1 for _, full, models in held), held
+
+
+def test_a_rebuild_of_a_skill_deleted_meanwhile_says_it_is_gone(tmp_path: Path) -> None:
+    # It answered 200 with every count 0, as if the skill had nothing to record.
+    import threading
+
+    from canal_service.errors import SkillNotFound
+
+    from canal_protocol.schemas import DemonstrationIn, SkillCreate
+
+    db, service, rec = _service_with_recorder(tmp_path)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        for k in range(12):
+            service.add_json_demonstration("pour", DemonstrationIn(
+                positions=helix_demo(k).tolist()))
+        outcome: list[object] = []
+
+        def rebuild() -> None:
+            try:
+                outcome.append(service.rebuild_recording("pour"))
+            except SkillNotFound as exc:
+                outcome.append(exc)
+
+        thread = threading.Thread(target=rebuild)
+        thread.start()
+        time.sleep(0.005)  # the rebuild queued behind the uploads, then the delete
+        service.delete_skill("pour")
+        thread.join()
+    finally:
+        rec.close()
+        db.dispose()
+    assert isinstance(outcome[0], SkillNotFound), outcome
+    assert "deleted while its recording was being rebuilt" in outcome[0].message
+    assert outcome[0].field == "name"

@@ -34,7 +34,8 @@ class Reconciler(SegmentWriter):
     """The recorder's layer that reconciles with the database and recovers open segments."""
 
     def rebuild(self, skill: str, timeout_s: float | None = None) -> dict[str, Any]:
-        """Regenerate the skill's recording from the database; what was logged.
+        """Regenerate the skill's recording from the database; what was logged, or
+        ``{"gone": True}`` when the database no longer holds the skill.
 
         Live samples are not in the database: a rebuilt recording holds the demonstrations
         (deleted ones gone), every model version and the reproductions the database keeps.

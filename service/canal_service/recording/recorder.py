@@ -274,7 +274,13 @@ class Recorder(Exporter, Reconciler):
             # rebuild lists the files before or after it, never the emptied folder between.
             with self._skill_lock(event.skill):
                 self._delete(event.skill)
-                event.result.update(self._reconcile_skill(event.skill, full=True))
+                assert self.source is not None  # rebuild() asks for one
+                inventory = self.source.inventory(event.skill)
+                if inventory is None:  # deleted since the rebuild was asked for
+                    event.result["gone"] = True
+                    return
+                event.result.update(self._reconcile_skill(event.skill, full=True,
+                                                          inventory=inventory))
                 rebuilt = self._skills.get(event.skill)
                 if rebuilt is not None:
                     self._close_segment(rebuilt)
