@@ -155,6 +155,11 @@ def test_view_link_opens_rerun_web_viewer_on_the_skill_recording(viewer_service)
         assert client.get(f"{url}/viewer/%2E%2E").status_code == 404
         missing = client.get(f"{url}/skills/nope/view")
         assert missing.status_code == 404 and missing.json()["error"]["type"] == "not_found"
+        # The redirect was built from the Host header: a request naming another host (as a
+        # proxy's cache may keep it) sent the browser there. It stays on the page's origin.
+        forged = client.get(f"{url}/skills/pour/view", headers={"host": "elsewhere.example"})
+        assert forged.status_code == 307
+        assert forged.headers["location"].startswith("/viewer/?url="), forged.headers
 
 
 def test_view_without_recordings_says_so(tmp_path: Path) -> None:

@@ -211,8 +211,11 @@ async def view_skill(name: SkillName, request: Request, service: ServiceDep) -> 
         raise Disabled("recordings are disabled on this service", field="recordings")
     await run_in_threadpool(service.get_skill, name)  # 404 for an unknown skill
     recording = str(request.url_for("recording_rrd", name=name))
-    return RedirectResponse(f"{request.url_for('viewer_page')}?{urlencode({'url': recording})}",
-                            status_code=307)
+    # A path, not a URL: the Host header names the host, and a request forged with another
+    # (kept by a proxy's cache) would send the browser there. The page fetches from its own
+    # origin only, whatever ``url`` says.
+    page = request.url_for("viewer_page").path
+    return RedirectResponse(f"{page}?{urlencode({'url': recording})}", status_code=307)
 
 
 @router.get("/viewer/", response_class=FileResponse, name="viewer_page",
