@@ -148,12 +148,17 @@ class SkillReplaced(Conflict):
     """What was captured on a skill is stored only into that skill: the one under its name
     was deleted (and perhaps created again) since the capture began."""
 
-    def __init__(self, skill: str, what: str, *, exists: bool) -> None:
+    def __init__(self, skill: str, what: str, *, exists: bool, field: str = "skill",
+                 when: str | None = None) -> None:
         got = ("another skill: it was deleted and created again under its name" if exists
                else "no skill: it was deleted")
-        super().__init__(f"expected the skill '{skill}' this {what} was captured on, got "
-                         f"{got} since the capture began; nothing is stored, start the "
-                         "capture again", field="skill")
+        if when is None:
+            super().__init__(f"expected the skill '{skill}' this {what} was captured on, got "
+                             f"{got} since the capture began; nothing is stored, start the "
+                             "capture again", field=field)
+        else:
+            super().__init__(f"expected the skill '{skill}' this {what} was sent to, got {got} "
+                             f"since {when}; nothing is stored", field=field)
 
 
 class RecordingFailed(Conflict):

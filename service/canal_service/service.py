@@ -748,7 +748,7 @@ class CanalService:
         stores nothing); every listener (the live bridge) hears of the new version."""
         check_obstacles(obstacles)
         with self.db.write() as s:
-            skill = repo.get_skill(s, name)
+            skill = repo.get_skill(s, name, lock=True)  # puts in turn: the last write wins
             scene = canal_core.obstacles.scene_from_list(list(obstacles), skill.dim)
             row = repo.put_scene(s, skill, scene.to_list())
             out = schemas.SceneOut(skill=name, version=row.version, obstacles=row.obstacles,

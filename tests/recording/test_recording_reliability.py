@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -288,26 +289,31 @@ def test_deleting_a_skill_right_after_uploads_drops_nothing(
     assert "Dropping data" not in capfd.readouterr().err
 
 
+def _add_demos(service: Any, n: int, *, create: bool = False) -> list[int]:
+    """``n`` demonstrations uploaded to skill 'pour' (created first with ``create``): the
+    writer has them queued, and takes what comes next behind them."""
+    from canal_protocol.schemas import DemonstrationIn, SkillCreate
+
+    if create:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+    return [service.add_json_demonstration("pour", DemonstrationIn(
+        positions=helix_demo(k).tolist())).id for k in range(n)]
+
+
 def test_an_export_overlapping_a_rebuild_holds_the_whole_recording(tmp_path: Path) -> None:
     # A download answered while a rebuild ran was a valid, empty file (200): the export's
     # segment was closed, then the rebuild wiped the files before the export listed them.
     # Here the export's request and the rebuild's wait behind the same uploads, so the
     # writer takes them one right after the other.
-    import threading
-
-    from canal_protocol.schemas import DemonstrationIn, FitRequest, SkillCreate
+    from canal_protocol.schemas import FitRequest
 
     db, service, rec = _service_with_recorder(tmp_path)
     try:
-        service.create_skill(SkillCreate(name="pour", description="", dim=3))
-        for k in range(3):
-            service.add_json_demonstration("pour", DemonstrationIn(
-                positions=helix_demo(k).tolist()))
+        _add_demos(service, 3, create=True)
         service.fit("pour", FitRequest(n_samples=30))
         held = []
         for attempt in range(4):
-            ids = [service.add_json_demonstration("pour", DemonstrationIn(
-                positions=helix_demo(k).tolist())).id for k in range(12)]
+            ids = _add_demos(service, 12)
             paths: list[Path] = []
             export = threading.Thread(target=lambda out=paths: out.append(rec.export_mcap("pour")))
             export.start()
@@ -327,18 +333,11 @@ def test_an_export_overlapping_a_rebuild_holds_the_whole_recording(tmp_path: Pat
 
 def test_a_rebuild_of_a_skill_deleted_meanwhile_says_it_is_gone(tmp_path: Path) -> None:
     # It answered 200 with every count 0, as if the skill had nothing to record.
-    import threading
-
     from canal_service.errors import SkillNotFound
-
-    from canal_protocol.schemas import DemonstrationIn, SkillCreate
 
     db, service, rec = _service_with_recorder(tmp_path)
     try:
-        service.create_skill(SkillCreate(name="pour", description="", dim=3))
-        for k in range(12):
-            service.add_json_demonstration("pour", DemonstrationIn(
-                positions=helix_demo(k).tolist()))
+        _add_demos(service, 12, create=True)
         outcome: list[object] = []
 
         def rebuild() -> None:

@@ -58,11 +58,12 @@ class PostgresServer:
                                   "stop")
         shutil.rmtree(self.dir, ignore_errors=True)
 
-    def new_database(self) -> str:
+    def new_database(self, options: str = "") -> str:
+        """A new empty database's URL; ``options`` follow CREATE DATABASE (an encoding)."""
         import psycopg
 
         name = f"t_{uuid.uuid4().hex[:12]}"
         with psycopg.connect(f"postgresql://canal@127.0.0.1:{self.port}/postgres",
                              autocommit=True) as conn:
-            conn.execute(f'CREATE DATABASE "{name}"')
+            conn.execute(f'CREATE DATABASE "{name}" {options}')
         return f"postgresql+psycopg://canal@127.0.0.1:{self.port}/{name}"

@@ -114,3 +114,18 @@ def test_two_replicas_creating_one_name_in_two_letter_cases_make_one_skill(
         assert [k.name for k in repo.list_skills(s, 0, 10)[0]] == ["Pour"]
     first.dispose()
     second.dispose()
+
+
+@pytest.mark.parametrize("encoding", ["LATIN1", "SQL_ASCII"])
+def test_a_database_not_in_utf8_is_refused_at_start(postgres_server: PostgresServer,
+                                                    encoding: str) -> None:
+    # A LATIN1 database started, then answered 500 to a description holding an emoji; a
+    # SQL_ASCII one failed at start with "cannot use a string pattern on a bytes-like object".
+    url = postgres_server.new_database(
+        f"ENCODING '{encoding}' LC_COLLATE 'C' LC_CTYPE 'C' TEMPLATE template0")
+    db = Database(url)
+    try:
+        with pytest.raises(RuntimeError, match=f"expected a database in UTF8 encoding, got {encoding}"):
+            db.migrate()
+    finally:
+        db.dispose()

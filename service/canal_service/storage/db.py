@@ -276,7 +276,10 @@ class Database:
                 pass
 
     def migrate(self) -> None:
-        """Apply Alembic migrations up to head (idempotent; safe with replicas starting together)."""
+        """Apply Alembic migrations up to head (idempotent; safe with replicas starting together).
+        A PostgreSQL database must be in UTF8 (RuntimeError otherwise)."""
+        if make_url(self.url).get_backend_name() == "postgresql":
+            check_utf8(self.url)
         config = alembic_config(self.url)
         with self.write_engine.begin() as connection:
             if connection.dialect.name == "postgresql":
@@ -300,6 +303,25 @@ class Database:
         self.read_engine.dispose()
         if self.write_engine is not self.read_engine:
             self.write_engine.dispose()
+
+
+def check_utf8(url: str) -> None:
+    """RuntimeError unless the PostgreSQL database at ``url`` stores text in UTF8.
+
+    Any other encoding fails later, on the first text it cannot hold (an emoji in a label is
+    a 500 in LATIN1), or at once and obscurely (SQL_ASCII hands SQLAlchemy bytes where it
+    reads the server's version). Asked on a plain driver connection, before SQLAlchemy's.
+    """
+    import psycopg
+
+    conninfo = make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
+    with psycopg.connect(conninfo) as connection:
+        row = connection.execute("SHOW server_encoding").fetchone()
+    got = row[0] if row is not None else None
+    got = got.decode("ascii", "replace") if isinstance(got, bytes) else str(got)
+    if got.upper() not in ("UTF8", "UTF-8"):
+        raise RuntimeError(f"expected a database in UTF8 encoding, got {got}: create it with "
+                           "CREATE DATABASE ... ENCODING 'UTF8' TEMPLATE template0")
 
 
 def alembic_config(url: str) -> Config:

@@ -79,9 +79,12 @@ def create_skill(session: Session, name: str, description: str, dim: int) -> Ski
     return skill
 
 
-def get_skill(session: Session, name: str) -> Skill:
-    """The skill called ``name``, or :class:`SkillNotFound`."""
-    skill = session.scalars(select(Skill).where(Skill.name == name)).one_or_none()
+def get_skill(session: Session, name: str, *, lock: bool = False) -> Skill:
+    """The skill called ``name``, or :class:`SkillNotFound`. ``lock``: its row stays locked
+    until the write transaction ends, so writes of the same skill's rows run in turn (on
+    PostgreSQL they otherwise run side by side; a skill deleted meanwhile is then not found)."""
+    query = select(Skill).where(Skill.name == name)
+    skill = session.scalars(query.with_for_update() if lock else query).one_or_none()
     if skill is None:
         raise SkillNotFound(f"no skill named {name!r}", field="name")
     return skill
@@ -119,8 +122,8 @@ def list_skills(session: Session, offset: int, limit: int) -> tuple[list[Skill],
 
 def delete_skill(session: Session, name: str) -> None:
     """Delete a skill; its demonstrations, models and kept reproductions go with it (FK
-    cascade)."""
-    skill = get_skill(session, name)
+    cascade). Deleted once: a delete racing another finds no skill."""
+    skill = get_skill(session, name, lock=True)
     # Explicit deletes too, so the cascade does not depend on the backend's FK enforcement.
     session.execute(delete(Demonstration).where(Demonstration.skill_id == skill.id))
     session.execute(delete(ModelLineage).where(ModelLineage.skill_id == skill.id))
@@ -206,7 +209,12 @@ def insert_demonstration(
         "checksum": digest, "source": source, "created_at": utcnow(),
     }
     if captured_on is None:
-        row = db.write_one(_INSERT_DEMONSTRATION, values)
+        try:
+            row = db.write_one(_INSERT_DEMONSTRATION, values)
+        except IntegrityError:
+            # Its foreign key, the one constraint the checked values can fail: on PostgreSQL
+            # the skill was read before a delete committed. Why is looked up as for a miss.
+            row = None
     else:
         with db.write() as session:
             skill_id = skill_of_instance(session, skill_name, *captured_on, lock=True)
@@ -230,12 +238,16 @@ def skill_of_instance(session: Session, name: str, what: str, instance: str, *,
     return int(found[0])
 
 
-def _refused_insert(session: Session, skill_name: str, dim: int) -> SkillNotFound | InvalidInput:
+def _refused_insert(session: Session, skill_name: str, dim: int
+                    ) -> SkillNotFound | SkillReplaced | InvalidInput:
     """Why :data:`_INSERT_DEMONSTRATION` inserted nothing: no such skill, or another dimension."""
     found = session.execute(_SKILL_ID_AND_DIM, {"name": skill_name}).first()
     if found is None:
         return SkillNotFound(f"no skill named {skill_name!r}", field="name")
     skill_dim = int(found[1])
+    if skill_dim == dim:  # the skill the insert missed was deleted, one was created since
+        return SkillReplaced(skill_name, "demonstration", exists=True, field="name",
+                             when="it was sent; send it again to store it in the new one")
     axes = "x, y, z" if skill_dim == 3 else "x, y"
     return InvalidInput(
         f"expected {skill_dim} values per row ({axes} for the {skill_dim}-D skill "
