@@ -150,3 +150,28 @@ def test_a_scene_put_over_zenoh_is_held_to_the_rest_scene_s_rules(live, scn) -> 
     assert stored["version"] == before + 1, (before, stored)
     assert [o.get("name") for o in stored["obstacles"]] == ["ok"]
     assert live.client.delete(f"/skills/{scn}/scene").status_code == 204
+
+
+def test_a_skill_created_again_is_gone_around_its_own_scene(live) -> None:
+    # The bridge kept a deleted skill's scene under its name, with its version: the skill
+    # created again stored its first scene as version 1, which the bridge took for older
+    # than the deleted one's 4 and ignored, so robots went through its obstacle.
+    make_skill(live.client, "again", 3)
+    canal = canal_of(live, "again")
+    k = canal.n_sections // 2
+    ball = {"kind": "sphere", "center": canal.directrix[k].tolist(),
+            "radius": 0.5 * float(canal.radii[k])}
+    for _ in range(3):
+        assert live.client.put("/skills/again/scene", json={"obstacles": [ball]}).status_code == 200
+    assert live.client.delete("/skills/again/scene").status_code == 204  # version 4: none
+    with PoseStreamer("again", "before", endpoint=live.endpoint) as ps:
+        drive(ps, canal.directrix[0].copy(), 5)  # the bridge serves the skill and its scene
+    assert live.client.delete("/skills/again").status_code == 204
+    make_skill(live.client, "again", 3)
+    assert live.client.put("/skills/again/scene", json={"obstacles": [ball]}).json()["version"] == 1
+    with PoseStreamer("again", "after", endpoint=live.endpoint) as ps:
+        _, seen = drive(ps, canal.directrix[0].copy(), 400)
+    scene = scene_from_list([ball], 3)
+    targets = np.array([a.target for _, a in seen])
+    assert "detour" in {a.status for _, a in seen}
+    assert free_distances(targets, scene).min() >= -1e-9

@@ -163,6 +163,8 @@ class ModelTable:
         bounded, expiring negative cache instead."""
         if entry.status == "unknown_skill":
             self.models.pop(skill, None)
+            with self._scene_lock:
+                self.scenes.pop(skill, None)  # the deleted skill's: not a later one's
             entry.expires = time.monotonic() + self.options.negative_ttl_s
             unknown = self.unknown
             with self._unknown_lock:
@@ -179,9 +181,11 @@ class ModelTable:
                 return False
             entry.used = time.monotonic() if used is None else used
             self.models[skill] = entry  # built completely before: one atomic assignment
-        if old is not None and old.created_ns != entry.created_ns:
+        if old is None or old.created_ns != entry.created_ns:
             with self._scene_lock:
-                # Another skill under the name: the scene known is the deleted one's.
+                # Another skill under the name, or no entry to tell (the deleted skill's was
+                # dropped): the scene known may be the deleted one's, whose version a new
+                # skill's scenes start below. Read again from the database.
                 self.scenes.pop(skill, None)
         if entry.status == "ok":
             self._apply_scene(skill, entry)
