@@ -164,7 +164,7 @@ class ModelTable:
         if entry.status == "unknown_skill":
             self.models.pop(skill, None)
             with self._scene_lock:
-                self.scenes.pop(skill, None)  # the deleted skill's: not a later one's
+                self.scenes.pop(skill, None)  # forgotten with the skill, not kept for ever
             entry.expires = time.monotonic() + self.options.negative_ttl_s
             unknown = self.unknown
             with self._unknown_lock:

@@ -83,7 +83,7 @@ class _Download(FileResponse):
                     f"got {text[:80]!r}", "Range"), 416, headers={"Content-Range": f"bytes */{size}"})
                 await refused(scope, receive, send)
                 return
-            if text is not None and len(kept) < len(text.split("=", 1)[1].split(",")):
+            if text is not None and len(kept) <= text.count(","):
                 # a set is satisfiable when one of its ranges is: the others are left out,
                 # where Starlette refuses the whole set
                 scope = {**scope, "headers": [*_without(headers, b"range"),
