@@ -33,6 +33,7 @@ from canal_service.service import CanalService
 from canal_service.storage import Database
 from canal_testing import free_port
 from live_helpers import arc, wait_until
+from sqlalchemy import event
 
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
@@ -397,3 +398,43 @@ def test_skills_without_a_model_or_unknown_are_answered_through_the_loader_too(
         assert [a.status for a in answers] == [status] * 3, skill
         assert answers[0].message  # says why
     assert "nosuchskill" in bridge.models.unknown and bridge.path.parked == {}
+
+
+# ---- a skill deleted while its model is read ---------------------------------------------------
+
+
+@pytest.mark.parametrize("again", [False, True], ids=["deleted", "created-again"])
+def test_a_model_deleted_between_finding_and_reading_it_is_read_afresh(
+        database_url, service, again):
+    """Another replica deletes the skill (and maybe creates and fits it again) after the
+    bridge found the latest model's row and before it read the row: the bridge asks again and
+    gets the skill as it now is, and a fit notice neither fails nor logs a traceback."""
+    other = CanalService(Database(database_url), Metrics())
+    fired: list[str] = []
+
+    def delete_before_the_row_is_read(_conn, _cursor, statement, *_args):
+        if fired or not statement.startswith("SELECT models.id") or "models.id = ?" not in statement:
+            return
+        fired.append(statement)
+        other.delete_skill("p3")
+        if again:
+            add_skill(other, "p3")
+
+    engine = service.db.read_engine
+    event.listen(engine, "before_cursor_execute", delete_before_the_row_is_read)
+    table = ModelTable(service, BridgeOptions(preload_max=64))
+    try:
+        entry = table.load("p3")
+        assert fired, "the read of the model row was not reached"
+        fired.clear()
+        assert table.updated("p3", None, 1) == (None if not again else
+                                                 other.latest_revision("p3"))
+    finally:
+        event.remove(engine, "before_cursor_execute", delete_before_the_row_is_read)
+        other.db.dispose()
+    if again:
+        assert entry.status == "ok" and entry.version == 1
+        assert table.models["p3"].status == "ok"
+    else:
+        assert entry.status == "unknown_skill"
+        assert "p3" not in table.models and "p3" in table.unknown

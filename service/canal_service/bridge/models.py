@@ -38,13 +38,16 @@ from canal_core.tracker_obstacles import scene_tables
 from canal_protocol import keys as keyspace
 from canal_protocol import wire
 
-from ..errors import NoModelYet, SkillNotFound
+from ..errors import ModelVersionNotFound, NoModelYet, SkillNotFound
 from ..service import CanalService
 from .config import BridgeOptions
 
 log = logging.getLogger("canal_service.bridge")
 
 _SERIALS = itertools.count(1)
+#: reads of a skill's latest model, each finding its row deleted before reading it, before
+#: the error is raised (one delete or re-creation takes one more)
+_READ_ATTEMPTS = 3
 
 
 @dataclass(eq=False)
@@ -147,12 +150,19 @@ class ModelTable:
                     return current
             except (SkillNotFound, NoModelYet):
                 pass  # deleted meanwhile: the full read below says which entry it gets
-        try:
-            canal, revision, _dim = self.service.latest_model(skill)
-        except SkillNotFound as exc:
-            return ModelEntry("unknown_skill", message=exc.message)
-        except NoModelYet as exc:
-            return ModelEntry("no_model", dim=exc.dim, message=exc.message)
+        for attempt in range(_READ_ATTEMPTS):
+            try:
+                canal, revision, _dim = self.service.latest_model(skill)
+                break
+            except SkillNotFound as exc:
+                return ModelEntry("unknown_skill", message=exc.message)
+            except NoModelYet as exc:
+                return ModelEntry("no_model", dim=exc.dim, message=exc.message)
+            except ModelVersionNotFound:
+                # The latest row was deleted between finding it and reading it (the skill
+                # deleted, refitted elsewhere or created again): asking again says which.
+                if attempt == _READ_ATTEMPTS - 1:
+                    raise
         if current is not None and current.status == "ok" and current.revision == revision:
             return current
         return ok_entry(revision[1], canal, self.options.lookahead, created_ns=revision[0])
