@@ -9,7 +9,14 @@ are described in :mod:`canal_protocol.wire`, the module robots import.
 
 from __future__ import annotations
 
-from .binary import decode_pose, decode_target, encode_pose, encode_target, pack_target
+from .binary import (
+    HEADER,
+    decode_pose,
+    decode_target,
+    encode_pose,
+    encode_target,
+    pack_target,
+)
 from .cdr import RosStamp, decode_pose_cdr, encode_pose_stamped_cdr, pose_stamped_columns
 from .json import (
     decode_pose_json,
@@ -25,7 +32,9 @@ from .messages import (
     FORMAT_CDR,
     FORMAT_JSON,
     JSON_ENCODING,
+    KIND_POSE,
     NO_ROUTE,
+    POSE_RESTART,
     Pose,
     Target,
     WireError,
@@ -44,6 +53,7 @@ __all__ = [
     "RosStamp",
     "Target",
     "WireError",
+    "asks_restart",
     "decode_pose",
     "decode_pose_as",
     "decode_pose_by_encoding",
@@ -91,6 +101,28 @@ def pose_format(encoding: str, data: bytes) -> int:
     if first == b"\x00":
         return FORMAT_CDR
     return FORMAT_BINARY
+
+
+def asks_restart(fmt: int, data: bytes) -> bool:
+    """Whether a pose in format ``fmt`` carries the restart flag, read without decoding the
+    whole pose (binary: one header byte); False for a payload that is no usable pose.
+
+    The live path coalesces a stream's backlog to its newest pose without decoding the
+    others; a restart among them must survive, or the newest pose is judged against the
+    run the robot has left.
+    """
+    if fmt == FORMAT_BINARY:
+        return (len(data) >= HEADER.size and data[1] == KIND_POSE
+                and bool(data[2] & POSE_RESTART))
+    if fmt == FORMAT_JSON:
+        # the key may be written with escapes ("\\u0072estart"), which the decoder reads
+        if b"restart" not in data and b"\\" not in data:
+            return False
+        try:
+            return decode_pose_json(data).restart
+        except WireError:
+            return False
+    return False  # a ROS 2 PoseStamped has no restart flag
 
 
 def decode_pose_as(fmt: int, data: bytes, seq: int = 0) -> tuple[Pose, RosStamp | None]:

@@ -132,6 +132,49 @@ def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -
         assert got.status == "ok" and got.section <= 6, got
 
 
+@pytest.mark.parametrize("encoding", ["json", "binary"])
+def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(live, encoding: str) -> None:
+    """A robot paused, was carried back to the start and sends its new run in a burst (a
+    driver flushing its queue) while the bridge is busy: the burst is coalesced to its newest
+    pose, and the restart its first pose asks for must still be made. Dropped with the
+    coalesced poses, the newest was judged against the old run and answered with a target
+    far along the canal, where the robot no longer is."""
+    import threading
+    import time
+
+    c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
+    bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
+    with PoseStreamer("arc3", f"burst-restart-{encoding}", endpoint=live.endpoint,
+                      encoding=encoding) as ps, \
+            PoseStreamer("arc3", f"busy-{encoding}", endpoint=live.endpoint,
+                         session=ps.session) as busy:
+        x, before = _follow(ps, c[60] + 0.002, 5)
+        assert before.section >= 55, before
+        time.sleep(0.6)  # the pause: the robot is carried back to the start
+        gate = threading.Event()
+        original = bridge.path._handle
+
+        def held(batch):  # type: ignore[no-untyped-def]
+            gate.wait(5.0)
+            return original(batch)
+
+        bridge.path._handle = held
+        try:
+            busy.send(c[30].tolist())  # taken by the held worker: the burst queues behind it
+            time.sleep(0.1)
+            start = c[5] + 0.002
+            seqs = [ps.send(start.tolist(), restart=True)]
+            seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(1, 30)]
+            time.sleep(0.3)
+        finally:
+            gate.set()
+            bridge.path._handle = original
+        newest = ps.wait_for(seqs[-1], 2.0)
+    assert newest is not None and newest.coalesced >= 16, newest  # the burst was coalesced
+    assert newest.status == "ok" and newest.section <= 7, newest
+    assert np.linalg.norm(np.array(newest.target) - start) < 0.05, newest
+
+
 def _loop(client, name: str, angle: float, radius: float = 0.3,  # type: ignore[no-untyped-def]
           n: int = 120) -> np.ndarray:
     """The directrix of skill ``name``: four circles of radius about ``radius`` swept over

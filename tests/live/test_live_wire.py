@@ -186,3 +186,33 @@ def test_a_coordinate_just_past_the_bound_is_not_shown_as_the_bound(encode):
         decode(data)
     assert "got 1e+15" not in refused.value.message
     assert repr(1.0000001e15) in refused.value.message, refused.value.message
+
+
+def test_the_restart_flag_is_read_without_decoding_the_pose_as_decoding_reads_it():
+    """What the overload path keeps of a coalesced backlog: the restart flag as the decoder
+    reads it, in every format; False for what is no pose."""
+    from canal_protocol.codecs import asks_restart
+
+    payloads = [
+        wire.encode_pose(1, [0.1, 0.2, 0.3], restart=True),
+        wire.encode_pose(2, [0.1, 0.2], t=1.5, restart=True),
+        wire.encode_pose(3, [0.1, 0.2, 0.3], orientation=[0, 0, 0, 1]),
+        wire.encode_pose_json(4, [0.1, 0.2, 0.3], restart=True),
+        wire.encode_pose_json(5, [0.1, 0.2, 0.3]),
+        b'{"seq": 6, "position": [0.1, 0.2, 0.3], "restart": false}',
+        b'{"seq": 7, "position": [0.1, 0.2, 0.3], "\\u0072estart": true}',
+        b'{"seq": 8, "position": [0.1, 0.2, 0.3], "restart": "yes"}',
+        b'{"seq": 9, "note": "restart"}',
+        b"\x01\x01\x04",  # a truncated binary header
+        wire.encode_pose_stamped_cdr(wire.RosStamp(1, 0, "base"), [0.1, 0.2, 0.3],
+                                     [0.0, 0.0, 0.0, 1.0]),
+    ]
+    for data in payloads:
+        fmt = wire.pose_format("zenoh/bytes", data)
+        try:
+            expected = wire.decode_pose_as(fmt, data)[0].restart
+        except wire.WireError:
+            expected = False
+        assert asks_restart(fmt, data) == expected, data
+    assert [asks_restart(wire.pose_format("zenoh/bytes", d), d) for d in payloads[:5]] == [
+        True, True, False, True, False]

@@ -9,6 +9,7 @@ from dataclasses import replace
 from typing import Any
 
 from canal_protocol import wire
+from canal_protocol.codecs import asks_restart
 from canal_protocol.codecs.messages import check_pose_numbers
 
 from .answers import Answers
@@ -17,6 +18,18 @@ from .streams import ENC_JSON, Job, Stream
 
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 _MAX_BYTES = wire.MAX_POSE_BYTES
+
+
+def _latest_restart(samples: list[Any]) -> int | None:
+    """The index of the latest sample before the newest that asks for a restart, if any."""
+    for i in range(len(samples) - 2, -1, -1):
+        s = samples[i]
+        data = s.payload.to_bytes()
+        encoding = s.encoding
+        fmt = _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
+        if asks_restart(fmt, data):
+            return i
+    return None
 
 
 class Decoder(Answers):
@@ -66,17 +79,24 @@ class Decoder(Answers):
                 if job is not None:
                     first.append(job)
                 continue
+            keep: tuple[int, ...] | None = None
             if n > backlog:
-                skipped = n - 1
-                if st.capture is not None:
-                    for s in samples[:-1]:
-                        decode(st, s, False)
+                # The newest pose answers the backlog. The latest restart before it is
+                # answered too, first: dropped, the re-location it asks for would be lost and
+                # the newest pose judged against the run the robot has left.
+                restart = _latest_restart(samples)
+                keep = (n - 1,) if restart is None else (restart, n - 1)
+                skipped = n - len(keep)
                 st.coalesced += skipped
                 st.rec_coalesced += skipped
                 counts.coalesced += skipped
-                samples = samples[-1:]
+            capture = st.capture is not None
             k = 0
-            for s in samples:
+            for i, s in enumerate(samples):
+                if keep is not None and i not in keep:
+                    if capture:  # a capture keeps every pose, in order
+                        decode(st, s, False)
+                    continue
                 job = decode(st, s, True)
                 if job is None:
                     continue
