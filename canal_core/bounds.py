@@ -114,6 +114,16 @@ def canal_extent(directrix: FloatArray, radii: FloatArray) -> tuple[FloatArray, 
     return centre, max(size, 1e-12 * float(np.abs(directrix).max()), 1e-300)
 
 
+def shown_past(value: float, *bounds: float) -> str:
+    """``value`` to six significant digits, or to as many more as tell it from each of
+    ``bounds``: a value just past a bound must not read as the bound in a refusal."""
+    for digits in (6, 9, 12, 15):
+        text = f"{value:.{digits}g}"
+        if all(text != f"{b:.{digits}g}" for b in bounds):
+            return text
+    return repr(value)
+
+
 def check_reach(point: Any, centre: FloatArray, size: float, field: str) -> FloatArray:
     """Return ``point`` (D,) once it is within ``MAX_REACH`` canal sizes of ``centre`` (and
     within ``MAX_COORDINATE``); otherwise an :class:`InvalidInputError` naming ``field``."""
@@ -123,7 +133,7 @@ def check_reach(point: Any, centre: FloatArray, size: float, field: str) -> Floa
     if not distance <= reach:
         raise InvalidInputError(
             f"expected {field} within {MAX_REACH:g} canal sizes ({reach:.6g}) of the canal's "
-            f"centre, got a point {distance:.6g} away: the canal cannot be computed with at "
+            f"centre, got a point {shown_past(distance, reach)} away: the canal cannot be computed with at "
             "that distance; check the units and frame of the point",
             field=field,
         )
@@ -138,7 +148,8 @@ def check_duration(value: Any, field: str = "duration") -> float:
     seconds = float(value)
     if not MIN_DURATION <= seconds <= MAX_DURATION:
         raise InvalidInputError(
-            f"expected {field} between {MIN_DURATION:g} s and {MAX_DURATION:g} s, got {seconds:.6g}",
+            f"expected {field} between {MIN_DURATION:g} s and {MAX_DURATION:g} s, "
+            f"got {shown_past(seconds, MIN_DURATION, MAX_DURATION)}",
             field=field,
         )
     return seconds
@@ -151,7 +162,8 @@ def check_times(values: Any, field: str = "timestamps") -> FloatArray:
     if at is None:
         return array
     raise InvalidInputError(
-        f"expected times within +-{MAX_TIME:g} s, got {float(array.ravel()[at]):.6g} at row {at}",
+        f"expected times within +-{MAX_TIME:g} s, got {shown_past(float(array.ravel()[at]), MAX_TIME, -MAX_TIME)} "
+        f"at row {at}",
         field=f"{field}[{at}]",
     )
 

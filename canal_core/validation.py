@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from .bounds import shown_past
 from .errors import InvalidInputError
 
 FloatArray = npt.NDArray[np.float64]
@@ -275,6 +276,8 @@ def check_fraction(value: Any, field: str, maximum: float = 0.25) -> float:
 #: drivers often send float32 quaternions, renormalised loosely; 1e-3 accepts those and still
 #: catches Euler angles, rotation vectors or unnormalised garbage.
 QUATERNION_NORM_TOLERANCE = 1e-3
+#: the norms a quaternion may have, shown apart from a norm just past them
+_NORM_BOUNDS = (1.0 - QUATERNION_NORM_TOLERANCE, 1.0 + QUATERNION_NORM_TOLERANCE)
 
 
 def check_quaternions(
@@ -305,7 +308,7 @@ def check_quaternions(
         i = int(np.argmax(bad))
         raise InvalidInputError(
             f"expected unit quaternions in {field} (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
-            f"got norm {norms[i]:.6g} at row {i}",
+            f"got norm {shown_past(float(norms[i]), *_NORM_BOUNDS)} at row {i}",
             field=f"{field}[{i}]",
         )
     return np.asarray(array / norms[:, None])
@@ -324,7 +327,7 @@ def check_quaternion(value: Any, field: str = "start_orientation") -> FloatArray
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidInputError(
             f"expected {field} as a unit quaternion (norm 1 +- {QUATERNION_NORM_TOLERANCE}), "
-            f"got norm {norm:.6g}",
+            f"got norm {shown_past(norm, *_NORM_BOUNDS)}",
             field=field,
         )
     return np.asarray(array / norm)

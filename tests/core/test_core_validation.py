@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import canal_core
-from canal_core import DegenerateCanalError, InvalidInputError, datasets, validation
+from canal_core import DegenerateCanalError, InvalidInputError, bounds, datasets, validation
 
 
 def good() -> list[np.ndarray]:
@@ -334,3 +334,17 @@ def test_a_model_file_with_arrays_that_do_not_fit_is_refused_naming_them(key: st
     with pytest.raises(canal_core.ModelFormatError) as caught:
         canal_core.Canal.from_dict({**data, key: value(data)})
     assert caught.value.field == key
+
+
+@pytest.mark.parametrize("call,got", [
+    (lambda: bounds.check_duration(1_000_000.5), "1000000.5"),
+    (lambda: bounds.check_duration(0.0009999999), "0.0009999999"),
+    (lambda: validation.check_quaternion([0.0, 0.0, 0.0, 1.0010001]), "1.0010001"),
+    (lambda: validation.check_quaternion([0.0, 0.0, 0.0, 2.0]), "norm 2"),
+])
+def test_a_value_just_past_a_bound_is_not_shown_as_the_bound(call, got: str) -> None:
+    """Rounded to six digits, 1,000,000.5 s read "got 1e+06" beside "between ... and
+    1e+06 s": the message must show what tells the value from the bound."""
+    with pytest.raises(InvalidInputError) as info:
+        call()
+    assert got in info.value.message, info.value.message
