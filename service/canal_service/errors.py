@@ -71,10 +71,6 @@ class TooLarge(ServiceError):
     """An upload whose content exceeds a resource limit (points, decompressed bytes, ...)."""
 
 
-class TooSlow(ServiceError):
-    """An upload that needs more server time to parse than one upload may take."""
-
-
 class FitTooSlow(ServiceError):
     """A fit estimated to need, or found needing, more server time than one fit may take."""
 
@@ -213,7 +209,6 @@ HTTP_STATUS: Mapping[type[Exception], tuple[int, str]] = {
     BadUpload: (400, "bad_upload"),
     UnsupportedMediaType: (415, "unsupported_media_type"),
     TooLarge: (413, "payload_too_large"),
-    TooSlow: (422, "upload_too_slow"),
     FitTooSlow: (422, "fit_too_slow"),
     FitCancelled: (409, "conflict"),
     ReproductionTooSlow: (422, "reproduction_too_slow"),
@@ -369,7 +364,7 @@ def validation_error_body(errors: list[dict[str, Any]]) -> dict[str, Any]:
                       details)
 
 
-def _unparsable_body(cause: BaseException) -> str:
+def unparsable_body(cause: BaseException) -> str:
     """What was wrong with a JSON body the parser could not read (FastAPI says only "There
     was an error parsing the body")."""
     if isinstance(cause, UnicodeDecodeError):
@@ -430,7 +425,7 @@ def install_error_handlers(app: FastAPI) -> None:
             field = "Authorization"
         message = str(exc.detail)
         if exc.status_code == 400 and exc.__cause__ is not None:
-            message = _unparsable_body(exc.__cause__)
+            message = unparsable_body(exc.__cause__)
         # The router's own 404 and 405 say only "Not Found" / "Method Not Allowed": name the
         # request's method and path, and what the path takes.
         path = request.url.path[:200]

@@ -87,6 +87,27 @@ def test_a_json_body_that_cannot_be_parsed_gets_a_type_from_the_error_table(
     assert said in error["message"]
 
 
+@pytest.mark.parametrize("path", ["/skills/pour/reproductions", "/skills/pour/demonstrations"])
+@pytest.mark.parametrize(("body", "said"), [
+    (b'{"start": [[0, 0, \xff]], "positions": [[0, 0, \xff]]}', "UTF-8"),
+    (b"[" * 100_000 + b"]" * 100_000, "nested too deep"),
+    (b'{"positions": [' * 3000 + b"]}" * 3000, "nested too deep"),
+    (b'{"start": [' + b"9" * 5000 + b', 0, 0], "positions": [[' + b"9" * 5000 + b", 0, 0]]}",
+     "too many digits"),
+])
+def test_a_body_that_is_no_json_in_utf8_is_a_bad_request_on_every_route(
+        http: httpx.Client, path: str, body: bytes, said: str) -> None:
+    """Uploads parse their JSON themselves (on the upload lane); what they cannot read is
+    answered as every other route answers it."""
+    before = http.get("/skills/pour").json()
+    r = http.post(path, content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 400, r.text
+    error = r.json()["error"]
+    assert error["type"] == "bad_request" and error["field"] == "body", error
+    assert said in error["message"], error
+    assert http.get("/skills/pour").json() == before
+
+
 def test_a_client_that_leaves_mid_upload_is_not_an_unhandled_error(
         server: LiveServer, caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.INFO, logger="canal_service")
