@@ -21,8 +21,9 @@ nearest route would go between the two ways, where neither went (LASA ``Multi_Mo
 held out leave-one-out: a route of two demonstrations leaves one alone in every fold that
 holds the other out). A route whose demonstrations are all the same path (one file uploaded
 twice) shows its way once too: it is fitted as the first of them, with a borrowed envelope.
-Only when no route has two demonstrations to lend its envelope do lone
-demonstrations join the route nearest to them. ``routes=1`` forces one route (one canal).
+Only when no route has two different demonstrations to lend its envelope does a route that
+shows its way once (one demonstration, or copies of one) join the route nearest to it.
+``routes=1`` forces one route (one canal).
 
 Route numbers follow the order in which the demonstrations first appear. A correction kept over
 a refit goes to the route its samples lie along (R3 of :func:`way_of`), so it follows its way
@@ -49,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DegenerateCanalError, InvalidInputError, ModelFormatError
+from .errors import InvalidInputError, ModelFormatError
 from .options import DEFAULT_ROUTE_SEPARATION
 from .validation import BoolArray, FloatArray, IntArray, check_int, check_point
 
@@ -103,8 +104,8 @@ def route_work(n_demos: int) -> float:
 def route_labels(demos: list[FloatArray], routes: int | None = None,
                  separation: float = ROUTE_SEPARATION) -> IntArray:
     """Route 0, 1, ... of each demonstration (in order of first appearance), shape (n,):
-    average linkage of (R1) cut at ``separation``, or into ``routes`` clusters when given;
-    every route has two demos or more (:func:`route_split`)."""
+    average linkage of (R1) cut at ``separation``, or into ``routes`` clusters when given
+    (:func:`route_split`)."""
     return route_split(demos, routes, separation).labels
 
 
@@ -114,19 +115,24 @@ class RouteSplit:
 
     #: Route 0, 1, ... of each demonstration, shape (n,).
     labels: IntArray
-    #: Demonstrations the clustering left alone in a route while no route had two to lend
-    #: its envelope: each joined the route nearest to it (indices, in order).
+    #: Demonstrations of a route that showed its way once (one demonstration, or copies of
+    #: one) while no route had two different ones to lend its envelope: the route joined the
+    #: route nearest to it (indices, in order).
     joined: tuple[int, ...]
-    #: Demonstrations alone in their route, which borrows the envelope of the route in
-    #: ``donors`` (indices, in order).
+    #: The first demonstration of each route that shows its way once, which borrows the
+    #: envelope of the route in ``donors`` (indices, in order).
     lone: tuple[int, ...] = ()
     #: The route each of ``lone`` borrows its envelope from.
     donors: tuple[int, ...] = ()
+    #: Demonstrations that are copies of one path and made a route of their own in the
+    #: clustering (groups of indices, in order), whether the route then borrowed or joined.
+    repeats: tuple[tuple[int, ...], ...] = ()
 
 
 def route_split(demos: list[FloatArray], routes: int | None = None,
                 separation: float = ROUTE_SEPARATION) -> RouteSplit:
-    """:func:`route_labels`, and the lone demonstrations that joined another route."""
+    """:func:`route_labels`, and the routes that show their way once: those that joined
+    another route, those that borrow an envelope, and the copies among them."""
     from scipy.cluster.hierarchy import fcluster, linkage
     from scipy.spatial.distance import squareform
 
@@ -136,7 +142,8 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
         if routes > max(n // 2, 1):
             raise InvalidInputError(f"expected routes <= {max(n // 2, 1)} (each route needs 2 "
                                     f"demonstrations; {n} are fitted), got {routes}", field="routes")
-    if n < 4 or routes == 1:
+    # Three demonstrations already make a route of two and a way shown once.
+    if n < 3 or routes == 1:
         return RouteSplit(np.zeros(n, dtype=np.int64), ())
     dist = route_distances(demos)
     tree = linkage(squareform(dist, checks=False), "average")
@@ -144,30 +151,34 @@ def route_split(demos: list[FloatArray], routes: int | None = None,
         raw = fcluster(tree, separation, criterion="distance")
     else:
         raw = fcluster(tree, routes, criterion="maxclust")
-    labels = np.unique(raw, return_inverse=True)[1].astype(np.int64)
-    # Lone demonstrations join the route nearest to them (average distance) only while no
-    # route has two to lend its envelope.
+    labels = _in_order(np.unique(raw, return_inverse=True)[1].astype(np.int64))
+    once = shown_once(labels, dist)
+    repeats = tuple(tuple(int(i) for i in members) for members in
+                    (np.flatnonzero(labels == k) for k in np.flatnonzero(once)) if members.size > 1)
+    # Copies of one path show its way no wider than one demonstration does: a route of them
+    # has no envelope to lend either. A route that shows its way once joins the route nearest
+    # to it (average distance) only while no route has two different demonstrations.
     joined: list[int] = []
-    while True:
-        counts = np.bincount(labels)
-        lone = np.flatnonzero(counts < 2)
-        if lone.size == 0 or counts.size == 1 or counts.max() >= 2:
-            break
-        j = int(np.flatnonzero(labels == lone[0])[0])
-        joined.append(j)
-        labels[labels == lone[0]] = _nearest_route(j, [k for k in range(counts.size) if k != lone[0]],
-                                                   labels, dist)
-        labels = np.unique(labels, return_inverse=True)[1].astype(np.int64)
-    # Route 0 is the first demonstration's, route 1 the next new one's, ...
-    _, first = np.unique(labels, return_index=True)
-    rank = np.argsort(np.argsort(first))
-    final = np.asarray(rank[labels], dtype=np.int64)
+    while once.size > 1 and once.all():
+        members = np.flatnonzero(labels == 0)
+        joined.extend(int(j) for j in members)
+        labels[members] = _nearest_route(int(members[0]), range(1, once.size), labels, dist)
+        labels = _in_order(np.unique(labels, return_inverse=True)[1].astype(np.int64))
+        once = shown_once(labels, dist)
     # Lone demonstrations that joined each other make a route of their own: not joined.
     alone = np.zeros(n, dtype=bool)
     alone[joined] = True
-    kept = tuple(j for j in sorted(joined) if np.any(~alone & (final == final[j])))
-    lone_demos, donors = _lone_routes(final, dist)
-    return RouteSplit(final, kept, lone_demos, donors)
+    kept = tuple(j for j in sorted(joined) if np.any(~alone & (labels == labels[j])))
+    lone_demos, donors = _lone_routes(labels, dist)
+    return RouteSplit(labels, kept, lone_demos, donors, repeats)
+
+
+def _in_order(labels: IntArray) -> IntArray:
+    """Routes renumbered so that route 0 is the first demonstration's, route 1 the next new
+    one's, ..., shape (n,)."""
+    _, first = np.unique(labels, return_index=True)
+    rank = np.argsort(np.argsort(first))
+    return np.asarray(rank[labels], dtype=np.int64)
 
 
 def _nearest_route(j: int, among: Any, labels: IntArray, dist: FloatArray) -> int:
@@ -212,15 +223,16 @@ def route_donors(demos: list[FloatArray], labels: IntArray) -> dict[int, int]:
     """For each route that shows its way once (:func:`shown_once`), the route of two or more
     different demonstrations that lends it its envelope: the nearest by (R1), as
     :func:`route_split` chooses. Raises :class:`InvalidInputError` when no route has two
-    different demonstrations."""
+    different demonstrations (:func:`route_split` joins such routes instead)."""
     dist = route_distances(demos)
     once = shown_once(labels, dist)
     if not np.any(once):
         return {}
     if np.all(once):
         raise InvalidInputError(f"expected a route of at least 2 different demonstrations to lend its "
-                                f"envelope to the routes of one, got route sizes "
-                                f"{np.bincount(labels).tolist()}", field="labels")
+                                f"envelope to the routes of one, got routes each of one demonstration "
+                                f"or copies of one (route sizes {np.bincount(labels).tolist()})",
+                                field="labels")
     return _donor_routes(labels, *_lone_routes(labels, dist))
 
 
@@ -419,18 +431,8 @@ def fit_routes(demos: Any, timestamps: Any = None, routes: int | None = None,
                                  still_tolerance=options.get("still_tolerance", STILL_TOLERANCE))
             continue
         member_stamps = [stamps[j] for j in members]
-        try:
-            canals[k] = fit([demos[j] for j in members],
-                            None if all(s is None for s in member_stamps) else member_stamps,
-                            orientations=None if quats is None else [quats[j] for j in members],
-                            **options)
-        except DegenerateCanalError as exc:
-            if not same_path(route_distances([arrays[j] for j in members])):
-                raise
-            # Every route repeats one path: none has a width of its own to lend.
-            raise DegenerateCanalError(
-                f"expected a route of at least 2 different demonstrations, got demonstrations "
-                f"{members.tolist()} of route {k} identical and no route with two different ones "
-                f"to lend it a width ({exc.message}); delete the repeats or fit one route",
-                field="demos") from exc
+        canals[k] = fit([demos[j] for j in members],
+                        None if all(s is None for s in member_stamps) else member_stamps,
+                        orientations=None if quats is None else [quats[j] for j in members],
+                        **options)
     return Routes(tuple(canals), pooled, labels)

@@ -167,9 +167,37 @@ def test_a_way_uploaded_twice_is_a_way_shown_once_not_a_degenerate_fit() -> None
     assert routes.canals[2].n_demos == 1 and routes.contains(over).all()
     choice, result = routes.reproduce_detailed(over[0] + np.array([0.0, 0.01, 0.0]))
     assert choice.route == 2 and np.allclose(result.positions[-1], over[-1], atol=1e-6)
-    # Every route a repeated demonstration: no route has a width to lend; the error says so.
+
+
+def test_routes_of_identical_copies_join_when_no_route_has_two_different_demonstrations() -> None:
+    from canal_core.routes import route_split
+
+    demos = two_route_demos()
+    above, below = demos[0], demos[4]
+    # One file uploaded two or three times and one demonstration the other way: each way is
+    # shown once, so no route has a width to lend; the copies join the other way's route.
+    for ways in ([above, above.copy(), above.copy(), below], [above, above.copy(), below]):
+        copies = tuple(range(len(ways) - 1))
+        split = route_split(ways)
+        assert split.labels.tolist() == [0] * len(ways) and split.lone == ()
+        assert split.repeats == (copies,) and split.joined == copies
+        routes = canal_core.fit_routes(ways, n_samples=30)
+        assert routes.n_routes == 1 and routes.contains(np.vstack(ways)).all()
+    # Both ways uploaded twice: one route of the two ways, each named as repeats.
+    split = route_split([above, above.copy(), below, below.copy()])
+    assert split.labels.tolist() == [0] * 4 and split.repeats == ((0, 1), (2, 3))
+    assert split.joined == (0, 1)
+    assert canal_core.fit_routes([above, above, below, below], n_samples=40).n_routes == 1
+    # A route of two different demonstrations lends its width to a copied way, at three too.
+    split = route_split([above, demos[1], below, below.copy()])
+    assert split.labels.tolist() == [0, 0, 1, 1] and split.lone == (2,) and split.donors == (0,)
+    assert split.repeats == ((2, 3),) and split.joined == ()
+    three = route_split([above, demos[1], below])
+    assert three.labels.tolist() == [0, 0, 1] and three.lone == (2,) and three.repeats == ()
+    assert canal_core.fit_routes([above, demos[1], below], n_samples=30).n_routes == 2
+    # Only copies of one way: there is no width to learn at all.
     with pytest.raises(canal_core.DegenerateCanalError, match="identical"):
-        canal_core.fit_routes([demos[0], demos[0], demos[4], demos[4]], n_samples=40)
+        canal_core.fit_routes([above, above.copy(), above.copy()], n_samples=30)
 
 
 def test_fit_lone_refuses_a_demonstration_of_another_dimension() -> None:
