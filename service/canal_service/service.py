@@ -439,22 +439,41 @@ class CanalService:
         except canal_core.CanalError as exc:
             raise CanalRejected(exc, exc.message, field=exc.field) from exc
         labels = split.labels
-        notes = [f"demonstration {demo_ids[j]} goes a way of its own; no route has two "
-                 f"demonstrations to lend it a width, so it joined route {int(labels[j])} (and "
-                 "widens it): show that way once more to learn it as a route, or delete it"
-                 for j in split.joined]
+        copies = {group[0]: group for group in split.repeats}
+
+        def named(group: tuple[int, ...]) -> str:
+            ids = [str(demo_ids[i]) for i in group]
+            return f"{', '.join(ids[:-1])} and {ids[-1]}"
+
+        notes: list[str] = []
+        later = {i for group in split.repeats for i in group[1:]}
+        for j in (i for i in split.joined if i not in later):
+            if j in copies:
+                notes.append(f"demonstrations {named(copies.pop(j))} are identical: they show one way "
+                             "once, and no route has two different demonstrations to lend it a width, "
+                             f"so they joined route {int(labels[j])} (and widen it): show that way "
+                             "again (not the same file) to learn it as a route, or delete the repeats")
+                continue
+            notes.append(f"demonstration {demo_ids[j]} goes a way of its own; no route has two "
+                         "different demonstrations to lend it a width, so it joined route "
+                         f"{int(labels[j])} (and widens it): show that way once more to learn it as "
+                         "a route, or delete it")
         for j, donor in zip(split.lone, split.donors, strict=True):
-            same = [demo_ids[i] for i in np.flatnonzero(labels == labels[j])]
-            if len(same) > 1:
-                notes.append(f"demonstrations {', '.join(map(str, same[:-1]))} and {same[-1]} are "
-                             f"identical: route {int(labels[j])} shows its way once, with the width "
-                             f"of route {donor} in proportion to its length; show that way again "
-                             "(not the same file) to learn its own width, or delete the repeats")
+            if j in copies:
+                notes.append(f"demonstrations {named(copies.pop(j))} are identical: route "
+                             f"{int(labels[j])} shows its way once, with the width of route {donor} "
+                             "in proportion to its length; show that way again (not the same file) "
+                             "to learn its own width, or delete the repeats")
                 continue
             notes.append(f"demonstration {demo_ids[j]} goes a way of its own alone: it is route "
                          f"{int(labels[j])}, with the width of route {donor} in proportion to its "
                          "length (one demonstration shows a way, not how far it strays): show that way "
                          "once more to learn its own width, or delete it if it was a slip")
+        # Copies that another way joined: their route's width is only what that way adds.
+        notes.extend(f"demonstrations {named(group)} are identical: they show the way of route "
+                     f"{int(labels[group[0]])} once, and its width comes only from the way that "
+                     "joined it; show that way again (not the same file), or delete the repeats"
+                     for group in copies.values())
         return (None if int(labels.max(initial=0)) == 0 else [int(v) for v in labels]), notes
 
     def list_models(self, name: str, offset: int, limit: int) -> schemas.Page[schemas.ModelSummary]:

@@ -310,3 +310,28 @@ def test_a_demonstration_in_other_units_is_named_in_the_fit_notes(
         assert (hint in notes[0]) if hint else ("among" not in notes[0]), notes
     same = http.post("/skills/units/fit", json={"n_samples": 60, "demo_ids": ids[:3]})
     assert same.status_code == 201 and same.json()["notes"] == [], same.json()
+
+
+@pytest.mark.parametrize("copies", [2, 3])
+def test_a_way_uploaded_again_with_one_other_way_fits_one_route_and_the_notes_say_so(
+        http: httpx.Client, copies: int) -> None:
+    assert http.post("/skills", json={"name": "dup", "dim": 3}).status_code == 201
+    ids = [http.post("/skills/dup/demonstrations", json={"positions": two_route_demo(j).tolist()}
+                     ).json()["id"] for j in [0] * copies + [4]]
+    named = ", ".join(map(str, ids[:copies - 1])) + f" and {ids[copies - 1]} are identical"
+    for body in ({"n_samples": 30}, {"n_samples": 30, "route_separation": 0.05}):
+        r = http.post("/skills/dup/fit", json=body)
+        assert r.status_code == 201, r.text
+        assert r.json()["routes"] == 1 and r.json()["demo_routes"] is None
+        (note,) = r.json()["notes"]
+        assert f"demonstrations {named}" in note and "joined route 0" in note, note
+    # The other way uploaded first: it joins the copies' route, and both are named.
+    assert http.post("/skills", json={"name": "dup2", "dim": 3}).status_code == 201
+    ids = [http.post("/skills/dup2/demonstrations", json={"positions": two_route_demo(j).tolist()}
+                     ).json()["id"] for j in [4] + [0] * copies]
+    r = http.post("/skills/dup2/fit", json={"n_samples": 30})
+    assert r.status_code == 201 and r.json()["routes"] == 1, r.text
+    joined, copied = r.json()["notes"]
+    assert f"demonstration {ids[0]} goes a way of its own" in joined and "joined route 0" in joined
+    named = ", ".join(map(str, ids[1:-1])) + f" and {ids[-1]} are identical"
+    assert f"demonstrations {named}" in copied, copied
