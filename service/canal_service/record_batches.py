@@ -28,8 +28,10 @@ the identity with its flag clear. ``n`` counts the bridge's batches from 0 (a ga
 batch). The counts are *deltas* since the stream's previous batch: ``poses`` received
 (coalesced included), ``answered`` (ok or outside_canal), ``coalesced``, ``errors``
 (answered with an error status) and ``decimated`` (not kept for the recording). Each row is
-one kept pose and its target, so ``poses == rows + decimated`` in every batch. The message
-is exactly as long as its header says: anything else is refused whole.
+one kept pose and its target, so ``poses == rows + decimated`` in every batch. A stream may
+have several entries in one batch, each of one dimension (its skill was deleted and created
+again with another): the recorder sums them. The message is exactly as long as its header
+says: anything else is refused whole.
 """
 
 from __future__ import annotations
@@ -159,38 +161,75 @@ def _quaternions(values: tuple[Any, ...]) -> bytes:
     return _column("d", chain.from_iterable(_IDENTITY_Q if q is None else q for q in values))
 
 
-def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]]) -> bytes:
+def _dimension_runs(rows: list[tuple[Any, ...]]) -> list[list[tuple[Any, ...]]]:
+    """The rows in runs of one position dimension, in order."""
+    runs: list[list[tuple[Any, ...]]] = []
+    dim = -1
+    for row in rows:
+        if len(row[1]) != dim:
+            dim = len(row[1])
+            runs.append([])
+        runs[-1].append(row)
+    return runs
+
+
+def _stream_body(rows: list[tuple[Any, ...]], dim: int) -> list[bytes]:
+    m = len(rows)
+    cols = tuple(zip(*rows, strict=True))
+    if len(cols) == RECORD_ROW_FIELDS - 1:
+        cols = (*cols, (-1,) * m)
+    if len(cols) != RECORD_ROW_FIELDS:
+        raise WireError("bad_payload", f"expected rows of {RECORD_ROW_FIELDS - 1} or "
+                        f"{RECORD_ROW_FIELDS} fields")
+    t, pos, q, target, tq, progress, eta, section, inside, done, status, route = cols
+    return [
+        _column("q", t), _vectors(pos, dim, "position"), _quaternions(q),
+        _vectors(target, dim, "target"), _quaternions(tq),
+        _column("d", [_NAN if v is None else v for v in progress]),
+        _column("d", [_NAN if v is None else v for v in eta]), _column("i", section),
+        bytes([(RECORD_ORIENTATION if a is not None else 0)
+               | (RECORD_TARGET_ORIENTATION if b is not None else 0)
+               | (RECORD_INSIDE if c else 0) | (RECORD_DONE if d else 0)
+               for a, b, c, d in zip(q, tq, inside, done, strict=True)]),
+        bytes([STATUS_CODES[s] for s in status]),
+        _column("h", [-1 if r is None else r for r in route])]
+
+
+def encode_record_batch(bridge: str, n: int, streams: list[tuple[Any, ...]], *,
+                        left_out: list[tuple[tuple[Any, ...], Exception]] | None = None) -> bytes:
     """A recording batch (binary, version 3); ``streams`` holds ``(skill, robot, poses,
     answered, coalesced, errors, decimated, rows)`` with rows as tuples ``(t_ns, position,
     orientation|None, target, target_orientation|None, progress, eta, section, inside,
-    done, status[, route])`` (route -1 or left out: a model of one route). A stream's
-    positions and targets share one dimension."""
+    done, status[, route])`` (route -1 or left out: a model of one route). A row's position
+    and target share one dimension.
+
+    Rows of a stream whose dimension changes (its skill was deleted and created again with
+    another) are sent as one entry per run of a dimension, the later ones with ``poses ==
+    answered == rows`` and no other counts (the recorder sums a stream's entries).
+
+    A stream that cannot be encoded raises WireError, or, with ``left_out`` given, is left
+    out of the batch and appended there with its error (the other streams are sent)."""
     heads: list[list[Any]] = []
     body: list[bytes] = []
-    for skill, robot, poses, answered, coalesced, errors, decimated, rows in streams:
-        m = len(rows)
-        dim = len(rows[0][1]) if m else 0
-        heads.append([skill, robot, poses, answered, coalesced, errors, decimated, m, dim])
-        if not m:
+    for stream in streams:
+        skill, robot, poses, answered, coalesced, errors, decimated, rows = stream
+        runs = _dimension_runs(rows)
+        later = sum(len(run) for run in runs[1:])
+        parts = [(poses - later, answered - later, coalesced, errors, decimated,
+                  runs[0] if runs else []),
+                 *((len(run), len(run), 0, 0, 0, run) for run in runs[1:])]
+        try:
+            encoded = [([skill, robot, p, a, c, e, dec, len(run), len(run[0][1]) if run else 0],
+                        _stream_body(run, len(run[0][1])) if run else [])
+                       for p, a, c, e, dec, run in parts]
+        except Exception as exc:
+            if left_out is None:
+                raise
+            left_out.append((stream, exc))
             continue
-        cols = tuple(zip(*rows, strict=True))
-        if len(cols) == RECORD_ROW_FIELDS - 1:
-            cols = (*cols, (-1,) * m)
-        if len(cols) != RECORD_ROW_FIELDS:
-            raise WireError("bad_payload", f"expected rows of {RECORD_ROW_FIELDS - 1} or "
-                            f"{RECORD_ROW_FIELDS} fields")
-        t, pos, q, target, tq, progress, eta, section, inside, done, status, route = cols
-        body += [
-            _column("q", t), _vectors(pos, dim, "position"), _quaternions(q),
-            _vectors(target, dim, "target"), _quaternions(tq),
-            _column("d", [_NAN if v is None else v for v in progress]),
-            _column("d", [_NAN if v is None else v for v in eta]), _column("i", section),
-            bytes([(RECORD_ORIENTATION if a is not None else 0)
-                   | (RECORD_TARGET_ORIENTATION if b is not None else 0)
-                   | (RECORD_INSIDE if c else 0) | (RECORD_DONE if d else 0)
-                   for a, b, c, d in zip(q, tq, inside, done, strict=True)]),
-            bytes([STATUS_CODES[s] for s in status]),
-            _column("h", [-1 if r is None else r for r in route])]
+        for head, columns in encoded:
+            heads.append(head)
+            body += columns
     header = orjson.dumps({"bridge": bridge, "n": n, "streams": heads})
     return b"".join([_RECORD_PREFIX.pack(RECORD_BATCH_MAGIC, RECORD_BATCH_VERSION, len(header)),
                      header, *body])

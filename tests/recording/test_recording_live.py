@@ -8,6 +8,7 @@ serialised with ``rosbags`` (an independent implementation).
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import time
@@ -199,6 +200,87 @@ def test_ros2_cdr_stream_is_recorded_from_the_bridge(app):
     assert xs == pytest.approx([sent_x[i] for i in idx]) and idx == sorted(set(idx))
     o = poses[0]["pose"]["orientation"]
     assert np.allclose([o["x"], o["y"], o["z"], o["w"]], q)
+
+
+def _pose_stamped(position: Any, sec: int) -> bytes:
+    """A ROS 2 PoseStamped (CDR, always x, y, z) serialised by rosbags."""
+    from rosbags import typesys as rosbags
+
+    store = rosbags.get_typestore(rosbags.Stores.ROS2_HUMBLE)
+    g = "geometry_msgs/msg/"
+    msg = store.types[f"{g}PoseStamped"](
+        header=store.types["std_msgs/msg/Header"](
+            stamp=store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=0), frame_id="base"),
+        pose=store.types[f"{g}Pose"](
+            position=store.types[f"{g}Point"](x=position[0], y=position[1], z=position[2]),
+            orientation=store.types[f"{g}Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)))
+    return bytes(store.serialize_cdr(msg, f"{g}PoseStamped"))
+
+
+def _make_skill2(client: TestClient, name: str) -> np.ndarray:
+    assert client.post("/skills", json={"name": name, "dim": 2}).status_code == 201
+    for j in range(4):
+        r = client.post(f"/skills/{name}/demonstrations",
+                        json={"positions": arc_demo(j, 60, 2, 0, spread=0.03).tolist()})
+        assert r.status_code == 201, r.text
+    assert client.post(f"/skills/{name}/fit", json={"n_samples": 100}).status_code == 201
+    return np.array(client.get(f"/skills/{name}/models/latest").json()["directrix"])
+
+
+def _batch_failures(caplog: pytest.LogCaptureFixture) -> list[logging.LogRecord]:
+    return [r for r in caplog.records if r.name.startswith("canal_service")
+            and "recording batch" in r.getMessage()]
+
+
+def test_ros2_poses_on_a_2d_skill_are_recorded_as_tracked_and_other_robots_with_them(
+        app, caplog):
+    # A PoseStamped always has z; on a 2-D skill x, y are tracked and z only passed through.
+    # Its rows kept z beside a 2-D target: no batch could be encoded, so every robot's rows
+    # were lost unseen (no lost batch, no dropped row), with a traceback every 0.1 s.
+    client, endpoint, tmp = app
+    flat = _make_skill2(client, "flat")
+    onlooker = _make_skill(client, "onlooker")
+    before = _live_health(client)
+    caplog.set_level(logging.WARNING, logger="canal_service")
+    n = 40
+    sent = [flat[min(5 + k, len(flat) - 1)] for k in range(n)]
+    robot = zenoh.open(client_config(endpoint))
+    try:
+        answers: list[bytes] = []
+        robot.declare_subscriber("canal/flat/ros/target", lambda s: answers.append(b""))
+        time.sleep(0.3)
+        with PoseStreamer("onlooker", "arm", endpoint=endpoint, encoding="json") as ps:
+            for k, p in enumerate(sent):
+                if k % 2:  # a ROS 2 robot and a JSON one on the same stream
+                    robot.put("canal/flat/ros/pose", _pose_stamped([p[0], p[1], 0.7], 100 + k),
+                              encoding=wire.CDR_ENCODING)
+                else:
+                    robot.put("canal/flat/ros/pose",
+                              orjson.dumps({"seq": k, "position": p.tolist()}),
+                              encoding=zenoh.Encoding.APPLICATION_JSON)
+                ps.send(onlooker[10 + k], restart=k == 0)
+                time.sleep(0.01)
+            assert ps.wait_for(n - 1, 5.0) is not None
+        deadline = time.monotonic() + 5
+        while len(answers) < n and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert len(answers) == n
+    finally:
+        robot.close()
+    _settled(client, n, stream="flat/ros")
+    live = _settled(client, n, stream="onlooker/arm")
+    for name in ("flat/ros", "onlooker/arm"):
+        stream = live["streams"][name]
+        assert stream["poses"] == n, (name, stream)
+        assert stream["recorded"] + stream["decimated"] == n and stream["dropped"] == 0
+    assert live["lost_batches"] == before["lost_batches"]
+    assert _batch_failures(caplog) == []
+    poses = mcap_messages(_mcap(client, "flat", tmp), "/live/ros/pose")
+    assert len(poses) == live["streams"]["flat/ros"]["recorded"] > 0
+    xy = np.array([[p["pose"]["position"][c] for c in "xy"] for p in poses])
+    idx = [int(np.argmin(np.linalg.norm(np.array(sent) - x, axis=1))) for x in xy]
+    assert np.allclose(xy, np.array(sent)[idx])  # x, y as tracked; z is not
+    assert {p["pose"]["position"]["z"] for p in poses} == {0.0}  # the 2-D skill's plane
 
 
 def test_forged_garbage_and_missing_batches_are_counted_not_recorded(app):

@@ -191,6 +191,41 @@ def test_a_malformed_batch_is_counted_and_nothing_of_it_is_queued(tmp_path: Path
     assert mcap_counts(path).get("/live/arm2/pose", 0) == 0
 
 
+
+def test_a_stream_whose_dimension_changes_is_sent_in_runs_and_counted_as_one() -> None:
+    # Its skill deleted and created again with another dimension: the stream's rows of both
+    # could not share one entry, and the whole batch (every robot's rows) failed.
+    rows = [*_rows3(), *_rows2(), *_rows3()[:1]]
+    data = record_batches.encode_record_batch("b", 0, [("pour", "arm1", 7, 6, 1, 0, 2, rows),
+                                                       ("pour", "arm2", 3, 3, 0, 0, 0, _rows3())])
+    batch = record_batches.decode_record_batch(data)
+    assert [(st.robot, st.dim, len(st)) for st in batch.streams] == [
+        ("arm1", 3, 3), ("arm1", 2, 1), ("arm1", 3, 1), ("arm2", 3, 3)]
+    assert all(len(st) + st.decimated == st.poses for st in batch.streams)
+    got = [row for st in batch.streams[:3] for row in st.rows]
+    assert _same([list(r) for r in rows], [
+        [b.t_ns, b.position, b.orientation, b.target, b.target_orientation, b.progress, b.eta,
+         b.section, b.inside, b.done, b.status] for b in got])
+    rec = Recorder(Path("/nonexistent"), enabled=False)
+    sub = LiveSubscriber(rec, LiveOptions())  # not started: take() is what the drain calls
+    assert sub.take(keyspace.recorder_key("b", "canal"), data) is True
+    assert sub.stream_counts()[("pour", "arm1")] | {"recorded": 0} == {
+        "poses": 7, "answered": 6, "coalesced": 1, "errors": 0, "decimated": 2, "kept": 5,
+        "recorded": 0, "dropped": 0, "pending": 5}
+
+
+def test_a_stream_that_cannot_be_encoded_is_left_out_and_the_others_are_sent() -> None:
+    bad = [(*_rows3()[0][:10], "no_such_status")]
+    streams = [("pour", "arm1", 3, 3, 0, 0, 0, _rows3()), ("pour", "arm2", 1, 1, 0, 0, 0, bad),
+               ("pour", "arm3", 1, 1, 0, 0, 0, _rows2())]
+    with pytest.raises(KeyError):
+        record_batches.encode_record_batch("b", 0, streams)
+    left_out: list[Any] = []
+    batch = record_batches.decode_record_batch(
+        record_batches.encode_record_batch("b", 4, streams, left_out=left_out))
+    assert [(st.robot, len(st)) for st in batch.streams] == [("arm1", 3), ("arm3", 1)]
+    assert [(stream[1], type(exc)) for stream, exc in left_out] == [("arm2", KeyError)]
+
 AWKWARD = np.array([[NAN, np.inf, -0.0], [1e308, 0.0, 1.0], [1 / 3, 2 / 3, 0.1],
                     [-1e-300, 123456789.123, -5e-7]])
 

@@ -88,7 +88,13 @@ class Answers(StreamTable):
                 # a row when due, or when the status, inside or done flips
                 st.rec_next = now + period
                 st.rec_state = (code, inside, done)
-                st.rec_rows.append((now, pose.position, pose.orientation, target, orientation,
+                position = pose.position
+                if len(position) != d:
+                    # a PoseStamped on a 2-D skill: its z is passed through in the answer,
+                    # not tracked; a stream's rows have the skill's dimension, or no batch
+                    # could carry them
+                    position = position[:d]
+                st.rec_rows.append((now, position, pose.orientation, target, orientation,
                                     progress, eta, section, inside, done, status, binary_route))
             if fmt == _FJSON:  # the publisher's default encoding
                 st.publisher.put(_pack_json(

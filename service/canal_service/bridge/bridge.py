@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import os
 import queue
 import secrets
@@ -91,6 +92,8 @@ _BEHIND_S = 1.0
 #: How long a bridge holds its recording batches while no recorder hears its key yet (the
 #: service's recorder connects with retries, possibly after the first robots).
 RECORDER_WAIT_S = 10.0
+#: A recording batch that fails is logged at most once per this many seconds.
+RECORD_LOG_S = 1.0
 SWITCH_INTERVAL_S = 0.0005
 
 
@@ -138,6 +141,7 @@ class Bridge:
         self._record_n = 0
         self._record_pub: Any = None
         self._record_lock = threading.Lock()
+        self._record_said = -math.inf  # when a lost batch was last logged (monotonic)
         self._started = time.monotonic()
         #: set when the start-up preload has finished (or was not run)
         self.preloaded = threading.Event()
@@ -383,7 +387,17 @@ class Bridge:
             try:
                 self.send_record()
             except Exception:
-                log.exception("recording batch failed")
+                # it would fail again every record_interval_s: once a second is enough
+                if self._may_say_record():
+                    log.exception("recording batch failed; its rows are lost (counted as a "
+                                  "lost batch)")
+
+    def _may_say_record(self) -> bool:
+        now = time.monotonic()
+        if now - self._record_said < RECORD_LOG_S:
+            return False
+        self._record_said = now
+        return True
 
     def send_record(self) -> int:
         """Put what the streams kept for the recording since the last batch; the number of
@@ -398,13 +412,32 @@ class Bridge:
             streams = self.path.take_record()
             if not streams:
                 return 0
+            # Rows taken and not sent are lost with their counts, as in a batch that never
+            # arrived: their number is used up all the same, so the recorder counts the gap
+            # as a lost batch and the recording does not say it is complete.
+            try:
+                left_out: list[tuple[tuple[Any, ...], Exception]] = []
+                data = encode_record_batch(self.bridge_id, self._record_n, streams,
+                                           left_out=left_out)
+                if left_out:
+                    self._record_n += 1  # the left-out streams' batch
+                    gone = {id(stream) for stream, _ in left_out}
+                    streams = [st for st in streams if id(st) not in gone]
+                    # sent even with no stream left: the gap is seen now, not at the next one
+                    data = encode_record_batch(self.bridge_id, self._record_n, streams)
+                    if self._may_say_record():
+                        (skill, robot, *_), exc = left_out[0]
+                        log.warning("recording batch %d of %s left out %d stream(s) it could "
+                                    "not encode (%s/%s: %s): counted as a lost batch",
+                                    self._record_n - 1, self.bridge_id, len(left_out), skill,
+                                    robot, exc)
+                pub.put(data, encoding=wire.BINARY_ENCODING)
+            finally:
+                self._record_n += 1
             kept = sum(len(st[7]) for st in streams)
             # the metrics' identity is canal_live_poses_total == recorded + decimated; the
             # coalesced poses are not in canal_live_poses_total (they have their own counter)
             decimated = sum(st[6] - st[4] for st in streams)
-            pub.put(encode_record_batch(self.bridge_id, self._record_n, streams),
-                    encoding=wire.BINARY_ENCODING)
-            self._record_n += 1
             self.counts.recorded += kept
             self.counts.decimated += decimated
             return len(streams)
