@@ -93,13 +93,14 @@ def test_live_rows_of_a_skill_created_again_outlive_the_delete_of_the_old_one(
         # the old skill's last rows, still on their way, then the new skill's
         rec.live_rows([_rows(before, helix_demo(2)[:4]), _rows(time.time_ns(), pts)])
         path = rec.export_mcap("pour")
-        recorded, dropped = rec.live_stream_counts()
+        recorded, dropped, stale = rec.live_stream_counts()
     finally:
         rec.close()
         db.dispose()
     poses = mcap_messages(path, "/live/arm1/pose")
     assert len(poses) == len(pts) == recorded[("pour", "arm1")]  # in the export, as counted
-    assert dropped[("pour", "arm1")] == 4  # the deleted skill's, not drawn in the new one's
+    # the deleted skill's, not drawn in the new one's, and not lost: its recording is gone
+    assert stale[("pour", "arm1")] == 4 and ("pour", "arm1") not in dropped
     xs = [[p["pose"]["position"][c] for c in "xyz"] for p in poses]
     assert np.allclose(xs, pts)
     assert mcap_messages(path, "/canal/demos") == []  # the old skill's demo went with it

@@ -283,6 +283,62 @@ def test_ros2_poses_on_a_2d_skill_are_recorded_as_tracked_and_other_robots_with_
     assert {p["pose"]["position"]["z"] for p in poses} == {0.0}  # the 2-D skill's plane
 
 
+def test_a_skill_created_again_with_another_dimension_keeps_every_robots_rows(app, caplog):
+    # A robot's stream outlives its skill: rows of the deleted 3-D skill and of the 2-D one
+    # created again under its name meet in one batch (here the batch is held back while it
+    # happens). Each is sent with its own dimension, the old ones counted as stale.
+    client, endpoint, tmp = app
+    directrix3 = _make_skill(client, "morph")
+    watch = _make_skill(client, "watch")
+    bridge = client.app.state.bridge  # type: ignore[attr-defined]
+    before = _live_health(client)
+    caplog.set_level(logging.WARNING, logger="canal_service")
+    with PoseStreamer("morph", "arm", endpoint=endpoint) as ps, \
+            PoseStreamer("watch", "arm", session=ps.session) as other:
+        with bridge._record_lock:  # the recording thread waits: one batch gets it all
+            for k in range(5):
+                assert ps.wait_for(ps.send(directrix3[10 + 5 * k], restart=k == 0), 5.0)
+            assert client.delete("/skills/morph").status_code == 204
+            directrix2 = _make_skill2(client, "morph")
+            for k in range(5):
+                answer = ps.wait_for(ps.send(directrix2[10 + 5 * k], restart=k == 0), 5.0)
+                assert answer is not None and answer.status == "ok"
+            for k in range(5):
+                assert other.wait_for(other.send(watch[10 + 5 * k], restart=k == 0), 5.0)
+    live = _settled(client, 10, stream="morph/arm")
+    arm, onlooker = live["streams"]["morph/arm"], live["streams"]["watch/arm"]
+    assert arm["poses"] == 10 and arm["dropped"] == 0 and arm["pending"] == 0
+    assert arm["recorded"] + arm["stale"] + arm["decimated"] == 10
+    assert arm["stale"] >= 1 and arm["recorded"] >= 1  # the first pose of each is kept
+    assert onlooker["poses"] == 5 and onlooker["recorded"] + onlooker["decimated"] == 5
+    assert live["lost_batches"] == before["lost_batches"]
+    assert _batch_failures(caplog) == []
+    poses = mcap_messages(_mcap(client, "morph", tmp), "/live/arm/pose")
+    assert len(poses) == arm["recorded"]  # the new skill's own, in its plane
+    assert {p["pose"]["position"]["z"] for p in poses} == {0.0}
+
+
+def test_a_deleted_skills_late_rows_are_stale_not_lost(tmp_path):
+    # The rows a bridge kept for a skill deleted since were counted as dropped (a loss:
+    # `complete` false until the service restarted); its recording is gone with it.
+    client, endpoint = _app(tmp_path, recordings_live_hz=0.0)
+    with client:
+        directrix = _make_skill(client, "gone")
+        bridge = client.app.state.bridge  # type: ignore[attr-defined]
+        with PoseStreamer("gone", "arm", endpoint=endpoint) as ps:
+            with bridge._record_lock:  # the rows are still in the bridge at the delete
+                for k in range(20):
+                    assert ps.wait_for(ps.send(directrix[10 + k], restart=k == 0), 5.0)
+                assert client.delete("/skills/gone").status_code == 204
+        live = _settled(client, 20)
+        stream = live["streams"]["gone/arm"]
+        assert stream["poses"] == 20 and stream["stale"] + stream["coalesced"] == 20
+        assert stream["dropped"] == 0 and stream["recorded"] == 0 and stream["pending"] == 0
+        assert live["complete"] is True and live["dropped"] == 0
+        assert live["stale"] == stream["stale"]
+        assert client.get("/healthz").json()["recorder"]["stale"] == 2 * stream["stale"]
+
+
 def test_forged_garbage_and_missing_batches_are_counted_not_recorded(app):
     client, endpoint, tmp = app
     before = _live_health(client)

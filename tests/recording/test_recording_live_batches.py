@@ -180,7 +180,7 @@ def test_a_malformed_batch_is_counted_and_nothing_of_it_is_queued(tmp_path: Path
         rec.close()
     assert sub.stream_counts()[("pour", "arm1")] == {
         "poses": 5, "answered": 3, "coalesced": 0, "errors": 0, "decimated": 2, "kept": 3,
-        "recorded": 3, "dropped": 0, "pending": 0}
+        "recorded": 3, "dropped": 0, "stale": 0, "pending": 0}
     path = rec.export_mcap("pour")
     assert [m["pose"]["position"] for m in mcap_messages(path, "/live/arm1/pose")] == [
         {"x": 0.1, "y": 0.2, "z": 0.3}, {"x": 1.0, "y": -2.5, "z": 1e-300},
@@ -211,7 +211,7 @@ def test_a_stream_whose_dimension_changes_is_sent_in_runs_and_counted_as_one() -
     assert sub.take(keyspace.recorder_key("b", "canal"), data) is True
     assert sub.stream_counts()[("pour", "arm1")] | {"recorded": 0} == {
         "poses": 7, "answered": 6, "coalesced": 1, "errors": 0, "decimated": 2, "kept": 5,
-        "recorded": 0, "dropped": 0, "pending": 5}
+        "recorded": 0, "dropped": 0, "stale": 0, "pending": 5}
 
 
 def test_a_stream_that_cannot_be_encoded_is_left_out_and_the_others_are_sent() -> None:

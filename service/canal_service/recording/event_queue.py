@@ -106,16 +106,21 @@ class RecorderQueue:
         #: Events recorded without a part the logs cannot hold (named in a warning)
         self.incomplete = 0
         self.dropped_live = 0
+        #: Live samples (two per row) of a skill deleted since: neither written nor lost
+        self.stale_live = 0
         # CPU seconds the writer thread spent on its work (not waiting): what the recorder
         # costs the process, whatever else runs in it (the upload benchmark reads it).
         self.writer_cpu_s = 0.0
         self.decimated_live = 0
         self.written_live = 0
         # Live poses per (skill, robot): written but not yet flushed (by skill), flushed to
-        # the files (recorded), lost (dropped); the live source's completeness reads them.
+        # the files (recorded), lost (dropped), of a skill deleted since (stale: its
+        # recording is gone with it, nothing was lost); the live source's completeness
+        # reads them.
         self._live_unflushed: dict[str, dict[str, int]] = {}
         self._live_recorded: dict[tuple[str, str], int] = {}
         self._live_dropped: dict[tuple[str, str], int] = {}
+        self._live_stale: dict[tuple[str, str], int] = {}
         # Each deleted skill's last delete time: live rows answered before it are that
         # skill's, never those of a skill created again under its name.
         self._deleted_ns: dict[str, int] = {}
@@ -246,10 +251,12 @@ class RecorderQueue:
                 self._live_dropped[key] = self._live_dropped.get(key, 0) + k
 
     def live_stream_counts(self) -> tuple[dict[tuple[str, str], int],
+                                          dict[tuple[str, str], int],
                                           dict[tuple[str, str], int]]:
-        """Live poses per (skill, robot): (recorded, i.e. flushed to the files; dropped)."""
+        """Live poses per (skill, robot): (recorded, i.e. flushed to the files; dropped;
+        stale, i.e. of a skill deleted since)."""
         with self._live_lock:
-            return dict(self._live_recorded), dict(self._live_dropped)
+            return dict(self._live_recorded), dict(self._live_dropped), dict(self._live_stale)
 
     def forget_live_streams(self, keys: list[tuple[str, str]]) -> None:
         """Stop counting these (skill, robot) streams one by one (their counts were summed by
@@ -258,6 +265,7 @@ class RecorderQueue:
             for key in keys:
                 self._live_recorded.pop(key, None)
                 self._live_dropped.pop(key, None)
+                self._live_stale.pop(key, None)
 
     def _live_count(self, skill: str, robot: str, n: int) -> None:
         unflushed = self._live_unflushed.setdefault(skill, {})

@@ -12,9 +12,10 @@ subscriber hears ~10 small messages a second per bridge instead of every pose an
   go to the recorder as :class:`~.events.LiveRows` (numpy views of those columns, no
   per-row Python) without a second rate limit (:meth:`~.recorder.Recorder.live_rows`).
 - The counts make the recording checkable: per stream, every pose a bridge handled is in
-  the recording (``recorded``), on its way (``pending``), ``decimated`` by the bridge, or
-  ``dropped`` by the recorder (counted); a batch that never arrived is a gap in the bridge's
-  batch numbers (``lost_batches``). ROS 2 (CDR) streams are recorded like the others: the
+  the recording (``recorded``), on its way (``pending``), ``decimated`` by the bridge,
+  ``stale`` (its skill was deleted since, and its recording with it) or ``dropped`` by the
+  recorder (lost, counted); a batch that never arrived is a gap in the bridge's batch
+  numbers (``lost_batches``). ROS 2 (CDR) streams are recorded like the others: the
   bridge has decoded them already.
 
 Configured from the service settings the bridge uses (see :meth:`LiveOptions.from_settings`).
@@ -45,7 +46,7 @@ log = logging.getLogger("canal_service.recording")
 #: Streams listed one by one in /healthz (all of them are counted in the totals).
 HEALTH_STREAMS = 64
 #: Streams whose counts are kept one by one. Beyond it the settled streams (every row kept
-#: recorded or dropped) heard from least recently are summed into ``LiveStats.retired``:
+#: recorded, dropped or stale) heard from least recently are summed into ``LiveStats.retired``:
 #: totals stay exact, and robot names, which clients choose, cannot grow the table (and the
 #: work of every /healthz) without bound.
 MAX_COUNTED_STREAMS = 1024
@@ -151,10 +152,10 @@ class LiveStats:
     last_n: dict[str, int] = field(default_factory=dict)
     #: per stream, the batch it was last heard in
     heard: dict[tuple[str, str], int] = field(default_factory=dict)
-    #: the summed counts (and ``recorded``, ``dropped``) of the streams no longer counted
+    #: the summed counts (and ``recorded``, ``dropped``, ``stale``) of the streams no longer counted
     #: one by one (:data:`MAX_COUNTED_STREAMS`)
     retired: dict[str, int] = field(
-        default_factory=lambda: dict.fromkeys((*_COUNTS, "recorded", "dropped"), 0))
+        default_factory=lambda: dict.fromkeys((*_COUNTS, "recorded", "dropped", "stale"), 0))
 
 
 class LiveSubscriber:
@@ -281,9 +282,9 @@ class LiveSubscriber:
         half of :data:`MAX_COUNTED_STREAMS` are counted one by one (fewer are retired when
         fewer are settled: a stream with rows on their way keeps its own counts)."""
         stats = self.stats
-        recorded, dropped = self.recorder.live_stream_counts()
+        recorded, dropped, stale = self.recorder.live_stream_counts()
         settled = [key for key, t in stats.streams.items()
-                   if t["kept"] == recorded.get(key, 0) + dropped.get(key, 0)]
+                   if t["kept"] == recorded.get(key, 0) + dropped.get(key, 0) + stale.get(key, 0)]
         settled.sort(key=lambda key: stats.heard.get(key, 0))
         gone = settled[:max(len(stats.streams) - MAX_COUNTED_STREAMS // 2, 0)]
         retired = stats.retired
@@ -294,6 +295,7 @@ class LiveSubscriber:
                 retired[k] += tally[k]
             retired["recorded"] += recorded.get(key, 0)
             retired["dropped"] += dropped.get(key, 0)
+            retired["stale"] += stale.get(key, 0)
         if gone:
             self.recorder.forget_live_streams(gone)
 
@@ -301,7 +303,8 @@ class LiveSubscriber:
 
     def stream_counts(self) -> dict[tuple[str, str], dict[str, int]]:
         """Per stream: the bridges' counts and the recorder's ``recorded`` (written and
-        flushed), ``dropped`` and ``pending`` (kept, not yet flushed or dropped)."""
+        flushed), ``dropped`` (lost), ``stale`` (of a skill deleted since: not lost) and
+        ``pending`` (kept, none of these yet)."""
         return self._counts()[0]
 
     def _counts(self) -> tuple[dict[tuple[str, str], dict[str, int]], dict[str, int]]:
@@ -310,17 +313,19 @@ class LiveSubscriber:
         with self._lock:
             tallies = {k: dict(v) for k, v in self.stats.streams.items()}
             retired = dict(self.stats.retired)
-            recorded, dropped = self.recorder.live_stream_counts()
+            recorded, dropped, stale = self.recorder.live_stream_counts()
         for key, t in tallies.items():
             t["recorded"] = recorded.get(key, 0)
             t["dropped"] = dropped.get(key, 0)
-            t["pending"] = t["kept"] - t["recorded"] - t["dropped"]
+            t["stale"] = stale.get(key, 0)
+            t["pending"] = t["kept"] - t["recorded"] - t["dropped"] - t["stale"]
         return tallies, retired
 
     def health(self) -> dict[str, Any]:
         """Status, totals and (up to :data:`HEALTH_STREAMS`) streams. ``complete``: nothing
-        lost on the way (no lost batch, nothing dropped); when ``pending`` is 0 as well,
-        ``recorded + decimated == poses`` for every stream."""
+        lost on the way (no lost batch, nothing dropped; rows of a skill deleted since are
+        ``stale``, not lost); when ``pending`` is 0 as well, ``recorded + stale + decimated
+        == poses`` for every stream."""
         per, retired = self._counts()
         stats = self.stats
         totals = {**retired, "pending": 0}

@@ -106,8 +106,9 @@ class Recorder(Exporter, Reconciler):
                 None if self.enabled else "recording disabled"),
             "queued": len(self._events) + 2 * self._live_queued,
             "dropped": self.dropped_events + self.dropped_live,
-            # events about a skill deleted since (maybe on another replica): not written
-            "stale": self.stale_events,
+            # events and live samples of a skill deleted since (maybe on another replica):
+            # not written, and not lost (its recording is gone with it)
+            "stale": self.stale_events + self.stale_live,
             "incomplete": self.incomplete,
             "decimated": self.decimated_live,
             "live_written": self.written_live,

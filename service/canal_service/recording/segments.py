@@ -251,13 +251,16 @@ class SegmentWriter(RecorderQueue):
                 # The deleted skill's rows (queued, or on their way, when it was created again
                 # under its name): not the new skill's.
                 later = rows.after(deleted)
-                self._drop_live(skill, robot, len(rows) - len(later))
+                self._stale_live(skill, robot, len(rows) - len(later))
                 if not len(later):
                     continue
                 rows = later
-            if not self._owner(skill, None, events=0):  # counted as dropped rows instead
-                self._drop_live(skill, robot, len(rows))
-                continue  # the skill is gone
+            if not self._owner(skill, None, events=0):  # the skill is gone: counted as rows
+                if deleted is not None:
+                    self._stale_live(skill, robot, len(rows))
+                else:  # not a skill deleted here (another replica's, or none ever)
+                    self._drop_live(skill, robot, len(rows))
+                continue
             robots = self._robots.setdefault(skill, set())
             if robot not in robots:
                 if len(robots) >= self.max_robots:
@@ -287,6 +290,13 @@ class SegmentWriter(RecorderQueue):
         with self._live_lock:
             self.dropped_live += 2 * n
             self._live_dropped[(skill, robot)] = self._live_dropped.get((skill, robot), 0) + n
+
+    def _stale_live(self, skill: str, robot: str, n: int) -> None:
+        """Count ``n`` live rows of (skill, robot) as stale: the skill was deleted, and its
+        recording with it; they are not written, and not lost either."""
+        with self._live_lock:
+            self.stale_live += 2 * n
+            self._live_stale[(skill, robot)] = self._live_stale.get((skill, robot), 0) + n
 
     def _source_dim(self, skill: str) -> int:
         if self.source is None:
