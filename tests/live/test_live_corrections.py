@@ -333,3 +333,57 @@ def test_a_simulated_person_keeps_the_robot_out_of_a_hidden_sphere(live: Any) ->
                     endpoint=live.endpoint, keep_out=(centre, radius))
     assert again.reached_end and again.held == 0 and again.corrections == []
     assert again.model_version == first.corrections[0]
+
+
+def test_a_start_during_a_capture_of_its_kind_starts_it_over_and_says_what_it_discards(
+        live: Any) -> None:
+    # A second demo/start (or correction/start of the same kind) threw the poses captured so
+    # far away and answered as a first start: the stored demonstration had fewer poses than
+    # were sent since the first start, and nothing said so.
+    make_skill(live.client, "twice", 3)
+    path = canal_of(live, "twice").directrix
+    with PoseStreamer("twice", "arm", endpoint=live.endpoint, encoding="json") as ps:
+        k = itertools.count()
+
+        def send(n: int) -> None:
+            for _ in range(n):
+                assert ps.wait_for(ps.send(path[min(next(k) // 2, len(path) - 1)]),
+                                   timeout=5.0) is not None
+
+        send(1)
+        assert ps.start_demo()["discarded"] == 0
+        send(20)
+        again = ps.start_demo()
+        assert again["capturing"] is True and again["discarded"] == 20, again
+        send(15)
+        assert ps.stop_demo()["n_points"] == 15
+        assert ps.start_correction("include")["discarded"] == 0
+        send(10)
+        assert ps.start_correction("include")["discarded"] == 10
+        # the other kind is still refused: the person stops the capture first
+        with pytest.raises(LiveError) as err:
+            ps.start_correction("exclude")
+        assert (err.value.body["error"]["type"], err.value.body["error"]["field"]) == (
+            "conflict", "correction"), err.value.body
+        send(25)
+        assert ps.stop_correction()["correction"]["n_points"] == 25
+
+
+def test_a_refused_stop_leaves_the_capture_open(live: Any) -> None:
+    # A demo/stop refused for what was captured (too few poses yet) ended the capture: the
+    # poses were lost and the person had to begin again.
+    make_skill(live.client, "refused", 3)
+    path = canal_of(live, "refused").directrix
+    n_demos = live.client.get("/skills/refused").json()["n_demonstrations"]
+    with PoseStreamer("refused", "arm", endpoint=live.endpoint, encoding="json") as ps:
+        assert ps.wait_for(ps.send(path[0]), timeout=5.0) is not None
+        ps.start_demo()
+        assert ps.wait_for(ps.send(path[1]), timeout=5.0) is not None
+        with pytest.raises(LiveError) as err:
+            ps.stop_demo()
+        assert err.value.body["error"]["type"] == "invalid_input", err.value.body
+        assert live.client.get("/skills/refused").json()["n_demonstrations"] == n_demos
+        for p in path[2:40]:
+            assert ps.wait_for(ps.send(p), timeout=5.0) is not None
+        assert ps.stop_demo()["n_points"] == 39
+    assert live.client.get("/skills/refused").json()["n_demonstrations"] == n_demos + 1

@@ -300,3 +300,51 @@ def test_rmw_zenoh_adapter_round_trip(live):
     assert answer.header.frame_id == "tool0" and answer.header.stamp.sec == 3
     assert np.linalg.norm([answer.pose.position.x - directrix[32][0],
                            answer.pose.position.y - directrix[32][1]]) < 0.1
+
+
+def test_a_capture_of_pose_stamped_with_unset_stamps_is_stored_untimed(live):
+    # A PoseStamped whose header.stamp is left at zero (as a `ros2 topic pub` without a
+    # stamp sends) made every captured t 0: demo/stop refused the demonstration for
+    # timestamps that do not advance and ended the capture, losing it. Stamps that are set
+    # but do not advance are still refused, and the capture stays open to start over.
+    from canal_client.live import LiveError, query_json
+
+    directrix = _directrix(live)
+    base = "canal/arc3/ros-unset"
+    with zenoh.open(client_config(live.endpoint)) as session:
+        robot = Robot(session, "arc3", "ros-unset")
+        try:
+            def capture(sec_of, discarded=0):
+                started = query_json(session, base + "/demo/start", {})
+                assert started["discarded"] == discarded, started
+                n = len(robot.targets)
+                for k in range(30):
+                    robot.put(pose_stamped(directrix[5 + 3 * k], sec=sec_of(k), nanosec=0),
+                              encoding="application/cdr")
+                robot.wait("targets", n + 30)
+
+            capture(lambda k: 0)
+            created = query_json(session, base + "/demo/stop", {})
+            assert created["n_points"] == 30, created
+            demo = live.client.get(f"/skills/arc3/demonstrations/{created['id']}").json()
+            assert demo["timestamps"] is None, demo["timestamps"]
+            assert np.array_equal(np.array(demo["positions"]), directrix[5:95:3])
+            live.client.delete(f"/skills/arc3/demonstrations/{created['id']}")
+
+            n_demos = live.client.get("/skills/arc3").json()["n_demonstrations"]
+            capture(lambda k: 7)  # set, and all the same
+            with pytest.raises(LiveError) as err:
+                query_json(session, base + "/demo/stop", {})
+            error = err.value.body["error"]
+            assert (error["type"], error["field"]) == ("invalid_input", "timestamps"), error
+            assert "30 equal values" in error["message"], error
+            assert live.client.get("/skills/arc3").json()["n_demonstrations"] == n_demos
+            # the refused capture is still open: starting it over says what it throws away
+            capture(lambda k: 100 + k, discarded=30)
+            created = query_json(session, base + "/demo/stop", {})
+            assert created["n_points"] == 30, created
+            demo = live.client.get(f"/skills/arc3/demonstrations/{created['id']}").json()
+            assert np.allclose(np.diff(demo["timestamps"]), 1.0)
+            live.client.delete(f"/skills/arc3/demonstrations/{created['id']}")
+        finally:
+            robot.close()

@@ -643,12 +643,16 @@ class Bridge:
             if refused is not None:
                 reply_error(query, refused[0], refused[2], refused[1])
                 return
-            entry = self.models.entry(skill)
-            if entry.status == "unknown_skill":
-                reply_error(query, "not_found", entry.message or "unknown skill", "skill")
-                return
-            stream = self.path.stream(keyspace.stream_keys(skill, robot, self.prefix).pose,
-                                      skill, robot)
+            key = keyspace.stream_keys(skill, robot, self.prefix).pose
+            if self.models.entry(skill).status == "unknown_skill":
+                # a capture begun on the skill deleted since is answered for: its stop says
+                # the capture is lost with the skill, as when a new skill took the name
+                held = self.path.existing(key)
+                if held is None or not self.captures.holds(held, (parts[2], parts[3])):
+                    entry = self.models.entry(skill)
+                    reply_error(query, "not_found", entry.message or "unknown skill", "skill")
+                    return
+            stream = self.path.stream(key, skill, robot)
             if stream is None:
                 reply_error(query, "too_many_streams", self.path.full_message(robot), "robot")
                 return

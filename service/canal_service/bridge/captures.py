@@ -5,6 +5,12 @@ The queries ``demo/start|stop``, ``correction/start|stop`` and ``steer/keep`` un
 capture on the stream. The worker adds the stream's poses to it as they come
 (:mod:`.posepath`); the stop stores them as a demonstration or a correction of the skill
 instance the capture began on, on the control thread, never on the pose path.
+
+A stop refused for what was captured (too few poses, timestamps that do not advance, the
+database away) leaves the capture open: the poses are not lost, the person may go on and
+stop again, or start the capture over (a start during a capture of its own kind does, and
+says how many poses it discards). Only a stop refused because the skill the capture began
+on is gone ends it: nothing could ever store it.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from canal_core import bounds
 from canal_core.options import CORRECTION_KINDS
 from canal_protocol.schemas import CorrectionIn
 
-from ..errors import InvalidInput, ServiceError, error_type, pydantic_detail
+from ..errors import InvalidInput, ServiceError, SkillReplaced, error_type, pydantic_detail
 from ..service import CanalService
 from ..storage import repository as repo
 from ..validation import check_demonstration
@@ -64,6 +70,22 @@ class Captures:
         else:
             self._steer_keep(query, st, body)
 
+    def holds(self, st: Stream, what: tuple[str, str]) -> bool:
+        """Whether the stream holds a capture, begun on a skill, that the query ``what``
+        ends: its stop is answered even when that skill is gone since."""
+        with st.lock:
+            if what == ("demo", "stop"):
+                return st.capture is not None and st.capture_kind is None \
+                    and st.capture_instance is not None
+            if what == ("correction", "stop"):
+                return st.capture is not None and st.capture_kind in CORRECTION_KINDS \
+                    and st.capture_instance is not None
+            if what == ("steer", "keep"):
+                if st.capture is not None and st.capture_kind == "steer":
+                    return st.capture_instance is not None
+                return bool(st.steered) and st.steered_instance is not None
+            return False
+
     def begin_steered(self, st: Stream) -> None:
         """The stream's first steering input: the run from here on is kept (``steer/keep``)
         unless a capture runs."""
@@ -91,47 +113,69 @@ class Captures:
                 reply_error(query, "conflict", f"{busy} is being captured on this stream; "
                              "stop it first", "demo" if st.capture_kind is None else "correction")
                 return
+            # what a start over throws away, said in the reply: never a silent loss
+            discarded = 0 if st.capture is None else len(st.capture)
             st.capture = []
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
             st.capture_label = label if isinstance(label, str) else None
             st.capture_kind, st.capture_weight = kind, weight
             st.capture_instance = instance
         query.reply(query.key_expr, orjson.dumps({"capturing": True,
-                                                  "from_seq": st.capture_from}),
+                                                  "from_seq": st.capture_from,
+                                                  "discarded": discarded}),
                     encoding=ENC_JSON)
 
     def _capture_stop(self, query: Any, st: Stream, body: dict[str, Any],
                       kinds: tuple[str | None, ...], what: str
-                      ) -> tuple[list[Any], str] | None:
-        """The captured poses (up to ``last_seq``) and the skill instance the capture began
-        on (the store checks it: :class:`..errors.SkillReplaced`), or None after answering
-        the error."""
+                      ) -> tuple[list[Any], list[Any], str] | None:
+        """The capture (still open: :func:`_end` ends it once stored), its poses up to
+        ``last_seq`` and the skill instance it began on (the store checks it again:
+        :class:`..errors.SkillReplaced`), or None after answering the error."""
         last_seq = body.get("last_seq")
         if isinstance(last_seq, int) and st.capture_kind in kinds and st.capture is not None:
             _wait_for_pose(st, last_seq)
         with st.lock:
-            poses = st.capture if st.capture_kind in kinds else None
+            capture = st.capture if st.capture_kind in kinds else None
             started_on = st.capture_instance
-            if poses is not None:
-                st.capture, st.capture_kind = None, None
-        if poses is None:
+            poses = None if capture is None else list(capture)
+        if capture is None or poses is None:
             reply_error(query, "conflict", f"no {what} is being captured on this stream",
                          what.split()[0])
             return None
+        try:
+            self._check_skill(st.skill, started_on, what)
+        except ServiceError as exc:
+            _end(st, capture)
+            reply_error(query, error_type(exc), exc.message, exc.field)
+            return None
         if isinstance(last_seq, int):
             poses = [p for p in poses if p.seq <= last_seq]
-        return poses, _began_on(started_on)
+        return capture, poses, _began_on(started_on)
+
+    def _check_skill(self, skill: str, started_on: str | None, what: str) -> None:
+        """SkillReplaced when the skill a capture began on is no longer under its name,
+        deleted or deleted and created again: both are the same fact to the person, and a
+        plain "not found" would not say the capture is what was lost."""
+        if started_on is None:  # a steered run begun on no skill: the store names it
+            return
+        now = self.skill_instance(skill)
+        if now != started_on:
+            raise SkillReplaced(skill, what.split()[0], exists=now is not None)
 
     def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         label = st.capture_label
         captured = self._capture_stop(query, st, body, (None,), "demonstration")
         if captured is None:
             return
+        capture, poses, instance = captured
         try:
-            created = self._store_demo(st.skill, *captured, label)
+            created = self._store_demo(st.skill, poses, instance, label)
         except ServiceError as exc:
+            if _ends_capture(exc):
+                _end(st, capture)
             reply_error(query, error_type(exc), exc.message, exc.field)
             return
+        _end(st, capture)
         query.reply(query.key_expr, orjson.dumps(created), encoding=ENC_JSON)
 
     def _correction_start(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
@@ -144,36 +188,50 @@ class Captures:
         captured = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
         if captured is None:
             return
-        self._store_correction(query, st, str(kind), *captured, weight, label)
+        capture, poses, instance = captured
+        if self._store_correction(query, st, str(kind), poses, instance, weight, label):
+            _end(st, capture)
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         """Keep the stream's last steered run (or the one in progress) as an include."""
         with st.lock:
-            if st.capture_kind == "steer":
-                poses, started_on = st.capture, st.capture_instance
-                st.capture, st.capture_kind, st.steer = None, None, None
-            else:
-                poses, started_on, st.steered = st.steered, st.steered_instance, None
-        if not poses:
+            in_progress = st.capture_kind == "steer"
+            run = st.capture if in_progress else st.steered
+            started_on = st.capture_instance if in_progress else st.steered_instance
+            poses = list(run) if run else None
+        if not run or not poses:
             reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
             return
-        weight, label = body.get("weight"), body.get("label")
-        self._store_correction(query, st, "include", poses, _began_on(started_on),
-                               1.0 if weight is None else float(weight),
-                               "steered" if label is None else label)
+        try:
+            self._check_skill(st.skill, started_on, "correction")
+        except ServiceError as exc:
+            reply_error(query, error_type(exc), exc.message, exc.field)
+            done = True  # the run is gone with its skill
+        else:
+            weight, label = body.get("weight"), body.get("label")
+            done = self._store_correction(query, st, "include", poses, _began_on(started_on),
+                                          1.0 if weight is None else float(weight),
+                                          "steered" if label is None else label)
+        if done:
+            with st.lock:
+                if in_progress and st.capture is run:
+                    st.capture, st.capture_kind, st.steer = None, None, None
+                elif not in_progress and st.steered is run:
+                    st.steered = None
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
-                          instance: str, weight: float, label: str | None) -> None:
+                          instance: str, weight: float, label: str | None) -> bool:
+        """Apply the poses as a correction and answer; False when refused in a way that
+        leaves the capture open (:func:`_ends_capture`)."""
         far = 0
         try:
             poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
             captured = len(poses)
             poses = self._within_reach(st, poses)
             far = captured - len(poses)
-            times = [p.t for p in poses]
             body = CorrectionIn.model_validate({
                 "kind": kind, "samples": [list(p.position) for p in poses],
-                "timestamps": times if poses and all(t is not None for t in times) else None,
+                "timestamps": capture_times(poses),
                 "weight": weight, "label": label or "",
                 "plan": self._live_plan(st, poses) if kind == "exclude" else None,
                 # a stream's correction refines the route it follows
@@ -186,11 +244,12 @@ class Captures:
         except ValidationError as exc:
             first = pydantic_detail(exc.errors(include_url=False)[0])
             reply_error(query, "invalid_input", first["message"], first["field"])
-            return
+            return False
         except ServiceError as exc:
             reply_error(query, error_type(exc), exc.message, exc.field)
-            return
+            return _ends_capture(exc)
         query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
+        return True
 
     def _followed_canal(self, st: Stream) -> Any:
         """The canal the stream follows (its route's, in a model of several routes), which a
@@ -240,11 +299,9 @@ class Captures:
         dim = self.service.skill_dim(skill)
         poses = poses_of_dim(poses, dim, "positions")
         positions = [p.position for p in poses]
-        times = [p.t for p in poses]
         quats = [p.orientation for p in poses]
         demo = check_demonstration(
-            positions, dim,
-            times if poses and all(t is not None for t in times) else None,
+            positions, dim, capture_times(poses),
             quats if poses and all(q is not None for q in quats) else None)
         created = self.service.add_demonstration(skill, demo, label, "zenoh", instance=instance)
         return created.model_dump(mode="json")  # type: ignore[no-any-return]
@@ -282,6 +339,32 @@ def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
                        f"{len(poses)} poses with {dims}", field=field)
 
 
+def capture_times(poses: list[Any]) -> list[float] | None:
+    """The captured poses' times, or None (stored untimed) unless every pose has one. A
+    capture whose every time is 0 carries none either: a ROS 2 PoseStamped's header stamp
+    left unset is 0, and refusing its demonstration for times that do not advance would
+    lose it for a field the robot never meant to send."""
+    times = [p.t for p in poses]
+    if not poses or any(t is None for t in times) or all(t == 0 for t in times):
+        return None
+    return times
+
+
+def _ends_capture(exc: ServiceError) -> bool:
+    """A stop refused with ``exc`` ends its capture: only when the skill it began on is
+    gone (nothing could store it); any other refusal leaves it open to stop again."""
+    return isinstance(exc, SkillReplaced) or (error_type(exc) == "not_found"
+                                              and exc.field == "skill")
+
+
+def _end(st: Stream, capture: list[Any]) -> None:
+    """End the stream's capture ``capture`` (stored, or its skill gone), unless a start
+    over has replaced it meanwhile."""
+    with st.lock:
+        if st.capture is capture:
+            st.capture, st.capture_kind = None, None
+
+
 def _began_on(instance: str | None) -> str:
     """The skill instance a capture began on, for the store to check; a steered run begun
     while no skill had the name matches none."""
@@ -297,4 +380,4 @@ def reply_error(query: Any, key: str, message: str, field: str | None = None) ->
         log.exception("could not answer a live query")
 
 
-__all__ = ["Captures", "poses_of_dim", "reply_error"]
+__all__ = ["Captures", "capture_times", "poses_of_dim", "reply_error"]

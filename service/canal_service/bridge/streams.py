@@ -209,6 +209,12 @@ class StreamTable:
         self.warn("refused a pose on %r: skill and robot must be plain key chunks "
                   "(no '*', '**', '$*', '?', '#', '@'); not answered", key)
 
+    def existing(self, key: str) -> Stream | None:
+        """The open stream of ``key``, never created (None when there is none)."""
+        with self.streams_lock:
+            st = self.streams.get(key)
+        return None if st is None or st.closed else st
+
     def stream(self, key: str, skill: str, robot: str) -> Stream | None:
         """The stream of ``key``, created (with its target publisher) on first use; None
         when that would pass ``max_streams`` (:meth:`full_message` says so)."""
