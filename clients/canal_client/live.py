@@ -306,7 +306,9 @@ class PoseStreamer:
         return query_json(self.session, self.keys.model, timeout=timeout)  # type: ignore[no-any-return]
 
     def start_demo(self, label: str | None = None, timeout: float = 5.0) -> dict[str, Any]:
-        """Begin capturing this stream's poses, from the next :meth:`send` on."""
+        """Begin capturing this stream's poses, from the next :meth:`send` on: ``{"capturing",
+        "from_seq", "discarded"}``. During a demonstration's capture it starts over, and
+        ``discarded`` is the number of poses thrown away."""
         return query_json(self.session, self.keys.demo_start,  # type: ignore[no-any-return]
                           {"from_seq": self._seq, "label": label}, timeout)
 
