@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import orjson
 import pytest
-from canal_client.live import PoseStreamer
+from canal_client.live import LiveError, PoseStreamer
 from canal_client.sim import run_sim
 from canal_service.app import create_app
 from canal_service.bridge.bridge import shard_of
@@ -242,3 +242,52 @@ def test_a_glitch_sent_as_a_restart_does_not_switch_the_route(live: Any, reach: 
         assert held.target is None, held
         x, answers = _follow(ps, x, 5)
         assert all(t.route == route and t.target[1] < 0.0 for t in answers), answers
+
+
+def _steered(ps: PoseStreamer, x: np.ndarray, steps: int, u: float, restart: bool = False
+             ) -> tuple[np.ndarray, list[wire.Target]]:
+    """``steps`` poses along the stream's plan with the steering input ``u`` held; the first
+    pose asks for a restart when ``restart``: held poses (``restart_pending``) stay put."""
+    answers = []
+    for k in range(steps):
+        if k % 2 == 0:
+            ps.steer(u, 0.0)
+        t = ps.wait_for(ps.send(x.tolist(), restart=restart and k == 0), timeout=5.0)
+        assert t is not None, k
+        answers.append(t)
+        if t.target is not None:
+            x = x + 0.3 * (np.asarray(t.target) - x)
+    return x, answers
+
+
+def test_a_steered_run_is_kept_as_a_correction_of_the_one_route_it_was_steered_on(
+        live: Any) -> None:
+    # A restart onto the other route with the steering still held went on with the same
+    # steered run: steer/keep stored the poses of both routes as one correction of the second.
+    client = live.client
+    fit_two_route_skill(client, "steerways", 80)
+    with PoseStreamer("steerways", "joy", endpoint=live.endpoint, encoding="json") as ps:
+        x, answers = _follow(ps, np.array(ROUTE_STARTS[0]), 5)
+        x, first = _steered(ps, x, 40, 1.0)
+        assert {t.route for t in first} == {0}, first
+        _, second = _steered(ps, np.array(ROUTE_STARTS[1]), 30, -1.0, restart=True)
+        assert second[-1].route == 1 and second[-1].status == "ok", second[-1]
+        kept = ps.keep_steered(label="below")
+        assert kept["correction"]["route"] == 1
+        # the poses from the restart pose on (held ones included), none of the first route's
+        assert kept["correction"]["n_points"] <= len(second), kept["correction"]
+        assert kept["correction"]["n_points"] >= len(second) - 2, kept["correction"]
+        # the run on the first route is the last steered run, a correction of that route
+        earlier = ps.keep_steered(label="above")
+        assert earlier["correction"]["route"] == 0
+        # (its first poses may go by before the first input reaches the bridge)
+        assert len(first) // 2 < earlier["correction"]["n_points"] <= len(first)
+        with pytest.raises(LiveError, match="no steered run"):
+            ps.keep_steered()
+    # a refit keeping the corrections places each on the route its poses lie along: its own
+    refit = client.post("/skills/steerways/fit", json={"n_samples": 80, "keep_corrections": True})
+    assert refit.status_code == 201, refit.text
+    items = client.get("/skills/steerways/corrections").json()["items"]
+    latest = client.get("/skills/steerways/models/latest").json()
+    routes_of = {c["label"]: c["route"] for c in items if c["id"] in latest["corrections"]}
+    assert routes_of == {"below": 1, "above": 0}, (routes_of, items)

@@ -26,6 +26,7 @@ from pydantic import ValidationError
 
 from canal_core import bounds
 from canal_core.options import CORRECTION_KINDS
+from canal_core.routes import way_of
 from canal_protocol.schemas import CorrectionIn
 
 from ..errors import InvalidInput, ServiceError, SkillReplaced, error_type, pydantic_detail
@@ -189,15 +190,23 @@ class Captures:
         if captured is None:
             return
         capture, poses, instance = captured
-        if self._store_correction(query, st, str(kind), poses, instance, weight, label):
+        # a stream's correction refines the route it follows
+        if self._store_correction(query, st, str(kind), poses, instance, weight, label,
+                                  self.route_of(st)):
             _end(st, capture)
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
-        """Keep the stream's last steered run (or the one in progress) as an include."""
+        """Keep the stream's steered run in progress (else its last one) as an include of
+        the route it was steered on."""
+        poses: list[Any] | None
         with st.lock:
-            in_progress = st.capture_kind == "steer"
-            run = st.capture if in_progress else st.steered
-            started_on = st.capture_instance if in_progress else st.steered_instance
+            in_progress = st.capture_kind == "steer" and bool(st.capture)
+            if in_progress:
+                run, started_on = st.capture, st.capture_instance
+                route, serial = st.route, st.route_serial
+            else:
+                run, started_on = st.steered, st.steered_instance
+                route, serial = st.steered_route, st.steered_serial
             poses = list(run) if run else None
         if not run or not poses:
             reply_error(query, "conflict", "this stream has no steered run to keep", "steer")
@@ -211,7 +220,8 @@ class Captures:
             weight, label = body.get("weight"), body.get("label")
             done = self._store_correction(query, st, "include", poses, _began_on(started_on),
                                           1.0 if weight is None else float(weight),
-                                          "steered" if label is None else label)
+                                          "steered" if label is None else label,
+                                          self._steered_route(st, poses, route, serial))
         if done:
             with st.lock:
                 if in_progress and st.capture is run:
@@ -219,23 +229,39 @@ class Captures:
                 elif not in_progress and st.steered is run:
                     st.steered = None
 
+    def _steered_route(self, st: Stream, poses: list[Any] | None, route: int | None,
+                       serial: int) -> int | None:
+        """The route, in the skill's model now, of a steered run steered on ``route`` of the
+        model entry ``serial``: that route, or, when another model version came since (a fit
+        numbers its routes afresh), the route its poses lie along, as a refit places a kept
+        correction (None: one route, or the canal of all)."""
+        entry = self.models.entry(st.skill)
+        if entry.status != "ok" or entry.routes is None or not poses or route is None:
+            return None  # the canal of all: every route's canal the poses pass through
+        if serial == entry.serial and route < len(entry.routes):
+            return route
+        points = [p.position for p in poses if len(p.position) == entry.dim]
+        if not points:
+            return None
+        return way_of(entry.chooser, points, route if route < len(entry.routes) else None)
+
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
-                          instance: str, weight: float, label: str | None) -> bool:
-        """Apply the poses as a correction and answer; False when refused in a way that
-        leaves the capture open (:func:`_ends_capture`)."""
+                          instance: str, weight: float, label: str | None,
+                          route: int | None) -> bool:
+        """Apply the poses as a correction of ``route`` and answer; False when refused in a
+        way that leaves the capture open (:func:`_ends_capture`)."""
         far = 0
         try:
             poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
             captured = len(poses)
-            poses = self._within_reach(st, poses)
+            poses = self._within_reach(st, poses, route)
             far = captured - len(poses)
             body = CorrectionIn.model_validate({
                 "kind": kind, "samples": [list(p.position) for p in poses],
                 "timestamps": capture_times(poses),
                 "weight": weight, "label": label or "",
-                "plan": self._live_plan(st, poses) if kind == "exclude" else None,
-                # a stream's correction refines the route it follows
-                "route": self.route_of(st)})
+                "plan": self._live_plan(st, poses, route) if kind == "exclude" else None,
+                "route": route})
             made = self.service.correct(st.skill, body, instance=instance)
             if far:
                 made.notes = [*made.notes, f"{far} of the {captured} captured poses "
@@ -251,20 +277,21 @@ class Captures:
         query.reply(query.key_expr, orjson.dumps(made.model_dump(mode="json")), encoding=ENC_JSON)
         return True
 
-    def _followed_canal(self, st: Stream) -> Any:
-        """The canal the stream follows (its route's, in a model of several routes), which a
-        correction from it refines; None when the skill has no model here."""
+    def _followed_canal(self, st: Stream, route: int | None) -> Any:
+        """The canal a correction from the stream refines (``route``'s, in a model of several
+        routes); None when the skill has no model here."""
         entry = self.models.entry(st.skill)
         if entry.status != "ok" or entry.canal is None:
             return None
-        route = self.route_of(st)
-        return entry.canal if route is None or entry.routes is None else entry.routes[route].canal
+        if route is None or entry.routes is None or route >= len(entry.routes):
+            return entry.canal
+        return entry.routes[route].canal
 
-    def _within_reach(self, st: Stream, poses: list[Any]) -> list[Any]:
+    def _within_reach(self, st: Stream, poses: list[Any], route: int | None) -> list[Any]:
         """The captured poses within the reach a correction's samples are held to (a
         sensor spike a billion metres out is a finite pose the tracker answered
         ``outside_canal``): one such pose must not cost the person the whole push."""
-        canal = self._followed_canal(st)
+        canal = self._followed_canal(st, route)
         if canal is None:
             return poses  # the service answers for the model
         centre, size = bounds.canal_extent(canal.directrix, canal.radii)
@@ -273,11 +300,12 @@ class Captures:
                 if float(np.linalg.norm(np.asarray(p.position, dtype=np.float64) - centre)) <= reach]
         return kept if kept else poses  # none left: the service says what came
 
-    def _live_plan(self, st: Stream, poses: list[Any]) -> list[list[float]] | None:
+    def _live_plan(self, st: Stream, poses: list[Any], route: int | None
+                   ) -> list[list[float]] | None:
         """What the robot was on before the push: the live tracker keeps its ratio from the
         first captured pose on (the paper's constant ratio, no end decay), in the canal of
         the route the stream follows."""
-        canal = self._followed_canal(st)
+        canal = self._followed_canal(st, route)
         if canal is None or not poses or len(poses[0].position) != canal.dim:
             return None
         try:

@@ -43,7 +43,7 @@ from canal_protocol import wire
 
 from .answers import Answers
 from .models import ModelEntry
-from .streams import Job, Stream, release_slot
+from .streams import Job, Stream, end_steered_run, release_slot
 
 _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 #: Longest time step a steering input is applied over (a stream that paused does not jump).
@@ -110,16 +110,30 @@ class Stepper(Answers):
                                f"got {len(position)}", fmt)
                     continue
             restart = False
+            run_from = pose  # where a steered run ended by a route change ends
             if pose.restart or st.restart_at is not None:
                 how = self.restart_of(st, position, now)
                 if how == PENDING:
                     st.position_at = now  # the stream is not silent: no pause ends the wait
+                    if st.restart_streak == 1:
+                        st.restart_from = pose
                     self.error(st, pose.seq, "restart_pending", _RESTART_PENDING, fmt)
                     continue
                 restart = how == AFRESH
+                if restart and st.restart_from is not None:
+                    # the new run began at the pose that asked for the restart: the poses
+                    # held since are its poses too
+                    run_from = st.restart_from
+                st.restart_from = None
             tracked = entry
             if entry.routes is not None:
+                route, serial = st.route, st.route_serial
                 tracked = self._route_of(st, entry, position, restart)
+                if st.capture_kind == "steer" and st.route != route and (
+                        restart or st.route_reason not in ("kept", "way")):
+                    # A steered run is kept as a correction of one route: the poses on the
+                    # route left are another route's path, kept apart with that route.
+                    end_steered_run(st, route, serial, run_from)
                 group = by_model.get(id(tracked))
                 if group is None:
                     group = by_model[id(tracked)] = (tracked, [], [], [])
@@ -306,10 +320,7 @@ class Stepper(Answers):
         u, v, heard = steer
         if now - heard > STEER_TIMEOUT_S:
             st.steer = None
-            with st.lock:
-                if st.capture_kind == "steer":
-                    st.steered, st.capture, st.capture_kind = st.capture, None, None
-                    st.steered_instance = st.capture_instance
+            end_steered_run(st, st.route, st.route_serial)
             return
         bank, slot = st.bank, st.slot
         dt = min(max(now - st.steer_at, 0.0), STEER_MAX_DT)

@@ -73,6 +73,8 @@ class Stream:
     #: that asked for it or was answered ``restart_pending``, and how many agreeing in a row
     restart_at: tuple[float, ...] | None = None
     restart_streak: int = 0
+    #: ... and the first of those poses
+    restart_from: wire.Pose | None = None
     last_seen: float = 0.0
     last_seq: int = -1
     coalesced: int = 0
@@ -97,6 +99,10 @@ class Stream:
     steered: list[wire.Pose] | None = None
     #: ... and the skill they were steered on (as ``capture_instance``)
     steered_instance: str | None = None
+    #: ... and the route they were steered on (``route``), numbered as in the model entry of
+    #: ``steered_serial`` (a later version may number its routes otherwise)
+    steered_route: int | None = None
+    steered_serial: int = -1
     lock: threading.Lock = field(default_factory=threading.Lock)
     closed: bool = False
     # the recording: count deltas since the last batch, the rows kept, the rate limit
@@ -313,6 +319,34 @@ class StreamTable:
                 release_slot(st)
         for st in streams:
             close_stream(st)
+
+
+def end_steered_run(st: Stream, route: int | None, serial: int,
+                    at: wire.Pose | None = None) -> None:
+    """End the stream's steered run in progress: its poses (those before ``at``, the pose
+    that ends it, when given) become the last steered run, steered on ``route`` of the model
+    entry ``serial``. The poses from ``at`` on go on as a new run (the steering is still
+    held). Nothing changes when no steered run is in progress, or none of its poses came
+    before ``at``."""
+    with st.lock:
+        poses = st.capture
+        if st.capture_kind != "steer" or poses is None:
+            return
+        cut = len(poses)
+        if at is not None:
+            # the pose that ends the run was added by the decoder (a 2-D skill's CDR pose as
+            # a copy of it), and perhaps a few after it in the same drain
+            cut = next((i for i in range(len(poses) - 1, -1, -1)
+                        if poses[i] is at or poses[i].seq == at.seq), len(poses))
+        if cut == 0:
+            return
+        st.steered, st.steered_instance = poses[:cut], st.capture_instance
+        st.steered_route, st.steered_serial = route, serial
+        if at is None:
+            st.capture, st.capture_kind = None, None
+        else:
+            st.capture = poses[cut:]
+            st.capture_from = at.seq
 
 
 def release_slot(st: Stream) -> None:
