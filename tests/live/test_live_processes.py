@@ -44,6 +44,12 @@ def test_bridge_process_serves_reports_hears_fits_and_its_death_degrades(tmp_pat
         assert wait_until(lambda: metric(client, "canal_live_poses_total") >= result.n_steps,
                           5.0)
         assert metric(client, "canal_live_targets_total") >= result.n_steps
+        # its step times too: the histogram stayed at zero, "no pose stepped" on a dashboard
+        poses = metric(client, "canal_live_poses_total")
+        assert wait_until(lambda: metric(client, "canal_live_step_seconds_count") >= poses, 5.0)
+        assert metric(client, "canal_live_step_seconds_bucket", 'le="+Inf"') == \
+            metric(client, "canal_live_step_seconds_count")
+        assert 0.0 < metric(client, "canal_live_step_seconds_sum") < 10.0
         # every count, steering inputs too (a bridge process's were never added)
         with PoseStreamer("s", "joy", endpoint=endpoint) as ps:
             ps.wait_for(ps.send(result.start.tolist(), restart=True), timeout=5.0)

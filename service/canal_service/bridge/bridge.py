@@ -132,10 +132,8 @@ class Bridge:
         self._published: dict[str, tuple[int, int]] = {}
         self._metrics = m
         self._m_streams = m.live_streams
-        self._m_step = m.live_step_seconds
         self._m_error_children = {key: m.live_errors.labels(key) for key in ERROR_KEYS}
-        self._flushed = Counts().snapshot()
-        self._flushed_step: tuple[list[int], float] = ([0] * len(self.counts.step_bounds), 0.0)
+        self._flushed = Counts(self.counts.step_bounds).snapshot()
         #: this bridge's name on the recorder key (a restarted bridge gets a new one)
         self.bridge_id = f"b{self.options.shard}-{os.getpid()}-{secrets.token_hex(3)}"
         self._record_n = 0
@@ -370,14 +368,6 @@ class Bridge:
             if n != before["errors"][key]:
                 self._m_error_children[key].inc(n - before["errors"][key])
         self._flushed = now
-        # The worker's bucket counts, added in one go (one observation per pose).
-        counts = self.counts
-        buckets, total = list(counts.step_buckets), counts.step_sum
-        before_buckets, before_total = self._flushed_step
-        deltas = [n - b for n, b in zip(buckets, before_buckets, strict=True)]
-        if any(deltas) or total != before_total:
-            self._m_step.add(deltas, total - before_total)
-        self._flushed_step = (buckets, total)
         self._m_streams.set(len(self.path.streams))
 
     # ---- recording (off the pose path) ---------------------------------------------------------

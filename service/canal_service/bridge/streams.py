@@ -161,7 +161,8 @@ class Counts:
         return {"poses": self.poses, "targets": self.targets, "coalesced": self.coalesced,
                 "errors": dict(self.errors), "switches": self.switches, "drains": self.drains,
                 "recorded": self.recorded, "decimated": self.decimated + self.unknown,
-                "parked": self.parked, "steers": self.steers}
+                "parked": self.parked, "steers": self.steers,
+                "step_buckets": list(self.step_buckets), "step_sum": self.step_sum}
 
 
 #: Each count of :meth:`Counts.snapshot` that /metrics shows, and its counter on
@@ -174,11 +175,23 @@ COUNT_METRICS = {"poses": "live_poses", "targets": "live_targets", "coalesced": 
 
 
 def add_counts(metrics: Any, now: dict[str, Any], before: dict[str, Any]) -> None:
-    """Add each count's growth from ``before`` to ``now`` (snapshots) to its counter."""
+    """Add each count's growth from ``before`` to ``now`` (snapshots) to its counter, and
+    the step histogram's."""
     for name, counter in COUNT_METRICS.items():
         grown = now.get(name, 0) - before.get(name, 0)
         if grown > 0:
             getattr(metrics, counter).inc(grown)
+    histogram = metrics.live_step_seconds
+    buckets = now.get("step_buckets")
+    if not isinstance(buckets, list) or len(buckets) != len(histogram.bounds):
+        return  # a bridge with other bucket bounds: its counts would land in the wrong ones
+    old = before.get("step_buckets")
+    if not isinstance(old, list) or len(old) != len(buckets):
+        old = [0] * len(buckets)
+    deltas = [n - b for n, b in zip(buckets, old, strict=True)]
+    total = float(now.get("step_sum", 0.0)) - float(before.get("step_sum", 0.0))
+    if min(deltas) >= 0 and total >= 0 and (any(deltas) or total > 0):
+        histogram.add(deltas, total)
 
 
 class StreamTable:
