@@ -266,14 +266,17 @@ def test_steering_inputs_and_stream_queries_are_held_to_the_stream_cap(tmp_path)
     # A steering input made a stream for any skill name, past the cap, and pinned it (its
     # steered run was a capture, and a stream capturing is never forgotten); a stream query
     # (demo/start ...) made one past the cap too.
-    with _capped(tmp_path, 3, 0.5) as (live, x), \
+    # idle 2 s: long enough that a loaded machine does not forget the steered streams before
+    # they are counted, short enough to see them forgotten below
+    with _capped(tmp_path, 3, 2.0) as (live, x), \
             PoseStreamer("arc3", "a", endpoint=live.endpoint) as a:
         bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
         session = a.session
         for i in range(20):
             session.put(f"canal/nosuchskill/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
             session.put(f"canal/arc3/ghost{i}/steer", b'{"u": 0.1, "v": 0.0}')
-        time.sleep(0.5)
+        assert wait_until(lambda: len(bridge.streams) >= 3, 5.0), list(bridge.streams)
+        time.sleep(0.3)  # any input handled late would make a stream past the cap by now
         assert not any("nosuchskill" in k for k in bridge.streams)
         assert len(bridge.streams) == 3  # a (the robot) and two steered
         replies = list(session.get("canal/arc3/q9/demo/start", payload=orjson.dumps({})))
