@@ -104,16 +104,21 @@ def pose_format(encoding: str, data: bytes) -> int:
 
 
 def asks_restart(fmt: int, data: bytes) -> bool:
-    """Whether a pose in format ``fmt`` carries the restart flag, read without decoding the
-    whole pose (binary: one header byte); False for a payload that is no usable pose.
+    """Whether a pose in format ``fmt`` carries the restart flag, as decoding it would say
+    (only a payload whose header or text names the flag is decoded); False for a payload that
+    is no pose.
 
     The live path coalesces a stream's backlog to its newest pose without decoding the
     others; a restart among them must survive, or the newest pose is judged against the
     run the robot has left.
     """
     if fmt == FORMAT_BINARY:
-        return (len(data) >= HEADER.size and data[1] == KIND_POSE
-                and bool(data[2] & POSE_RESTART))
+        if len(data) < HEADER.size or data[1] != KIND_POSE or not data[2] & POSE_RESTART:
+            return False
+        try:  # flagged: a pose only if the whole of it reads
+            return decode_pose(data).restart
+        except WireError:
+            return False
     if fmt == FORMAT_JSON:
         # the key may be written with escapes ("\\u0072estart"), which the decoder reads
         if b"restart" not in data and b"\\" not in data:

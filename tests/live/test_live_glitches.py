@@ -132,21 +132,30 @@ def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -
         assert got.status == "ok" and got.section <= 6, got
 
 
-@pytest.mark.parametrize("encoding", ["json", "binary"])
-def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(live, encoding: str) -> None:
+@pytest.mark.parametrize(("encoding", "extra"), [
+    ("json", None), ("binary", None),
+    ("binary", "glitch restart"),  # a restart pose at the canal's end after the real one
+    ("binary", "broken restart"),  # a pose no codec reads, flagged restart, after it
+    ("binary", "2-D restart"),  # a pose of the wrong dimension, flagged restart, after it
+])
+def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(
+        live, encoding: str, extra: str | None) -> None:
     """A robot paused, was carried back to the start and sends its new run in a burst (a
     driver flushing its queue) while the bridge is busy: the burst is coalesced to its newest
-    pose, and the restart its first pose asks for must still be made. Dropped with the
-    coalesced poses, the newest was judged against the old run and answered with a target
-    far along the canal, where the robot no longer is."""
+    pose, and the restart its first pose asks for must still be made, and made as it would
+    be pose by pose: a later restart pose that is a glitch, or no pose at all, changes
+    nothing. Dropped with the coalesced poses, the newest was judged against the old run and
+    answered with a target far along the canal, where the robot no longer is."""
     import threading
     import time
 
+    from canal_protocol import wire
+
     c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
     bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
-    with PoseStreamer("arc3", f"burst-restart-{encoding}", endpoint=live.endpoint,
-                      encoding=encoding) as ps, \
-            PoseStreamer("arc3", f"busy-{encoding}", endpoint=live.endpoint,
+    name = f"burst-restart-{encoding}-{extra}".replace(" ", "-")
+    with PoseStreamer("arc3", name, endpoint=live.endpoint, encoding=encoding) as ps, \
+            PoseStreamer("arc3", f"busy-{name}", endpoint=live.endpoint,
                          session=ps.session) as busy:
         x, before = _follow(ps, c[60] + 0.002, 5)
         assert before.section >= 55, before
@@ -164,15 +173,24 @@ def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(live, encoding: str)
             time.sleep(0.1)
             start = c[5] + 0.002
             seqs = [ps.send(start.tolist(), restart=True)]
-            seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(1, 30)]
+            seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(1, 5)]
+            if extra == "glitch restart":
+                ps.send(c[-1].tolist(), restart=True)
+            elif extra == "broken restart":
+                ps.send_raw(wire.encode_pose(0, start.tolist(), restart=True)[:20])
+            elif extra == "2-D restart":
+                ps.send_raw(wire.encode_pose(0, start[:2].tolist(), restart=True))
+            seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(5, 30)]
             time.sleep(0.3)
         finally:
             gate.set()
             bridge.path._handle = original
         newest = ps.wait_for(seqs[-1], 2.0)
+        later = [ps.wait_for(ps.send(start.tolist()), 2.0) for _ in range(3)]
     assert newest is not None and newest.coalesced >= 16, newest  # the burst was coalesced
-    assert newest.status == "ok" and newest.section <= 7, newest
-    assert np.linalg.norm(np.array(newest.target) - start) < 0.05, newest
+    for got in [newest, *later]:
+        assert got is not None and got.status == "ok" and got.section <= 7, got
+        assert np.linalg.norm(np.array(got.target) - start) < 0.05, got
 
 
 def _loop(client, name: str, angle: float, radius: float = 0.3,  # type: ignore[no-untyped-def]

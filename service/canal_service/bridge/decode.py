@@ -20,16 +20,23 @@ _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 _MAX_BYTES = wire.MAX_POSE_BYTES
 
 
-def _latest_restart(samples: list[Any]) -> int | None:
-    """The index of the latest sample before the newest that asks for a restart, if any."""
-    for i in range(len(samples) - 2, -1, -1):
+def _kept_of_backlog(samples: list[Any], most: int) -> tuple[int, ...]:
+    """The indices of a coalesced backlog's samples that are answered, in order: every one
+    that asks for a restart, then the newest. Each restart is made as it would be pose by
+    pose (the first after a pause at once, a later one that jumps held until poses agree), so
+    a glitch flagged restart behind a real one is held, not obeyed. Past ``most`` restarts,
+    the first and the latest ones are kept: the first is the one a pause lets through."""
+    restarts = []
+    for i in range(len(samples) - 1):
         s = samples[i]
         data = s.payload.to_bytes()
         encoding = s.encoding
         fmt = _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
         if asks_restart(fmt, data):
-            return i
-    return None
+            restarts.append(i)
+    if len(restarts) > most > 1:
+        restarts = [restarts[0], *restarts[len(restarts) - most + 1 :]]
+    return (*restarts, len(samples) - 1)
 
 
 class Decoder(Answers):
@@ -79,13 +86,12 @@ class Decoder(Answers):
                 if job is not None:
                     first.append(job)
                 continue
-            keep: tuple[int, ...] | None = None
+            keep: frozenset[int] | None = None
             if n > backlog:
-                # The newest pose answers the backlog. The latest restart before it is
-                # answered too, first: dropped, the re-location it asks for would be lost and
-                # the newest pose judged against the run the robot has left.
-                restart = _latest_restart(samples)
-                keep = (n - 1,) if restart is None else (restart, n - 1)
+                # The newest pose answers the backlog, after the restarts in it: dropped, the
+                # re-location a restart asks for would be lost and the newest pose judged
+                # against the run the robot has left.
+                keep = frozenset(_kept_of_backlog(samples, backlog))
                 skipped = n - len(keep)
                 st.coalesced += skipped
                 st.rec_coalesced += skipped

@@ -10,8 +10,8 @@ several poses in one drain is stepped in order (one pass per pose). Metrics are 
 integers (:class:`.streams.Counts`); the bridge's metrics thread hands them to Prometheus.
 
 *Overload policy*: when one stream has more than ``coalesce_backlog`` poses queued in one
-drain, only its newest pose is answered, and before it the latest ``restart`` pose among
-them (the re-location it asks for is not lost); the others are counted per stream (the
+drain, only its newest pose is answered, and before it the ``restart`` poses among them,
+each made as it would be pose by pose; the others are counted per stream (the
 target's ``coalesced``) and in ``canal_live_poses_coalesced_total``.
 
 *Recording*: when the bridge records (``BridgeOptions.record_hz`` set), each stream keeps
