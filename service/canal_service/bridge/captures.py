@@ -9,8 +9,13 @@ instance the capture began on, on the control thread, never on the pose path.
 A stop refused for what was captured (too few poses, timestamps that do not advance, the
 database away) leaves the capture open: the poses are not lost, the person may go on and
 stop again, or start the capture over (a start during a capture of its own kind does, and
-says how many poses it discards). Only a stop refused because the skill the capture began
-on is gone ends it: nothing could ever store it.
+says how many poses it discards; one during a steered run ends the run, to keep after).
+Only a stop refused because the skill the capture began on is gone, or a demonstration
+longer than an upload may be, ends it: nothing could ever store it.
+
+A capture holds at most ``BridgeOptions.capture_max`` poses (:class:`.streams.Capture`);
+a correction or a steered run with more than a correction holds is thinned evenly to that
+(:func:`thinned`), the reply's notes saying so.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import orjson
 from pydantic import ValidationError
 
 from canal_core import bounds
-from canal_core.options import CORRECTION_KINDS
+from canal_core.options import CORRECTION_KINDS, MAX_CORRECTION_SAMPLES
 from canal_core.routes import way_of
 from canal_protocol.schemas import CorrectionIn
 
@@ -34,7 +39,7 @@ from ..service import CanalService
 from ..storage import repository as repo
 from ..validation import check_demonstration
 from .models import ModelTable
-from .streams import ENC_JSON, Stream
+from .streams import ENC_JSON, Capture, Stream, end_steered_run_locked, new_capture
 
 log = logging.getLogger("canal_service.bridge")
 
@@ -93,7 +98,7 @@ class Captures:
         instance = self.skill_instance(st.skill)
         with st.lock:
             if st.capture is None:
-                st.capture, st.capture_from = [], st.last_seq + 1
+                st.capture, st.capture_from = new_capture(st), st.last_seq + 1
                 st.capture_kind, st.capture_label = "steer", None
                 st.capture_instance = instance
 
@@ -114,9 +119,12 @@ class Captures:
                 reply_error(query, "conflict", f"{busy} is being captured on this stream; "
                              "stop it first", "demo" if st.capture_kind is None else "correction")
                 return
+            # a steered run is not thrown away by a capture begun over it: it ends there, the
+            # last steered run, for steer/keep to keep after the capture as before it
+            end_steered_run_locked(st, st.route, st.route_serial)
             # what a start over throws away, said in the reply: never a silent loss
-            discarded = 0 if st.capture is None else len(st.capture)
-            st.capture = []
+            discarded = 0 if st.capture is None else len(st.capture) + st.capture.over
+            st.capture = new_capture(st)
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
             st.capture_label = label if isinstance(label, str) else None
             st.capture_kind, st.capture_weight = kind, weight
@@ -128,7 +136,7 @@ class Captures:
 
     def _capture_stop(self, query: Any, st: Stream, body: dict[str, Any],
                       kinds: tuple[str | None, ...], what: str
-                      ) -> tuple[list[Any], list[Any], str] | None:
+                      ) -> tuple[Capture, list[Any], str] | None:
         """The capture (still open: :func:`_end` ends it once stored), its poses up to
         ``last_seq`` and the skill instance it began on (the store checks it again:
         :class:`..errors.SkillReplaced`), or None after answering the error."""
@@ -169,6 +177,18 @@ class Captures:
         if captured is None:
             return
         capture, poses, instance = captured
+        last_seq = body.get("last_seq")
+        if capture.over and not (isinstance(last_seq, int) and last_seq < capture.over_from):
+            # as REST refuses such a demonstration (413); and it can never be stored, its
+            # poses past the limit not held: the capture is over
+            _end(st, capture)
+            reply_error(query, "payload_too_large",
+                        f"expected a demonstration of at most {capture.cap} poses (limit "
+                        f"CANAL_UPLOAD_MAX_POINTS, as an upload), got {len(capture) + capture.over} "
+                        "captured; the capture is over: start again and stop within the limit, "
+                        "or stop with a last_seq before the pose "
+                        f"{capture.over_from} where it was reached", "positions")
+            return
         try:
             created = self._store_demo(st.skill, poses, instance, label)
         except ServiceError as exc:
@@ -191,8 +211,11 @@ class Captures:
             return
         capture, poses, instance = captured
         # a stream's correction refines the route it follows
+        last_seq = body.get("last_seq")
+        over = capture.over if not isinstance(last_seq, int) or last_seq >= capture.over_from \
+            else 0
         if self._store_correction(query, st, str(kind), poses, instance, weight, label,
-                                  self.route_of(st)):
+                                  self.route_of(st), over, capture.cap):
             _end(st, capture)
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
@@ -202,10 +225,10 @@ class Captures:
         with st.lock:
             in_progress = st.capture_kind == "steer" and bool(st.capture)
             if in_progress:
-                run, started_on = st.capture, st.capture_instance
+                run, started_on, run_id = st.capture, st.capture_instance, st.capture_run
                 route, serial = st.route, st.route_serial
             else:
-                run, started_on = st.steered, st.steered_instance
+                run, started_on, run_id = st.steered, st.steered_instance, st.steered_run
                 route, serial = st.steered_route, st.steered_serial
             poses = list(run) if run else None
         if not run or not poses:
@@ -221,12 +244,16 @@ class Captures:
             done = self._store_correction(query, st, "include", poses, _began_on(started_on),
                                           1.0 if weight is None else float(weight),
                                           "steered" if label is None else label,
-                                          self._steered_route(st, poses, route, serial))
+                                          self._steered_route(st, poses, route, serial),
+                                          run.over, run.cap)
         if done:
             with st.lock:
-                if in_progress and st.capture is run:
+                # the run may have ended while it was stored (0.5 s after the last input):
+                # its end moved it to the last-run slot, where a second keep would store it
+                # again; it goes wherever it is now
+                if st.capture_kind == "steer" and st.capture_run == run_id:
                     st.capture, st.capture_kind, st.steer = None, None, None
-                elif not in_progress and st.steered is run:
+                if st.steered_run == run_id:
                     st.steered = None
 
     def _steered_route(self, st: Stream, poses: list[Any] | None, route: int | None,
@@ -247,15 +274,18 @@ class Captures:
 
     def _store_correction(self, query: Any, st: Stream, kind: str, poses: list[Any],
                           instance: str, weight: float, label: str | None,
-                          route: int | None) -> bool:
+                          route: int | None, over: int = 0, cap: int = 0) -> bool:
         """Apply the poses as a correction of ``route`` and answer; False when refused in a
-        way that leaves the capture open (:func:`_ends_capture`)."""
+        way that leaves the capture open (:func:`_ends_capture`). ``over``: the poses past
+        the capture's ``cap`` that were not held."""
         far = 0
         try:
             poses = poses_of_dim(poses, self.service.skill_dim(st.skill), "samples")
             captured = len(poses)
             poses = self._within_reach(st, poses, route)
             far = captured - len(poses)
+            held = len(poses)
+            poses = thinned(poses, MAX_CORRECTION_SAMPLES)
             body = CorrectionIn.model_validate({
                 "kind": kind, "samples": [list(p.position) for p in poses],
                 "timestamps": capture_times(poses),
@@ -267,6 +297,14 @@ class Captures:
                 made.notes = [*made.notes, f"{far} of the {captured} captured poses "
                               f"{'was' if far == 1 else 'were'} left out, beyond the canal's "
                               f"reach (more than {bounds.MAX_REACH:g} canal sizes from it)"]
+            if len(poses) < held:
+                made.notes = [*made.notes, f"{held} captured poses thinned to {len(poses)}, "
+                              "evenly, the first and last kept: a correction holds at most "
+                              f"{MAX_CORRECTION_SAMPLES} samples"]
+            if over:
+                made.notes = [*made.notes, f"{over} captured poses after the first {cap} were "
+                              f"not held (a capture holds at most {cap} poses): the correction "
+                              "ends where that limit was reached"]
         except ValidationError as exc:
             first = pydantic_detail(exc.errors(include_url=False)[0])
             reply_error(query, "invalid_input", first["message"], first["field"])
@@ -352,6 +390,16 @@ def _wait_for_pose(st: Stream, seq: int) -> None:
             seen, moved = st.last_seq, now
 
 
+def thinned(poses: list[Any], most: int) -> list[Any]:
+    """At most ``most`` of the poses, evenly spaced, the first and the last kept (a
+    correction is a shape: a run held at a lower rate is the same run)."""
+    n = len(poses)
+    if n <= most:
+        return poses
+    picks = np.floor(np.linspace(0.0, n - 1, most) + 0.5).astype(np.int64)
+    return [poses[int(i)] for i in picks]
+
+
 def poses_of_dim(poses: list[Any], dim: int, field: str) -> list[Any]:
     """The captured poses with the skill's ``dim`` coordinates. The others were answered
     ``wrong_dimension`` as they came and never tracked: a glitch does not cost the person the
@@ -385,7 +433,7 @@ def _ends_capture(exc: ServiceError) -> bool:
                                               and exc.field == "skill")
 
 
-def _end(st: Stream, capture: list[Any]) -> None:
+def _end(st: Stream, capture: Capture) -> None:
     """End the stream's capture ``capture`` (stored, or its skill gone), unless a start
     over has replaced it meanwhile."""
     with st.lock:

@@ -68,6 +68,10 @@ class BridgeOptions:
     record_interval_s: float = 0.1
     preload_max: int = 64
     preload_keep_s: float = 600.0
+    #: the most poses a capture (a demonstration, a correction, a steered run) holds: a
+    #: demonstration the REST API would refuse is not stored live either
+    #: (``CANAL_UPLOAD_MAX_POINTS``), and a capture left open while poses come stays bounded
+    capture_max: int = 200_000
     token: str | None = field(default=None, repr=False)
     zenoh_open: bool = False
     users_file: Path | None = None
@@ -99,6 +103,7 @@ class BridgeOptions:
             refresh_s=settings.zenoh_refresh_s, lookahead=settings.zenoh_lookahead,
             preload_max=settings.zenoh_preload_max,
             preload_keep_s=settings.zenoh_preload_keep_s,
+            capture_max=settings.upload_max_points,
             record_hz=float(settings.recordings_live_hz) if settings.recordings_enabled
             else None,
             token=None if settings.token is None else settings.token.get_secret_value(),

@@ -44,6 +44,29 @@ CAPTURE_IDLE_FACTOR = 10
 Job = tuple["Stream", wire.Pose, int, Any]
 
 
+class Capture(list[wire.Pose]):
+    """A capture's poses, at most ``cap`` of them: the poses past it are counted
+    (``over``, the first one's seq in ``over_from``), not held, so that a capture left open
+    while a robot streams keeps the bridge's memory bounded (each pose held is some 370
+    bytes)."""
+
+    __slots__ = ("cap", "over", "over_from")
+
+    def __init__(self, cap: int, poses: list[wire.Pose] | None = None) -> None:
+        super().__init__(poses or ())
+        self.cap = cap
+        self.over = 0
+        self.over_from = -1
+
+    def append(self, pose: wire.Pose) -> None:
+        if len(self) < self.cap:
+            super().append(pose)
+            return
+        if not self.over:
+            self.over_from = pose.seq
+        self.over += 1
+
+
 @dataclass(eq=False)
 class Stream:
     """One (skill, robot) pose stream."""
@@ -81,8 +104,15 @@ class Stream:
     cdr_seq: int = 0
     cdr_status: str = ""
     status_key: str = ""
-    capture: list[wire.Pose] | None = None
+    capture: Capture | None = None
     capture_from: int = 0
+    #: the most poses a capture holds (:class:`Capture`, ``BridgeOptions.capture_max``)
+    capture_max: int = 200_000
+    #: which steered run the capture is (``capture_kind`` "steer") and which one
+    #: ``steered`` holds: a run kept is cleared wherever its end has moved it meanwhile
+    capture_run: int = 0
+    steered_run: int = -1
+    runs: int = 0
     capture_label: str | None = None
     #: None: the capture is a demonstration; "include" / "exclude": a correction; "steer":
     #: the poses of a steered run (kept in ``steered`` when the steering ends)
@@ -96,7 +126,7 @@ class Stream:
     steer: tuple[float, float, float] | None = None
     steer_at: float = 0.0
     #: the poses of the last steered run (for ``steer/keep``)
-    steered: list[wire.Pose] | None = None
+    steered: Capture | None = None
     #: ... and the skill they were steered on (as ``capture_instance``)
     steered_instance: str | None = None
     #: ... and the route they were steered on (``route``), numbered as in the model entry of
@@ -253,7 +283,7 @@ class StreamTable:
                 k.target, express=False, congestion_control=zenoh.CongestionControl.BLOCK,
                 encoding=ENC_JSON)
             st = Stream(key, skill, robot, publisher, last_seen=time.monotonic(),
-                        status_key=k.status)
+                        status_key=k.status, capture_max=self.options.capture_max)
             self.streams[key] = st
             return st
 
@@ -342,24 +372,44 @@ def end_steered_run(st: Stream, route: int | None, serial: int,
     held). Nothing changes when no steered run is in progress, or none of its poses came
     before ``at``."""
     with st.lock:
-        poses = st.capture
-        if st.capture_kind != "steer" or poses is None:
-            return
-        cut = len(poses)
-        if at is not None:
-            # the pose that ends the run was added by the decoder (a 2-D skill's CDR pose as
-            # a copy of it), and perhaps a few after it in the same drain
-            cut = next((i for i in range(len(poses) - 1, -1, -1)
-                        if poses[i] is at or poses[i].seq == at.seq), len(poses))
-        if cut == 0:
-            return
-        st.steered, st.steered_instance = poses[:cut], st.capture_instance
-        st.steered_route, st.steered_serial = route, serial
-        if at is None:
-            st.capture, st.capture_kind = None, None
-        else:
-            st.capture = poses[cut:]
-            st.capture_from = at.seq
+        end_steered_run_locked(st, route, serial, at)
+
+
+def end_steered_run_locked(st: Stream, route: int | None, serial: int,
+                           at: wire.Pose | None = None) -> None:
+    """:func:`end_steered_run`, the caller holding ``st.lock``."""
+    poses = st.capture
+    if st.capture_kind != "steer" or poses is None:
+        return
+    cut = len(poses)
+    if at is not None:
+        # the pose that ends the run was added by the decoder (a 2-D skill's CDR pose as
+        # a copy of it), and perhaps a few after it in the same drain
+        cut = next((i for i in range(len(poses) - 1, -1, -1)
+                    if poses[i] is at or poses[i].seq == at.seq), len(poses))
+    if cut == 0:
+        return
+    steered = Capture(poses.cap, poses[:cut])
+    st.steered, st.steered_instance = steered, st.capture_instance
+    st.steered_route, st.steered_serial = route, serial
+    st.steered_run = st.capture_run
+    # the poses past the cap came last: they belong to the run that goes on, if any
+    rest = steered if at is None else Capture(poses.cap, poses[cut:])
+    rest.over, rest.over_from = poses.over, poses.over_from
+    if at is None:
+        st.capture, st.capture_kind = None, None
+    else:
+        st.capture = rest
+        st.capture_from = at.seq
+        st.runs += 1
+        st.capture_run = st.runs
+
+
+def new_capture(st: Stream) -> Capture:
+    """An empty capture for the stream, a run of its own (the caller holds ``st.lock``)."""
+    st.runs += 1
+    st.capture_run = st.runs
+    return Capture(st.capture_max)
 
 
 def release_slot(st: Stream) -> None:
