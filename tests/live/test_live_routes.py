@@ -250,8 +250,9 @@ def _steered(ps: PoseStreamer, x: np.ndarray, steps: int, u: float, restart: boo
     pose asks for a restart when ``restart``: held poses (``restart_pending``) stay put."""
     answers = []
     for k in range(steps):
-        if k % 2 == 0:
-            ps.steer(u, 0.0)
+        # an input with every pose: a loaded machine may take longer than the steering's
+        # 0.5 s timeout over two round trips, which ends the run
+        ps.steer(u, 0.0)
         t = ps.wait_for(ps.send(x.tolist(), restart=restart and k == 0), timeout=5.0)
         assert t is not None, k
         answers.append(t)
