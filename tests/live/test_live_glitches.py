@@ -193,6 +193,46 @@ def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(
         assert np.linalg.norm(np.array(got.target) - start) < 0.05, got
 
 
+@pytest.mark.parametrize("every", [4, 3])
+def test_glitch_restarts_spread_through_a_coalesced_burst_are_held(live, every: int) -> None:
+    """Pose by pose, each good pose between glitches flagged restart cancels the pending
+    one. Coalesced, those poses are gone: the glitches must not count as poses that agree,
+    or the restart is made at the glitch, far from the robot."""
+    import threading
+    import time
+
+    c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
+    bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
+    with PoseStreamer("arc3", f"spread-{every}", endpoint=live.endpoint) as ps, \
+            PoseStreamer("arc3", f"busy-spread-{every}", endpoint=live.endpoint,
+                         session=ps.session) as busy:
+        x, before = _follow(ps, c[40] + 0.002, 5)
+        gate = threading.Event()
+        original = bridge.path._handle
+
+        def held(batch):  # type: ignore[no-untyped-def]
+            gate.wait(5.0)
+            return original(batch)
+
+        bridge.path._handle = held
+        try:
+            busy.send(c[30].tolist())  # taken by the held worker: the burst queues behind it
+            time.sleep(0.1)
+            seqs = [ps.send((c[-1] if k % every == every - 1 else x).tolist(),
+                            restart=k % every == every - 1) for k in range(40)]
+            time.sleep(0.3)
+        finally:
+            gate.set()
+            bridge.path._handle = original
+        newest = ps.wait_for(seqs[-1], 2.0)
+        answers = [ps.latest()] + [ps.wait_for(ps.send(x.tolist()), 2.0) for _ in range(3)]
+    assert newest is not None and newest.coalesced >= 16, newest  # the burst was coalesced
+    for got in [newest, *answers]:
+        assert got is not None
+        assert got.target is None or np.linalg.norm(np.array(got.target) - x) < 0.05, got
+    assert answers[-1].status == "ok" and answers[-1].section <= before.section + 2, answers
+
+
 def _loop(client, name: str, angle: float, radius: float = 0.3,  # type: ignore[no-untyped-def]
           n: int = 120) -> np.ndarray:
     """The directrix of skill ``name``: four circles of radius about ``radius`` swept over

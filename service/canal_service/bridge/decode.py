@@ -97,13 +97,21 @@ class Decoder(Answers):
                 st.rec_coalesced += skipped
                 counts.coalesced += skipped
             capture = st.capture is not None
+            after_gap: set[int] | None = None
+            if keep is not None:
+                after_gap = st.after_gap = set()
+            gap = False
             k = 0
             for i, s in enumerate(samples):
                 if keep is not None and i not in keep:
+                    gap = True
                     if capture:  # a capture keeps every pose, in order
                         decode(st, s, False)
                     continue
                 job = decode(st, s, True)
+                if gap and job is not None and after_gap is not None:
+                    after_gap.add(id(job[1]))
+                    gap = False
                 if job is None:
                     continue
                 if k == len(rounds):

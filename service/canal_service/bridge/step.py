@@ -83,6 +83,9 @@ class Stepper(Answers):
         now = time.monotonic()
         for job in jobs:
             st, pose, fmt, _ros = job
+            if st.after_gap and id(pose) in st.after_gap:
+                st.after_gap.discard(id(pose))
+                st.restart_streak = 0  # not consecutive: a pending restart counts afresh
             if st.skill != last_skill:
                 entry = models.get(st.skill)
                 if entry is None:

@@ -96,6 +96,9 @@ class Stream:
     #: that asked for it or was answered ``restart_pending``, and how many agreeing in a row
     restart_at: tuple[float, ...] | None = None
     restart_streak: int = 0
+    #: the poses (by id) answered after poses of the stream were coalesced away: the poses
+    #: that would have broken a streak are gone, so none is counted across such a gap
+    after_gap: set[int] | None = None
     #: ... and the first of those poses
     restart_from: wire.Pose | None = None
     last_seen: float = 0.0
