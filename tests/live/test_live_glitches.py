@@ -4,6 +4,10 @@ from where the robot was, and the next good pose is answered as if it had never 
 
 from __future__ import annotations
 
+import contextlib
+import threading
+import time
+
 import numpy as np
 import pytest
 from canal_client.live import PoseStreamer
@@ -119,8 +123,6 @@ def test_a_restart_that_jumps_is_made_once_sustain_poses_agree(live) -> None:
 
 
 def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -> None:
-    import time
-
     c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
     with PoseStreamer("arc3", "restart-near", endpoint=live.endpoint) as ps:
         x, _ = _follow(ps, c[5] + 0.002, 5)
@@ -130,6 +132,29 @@ def test_a_restart_near_the_pose_before_or_after_a_pause_is_made_at_once(live) -
         time.sleep(0.6)  # the robot was moved to another start while nothing was sent
         got = _restart(ps, c[5] + 0.002)
         assert got.status == "ok" and got.section <= 6, got
+
+
+@contextlib.contextmanager
+def _bridge_held(live, busy: PoseStreamer, at: list[float]):  # type: ignore[no-untyped-def]
+    """The bridge's worker held on another robot's pose while the block runs: what the block
+    sends queues up and is handled as one drain (a burst the bridge coalesces)."""
+    bridge = live.client.app.state.bridge
+    gate = threading.Event()
+    original = bridge.path._handle
+
+    def held(batch):  # type: ignore[no-untyped-def]
+        gate.wait(5.0)
+        return original(batch)
+
+    bridge.path._handle = held
+    try:
+        busy.send(at)  # taken by the held worker: what follows queues behind it
+        time.sleep(0.1)
+        yield
+        time.sleep(0.3)
+    finally:
+        gate.set()
+        bridge.path._handle = original
 
 
 @pytest.mark.parametrize(("encoding", "extra"), [
@@ -146,13 +171,9 @@ def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(
     be pose by pose: a later restart pose that is a glitch, or no pose at all, changes
     nothing. Dropped with the coalesced poses, the newest was judged against the old run and
     answered with a target far along the canal, where the robot no longer is."""
-    import threading
-    import time
-
     from canal_protocol import wire
 
     c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
-    bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
     name = f"burst-restart-{encoding}-{extra}".replace(" ", "-")
     with PoseStreamer("arc3", name, endpoint=live.endpoint, encoding=encoding) as ps, \
             PoseStreamer("arc3", f"busy-{name}", endpoint=live.endpoint,
@@ -160,18 +181,8 @@ def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(
         x, before = _follow(ps, c[60] + 0.002, 5)
         assert before.section >= 55, before
         time.sleep(0.6)  # the pause: the robot is carried back to the start
-        gate = threading.Event()
-        original = bridge.path._handle
-
-        def held(batch):  # type: ignore[no-untyped-def]
-            gate.wait(5.0)
-            return original(batch)
-
-        bridge.path._handle = held
-        try:
-            busy.send(c[30].tolist())  # taken by the held worker: the burst queues behind it
-            time.sleep(0.1)
-            start = c[5] + 0.002
+        start = c[5] + 0.002
+        with _bridge_held(live, busy, c[30].tolist()):
             seqs = [ps.send(start.tolist(), restart=True)]
             seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(1, 5)]
             if extra == "glitch restart":
@@ -181,10 +192,6 @@ def test_a_restart_in_a_coalesced_burst_is_made_not_dropped(
             elif extra == "2-D restart":
                 ps.send_raw(wire.encode_pose(0, start[:2].tolist(), restart=True))
             seqs += [ps.send((start + 1e-5 * k).tolist()) for k in range(5, 30)]
-            time.sleep(0.3)
-        finally:
-            gate.set()
-            bridge.path._handle = original
         newest = ps.wait_for(seqs[-1], 2.0)
         later = [ps.wait_for(ps.send(start.tolist()), 2.0) for _ in range(3)]
     assert newest is not None and newest.coalesced >= 16, newest  # the burst was coalesced
@@ -198,32 +205,14 @@ def test_glitch_restarts_spread_through_a_coalesced_burst_are_held(live, every: 
     """Pose by pose, each good pose between glitches flagged restart cancels the pending
     one. Coalesced, those poses are gone: the glitches must not count as poses that agree,
     or the restart is made at the glitch, far from the robot."""
-    import threading
-    import time
-
     c = np.array(live.client.get("/skills/arc3/models/latest").json()["directrix"])
-    bridge = live.client.app.state.bridge  # type: ignore[attr-defined]
     with PoseStreamer("arc3", f"spread-{every}", endpoint=live.endpoint) as ps, \
             PoseStreamer("arc3", f"busy-spread-{every}", endpoint=live.endpoint,
                          session=ps.session) as busy:
         x, before = _follow(ps, c[40] + 0.002, 5)
-        gate = threading.Event()
-        original = bridge.path._handle
-
-        def held(batch):  # type: ignore[no-untyped-def]
-            gate.wait(5.0)
-            return original(batch)
-
-        bridge.path._handle = held
-        try:
-            busy.send(c[30].tolist())  # taken by the held worker: the burst queues behind it
-            time.sleep(0.1)
+        with _bridge_held(live, busy, c[30].tolist()):
             seqs = [ps.send((c[-1] if k % every == every - 1 else x).tolist(),
                             restart=k % every == every - 1) for k in range(40)]
-            time.sleep(0.3)
-        finally:
-            gate.set()
-            bridge.path._handle = original
         newest = ps.wait_for(seqs[-1], 2.0)
         answers = [ps.latest()] + [ps.wait_for(ps.send(x.tolist()), 2.0) for _ in range(3)]
     assert newest is not None and newest.coalesced >= 16, newest  # the burst was coalesced
