@@ -52,6 +52,11 @@ _STALL_S = 0.5
 _IN_FLIGHT = 1000
 
 
+#: the capture kinds each stop ends (``capture_kind`` None: a demonstration)
+_STOP_KINDS: dict[tuple[str, str], tuple[str | None, ...]] = {
+    ("demo", "stop"): (None,), ("correction", "stop"): CORRECTION_KINDS}
+
+
 class Captures:
     """Begin, end and store the captures of live streams for a bridge."""
 
@@ -80,11 +85,9 @@ class Captures:
         """Whether the stream holds a capture, begun on a skill, that the query ``what``
         ends: its stop is answered even when that skill is gone since."""
         with st.lock:
-            if what == ("demo", "stop"):
-                return st.capture is not None and st.capture_kind is None \
-                    and st.capture_instance is not None
-            if what == ("correction", "stop"):
-                return st.capture is not None and st.capture_kind in CORRECTION_KINDS \
+            kinds = _STOP_KINDS.get(what)
+            if kinds is not None:
+                return st.capture is not None and st.capture_kind in kinds \
                     and st.capture_instance is not None
             if what == ("steer", "keep"):
                 if st.capture is not None and st.capture_kind == "steer":
@@ -123,7 +126,7 @@ class Captures:
             # last steered run, for steer/keep to keep after the capture as before it
             end_steered_run_locked(st, st.route, st.route_serial)
             # what a start over throws away, said in the reply: never a silent loss
-            discarded = 0 if st.capture is None else len(st.capture) + st.capture.over
+            discarded = 0 if st.capture is None else st.capture.came
             st.capture = new_capture(st)
             st.capture_from = int(from_seq) if isinstance(from_seq, int) else st.last_seq + 1
             st.capture_label = label if isinstance(label, str) else None
@@ -173,18 +176,19 @@ class Captures:
 
     def _demo_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         label = st.capture_label
-        captured = self._capture_stop(query, st, body, (None,), "demonstration")
+        captured = self._capture_stop(query, st, body, _STOP_KINDS["demo", "stop"],
+                                     "demonstration")
         if captured is None:
             return
         capture, poses, instance = captured
         last_seq = body.get("last_seq")
-        if capture.over and not (isinstance(last_seq, int) and last_seq < capture.over_from):
+        if capture.over_until(last_seq):
             # as REST refuses such a demonstration (413); and it can never be stored, its
             # poses past the limit not held: the capture is over
             _end(st, capture)
             reply_error(query, "payload_too_large",
                         f"expected a demonstration of at most {capture.cap} poses (limit "
-                        f"CANAL_UPLOAD_MAX_POINTS, as an upload), got {len(capture) + capture.over} "
+                        f"CANAL_UPLOAD_MAX_POINTS, as an upload), got {capture.came} "
                         "captured; the capture is over: start again and stop within the limit, "
                         "or stop with a last_seq before the pose "
                         f"{capture.over_from} where it was reached", "positions")
@@ -206,16 +210,15 @@ class Captures:
 
     def _correction_stop(self, query: Any, st: Stream, body: dict[str, Any]) -> None:
         kind, weight, label = st.capture_kind, st.capture_weight, st.capture_label
-        captured = self._capture_stop(query, st, body, CORRECTION_KINDS, "correction")
+        captured = self._capture_stop(query, st, body, _STOP_KINDS["correction", "stop"],
+                                     "correction")
         if captured is None:
             return
         capture, poses, instance = captured
         # a stream's correction refines the route it follows
-        last_seq = body.get("last_seq")
-        over = capture.over if not isinstance(last_seq, int) or last_seq >= capture.over_from \
-            else 0
         if self._store_correction(query, st, str(kind), poses, instance, weight, label,
-                                  self.route_of(st), over, capture.cap):
+                                  self.route_of(st), capture.over_until(body.get("last_seq")),
+                                  capture.cap):
             _end(st, capture)
 
     def _steer_keep(self, query: Any, st: Stream, body: dict[str, Any]) -> None:

@@ -66,6 +66,18 @@ class Capture(list[wire.Pose]):
             self.over_from = pose.seq
         self.over += 1
 
+    @property
+    def came(self) -> int:
+        """How many poses came: those held and those past the cap."""
+        return len(self) + self.over
+
+    def over_until(self, last_seq: Any) -> int:
+        """How many of the poses past the cap a stop at ``last_seq`` (an int; anything else:
+        every pose) would have stored."""
+        if isinstance(last_seq, int) and last_seq < self.over_from:
+            return 0
+        return self.over
+
 
 @dataclass(eq=False)
 class Stream:
