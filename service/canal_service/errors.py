@@ -20,7 +20,7 @@ humans.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -376,6 +376,28 @@ def unparsable_body(cause: BaseException) -> str:
     else:
         got = f"{type(cause).__name__}: {str(cause)[:200]}"
     return f"expected a JSON body in UTF-8, got {got}"
+
+
+def unreadable_body(raw: bytes, errors: Sequence[Mapping[str, Any]]) -> ServiceError | None:
+    """The 400 every JSON route gives a body that is no JSON in UTF-8 at all, for ``raw``
+    that pydantic's own JSON parser refused with ``errors`` (its messages differ from
+    Python's); None for JSON with a syntax error or a wrong value (422)."""
+    if not errors or errors[0].get("type") != "json_invalid":
+        return None
+    cause: BaseException
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        cause = exc
+    else:
+        message = str(errors[0].get("msg", ""))
+        if "recursion limit" in message:
+            cause = RecursionError()
+        elif "number out of range" in message:  # an integer past the 4,300 digits Python reads
+            cause = ValueError("too many digits")
+        else:
+            return None
+    return ServiceError(unparsable_body(cause), field="body")
 
 
 #: The methods a 405 answer may name.

@@ -20,7 +20,7 @@ from canal_protocol.schemas import (
 )
 
 from ..deps import DemoId, Limit, Offset, ServiceDep, SkillName
-from ..errors import InvalidInput, ServiceError, TooLarge, unparsable_body
+from ..errors import InvalidInput, TooLarge, unreadable_body
 from ..service import CanalService
 from ..uploads import UploadLimits, detect_format
 from .file_bodies import (
@@ -87,24 +87,6 @@ async def add_demonstration(
                                    label, limits, time_unit))
 
 
-def _unreadable(raw: bytes, errors: list[Any]) -> BaseException | None:
-    """Why a body the JSON parser refused is no JSON in UTF-8 at all, as the parser of every
-    other route would raise it (those answer 400 ``bad_request``); None for a body that is
-    JSON with a syntax error or a wrong value (422)."""
-    if not errors or errors[0].get("type") != "json_invalid":
-        return None
-    try:
-        raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        return exc
-    message = str(errors[0].get("msg", ""))
-    if "recursion limit" in message:
-        return RecursionError()
-    if "number out of range" in message:  # an integer past the 4,300 digits Python reads
-        return ValueError("too many digits")
-    return None
-
-
 def _created(created: DemonstrationCreated) -> Response:
     # The answer as FastAPI would write it, without validating the model it was built as
     # once more on the event loop.
@@ -126,9 +108,9 @@ def _add_json(service: CanalService, name: str, raw: bytes, limits: UploadLimits
         body = demonstration_from_json(raw)
     except ValidationError as exc:
         errors = exc.errors(include_url=False)
-        unreadable = _unreadable(raw, errors)
-        if unreadable is not None:
-            raise ServiceError(unparsable_body(unreadable), field="body") from exc
+        refused = unreadable_body(raw, errors)
+        if refused is not None:
+            raise refused from exc
         raise RequestValidationError(errors) from exc
     if len(body.positions) > limits.max_points:
         raise _too_many_points(limits)
