@@ -115,32 +115,29 @@ def test_a_steered_run_past_the_capture_limit_is_kept_up_to_it(small: Live) -> N
                for n in made["notes"]), made["notes"]
 
 
-def test_a_correction_longer_than_a_correction_holds_is_thinned_evenly(live: Live) -> None:
-    make_skill(live.client, "longpush", 3)
+@pytest.mark.parametrize(("skill", "how"), [("longpush", "correction"),
+                                            ("longsteer", "steered run")])
+def test_a_capture_longer_than_a_correction_holds_is_thinned_evenly(
+        live: Live, skill: str, how: str) -> None:
+    """A correction capture, and a steered run, which could never be kept before."""
+    make_skill(live.client, skill, 3)
     n = MAX_CORRECTION_SAMPLES + 500
-    points = along(directrix(live, "longpush"), n)
-    with PoseStreamer("longpush", "arm", endpoint=live.endpoint, encoding="binary") as ps:
-        ps.send(points[0].tolist(), restart=True)
-        ps.start_correction("include")
-        send_all(ps, points)
-        made = ps.stop_correction(timeout=60.0)
-    assert made["correction"]["n_points"] == MAX_CORRECTION_SAMPLES, made["correction"]
-    assert any(f"{n} captured poses thinned to {MAX_CORRECTION_SAMPLES}" in note
-               for note in made["notes"]), made["notes"]
-
-
-def test_a_steered_run_longer_than_a_correction_holds_can_be_kept(live: Live) -> None:
-    make_skill(live.client, "longsteer", 3)
-    n = MAX_CORRECTION_SAMPLES + 500
-    points = along(directrix(live, "longsteer"), n)
-    with PoseStreamer("longsteer", "arm", endpoint=live.endpoint, encoding="binary") as ps:
-        send_all(ps, points, steer=True, restart=True)
-        made = ps.keep_steered(timeout=60.0)
+    points = along(directrix(live, skill), n)
+    with PoseStreamer(skill, "arm", endpoint=live.endpoint, encoding="binary") as ps:
+        if how == "correction":
+            ps.send(points[0].tolist(), restart=True)
+            ps.start_correction("include")
+            send_all(ps, points)
+            made = ps.stop_correction(timeout=60.0)
+        else:
+            send_all(ps, points, steer=True, restart=True)
+            made = ps.keep_steered(timeout=60.0)
         assert made["correction"]["n_points"] == MAX_CORRECTION_SAMPLES, made["correction"]
         assert any(f"{n} captured poses thinned to {MAX_CORRECTION_SAMPLES}" in note
                    for note in made["notes"]), made["notes"]
-        with pytest.raises(LiveError, match="no steered run"):
-            ps.keep_steered()
+        if how == "steered run":
+            with pytest.raises(LiveError, match="no steered run"):
+                ps.keep_steered()
 
 
 def test_a_steered_run_that_ends_while_it_is_kept_is_kept_once(live: Live) -> None:
