@@ -20,6 +20,12 @@ _FJSON, _FBIN, _FCDR = wire.FORMAT_JSON, wire.FORMAT_BINARY, wire.FORMAT_CDR
 _MAX_BYTES = wire.MAX_POSE_BYTES
 
 
+def _format_of(encoding: Any, data: bytes) -> int:
+    """The codec of a sample (a Zenoh JSON encoding compared as an object, cheaper than
+    :func:`canal_protocol.codecs.pose_format`'s string test)."""
+    return _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
+
+
 def _kept_of_backlog(samples: list[Any], most: int) -> tuple[int, ...]:
     """The indices of a coalesced backlog's samples that are answered, in order: every one
     that asks for a restart, then the newest. Each restart is made as it would be pose by
@@ -28,11 +34,8 @@ def _kept_of_backlog(samples: list[Any], most: int) -> tuple[int, ...]:
     the first and the latest ones are kept: the first is the one a pause lets through."""
     restarts = []
     for i in range(len(samples) - 1):
-        s = samples[i]
-        data = s.payload.to_bytes()
-        encoding = s.encoding
-        fmt = _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
-        if asks_restart(fmt, data):
+        data = samples[i].payload.to_bytes()
+        if asks_restart(_format_of(samples[i].encoding, data), data):
             restarts.append(i)
     if len(restarts) > most > 1:
         restarts = [restarts[0], *restarts[len(restarts) - most + 1 :]]
@@ -129,7 +132,7 @@ class Decoder(Answers):
             self.counts.poses += 1
         try:
             if len(data) > _MAX_BYTES:
-                fmt = _FJSON if encoding == ENC_JSON else wire.pose_format(str(encoding), data)
+                fmt = _format_of(encoding, data)
                 raise wire.WireError("bad_payload", f"expected a pose of at most {_MAX_BYTES} "
                                                     f"bytes, got {len(data)}")
             if encoding == ENC_JSON:  # an object comparison, cheaper than str() (0.15 us)
