@@ -71,6 +71,13 @@ class Robot:
         else:
             self.pub.put(data, encoding=encoding)
 
+    def put_answered(self, data, encoding=None):
+        """Put one pose and wait for its target: a backlog of poses put at once is
+        coalesced to one answer for its newest pose, so counting targets needs one at a time."""
+        n = len(self.targets)
+        self.put(data, encoding)
+        assert len(self.wait("targets", n + 1)) == n + 1, "no target for the pose"
+
     def wait(self, what, n, timeout=10.0):
         deadline = time.monotonic() + timeout
         with self.cond:
@@ -192,8 +199,7 @@ def test_a_demonstration_captured_from_pose_stamped_on_a_2d_skill_keeps_x_and_y(
         try:
             query_json(session, "canal/arc2/ros-demo/demo/start", {"label": "from ROS 2"})
             for k, p in enumerate(pts):
-                robot.put(pose_stamped(p, sec=100 + k), encoding="application/cdr")
-            robot.wait("targets", len(pts))
+                robot.put_answered(pose_stamped(p, sec=100 + k), encoding="application/cdr")
             created = query_json(session, "canal/arc2/ros-demo/demo/stop", {})
         finally:
             robot.close()
@@ -317,11 +323,9 @@ def test_a_capture_of_pose_stamped_with_unset_stamps_is_stored_untimed(live):
             def capture(sec_of, discarded=0):
                 started = query_json(session, base + "/demo/start", {})
                 assert started["discarded"] == discarded, started
-                n = len(robot.targets)
                 for k in range(30):
-                    robot.put(pose_stamped(directrix[5 + 3 * k], sec=sec_of(k), nanosec=0),
-                              encoding="application/cdr")
-                robot.wait("targets", n + 30)
+                    robot.put_answered(pose_stamped(directrix[5 + 3 * k], sec=sec_of(k), nanosec=0),
+                                       encoding="application/cdr")
 
             capture(lambda k: 0)
             created = query_json(session, base + "/demo/stop", {})
