@@ -139,3 +139,30 @@ def test_python_m_canal_service_help_lists_every_flag() -> None:
     assert p.returncode == 0
     for option in settings_options():
         assert option.flag in p.stdout
+
+
+@pytest.mark.parametrize(("value", "items"), [
+    ('["tcp/127.0.0.1:7600"]', ["tcp/127.0.0.1:7600"]),
+    ("tcp/127.0.0.1:7600", ["tcp/127.0.0.1:7600"]),  # one endpoint, as its flag takes it
+    ("tcp/127.0.0.1:7600, tcp/127.0.0.1:7601", ["tcp/127.0.0.1:7600", "tcp/127.0.0.1:7601"]),
+    ("", []),
+])
+def test_a_list_variable_takes_json_or_plain_items(
+        monkeypatch: pytest.MonkeyPatch, value: str, items: list[str]) -> None:
+    # A plain endpoint in CANAL_ZENOH_LISTEN stopped the service with a traceback from the
+    # settings library's JSON decoder.
+    for name in ("CANAL_ZENOH_LISTEN", "CANAL_ZENOH_CONNECT", "CANAL_CORS_ORIGINS"):
+        monkeypatch.setenv(name, value)
+    s = settings_from_args([])
+    assert s.zenoh_listen == s.zenoh_connect == s.cors_origins == items
+
+
+@pytest.mark.parametrize("value", ['["tcp/127.0.0.1:7600"', "[1, 2]", '[""]'])
+def test_a_list_variable_that_is_no_list_is_a_usage_error(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], value: str) -> None:
+    monkeypatch.setenv("CANAL_ZENOH_LISTEN", value)
+    with pytest.raises(SystemExit) as exit_info:
+        settings_from_args([])
+    assert exit_info.value.code == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "error: --zenoh-listen (or CANAL_ZENOH_LISTEN)" in err and "Traceback" not in err, err

@@ -89,7 +89,8 @@ def settings_options(model: type[Settings] = Settings) -> list[Option]:
             continue
         origin = typing.get_origin(info.annotation)
         kind: Literal["value", "list"] = "list" if origin is list else "value"
-        extra = [env + (" as a JSON list; the flag is repeatable" if kind == "list" else "")]
+        extra = [env + (" as a JSON list or items apart by commas; the flag is repeatable"
+                       if kind == "list" else "")]
         default = _default_text(info)
         if default is not None:
             extra.append(f"default {default}")

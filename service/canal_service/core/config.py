@@ -11,13 +11,14 @@ fields: each is a ``--kebab-case`` flag, its help is the field's description, an
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_core import PydanticCustomError
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from canal_protocol import keys as keyspace
 from canal_protocol.credentials import token_problem
@@ -79,7 +80,7 @@ class Settings(BaseSettings):
         None, description="When set, every route except /healthz needs 'Authorization: Bearer ...' "
                           "(visible ASCII characters, no spaces)."
     )
-    cors_origins: Annotated[list[str], Flag("--cors-origin", metavar="ORIGIN")] = Field(
+    cors_origins: Annotated[list[str], NoDecode, Flag("--cors-origin", metavar="ORIGIN")] = Field(
         default_factory=list, description="Allowed CORS origins; CORS stays off when empty."
     )
     max_body_bytes: int = Field(DEFAULT_MAX_BODY_BYTES, gt=0,
@@ -120,11 +121,11 @@ class Settings(BaseSettings):
     zenoh_enabled: Annotated[bool, Flag("--no-zenoh")] = Field(
         True, description="Run the live Zenoh bridge beside the REST API; when off, /healthz "
                           "says the bridge is disabled.")
-    zenoh_listen: Annotated[list[str], Flag(metavar="ENDPOINT")] = Field(
+    zenoh_listen: Annotated[list[str], NoDecode, Flag(metavar="ENDPOINT")] = Field(
         default_factory=lambda: ["tcp/127.0.0.1:7447"],
         description="Zenoh endpoints to listen on (ignored when zenoh_config is set).",
     )
-    zenoh_connect: Annotated[list[str], Flag(metavar="ENDPOINT")] = Field(
+    zenoh_connect: Annotated[list[str], NoDecode, Flag(metavar="ENDPOINT")] = Field(
         default_factory=list,
         description="Zenoh endpoints to connect to, e.g. a zenohd router (ignored with zenoh_config).",
     )
@@ -173,6 +174,31 @@ class Settings(BaseSettings):
     @classmethod
     def _log_level_in_any_case(cls, value: Any) -> Any:
         return value.lower() if isinstance(value, str) else value
+
+    @field_validator("cors_origins", "zenoh_listen", "zenoh_connect", mode="before")
+    @classmethod
+    def _list_from_text(cls, value: Any) -> Any:
+        # A variable holds a JSON list, or plain items apart by commas as one flag's value is
+        # written (CANAL_ZENOH_LISTEN=tcp/127.0.0.1:7447): both are what a person types.
+        if not isinstance(value, str):
+            return value
+        text = value.strip()
+        if text.startswith("["):
+            try:
+                return json.loads(text)
+            except ValueError:
+                raise PydanticCustomError(
+                    "list_text", "expected a JSON list of texts or items apart by commas, "
+                    "got {got}", {"got": repr(value)}) from None
+        return [item.strip() for item in text.split(",") if item.strip()]
+
+    @field_validator("cors_origins", "zenoh_listen", "zenoh_connect")
+    @classmethod
+    def _no_empty_item(cls, value: list[str]) -> list[str]:
+        if any(not item.strip() for item in value):
+            raise PydanticCustomError("list_item", "expected no empty item, got {got}",
+                                      {"got": repr(value)})
+        return value
 
     @field_validator("zenoh_prefix")
     @classmethod
