@@ -415,7 +415,8 @@ class CorrectionIn(_In):
     route: int | None = Field(
         None, ge=0, le=options.MAX_ROUTES - 1,
         description="A model of several routes: the route whose canal is corrected (null: every "
-                    "route's canal the samples pass through, and the canal of all).")
+                    "route's canal the samples pass through, and the canal of all; refused "
+                    "when no route's canal takes them).")
 
 
 class CorrectionOut(BaseModel):

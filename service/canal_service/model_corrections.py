@@ -238,7 +238,7 @@ def corrected_routes(routes: Routes, correction: Correction_, route: int | None
 
     One route: its canal, as a single-canal model (``route`` is 0 or None). Several:
     ``route`` names the one canal corrected; None corrects every canal the samples pass
-    through (each route's and the canal of all), refused only when none of them takes it.
+    through (each route's and the canal of all), refused when no route's canal takes it.
     """
     if routes.n_routes == 1:
         refined = corrected_canal(routes.pooled, correction)
@@ -248,26 +248,44 @@ def corrected_routes(routes: Routes, correction: Correction_, route: int | None
         canals[route] = corrected_canal(canals[route], correction)
         return Routes(tuple(canals), routes.pooled, routes.labels), canals[route].corrections[-1]
     taken: list[Any] = []
-    refusal: canal_core.CanalError | None = None
-
-    def attempt(canal: canal_core.Canal) -> canal_core.Canal:
-        nonlocal refusal
+    refusals: dict[int, canal_core.CanalError] = {}
+    for k, canal in enumerate(canals):
         try:
-            out = corrected_canal(canal, correction)
+            canals[k] = corrected_canal(canal, correction)
         except canal_core.CanalError as exc:
-            refusal = refusal or exc
-            return canal
-        taken.append(out.corrections[-1])
-        return out
-
-    canals = [attempt(c) for c in canals]
-    pooled = attempt(routes.pooled)
+            refusals[k] = exc
+            continue
+        taken.append(canals[k].corrections[-1])
     if not taken:
-        assert refusal is not None
-        raise refusal
+        raise _refused_by_every_route(refusals, routes.pooled, correction)
+    try:
+        pooled = corrected_canal(routes.pooled, correction)
+    except canal_core.CanalError:
+        pooled = routes.pooled  # a path along one route may leave the canal of all
     # The span stored is a route's (the first that took it): the canal of all is followed by
     # no reproduction, and its sections are not the ones a person corrected.
     return Routes(tuple(canals), pooled, routes.labels), taken[0]
+
+
+def _refused_by_every_route(refusals: dict[int, canal_core.CanalError],
+                            pooled: canal_core.Canal, correction: Correction_
+                            ) -> canal_core.CanalError:
+    """The refusal of a correction no route's canal takes. The canal of all may still hold
+    it (a path between the routes), but no reproduction or live stream follows that canal:
+    a correction of it alone would change nothing a robot does."""
+    tried = "; ".join(f"route {k}: {exc.message}" for k, exc in sorted(refusals.items()))
+    try:
+        corrected_canal(pooled, correction)
+        between = (", though the canal of all the demonstrations holds it (which no "
+                   "reproduction or live stream follows)")
+    except canal_core.CanalError:
+        between = ""
+    fields = {exc.field for exc in refusals.values()}
+    field = fields.pop() if len(fields) == 1 and None not in fields else "samples"
+    return canal_core.InvalidInputError(
+        f"expected a path that one route's canal takes, got one that none of routes "
+        f"{', '.join(map(str, sorted(refusals)))} takes{between} ({tried}); show it along the "
+        "way the robot goes, or name that way with `route`", field=field)
 
 
 def _correction_out(row: Correction) -> schemas.CorrectionOut:

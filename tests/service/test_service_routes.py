@@ -168,6 +168,27 @@ def test_a_correction_for_every_route_stores_the_span_of_the_route_it_refines(
     assert spans[None] == spans[1], spans
 
 
+def test_a_correction_only_the_canal_of_all_takes_is_refused_naming_samples(
+        http: httpx.Client) -> None:
+    # A path between the routes, with no route named: only the canal of all the
+    # demonstrations holds it, and no reproduction or live stream follows that canal. It was
+    # stored as a new latest version that changed nothing a robot follows.
+    routes, _samples = two_routes_and_a_widening(http)
+    pooled = routes.pooled
+    idx = np.arange(25, 36)
+    between = pooled.directrix[idx] + 0.2 * pooled.radii[idx, None] * pooled.normals[idx]
+    assert not any(c.contains(between).any() for c in routes.canals)
+    r = http.post("/skills/reach/corrections",
+                  json={"kind": "include", "samples": between.tolist(), "label": "between"})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"] == "samples"
+    assert "route 0" in error["message"] and "route 1" in error["message"]
+    assert "`route`" in error["message"]
+    assert http.get("/skills/reach").json()["n_models"] == 1
+    assert http.get("/skills/reach/corrections").json()["total"] == 0
+
+
 def test_a_stored_model_loads_after_a_restart(tmp_path: object, settings: Settings) -> None:
     with LiveServer(create_app(settings)) as server, \
             httpx.Client(base_url=server.url, timeout=60) as http:
