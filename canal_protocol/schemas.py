@@ -432,7 +432,8 @@ class CorrectionOut(BaseModel):
     first_section: int
     last_section: int
     created_at: UtcDatetime
-    undone: bool = Field(description="Undone corrections stay listed; no later version has them.")
+    undone: bool = Field(description="True when the skill's latest model version does not hold "
+                                     "it (undone, or left behind by a refit); it stays listed.")
     route: int | None = Field(
         None, description="The route it corrects (null: every route it passes through, or the "
                           "model has one route).")

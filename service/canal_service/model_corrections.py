@@ -152,15 +152,18 @@ class ModelCorrections:
         summary = self.versions.on_latest(name, "correction", build)
         row = made[-1]
         self.metrics.corrections.labels(row.kind).inc()
-        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(row))
+        return schemas.CorrectedModel(**summary.model_dump(),
+                                      correction=_correction_out(row, undone=False))
 
     def list_corrections(self, name: str, offset: int, limit: int
                          ) -> schemas.Page[schemas.CorrectionOut]:
-        """A page of the skill's corrections, oldest first (undone ones say so)."""
+        """A page of the skill's corrections, oldest first; those the latest version does
+        not hold say they are undone."""
         with self.db.read() as s:
             skill = repo.get_skill(s, name)
+            _version, held = repo.latest_corrections(s, skill)
             rows, total = repo.list_corrections(s, skill, offset, limit)
-            items = [_correction_out(r) for r in rows]
+            items = [_correction_out(r, undone=r.id not in held) for r in rows]
         return schemas.Page[schemas.CorrectionOut](items=items, total=total, offset=offset,
                                                     limit=limit)
 
@@ -190,22 +193,16 @@ class ModelCorrections:
                 latest_version = latest.version
             base, _v, _dim = self.load_routes(name, lineage.fit_version)
             refined, applied, notes = reapplied(base, rest)
-
-            def mark(s: Any, skill: Skill, version: int, ids: list[int]) -> list[int]:
-                repo.get_corrections(s, skill, [correction_id])[0].undone = True
-                return ids
-
             undone.append(target)
             return self._store_refined(
                 name, options, demo_ids, refined,
-                StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied], mark),
+                StoredLineage(latest_version, lineage.fit_version, [c.id for c in applied]),
                 notes, instance=instance, base=latest_version)
 
         summary = self.versions.on_latest(name, "undo", build)
         self.metrics.corrections_undone.inc()
-        target = undone[-1]
-        target.undone = True
-        return schemas.CorrectedModel(**summary.model_dump(), correction=_correction_out(target))
+        return schemas.CorrectedModel(**summary.model_dump(),
+                                      correction=_correction_out(undone[-1], undone=True))
 
 
 def reapplied(routes: Routes, kept: Sequence[StoredCorrection]
@@ -288,12 +285,15 @@ def _refused_by_every_route(refusals: dict[int, canal_core.CanalError],
         "way the robot goes, or name that way with `route`", field=field)
 
 
-def _correction_out(row: Correction) -> schemas.CorrectionOut:
+def _correction_out(row: Correction, *, undone: bool) -> schemas.CorrectionOut:
+    """A stored correction as answered; ``undone``: the skill's latest version does not hold
+    it (an undo, a refit that left it behind or did not keep it, or a correction of a version
+    made before it)."""
     return schemas.CorrectionOut(
         id=row.id, kind=row.kind, label=row.label, weight=row.weight, n_points=row.n_points,
         base_version=row.base_version, model_version=row.model_version,
         first_section=row.first_section, last_section=row.last_section,
-        created_at=row.created_at, undone=bool(row.undone), route=row.route)
+        created_at=row.created_at, undone=undone, route=row.route)
 
 
 def _glitch_notes(samples: arrays.FloatArray) -> list[str]:

@@ -184,7 +184,7 @@ class VersionStore:
         """Store new model versions, numbered one after the other, in one transaction (a fit
         and its version with the corrections re-applied go in together: nobody sees the fit
         alone as the latest), with their lineage and what ``lineage.in_transaction`` writes
-        in the same transaction (a new correction, an undone mark).
+        in the same transaction (a new correction, a kept correction's new route).
 
         What they were made on must still be the latest, else nothing is stored and
         :class:`_StaleBase` says which version is the latest now: ``base``, the latest

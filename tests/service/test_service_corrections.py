@@ -94,6 +94,32 @@ def test_undo_makes_a_version_without_the_correction(http: httpx.Client) -> None
     assert [c["undone"] for c in listed] == [True, False]
 
 
+def test_undone_says_whether_the_latest_version_holds_the_correction(http: httpx.Client) -> None:
+    # A correction of a version made before an undo builds on that version's corrections,
+    # the undone one among them: the latest holds it again, and the listing said it was
+    # undone while every refit kept re-applying it.
+    fitted = served_canal(http)
+    a = http.post("/skills/pour/corrections",
+                  json={"kind": "include", "samples": wider_path(fitted, 20, 35)}).json()
+    b = http.post("/skills/pour/corrections",
+                  json={"kind": "include", "samples": wider_path(fitted, 50, 65)}).json()
+    ids = [a["correction"]["id"], b["correction"]["id"]]
+    assert http.delete(f"/skills/pour/corrections/{ids[0]}").json()["corrections"] == [ids[1]]
+    r = http.post("/skills/pour/corrections",
+                  json={"kind": "include", "samples": wider_path(fitted, 38, 46),
+                        "model": b["version"]})
+    assert r.status_code == 201, r.text
+    c = r.json()
+    assert c["corrections"] == [*ids, c["correction"]["id"]]
+    listed = {i["id"]: i["undone"] for i in http.get("/skills/pour/corrections").json()["items"]}
+    assert listed == {ids[0]: False, ids[1]: False, c["correction"]["id"]: False}
+    # a plain fit leaves every correction behind: none is in the latest version
+    assert http.post("/skills/pour/fit", json={"n_samples": 80,
+                                               "keep_corrections": False}).status_code == 201
+    listed = {i["id"]: i["undone"] for i in http.get("/skills/pour/corrections").json()["items"]}
+    assert set(listed.values()) == {True}
+
+
 def test_a_refit_keeps_the_corrections_unless_asked_not_to(http: httpx.Client) -> None:
     fitted = served_canal(http)
     made = http.post("/skills/pour/corrections", json={"kind": "include", "samples": wider_path(fitted)}).json()
