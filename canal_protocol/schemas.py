@@ -439,6 +439,17 @@ class CorrectionOut(BaseModel):
                           "model has one route).")
 
 
+class CorrectionPath(CorrectionOut):
+    """A stored correction with its path, as it was sent (glitches included)."""
+
+    samples: list[list[float]] = Field(description="(M, D) the corrected path.")
+    timestamps: list[float] | None = Field(None, description="(M,) seconds, when sent.")
+    orientations: list[list[float]] | None = Field(
+        None, description="(M, 4) unit quaternions, when sent.")
+    plan: list[list[float]] | None = Field(
+        None, description="exclude: (P, D) the path the robot was on before the push, when sent.")
+
+
 class CorrectedModel(ModelSummary):
     """The model version a correction (or an undo) made, and the correction."""
 

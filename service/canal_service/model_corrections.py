@@ -22,7 +22,7 @@ from canal_protocol import schemas
 
 from .errors import CanalRejected, CorrectionNotInLatest, SkillReplaced
 from .metrics import Metrics
-from .storage import Correction, Database, Skill, arrays
+from .storage import Correction, Database, Skill, arrays, stored_models
 from .storage import repository as repo
 from .validation import check_correction_inputs, check_finite_answer, check_route
 from .versions import NewVersion, StoredLineage, VersionStore
@@ -166,6 +166,15 @@ class ModelCorrections:
             items = [_correction_out(r, undone=r.id not in held) for r in rows]
         return schemas.Page[schemas.CorrectionOut](items=items, total=total, offset=offset,
                                                     limit=limit)
+
+    def get_correction(self, name: str, correction_id: int) -> schemas.CorrectionPath:
+        """One correction of the skill with its path (:class:`CorrectionNotFound`)."""
+        with self.db.read() as s:
+            skill = repo.get_skill(s, name)
+            _version, held = repo.latest_corrections(s, skill)
+            row = repo.get_corrections(s, skill, [correction_id])[0]
+            out = _correction_out(row, undone=row.id not in held)
+            return schemas.CorrectionPath(**out.model_dump(), **stored_models.path_of(row))
 
     def undo_correction(self, name: str, correction_id: int) -> schemas.CorrectedModel:
         """A new latest version without one correction: the others re-applied to the fit.

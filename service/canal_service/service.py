@@ -516,12 +516,13 @@ class CanalService:
         if routes is None:
             with self.db.read() as s:
                 row = repo.get_model(s, ref.model_id)
-            if (row.skill_id, row.version) != (ref.skill_id, ref.version):
-                # Deleted and its id reused between the two queries: not the row found.
-                raise ModelVersionNotFound(
-                    f"model version {ref.version} of skill {name!r} was deleted meanwhile",
-                    field="model")
-            routes = routes_from_dict(row.canal)
+                if (row.skill_id, row.version) != (ref.skill_id, ref.version):
+                    # Deleted and its id reused between the two queries: not the row found.
+                    raise ModelVersionNotFound(
+                        f"model version {ref.version} of skill {name!r} was deleted meanwhile",
+                        field="model")
+                data = repo.model_canal(s, row)
+            routes = routes_from_dict(data)
             self.cache.put(key, routes)
         return routes, row, ref
 
@@ -552,14 +553,16 @@ class CanalService:
             row = repo.get_model(s, repo.require_model_ref(s, skill, version)[0])
             dim, skill_created_at = skill.dim, skill.created_at
             lineage = repo.lineages(s, [row])[row.id]
-        key = model_cache_key(row.id, skill_created_at)
-        routes = self.cache.get(key)
+            key = model_cache_key(row.id, skill_created_at)
+            routes = self.cache.get(key)
+            filled = repo.model_canal(s, row) if routes is None else None
         if routes is None:
-            routes = routes_from_dict(row.canal)
+            assert filled is not None
+            routes = routes_from_dict(filled)
             self.cache.put(key, routes)
         canal = routes.pooled
         summary = model_summary(row, dim, lineage)
-        data = row.canal
+        data = row.canal  # as stored: each correction names its path's row
         pooled_data = data.get("pooled", data) if routes.n_routes > 1 else data
         sections = pooled_data.get("sections") if isinstance(pooled_data, dict) else None
         route_canals = None if routes.n_routes == 1 else [
@@ -602,8 +605,13 @@ class CanalService:
 
     def list_corrections(self, name: str, offset: int, limit: int
                          ) -> schemas.Page[schemas.CorrectionOut]:
-        """A page of the skill's corrections, oldest first (undone ones say so)."""
+        """A page of the skill's corrections, oldest first (those the latest version does
+        not hold say they are undone)."""
         return self.corrections.list_corrections(name, offset, limit)
+
+    def get_correction(self, name: str, correction_id: int) -> schemas.CorrectionPath:
+        """One correction with its path (:meth:`ModelCorrections.get_correction`)."""
+        return self.corrections.get_correction(name, correction_id)
 
     def undo_correction(self, name: str, correction_id: int) -> schemas.CorrectedModel:
         """A new latest version without one correction (:meth:`ModelCorrections.undo_correction`)."""

@@ -226,8 +226,6 @@ class VersionStore:
     @staticmethod
     def _add_version(s: Any, skill: Skill, version: int, made: NewVersion) -> StoredVersion:
         canal = made.routes.pooled
-        row = repo.add_model(s, skill, version, made.options, made.demo_ids, made.serialized,
-                             made.fit_seconds, int(canal.n_sections), str(canal.section_kind))
         found = repo.Lineage(None, version, [])
         lineage = made.lineage
         if lineage is not None:
@@ -238,7 +236,13 @@ class VersionStore:
             if lineage.in_transaction is not None:
                 ids = lineage.in_transaction(s, skill, version, ids)
             found = repo.Lineage(parent, fit, ids)
-            repo.add_lineage(s, row, parent, fit, ids)
+        # the corrections' paths are stored in their rows, which the new one's joined above
+        row = repo.add_model(s, skill, version, made.options, made.demo_ids, made.serialized,
+                             made.fit_seconds, int(canal.n_sections), str(canal.section_kind),
+                             found.correction_ids)
+        if found.parent_version is not None:
+            repo.add_lineage(s, row, found.parent_version, found.fit_version,
+                             found.correction_ids)
         return StoredVersion(model_cache_key(row.id, skill.created_at),
                              model_summary(row, skill.dim, found, len(made.demo_ids)),
                              repo.skill_instance(skill.id, skill.created_at), made.routes)

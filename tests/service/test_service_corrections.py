@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 
 import httpx
 import numpy as np
 import pytest
+from canal_service.app import create_app
+from canal_service.core.config import Settings
+from canal_service.storage import Database, ModelVersion
 from canal_testing import LiveServer, foxglove_pose_mcap
 from service_helpers import demo_positions
+from sqlalchemy import select, update
 
 import canal_core
 
@@ -341,3 +346,90 @@ def test_a_json_body_sent_to_the_file_route_is_told_where_it_goes(http: httpx.Cl
                   json={"kind": "include", "samples": [[0, 0, 0]] * 4})
     assert r.status_code == 415, r.text
     assert "a JSON correction goes to POST /skills/pour/corrections" in r.json()["error"]["message"]
+
+
+def long_wider_path(canal: canal_core.Canal, k: int, n: int = 2000) -> list[list[float]]:
+    """A long include path that wiggles inside the canal's sections 5..70 (many samples)."""
+    t = np.linspace(0.0, 1.0, n)
+    idx = (5 + t * 65).astype(int)
+    side = canal.normals if k % 2 == 0 else canal.binormals
+    return (canal.directrix[idx]
+            + (0.3 * canal.radii[idx] * np.sin(40 * t + k))[:, None] * side[idx]).tolist()
+
+
+def stored_canals(settings: Settings) -> dict[int, dict[str, object]]:
+    db = Database(settings.resolved_database_url)
+    try:
+        with db.read() as s:
+            return {int(v): c for v, c in s.execute(select(ModelVersion.version, ModelVersion.canal))}
+    finally:
+        db.dispose()
+
+
+def test_each_correction_path_is_stored_once_and_a_version_names_it(
+        any_db_settings: Settings) -> None:
+    # Every model version stored every earlier correction's path in its canal: K corrections
+    # of M samples took K^2 M of storage (1.6 GB for one skill of 45 long corrections).
+    paths = {}
+    with LiveServer(create_app(any_db_settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=120) as http:
+        assert http.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        for j in range(5):
+            assert http.post("/skills/pour/demonstrations",
+                             json={"positions": demo_positions(j).tolist()}).status_code == 201
+        assert http.post("/skills/pour/fit", json={"n_samples": 80}).status_code == 201
+        fitted = served_canal(http)
+        for k in range(4):
+            path = long_wider_path(fitted, k)
+            r = http.post("/skills/pour/corrections",
+                          json={"kind": "include", "samples": path, "weight": 0.05,
+                                "timestamps": np.linspace(0, 4, len(path)).tolist()})
+            assert r.status_code == 201, r.text
+            paths[r.json()["correction"]["id"]] = path
+        ids = list(paths)
+        start = wider_path(fitted)[0]
+        served = http.post("/skills/pour/reproductions", json={"start": start}).json()["positions"]
+        served4 = http.post("/skills/pour/reproductions",
+                            json={"start": start, "model": 4}).json()["positions"]
+        # the served model is the canal_core model dict; each correction names its stored
+        # correction, whose path is one request away
+        model = http.get("/skills/pour/models/latest", params={"serialized": True}).json()
+        canal = canal_core.Canal.from_dict(model["serialized"])
+        np.testing.assert_allclose(canal.reproduce(np.array(start)), served, atol=1e-9)
+        assert [c["correction_id"] for c in model["serialized"]["corrections"]] == ids
+        for cid, path in paths.items():
+            r = http.get(f"/skills/pour/corrections/{cid}")
+            assert r.status_code == 200, r.text
+            assert r.json()["samples"] == path and len(r.json()["timestamps"]) == len(path)
+        assert http.get("/skills/pour/corrections/99").status_code == 404
+        refit = http.post("/skills/pour/fit", json={"n_samples": 80}).json()
+        assert refit["corrections"] == ids
+    one_path = len(json.dumps(paths[ids[0]]))
+    canals = stored_canals(any_db_settings)
+    sizes = {v: len(json.dumps(c)) for v, c in canals.items()}
+    # version 5 holds four corrections: less than one path more than the fit it refines
+    assert sizes[5] - sizes[1] < one_path, sizes
+    assert sizes[7] - sizes[6] < one_path, sizes
+    # A new process decodes the stored versions (its cache is empty): the same reproduction.
+    with LiveServer(create_app(any_db_settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=120) as http:
+        again = http.post("/skills/pour/reproductions",
+                          json={"start": start, "model": 5}).json()["positions"]
+        assert again == served
+        # a version stored with its corrections' paths inside (as databases written before
+        # paths were stored once hold them) is read as it is
+        db = Database(any_db_settings.resolved_database_url)
+        try:
+            with db.write() as s:
+                expanded = json.loads(json.dumps(canals[4]))
+                for entry, path in zip(expanded["corrections"], paths.values(), strict=False):
+                    entry.pop("correction_id")
+                    entry["samples"] = path
+                s.execute(update(ModelVersion).where(ModelVersion.version == 4)
+                          .values(canal=expanded))
+        finally:
+            db.dispose()
+        old = http.get("/skills/pour/models/4", params={"serialized": True}).json()["serialized"]
+        assert [c["samples"] for c in old["corrections"]] == list(paths.values())[:3]
+        assert http.post("/skills/pour/reproductions",
+                         json={"start": start, "model": 4}).json()["positions"] == served4

@@ -188,7 +188,8 @@ class DbSource:
             for row in s.scalars(query.order_by(ModelVersion.version)):
                 out.append(StoredModel(
                     skill, int(row.version),
-                    canal_core.routes.served_model(canal_core.routes.routes_from_dict(row.canal)),
+                    canal_core.routes.served_model(
+                        canal_core.routes.routes_from_dict(repo.model_canal(s, row))),
                     _t_ns(row.created_at)))
         return out
 

@@ -19,6 +19,7 @@ from canal_protocol.schemas import (
     CorrectedModel,
     CorrectionIn,
     CorrectionOut,
+    CorrectionPath,
     ErrorResponse,
     Page,
 )
@@ -71,6 +72,14 @@ def list_corrections(name: SkillName, service: ServiceDep, offset: Offset = 0,
                      limit: Limit = 100) -> Page[CorrectionOut]:
     """The skill's corrections, oldest first; undone ones stay listed and say so."""
     return service.list_corrections(name, offset, limit)
+
+
+@router.get("/{correction_id}", response_model=CorrectionPath, responses=_ERRORS)
+def get_correction(name: SkillName, correction_id: CorrectionId,
+                   service: ServiceDep) -> CorrectionPath:
+    """One correction with its path (samples, and timestamps, orientations and plan when
+    sent): a model version's corrections name it by ``correction_id``."""
+    return service.get_correction(name, correction_id)
 
 
 @router.delete("/{correction_id}", response_model=CorrectedModel, responses=_ERRORS)

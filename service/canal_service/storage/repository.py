@@ -27,7 +27,7 @@ from ..errors import (
     SkillNotFound,
     SkillReplaced,
 )
-from . import arrays
+from . import arrays, stored_models
 from .db import Database
 from .models import (
     Correction,
@@ -334,8 +334,14 @@ def add_model(
     fit_seconds: float,
     n_sections: int,
     section_kind: str,
+    correction_ids: Sequence[int] = (),
 ) -> ModelVersion:
-    """Insert a model version (flushes, so a version clash raises IntegrityError here)."""
+    """Insert a model version (flushes, so a version clash raises IntegrityError here).
+    ``correction_ids``: the corrections it holds; their paths are stored in their rows only,
+    and ``canal`` names them (:func:`stored_models.without_paths`)."""
+    if correction_ids:
+        canal = stored_models.without_paths(canal, get_corrections(session, skill,
+                                                                   list(correction_ids)))
     model = ModelVersion(skill_id=skill.id, version=version, options=options, demo_ids=demo_ids,
                          canal=canal, fit_seconds=fit_seconds, n_sections=n_sections,
                          section_kind=section_kind)
@@ -345,6 +351,18 @@ def add_model(
 
 
 _NO_CANAL = (defer(ModelVersion.canal),)
+
+
+def model_canal(session: Session, row: ModelVersion) -> dict[str, Any]:
+    """A model row's canal dict with its corrections' paths filled in from their rows (a
+    version names them: :mod:`~canal_service.storage.stored_models`), as canal_core decodes
+    it; the row's own dict is left as stored."""
+    ids = stored_models.path_ids(row.canal)
+    if not ids:
+        return row.canal
+    rows = session.scalars(select(Correction).where(Correction.skill_id == row.skill_id,
+                                                    Correction.id.in_(ids)))
+    return stored_models.with_paths(row.canal, {int(r.id): stored_models.path_of(r) for r in rows})
 
 
 def list_models(session: Session, skill: Skill, offset: int, limit: int
