@@ -54,6 +54,10 @@ SECONDS_PER_SAMPLE_SECTION = 2e-9
 #: Seconds per point pair the route clustering compares (R1 of canal_core.routes), below
 #: its measured rate (about 1e-8 s per pair and coordinate on an idle core).
 SECONDS_PER_ROUTE_PAIR = 5e-9
+#: Seconds per correction sample and section when a refit re-applies the skill's corrections
+#: (locating the path among the sections), below its measured rate (5e-8 to 7e-8 s on a
+#: loaded core, ``canal_core.corrections.corrected_canal``).
+SECONDS_PER_CORRECTION_SAMPLE_SECTION = 2e-8
 #: Fits estimated below this run in the calling thread, not in a worker process.
 IN_PROCESS_BELOW_SECONDS = 0.01
 #: What a fit imports beyond canal_core, loaded once by the forkserver.
@@ -75,6 +79,8 @@ class FitJob:
     #: The route of each demonstration (canal_core.routes.route_labels); None or all 0: one
     #: canal, as a single fit.
     labels: list[int] | None = None
+    #: Samples of each correction the refit re-applies to the new canal (none: a plain fit).
+    kept_points: list[int] = field(default_factory=list)
 
     @property
     def n_routes(self) -> int:
@@ -112,6 +118,12 @@ def fit_cost_seconds(n_points: Sequence[int], n_samples: int, alignment: str,
     if alignment == "dtw":
         cost += seconds_per_dtw_cell * len(n_points) * 0.2 * float(n_samples) ** 2
     return cost
+
+
+def reapply_cost_seconds(kept_points: Sequence[int], n_samples: int) -> float:
+    """A low estimate of re-applying corrections of ``kept_points`` samples each to a canal
+    of ``n_samples`` sections (each is located among every section)."""
+    return SECONDS_PER_CORRECTION_SAMPLE_SECTION * float(sum(kept_points)) * n_samples
 
 
 def route_cost_seconds(n_demos: int, dim: int) -> float:
@@ -194,14 +206,20 @@ class FitRunner:
             for k in range(job.n_routes):
                 estimate += fit_cost_seconds([points[j] for j, r in enumerate(labels) if r == k],
                                              n_samples, alignment, self.seconds_per_dtw_cell)
+        # The corrections a refit keeps are re-applied after the fit, in the request's thread.
+        estimate += reapply_cost_seconds(job.kept_points, n_samples)
         if estimate > self.max_seconds:
             cheaper = "fewer n_samples" + (", alignment 'spline'" if alignment == "dtw" else "")
+            if job.kept_points:
+                cheaper += ", keep_corrections false"
             raise FitTooSlow(
                 f"expected a fit within CANAL_FIT_MAX_SECONDS = {self.max_seconds:g} s of server "
                 f"time, got one estimated at {estimate:.3g} s at least ({len(job.demos)} "
                 f"demonstrations, {sum(job.n_points)} samples, n_samples {n_samples}, "
                 f"alignment {alignment!r}" + (f", {job.n_routes} routes" if job.n_routes > 1
                                               else "")
+                + (f", {len(job.kept_points)} correction{'s' if len(job.kept_points) > 1 else ''}"
+                   f" of {sum(job.kept_points)} samples to re-apply" if job.kept_points else "")
                 + f"); ask for {cheaper}" + (", routes 1" if job.n_routes > 1 else "")
                 + " or fewer demonstrations",
                 field="n_samples")

@@ -331,6 +331,10 @@ class CanalService:
             instance = repo.skill_instance(skill.id, skill.created_at)
             rows = repo.demonstrations_for_fit(s, skill, body.demo_ids)
             loaded = [(r.id, *_demo_arrays(r)) for r in rows]
+            # what the refit will re-apply, for its cost estimate (those of the latest version
+            # when it lands are re-applied: one made meanwhile is not counted)
+            kept_points = (repo.correction_points(s, skill, repo.latest_corrections(s, skill)[1])
+                           if body.keep_corrections else [])
         if body.demo_ids is not None:
             missing = sorted(set(body.demo_ids) - {d[0] for d in loaded})
             if missing:
@@ -365,7 +369,7 @@ class CanalService:
                 f"{', '.join(map(str, unstamped))} {'have' if len(unstamped) > 1 else 'has'} no "
                 "time stamps: aligned by arc length (upload them with their time, or fit "
                 "only the stamped ones with demo_ids)")
-        job = FitJob(positions, stamped, body.by_time, orientations, options, labels)
+        job = FitJob(positions, stamped, body.by_time, orientations, options, labels, kept_points)
         try:
             fitted = self.fits.run(name, job, cancel)
         except canal_core.CanalError as exc:

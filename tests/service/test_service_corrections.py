@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from canal_service.app import create_app
 from canal_service.core.config import Settings
+from canal_service.fitting import FitJob, FitRunner, reapply_cost_seconds
 from canal_service.storage import Database, ModelVersion
 from canal_testing import LiveServer, foxglove_pose_mcap
 from service_helpers import demo_positions
@@ -433,3 +434,35 @@ def test_each_correction_path_is_stored_once_and_a_version_names_it(
         assert [c["samples"] for c in old["corrections"]] == list(paths.values())[:3]
         assert http.post("/skills/pour/reproductions",
                          json={"start": start, "model": 4}).json()["positions"] == served4
+
+
+def test_a_refit_counts_the_corrections_it_re_applies_in_its_cost(tmp_path) -> None:
+    # Re-applying the corrections runs after the fit, holding the skill: 45 long corrections
+    # took a refit past a minute, outside the fit's estimate and its cap.
+    demos = [demo_positions(j) for j in range(5)]
+    plain = FitJob(demos, None, None, None, {"n_samples": 80})
+    kept = FitJob(demos, None, None, None, {"n_samples": 80}, None, [2000])
+    runner = FitRunner(1e9)
+    assert runner.check_cost(kept) == pytest.approx(
+        runner.check_cost(plain) + reapply_cost_seconds([2000], 80))
+    cap = runner.check_cost(plain) + 0.5 * reapply_cost_seconds([2000], 80)
+    settings = Settings(data_dir=tmp_path / "data", recordings_enabled=False,
+                        zenoh_enabled=False, fit_max_seconds=cap)
+    with LiveServer(create_app(settings)) as server, \
+            httpx.Client(base_url=server.url, timeout=60) as http:
+        assert http.post("/skills", json={"name": "pour", "dim": 3}).status_code == 201
+        for demo in demos:
+            assert http.post("/skills/pour/demonstrations",
+                             json={"positions": demo.tolist()}).status_code == 201
+        assert http.post("/skills/pour/fit", json={"n_samples": 80}).status_code == 201
+        path = long_wider_path(served_canal(http), 0)
+        assert http.post("/skills/pour/corrections",
+                         json={"kind": "include", "samples": path}).status_code == 201
+        r = http.post("/skills/pour/fit", json={"n_samples": 80})
+        assert r.status_code == 422, r.text
+        error = r.json()["error"]
+        assert error["type"] == "fit_too_slow" and "keep_corrections false" in error["message"]
+        assert "1 correction of 2000 samples to re-apply" in error["message"]
+        assert http.get("/skills/pour").json()["n_models"] == 2
+        assert http.post("/skills/pour/fit",
+                         json={"n_samples": 80, "keep_corrections": False}).status_code == 201

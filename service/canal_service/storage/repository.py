@@ -712,6 +712,14 @@ def list_corrections(session: Session, skill: Skill, offset: int, limit: int
     return list(rows), total
 
 
+def correction_points(session: Session, skill: Skill, ids: Sequence[int]) -> list[int]:
+    """The number of samples of each of the skill's corrections with these ids (those that
+    exist), without reading their paths."""
+    return [int(n) for n in session.scalars(
+        select(Correction.n_points).where(Correction.skill_id == skill.id,
+                                          Correction.id.in_(list(ids))))]
+
+
 def get_corrections(session: Session, skill: Skill, ids: Sequence[int]) -> list[Correction]:
     """The skill's corrections with these ids, in the order of ``ids``
     (:class:`CorrectionNotFound` for the first missing)."""
