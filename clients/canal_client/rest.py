@@ -61,6 +61,7 @@ from canal_protocol.schemas import (
     CorrectedModel,
     CorrectionIn,
     CorrectionOut,
+    CorrectionPath,
     DemonstrationIn,
     FitRequest,
     Page,
@@ -205,6 +206,8 @@ CORRECT_FILE = Endpoint("POST", "/skills/{name}/corrections/file", None, Correct
                         status=201, media_type="multipart/form-data")
 LIST_CORRECTIONS = Endpoint("GET", "/skills/{name}/corrections", response=Page[CorrectionOut],
                             query=_PAGED)
+GET_CORRECTION = Endpoint("GET", "/skills/{name}/corrections/{correction_id}",
+                         response=CorrectionPath)
 UNDO_CORRECTION = Endpoint("DELETE", "/skills/{name}/corrections/{correction_id}",
                            response=CorrectedModel)
 RECORDING_RRD = Endpoint("GET", "/skills/{name}/recording.rrd")
@@ -595,6 +598,11 @@ def _list_corrections(skill: str) -> _Steps[list[CorrectionOut]]:
     return (yield from _all_pages(LIST_CORRECTIONS, name=skill))
 
 
+def _get_correction(skill: str, id: int) -> _Steps[CorrectionPath]:
+    """Correction ``id`` with its path as it was sent (model versions name it by id)."""
+    return (yield _request(GET_CORRECTION, name=skill, correction_id=int(id)))
+
+
 def _undo_correction(skill: str, id: int) -> _Steps[CorrectedModel]:
     """A new latest model version without correction ``id`` (the others re-applied)."""
     return (yield _request(UNDO_CORRECTION, name=skill, correction_id=int(id)))
@@ -808,6 +816,7 @@ class _Operations:
     correct = _operation(_correct)
     correct_file = _operation(_correct_file)
     list_corrections = _operation(_list_corrections)
+    get_correction = _operation(_get_correction)
     undo_correction = _operation(_undo_correction)
     download_recording = _operation(_download_recording)
     rebuild_recording = _operation(_rebuild_recording)

@@ -256,6 +256,10 @@ def test_a_correction_from_a_file(client: CanalClient, service: LiveService, fit
     made = client.correct_file(fitted, csv, weight=2.0, model=1)
     assert made.correction.label == "wider.csv" and made.correction.n_points == len(wider)
     assert made.correction.weight == 2.0 and made.parent_version == 1
+    # a model version names its corrections by id; the path is the correction's own
+    stored = client.get_correction(fitted, made.correction.id)
+    assert stored.id == made.correction.id and stored.label == "wider.csv"
+    np.testing.assert_array_equal(np.array(stored.samples), wider)
     doc = tmp_path / "wider.json"
     doc.write_text(json.dumps({"samples": wider.tolist()}))
     by_json = client.correct_file(fitted, doc, "include", label="by json", model=1, weight=2.0)
