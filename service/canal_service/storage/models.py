@@ -193,9 +193,6 @@ class Correction(Base):
     model_version: Mapped[int] = mapped_column(Integer, nullable=False)
     first_section: Mapped[int] = mapped_column(Integer, nullable=False)
     last_section: Mapped[int] = mapped_column(Integer, nullable=False)
-    #: Not read: whether a correction is undone is whether the skill's latest version holds it
-    #: (``model_lineage``), which a later correction of an older version can change back.
-    undone: Mapped[bool] = mapped_column(Boolean, nullable=False, default=False)
     #: The route of a model of several routes it corrects; None: every route.
     route: Mapped[int | None] = mapped_column(Integer, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

@@ -691,8 +691,9 @@ def insert_correction(session: Session, skill: Skill, kind: str, label: str, wei
         dim=int(samples.shape[1]), samples=arrays.pack(samples),
         timestamps=None if timestamps is None else arrays.pack(timestamps),
         orientations=None if orientations is None else arrays.pack(orientations),
-        plan=None if plan is None else arrays.pack(plan), base_version=base_version, model_version=model_version, first_section=first_section,
-        last_section=last_section, undone=False, route=route,
+        plan=None if plan is None else arrays.pack(plan), base_version=base_version,
+        model_version=model_version, first_section=first_section, last_section=last_section,
+        route=route,
     )
     session.add(row)
     session.flush()
