@@ -73,7 +73,7 @@ class RecorderLike(Protocol):
 
     def demo_added(self, skill: str, dim: int, demo_id: int, positions: npt.ArrayLike,
                    timestamps: npt.ArrayLike | None, label: str | None) -> None: ...
-    def demo_removed(self, skill: str, demo_id: int) -> None: ...
+    def demo_removed(self, skill: str, demo_id: int, *, instance: str | None = None) -> None: ...
     def model_fitted(self, skill: str, version: int, canal: canal_core.Canal | Routes, *,
                      t_ns: int | None = None, instance: str | None = None) -> None: ...
     def reproduction(self, skill: str, version: int, result: canal_core.Reproduction, *,
@@ -83,7 +83,7 @@ class RecorderLike(Protocol):
              target: canal_core.TrackerTarget, t_ns: int | None = None,
              orientation: npt.ArrayLike | None = None) -> None: ...
     def scene_changed(self, skill: str, version: int, obstacles: list[dict[str, Any]],
-                      dim: int) -> None: ...
+                      dim: int, *, instance: str | None = None) -> None: ...
     def skill_deleted(self, skill: str) -> None: ...
     def export_rrd(self, skill: str) -> Path: ...
     def export_mcap(self, skill: str, profile: str = "foxglove") -> Path: ...
@@ -306,7 +306,8 @@ class CanalService:
         with self.db.write() as s:
             skill = repo.get_skill(s, name)
             repo.delete_demonstration(s, skill, demo_id)
-        self._record("demo_removed", lambda r: r.demo_removed(name, demo_id))
+            instance = repo.skill_instance(skill.id, skill.created_at)
+        self._record("demo_removed", lambda r: r.demo_removed(name, demo_id, instance=instance))
 
     @staticmethod
     def _demo_summary(row: Demonstration, has_t: bool, has_q: bool
@@ -784,9 +785,10 @@ class CanalService:
             row = repo.put_scene(s, skill, scene.to_list())
             out = schemas.SceneOut(skill=name, version=row.version, obstacles=row.obstacles,
                                    updated_at=row.updated_at)
+            instance = repo.skill_instance(skill.id, skill.created_at)
         self.scene_listeners.notify(name, out.version, scene)
         self._record("scene_changed", lambda r: r.scene_changed(name, out.version, out.obstacles,
-                                                                scene.dim))
+                                                                scene.dim, instance=instance))
         return out
 
     def scene_of(self, name: str, dim: int) -> tuple[int | None, canal_core.obstacles.Scene | None]:

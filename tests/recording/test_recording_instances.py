@@ -18,7 +18,7 @@ from canal_service.recording.events import live_rows
 from canal_service.recording.source import DbSource
 from canal_service.service import CanalService
 from canal_service.storage import Database
-from recording_helpers import helix_demo, mcap_messages
+from recording_helpers import helix_demo, mcap_messages, rrd_rows
 
 import canal_core
 from canal_protocol.schemas import DemonstrationIn, SkillCreate
@@ -104,3 +104,37 @@ def test_live_rows_of_a_skill_created_again_outlive_the_delete_of_the_old_one(
     xs = [[p["pose"]["position"][c] for c in "xyz"] for p in poses]
     assert np.allclose(xs, pts)
     assert mcap_messages(path, "/canal/demos") == []  # the old skill's demo went with it
+
+
+def test_a_deleted_skills_scene_and_demo_removal_stay_out_of_the_new_skills_recording(
+        tmp_path: Path, rerun_env: dict[str, str]) -> None:
+    # A scene put and a demonstration deleted just before the skill is deleted, then a skill
+    # created again under its name: those events, still queued (quiet_s keeps them waiting
+    # while requests come), belong to the deleted skill and its recording, never the new one's.
+    db = Database(f"sqlite:///{tmp_path / 'canal.sqlite3'}")
+    db.migrate()
+    rec = Recorder(tmp_path / "rec", flush_interval_s=0.05, quiet_s=2.0, source=DbSource(db))
+    service = CanalService(db, Metrics(), recorder=rec)
+    try:
+        service.create_skill(SkillCreate(name="pour", description="", dim=3))
+        old = [service.add_json_demonstration("pour", DemonstrationIn(
+            positions=helix_demo(k).tolist())).id for k in range(3)]
+        rec.export_mcap("pour").unlink()  # the old skill's files, with its instance
+        service.put_scene("pour", [{"kind": "sphere", "center": [0.5, 0.1, 0.02], "radius": 0.01}])
+        service.delete_demonstration("pour", old[0])
+        service.delete_skill("pour")
+        service.create_skill(SkillCreate(name="pour", description="", dim=2))
+        new = [service.add_json_demonstration("pour", DemonstrationIn(
+            positions=helix_demo(10 + k, dim=2).tolist())).id for k in range(2)]
+        mcap = rec.export_mcap("pour")
+        rrd = rec.export_rrd("pour")
+    finally:
+        rec.close()
+        db.dispose()
+    assert mcap_messages(mcap, "/canal/scene") == []
+    demos = mcap_messages(mcap, "/canal/demos")
+    assert sorted(e["id"] for m in demos for e in m["entities"]) == [f"demo/{i}" for i in new]
+    assert [d for m in demos for d in m["deletions"]] == []
+    entities = {e for e, _ in rrd_rows(rrd, rerun_env)}
+    assert not {e for e in entities if e.startswith("/scene")}
+    assert {e.split("/")[2] for e in entities if e.startswith("/demos/")} == {str(i) for i in new}

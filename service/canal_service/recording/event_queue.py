@@ -149,12 +149,13 @@ class RecorderQueue:
         except Exception:
             self._caller_error("demo_added")
 
-    def demo_removed(self, skill: str, demo_id: int) -> None:
-        """A demonstration was deleted (cleared in the recording from now on)."""
+    def demo_removed(self, skill: str, demo_id: int, *, instance: str | None = None) -> None:
+        """A demonstration was deleted (cleared in the recording from now on); ``instance``
+        is the skill instance it was deleted from, when known."""
         if self._closed:
             return
         try:
-            self._put(DemoRemoved(time.time_ns(), skill, int(demo_id)))
+            self._put(DemoRemoved(time.time_ns(), skill, int(demo_id), instance))
         except Exception:
             self._caller_error("demo_removed")
 
@@ -171,13 +172,15 @@ class RecorderQueue:
             self._caller_error("model_fitted")
 
     def scene_changed(self, skill: str, version: int, obstacles: list[dict[str, Any]], dim: int,
-                      *, t_ns: int | None = None) -> None:
-        """The skill's scene is now ``obstacles`` (canal_core's JSON form) at ``version``."""
+                      *, t_ns: int | None = None, instance: str | None = None) -> None:
+        """The skill's scene is now ``obstacles`` (canal_core's JSON form) at ``version``;
+        ``instance`` is the skill instance whose scene it is, when known."""
         if self._closed:
             return
         try:
             self._put(SceneChanged(time.time_ns() if t_ns is None else int(t_ns), skill,
-                                   int(version), [dict(o) for o in obstacles], int(dim)))
+                                   int(version), [dict(o) for o in obstacles], int(dim),
+                                   instance))
         except Exception:
             self._caller_error("scene_changed")
 

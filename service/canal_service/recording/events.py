@@ -51,6 +51,7 @@ class DemoRemoved:
     t_ns: int
     skill: str
     demo_id: int
+    instance: str | None = None  # the skill instance it was removed from, when known
 
 
 @dataclass(slots=True)
@@ -81,6 +82,7 @@ class SceneChanged:
     version: int
     obstacles: list[dict[str, Any]]  # canal_core's JSON form, as stored
     dim: int
+    instance: str | None = None  # the skill instance whose scene it is, when known
 
 
 @dataclass(slots=True)

@@ -106,7 +106,7 @@ class Reconciler(SegmentWriter):
             self._log(DemoAdded(d.t_ns or now, skill, d.demo_id, d.positions, d.timestamps,
                                    d.label, d.orientations))
         for demo_id in stale:
-            self._log(DemoRemoved(now, skill, demo_id))
+            self._log(DemoRemoved(now, skill, demo_id, inventory.instance))
         versions = sorted(db_models - logged_models)
         for m in self.source.models(skill, versions) if versions else []:
             self._log(ModelFitted(m.t_ns or now, skill, m.version, m.canal))

@@ -88,8 +88,8 @@ class SegmentWriter(RecorderQueue):
                                                event.orientations),
                         ledger=f"d {event.demo_id}")
         elif isinstance(event, DemoRemoved):
-            if not self._owner(event.skill, None):
-                return
+            if not self._owner(event.skill, event.instance):
+                return  # removed from a skill deleted since
             self._write(event.skill, event.t_ns,
                         lambda r: r.demo_removed(event.t_ns, event.demo_id),
                         lambda m: m.demo_removed(event.t_ns, event.demo_id),
@@ -123,8 +123,8 @@ class SegmentWriter(RecorderQueue):
                         lambda m: m.reproduction(event.t_ns, rep), ledger=f"p {number}")
             state.n_reproductions = max(state.n_reproductions, number)
         elif isinstance(event, SceneChanged):
-            if not self._owner(event.skill, None):
-                return
+            if not self._owner(event.skill, event.instance):
+                return  # the scene of a skill deleted since
             shapes = obstacle_shapes(event.obstacles, event.dim)
             self._write(event.skill, event.t_ns,
                         lambda r: r.scene(event.t_ns, event.version, shapes),
