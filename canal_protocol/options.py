@@ -31,6 +31,7 @@ __all__ = [
     "MIN_SAMPLES",
     "OUTSIDE_RULES",
     "PERSISTENCES",
+    "RECORDING_MAGIC",
     "ROUTE_SEPARATION",
     "TIME_UNITS",
     "Alignment",
@@ -82,6 +83,9 @@ MAX_CORRECTION_LABEL = 200
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: The recordings a skill has: Rerun (.rrd) and MCAP.
 RecordingKind = Literal["rrd", "mcap"]
+#: How each recording file starts: Rerun's ``RRF`` and its encoding's version digit, and the
+#: MCAP magic (what an .mcap upload starts with too).
+RECORDING_MAGIC: dict[str, bytes] = {"rrd": b"RRF", "mcap": b"\x89MCAP0\r\n"}
 if TYPE_CHECKING:
     # The registry is open (a new kind is one new module), so statically it is a name.
     CrossSection = str

@@ -49,6 +49,7 @@ from pydantic import BaseModel, ValidationError
 
 from canal_protocol.credentials import TOKEN_CHARACTERS, token_fault
 from canal_protocol.options import (
+    RECORDING_MAGIC,
     Alignment,
     CrossSection,
     Directrix,
@@ -251,11 +252,41 @@ class _Request(Generic[T]):
 
 @dataclass(frozen=True)
 class _Download:
-    """Stream a GET's answer into ``target`` (atomically)."""
+    """Stream a GET's answer into ``target`` (atomically); ``kind``: the recording it must
+    be (checked on its first bytes), None for any file."""
 
     path: str
     params: dict[str, Any] | None
     target: Path
+    kind: str | None = None
+
+
+class _FileStart:
+    """The first bytes of a download, checked against how its recording starts
+    (:data:`~canal_protocol.options.RECORDING_MAGIC`) before the file is kept: a URL at
+    another web app answers 200 too, with a page no viewer opens."""
+
+    def __init__(self, step: _Download, resp: httpx.Response) -> None:
+        self.kind = step.kind
+        self.magic = b"" if step.kind is None else RECORDING_MAGIC[step.kind]
+        self.resp = resp
+        self.head = b""
+
+    def feed(self, chunk: bytes) -> None:
+        if len(self.head) < len(self.magic):
+            self.head += chunk[:64]
+            if len(self.head) >= len(self.magic):
+                self.end()
+
+    def end(self) -> None:
+        """Raise :class:`CanalClientError` unless the answer starts as its recording does."""
+        if self.head.startswith(self.magic):
+            return
+        got = self.resp.headers.get("content-type") or "no content type"
+        raise CanalClientError(
+            f"GET {self.resp.request.url.path}: the answer is not a Canal recording (expected "
+            f"a .{self.kind} file, starting with {self.magic!r}; got {got}, "
+            + (f"starting with {self.head[:24]!r})" if self.head else "empty)"))
 
 
 @dataclass(frozen=True)
@@ -750,7 +781,7 @@ def _download_recording(skill: str, kind: RecordingKind, path: str | os.PathLike
         raise ArgumentError("kind", "'rrd' or 'mcap'", shown_argument(kind))
     target = Path(path)
     yield _Download(endpoint.url(name=skill), None if profile is None else {"profile": profile},
-                    target)
+                    target, kind)
     return target
 
 
@@ -932,8 +963,11 @@ class CanalClient(_Base):
                     if not resp.is_success:
                         resp.read()
                         _check(resp)
+                    start = _FileStart(step, resp)
                     for chunk in resp.iter_bytes(1 << 16):
+                        start.feed(chunk)
                         out.write(chunk)
+                    start.end()
             except httpx.TransportError as exc:
                 raise self._transport_error(exc) from exc
 
@@ -1002,7 +1036,10 @@ class AsyncCanalClient(_Base):
                     if not resp.is_success:
                         await resp.aread()
                         _check(resp)
+                    start = _FileStart(step, resp)
                     async for chunk in resp.aiter_bytes(1 << 16):
+                        start.feed(chunk)
                         out.write(chunk)
+                    start.end()
             except httpx.TransportError as exc:
                 raise self._transport_error(exc) from exc

@@ -26,6 +26,7 @@ from canal_live import (
     closed_port_url,
     demo_positions,
     free_port,
+    other_web_app,
     write_demo_files,
 )
 from canal_testing import ROUTE_STARTS, two_route_demo
@@ -373,6 +374,12 @@ def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[
 
     r = run("export", "no-such-skill", "--rrd", str(tmp_path / "n.rrd"))
     assert r.exit_code == 1 and not (tmp_path / "n.rrd").exists()
+    # --url at another web app: its page is not saved as the recording
+    with other_web_app() as url:
+        r = run("export", name, "--rrd", str(tmp_path / "w.rrd"), "--mcap",
+                str(tmp_path / "w.mcap"), url=url)
+    assert r.exit_code == 1 and "is not a Canal recording" in r.output, r.output
+    assert not (tmp_path / "w.rrd").exists() and not (tmp_path / "w.mcap").exists()
 
 
 def test_unreachable_service_exit_code_3(run: Run) -> None:

@@ -3,8 +3,12 @@ loopback port, and demonstration files in every accepted format."""
 
 from __future__ import annotations
 
+import contextlib
+import http.server
 import json
 import os
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +26,33 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 def closed_port_url() -> str:
     """A loopback URL where nothing listens (the port was free a moment ago)."""
     return f"http://127.0.0.1:{free_port()}"
+
+
+@contextlib.contextmanager
+def other_web_app() -> Iterator[str]:
+    """The URL of a web server on loopback that is not Canal: every request is answered
+    200 with an HTML page (a URL pointing at the wrong port)."""
+
+    class Page(http.server.BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            body = b"<html>hello</html>"
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
 
 
 class LiveService(LiveServer):

@@ -29,7 +29,7 @@ from canal_client import (
 )
 from canal_client.errors import error_from_response
 from canal_client.rest import _Request
-from canal_live import LiveService, closed_port_url, demo_positions
+from canal_live import LiveService, closed_port_url, demo_positions, other_web_app
 
 
 def test_not_found_and_conflict(client: CanalClient, unique_name: Callable[[str], str]) -> None:
@@ -163,6 +163,28 @@ def test_recordings_off_is_not_found(tmp_path: Path) -> None:
             c.download_recording("s", "rrd", target)
         assert info.value.type == "disabled"
         assert not target.exists() and list(tmp_path.glob("*.part")) == []
+
+
+def test_an_answer_that_is_not_a_recording_is_refused_and_nothing_written(tmp_path: Path) -> None:
+    # A URL pointing at another web app answers 200 with a page: saving it as the .rrd
+    # would leave a file no viewer opens.
+    with other_web_app() as url:
+        for kind in ("rrd", "mcap"):
+            target = tmp_path / f"s.{kind}"
+            with CanalClient(url) as c, pytest.raises(CanalClientError) as info:
+                c.download_recording("s", kind, target)
+            message = str(info.value)
+            assert "is not a Canal recording" in message and f".{kind}" in message
+            assert "text/html" in message and "<html>" in message
+
+            async def scenario(kind: str = kind, target: Path = target) -> None:
+                async with AsyncCanalClient(url) as ac:
+                    await ac.download_recording("s", kind, target)
+
+            with pytest.raises(CanalClientError, match="is not a Canal recording"):
+                asyncio.run(scenario())
+            assert not target.exists()
+        assert list(tmp_path.iterdir()) == []
 
 
 def test_unreachable_server() -> None:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from canal_protocol.codecs.csv_table import CsvTable
+from canal_protocol.options import RECORDING_MAGIC
 
 from ..errors import TooLarge
 
@@ -18,7 +19,7 @@ ParsedUpload = CsvTable
 UploadFormat = Literal["csv", "npy", "mcap"]
 FORMATS: tuple[str, ...] = ("csv", "npy", "mcap")
 NPY_MAGIC = b"\x93NUMPY"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
+MCAP_MAGIC = RECORDING_MAGIC["mcap"]
 
 # A demonstration is a few minutes of a robot at up to 1 kHz: 200,000 samples is 6.7 min at
 # 500 Hz. The other two defaults follow: a ROS 2 PoseStamped record is ~100 bytes, so 200,000
