@@ -366,6 +366,11 @@ def test_export_and_view(run: Run, service: LiveService, unique_name: Callable[[
     assert f"recording saved to {cached}" in r.stdout
     assert "open it with: " in r.stdout and str(cached) in r.stdout.splitlines()[1]
     assert cached.read_bytes().startswith(RRD_MAGIC)
+    # a download folder that cannot be made: the reason and the variable to set, no traceback
+    for env in ({"CANAL_CACHE_DIR": str(blocker)}, {"CANAL_CACHE_DIR": "", "XDG_CACHE_HOME": str(blocker)}):
+        r = run("view", name, "--no-open", env=env)
+        assert r.exit_code == 1 and "Traceback" not in r.output, r.output
+        assert f"cannot write {blocker}" in r.output and "CANAL_CACHE_DIR" in r.output, r.output
     # without a display nothing is spawned, even without --no-open
     r = run("--json", "view", name, env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
     doc = json.loads(r.stdout)

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal
 import typer
 from rich.markup import escape
 
+from ..rest import CanalClient
 from .output import EXIT_REFUSED, error, out, print_json
 from .session import connected, health_document, options
 
@@ -45,17 +46,23 @@ def export(
                 continue
             if path.is_dir():  # a folder is where the file goes, as for cp
                 path = path / f"{skill}.{kind}"
-            try:
-                c.download_recording(skill, kind, path,
-                                     profile="ros2" if ros2 and kind == "mcap" else None)
-            except OSError as exc:
-                error(f"cannot write {path}: {exc.strerror or exc}")
-                raise typer.Exit(EXIT_REFUSED) from None
+            save(c, skill, kind, path, profile="ros2" if ros2 and kind == "mcap" else None)
             written[kind] = str(path)
             if not options(ctx).json:
                 out.print(f"wrote {escape(str(path))} ({path.stat().st_size} bytes)")
     if options(ctx).json:
         print_json(written)
+
+
+def save(c: CanalClient, skill: str, kind: Literal["rrd", "mcap"], path: Path, *,
+         profile: str | None = None, hint: str = "") -> None:
+    """Download the skill's recording to ``path``; a path that cannot be written is a
+    one-line error (``hint``: what to change), exit code 1."""
+    try:
+        c.download_recording(skill, kind, path, profile=profile)
+    except OSError as exc:
+        error(f"cannot write {path}: {exc.strerror or exc}{hint}")
+        raise typer.Exit(EXIT_REFUSED) from None
 
 
 def cache_dir() -> Path:
@@ -120,7 +127,8 @@ def view(
         return
     path = cache_dir() / f"{skill}.rrd"
     with connected(ctx) as c:
-        c.download_recording(skill, "rrd", path)
+        save(c, skill, "rrd", path, hint=" (the download folder: set CANAL_CACHE_DIR to a "
+             "folder that can be written)")
     cmd = rerun_command()
     opts = options(ctx)
     opened = False
