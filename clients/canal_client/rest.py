@@ -98,6 +98,7 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_URL",
     "ENDPOINTS",
+    "FILE_FORMATS",
     "AsyncCanalClient",
     "CanalClient",
     "Endpoint",
@@ -424,7 +425,9 @@ def _model_ref(model: Version) -> int | str:
         raise ArgumentError("model", "'latest' or a version number", shown_argument(model)) from None
 
 
-_FORMATS = ("csv", "npy", "mcap", "json")
+#: The demonstration file formats the clients send (JSON as a request body, the others as
+#: an upload).
+FILE_FORMATS: tuple[str, ...] = ("csv", "npy", "mcap", "json")
 
 
 def guess_format(path: str | os.PathLike[str], format: str | None = None) -> str:
@@ -432,11 +435,11 @@ def guess_format(path: str | os.PathLike[str], format: str | None = None) -> str
     else from the file's suffix. Raises :class:`ArgumentError` for anything else."""
     if format is not None:
         fmt = str(format).lower()
-        if fmt not in _FORMATS:
+        if fmt not in FILE_FORMATS:
             raise ArgumentError("format", "'csv', 'npy', 'mcap' or 'json'", shown_argument(format))
         return fmt
     fmt = _SUFFIXES.get(Path(path).suffix.lower(), "")
-    if fmt not in _FORMATS:
+    if fmt not in FILE_FORMATS:
         raise ArgumentError("path", "a .csv, .npy, .mcap or .json file (or format=)",
                             shown_argument(Path(path).name))
     return fmt

@@ -884,6 +884,14 @@ _REFUSED_HERE: list[tuple[list[str], str, str, str]] = [
     (["corrections", "undo", "x", "--", "-1"], "'id'", f"a whole number in [1, {MAX_ID}]", "got '-1'"),
     (["demo", "rm", "x", "1", "-2"], "'ids'", f"a whole number in [1, {MAX_ID}]", "got '-2'"),
     (["demo", "rm", "x", "0"], "'ids'", f"a whole number in [1, {MAX_ID}]", "got '0'"),
+    (["demo", "add", "x", "FILE", "--time-unit", "hours"], "--time-unit",
+     "one of 's', 'ms', 'us', 'ns'", "got 'hours'"),
+    (["demo", "add", "x", "FOLDER", "--time-unit", "hours"], "--time-unit",
+     "one of 's', 'ms', 'us', 'ns'", "got 'hours'"),
+    (["demo", "add", "x", "FILE", "--format", "xls"], "--format",
+     "one of 'csv', 'npy', 'mcap', 'json'", "got 'xls'"),
+    (["correct", "x", "FILE", "--time-unit", "hours"], "--time-unit",
+     "one of 's', 'ms', 'us', 'ns'", "got 'hours'"),
 ]
 
 
@@ -893,9 +901,9 @@ def test_a_value_the_contract_refuses_is_a_usage_error_naming_its_option(
         run: Run, tmp_path: Path, args: list[str], option: str, expected: str, got: str) -> None:
     # These were sent, and came back as the service's 422 naming the request field (exit 1):
     # `--route-separation 0`, `--demo 0`, `--model 0`, a label too long, `corrections undo
-    # SKILL 0`; a negative id was "No such option: -1".
+    # SKILL 0`, `--time-unit hours`, `--format xls`; a negative id was "No such option: -1".
     file = write_demo_files(tmp_path)["csv"]
-    args = [str(file) if a == "FILE" else a for a in args]
+    args = [{"FILE": str(file), "FOLDER": str(file.parent)}.get(a, a) for a in args]
     r = run(*args, url=closed_port_url())
     said = " ".join(r.output.replace("│", " ").split())
     assert r.exit_code == 2, (args, said)
@@ -914,6 +922,8 @@ def test_values_within_the_contracts_limits_are_sent(run: Run, tmp_path: Path) -
                  ["reproduce", "x", "--start", "0,0,0", "--model", "latest"],
                  ["correct", "x", file, "--label", "l" * MAX_CORRECTION_LABEL, "--model", "2"],
                  ["demo", "add", "x", file, "--label", "l" * MAX_DEMO_LABEL],
+                 ["demo", "add", "x", file, "--time-unit", "ms", "--format", "CSV"],
+                 ["correct", "x", file, "--time-unit", "ns"],
                  ["skill", "create", "x", "--description", "d" * 4000],
                  ["corrections", "undo", "x", "1"], ["demo", "rm", "x", "1", "2"]):
         r = run(*args, url=url)

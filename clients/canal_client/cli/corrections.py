@@ -9,7 +9,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from canal_protocol.options import CORRECTION_KINDS, CorrectionKind
+from canal_protocol.options import CORRECTION_KINDS, TIME_UNITS, CorrectionKind
 from canal_protocol.schemas import CorrectionIn
 
 from ..errors import ArgumentError
@@ -54,8 +54,9 @@ def correct(
     topic: Annotated[str | None, typer.Option(
         "--topic", help="The pose topic of an .mcap file that has several.")] = None,
     time_unit: Annotated[str | None, typer.Option(
-        "--time-unit", help="Unit of the file's time column or timestamps: s (default), ms, "
-                            "us or ns (a ROS log's nanoseconds). Not for MCAP.")] = None,
+        "--time-unit", parser=choice_parser(tuple(TIME_UNITS)),
+        help=f"Unit of the file's time column or timestamps: {', '.join(TIME_UNITS)} (s by "
+             "default; ns: a ROS log's nanoseconds). Not for MCAP.")] = None,
 ) -> None:
     """Refine the skill's canal by a correction: a new model version."""
     try:

@@ -12,12 +12,20 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
+from canal_protocol.options import TIME_UNITS
 from canal_protocol.schemas import DemonstrationIn
 
 from ..errors import ApiError, CanalClientError, ConnectionFailedError, RequestTimeoutError
-from ..rest import guess_format
+from ..rest import FILE_FORMATS, guess_format
 from .output import EXIT_REFUSED, err, error, out, print_json, time_text
-from .parsing import NumbersAsArguments, contract_parser, existing_file, field_type, stored_id
+from .parsing import (
+    NumbersAsArguments,
+    choice_parser,
+    contract_parser,
+    existing_file,
+    field_type,
+    stored_id,
+)
 from .session import connected, options
 
 #: The file kinds ``canal demo add`` takes from a folder.
@@ -91,10 +99,12 @@ def demo_add(
         "--label", parser=contract_parser(field_type(DemonstrationIn, "label")),
         help="Label for every file.")] = None,
     format: Annotated[str | None, typer.Option(
-        "--format", help="csv, npy, json or mcap, for files without a telling suffix.")] = None,
+        "--format", parser=choice_parser(FILE_FORMATS, any_case=True),
+        help=f"{', '.join(FILE_FORMATS)}: the files' format, whatever their suffix.")] = None,
     time_unit: Annotated[str | None, typer.Option(
-        "--time-unit", help="Unit of the files' time column or timestamps: s (default), ms, "
-                            "us or ns (a ROS log's nanoseconds). Not for MCAP.")] = None,
+        "--time-unit", parser=choice_parser(tuple(TIME_UNITS)),
+        help=f"Unit of the files' time column or timestamps: {', '.join(TIME_UNITS)} (s by "
+             "default; ns: a ROS log's nanoseconds). Not for MCAP.")] = None,
 ) -> None:
     """Add one demonstration per file. A folder means every supported file in it
     (.csv, .npy, .json, .mcap; not recursive), in name order. A file that is refused is

@@ -154,17 +154,19 @@ class NumbersAsArguments(TyperCommand):
         return super().parse_args(ctx, args)
 
 
-def choice_parser(choices: Sequence[T]) -> Callable[[object], T]:
+def choice_parser(choices: Sequence[T], *, any_case: bool = False) -> Callable[[object], T]:
     """A parser for an option of fixed choices (strings or ``StrEnum`` members): the choice
-    typed, or a usage error listing the choices and what came. typer's own check of a
-    ``Literal`` or an enum words the refusal as a pydantic ``Value error, ...``."""
+    typed (in any letter case with ``any_case``), or a usage error listing the choices and
+    what came. typer's own check of a ``Literal`` or an enum words the refusal as a pydantic
+    ``Value error, ...``."""
     by_text = {str(c): c for c in choices}
     listed = ", ".join(map(repr, by_text))
 
     def parse(text: object) -> T:
-        if str(text) not in by_text:
+        key = str(text).lower() if any_case else str(text)
+        if key not in by_text:
             raise typer.BadParameter(f"expected one of {listed}, got {str(text)!r}")
-        return by_text[str(text)]
+        return by_text[key]
 
     return parse
 
