@@ -47,6 +47,16 @@ class LiveError(CanalClientError, RuntimeError):
         self.body = body
 
 
+class NoBridgeError(LiveError):
+    """No Canal bridge subscribes to the stream's pose key. ``reached``: whether the session
+    reached any Zenoh node; when not, nothing listens at the endpoint or it refused the
+    session (a service started with ``--token`` admits only sessions given that token)."""
+
+    def __init__(self, message: str, reached: bool) -> None:
+        super().__init__(message)
+        self.reached = reached
+
+
 def zenoh_reason(exc: BaseException) -> str:
     """A Zenoh error as one line: its message, where a JSON5 parse stopped, without the Rust
     source location zenoh appends (``... at /root/.cargo/.../lib.rs:1486.``)."""
@@ -112,6 +122,11 @@ def _matching(publisher: Any) -> bool:
     object, always true itself, whose ``matching`` says (its stub says bool)."""
     status = publisher.matching_status
     return bool(getattr(status, "matching", status))
+
+
+def _reached(session: Any) -> bool:
+    """Whether the session is connected to any Zenoh peer or router."""
+    return bool(list(session.info.peers_zid()) or list(session.info.routers_zid()))
 
 
 def _reply_body(reply: Any) -> tuple[bool, Any]:
@@ -215,8 +230,14 @@ class PoseStreamer:
             deadline = time.monotonic() + connect_timeout
             while not _matching(self._pub):
                 if time.monotonic() > deadline:
-                    raise LiveError(f"no Canal bridge subscribes to {self.keys.pose} "
-                                    f"(waited {connect_timeout:g} s)")
+                    reached = _reached(self.session)
+                    raise NoBridgeError(
+                        f"no Canal bridge subscribes to {self.keys.pose} (waited "
+                        f"{connect_timeout:g} s)" + ("" if reached else (
+                            ": no Zenoh node accepted this session (none listens at the "
+                            "endpoint, or it refused the session's credentials: a service "
+                            "started with --token admits only sessions given that token)")),
+                        reached)
                 time.sleep(0.005)
             self._thread = threading.Thread(target=self._receive, name="canal-pose-streamer",
                                             daemon=True)
@@ -403,4 +424,4 @@ def _close_open_streamers() -> None:
             pass
 
 
-__all__ = ["LiveError", "PoseStreamer", "client_config", "query_json"]
+__all__ = ["LiveError", "NoBridgeError", "PoseStreamer", "client_config", "query_json"]

@@ -717,6 +717,35 @@ def test_sim_drives_a_robot_to_the_end(unique_name: Callable[[str], str], tmp_pa
             assert "broadcast" not in r.output and "steps in" not in r.output, (flags, r.output)
 
 
+def test_sim_without_the_services_token_says_so(unique_name: Callable[[str], str],
+                                               tmp_path: Path) -> None:
+    # The bridge refuses a session without the token (or with another): that was "no Canal
+    # bridge subscribes to canal/SKILL/sim/pose", as if there were none.
+    from canal_client.cli import app
+    from typer.testing import CliRunner
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with LiveService(tmp_path / "data", zenoh_enabled=True, zenoh_listen=[endpoint],
+                     zenoh_processes=0, token="s3cret") as live:
+        name = unique_name("sim-token")
+        with CanalClient(live.url, token="s3cret") as c:
+            c.create_skill(name)
+            for j in range(4):
+                c.add_demo(name, demo_positions(j))
+            c.fit(name, n_samples=30)
+        for token, said in (("", "the service's live path admits only sessions that give its "
+                                 "token: pass it with --token (CANAL_TOKEN)"),
+                            ("wrong", "the service refused the token given (--token): missing "
+                                      "or wrong bearer token")):
+            r = CliRunner().invoke(app, ["sim", name, "--timeout", "1"],
+                                   env={"CANAL_URL": live.url, "CANAL_TOKEN": token})
+            assert r.exit_code == 1, r.output
+            assert said in " ".join(r.stderr.split()), r.stderr
+        r = CliRunner().invoke(app, ["--json", "sim", name, "--start", "0,0.01,0", "--timeout",
+                                     "30"], env={"CANAL_URL": live.url, "CANAL_TOKEN": "s3cret"})
+        assert r.exit_code == 0, r.output
+
+
 def test_view_opens_the_viewer_when_there_is_a_display(
         run: Run, service: LiveService, unique_name: Callable[[str], str],
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

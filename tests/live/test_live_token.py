@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from canal_client.live import LiveError, PoseStreamer, client_config, query_json
+from canal_client.live import LiveError, NoBridgeError, PoseStreamer, client_config, query_json
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")
@@ -48,8 +48,10 @@ def _stranger_reads_nothing(endpoint: str, skill: str) -> None:
         assert replies == [], "a stranger read the model"
         with pytest.raises(LiveError):
             query_json(stranger, f"canal/{skill}/thief/demo/start", {}, timeout=1.0)
-    with pytest.raises(LiveError, match="no Canal bridge"):  # no targets either
+    with pytest.raises(NoBridgeError, match="no Canal bridge") as refused:  # no targets either
         PoseStreamer(skill, "thief", endpoint=endpoint, connect_timeout=1.0)
+    # refused at connection: the session reached no node, and the error says a token may be why
+    assert not refused.value.reached and "--token" in str(refused.value)
 
 
 @pytest.mark.parametrize("processes", [0, 1])

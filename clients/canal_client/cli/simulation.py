@@ -24,7 +24,9 @@ from ..errors import (
     CanalClientError,
     ConnectionFailedError,
     RequestTimeoutError,
+    UnauthorizedError,
 )
+from ..rest import CanalClient
 from .output import EXIT_REFUSED, err, error, out, print_json
 from .parsing import choice_parser, parse_obstacle, parse_point
 from .session import connected, fail_unreachable, health_document, options
@@ -125,6 +127,32 @@ def _flag_error(exc: Any) -> typer.BadParameter:
     return typer.BadParameter(str(exc), param_hint=_FLAGS.get(exc.param, exc.param))
 
 
+def token_refusal(ctx: typer.Context, skill: str, health: dict[str, Any] | None) -> str | None:
+    """Why the service's live path refused a session that reached no Zenoh node, when its
+    /healthz says the path admits only sessions that give its token (``bridge.access``): no
+    --token, or one the service refuses (asked of its REST API, which takes the same token).
+    None when that is not it."""
+    opts = options(ctx)
+    if health is None:
+        try:
+            health = health_document(opts)
+        except CanalClientError:
+            return None
+    if (health.get("bridge") or {}).get("access") != "authenticated":
+        return None
+    if not opts.token:
+        return ("the service's live path admits only sessions that give its token: pass it "
+                "with --token (CANAL_TOKEN)")
+    try:
+        with CanalClient(opts.url, token=opts.token, timeout=10.0) as c:
+            c.get_skill(skill)
+    except UnauthorizedError as exc:
+        return f"the service refused the token given (--token): {exc}"
+    except CanalClientError:
+        pass
+    return None
+
+
 def _eta(result: Any, which: str) -> float:
     value = getattr(result, f"{which}_eta", None)
     return float("nan") if value is None else float(value)
@@ -182,7 +210,7 @@ def sim(
               f"{ZENOH_INSTALL}")
         raise typer.Exit(EXIT_REFUSED)
     from .. import sim as sim_module  # imports zenoh: only for this command
-    from ..live import client_config
+    from ..live import NoBridgeError, client_config
 
     endpoints = None if endpoint is None else [e.strip() for e in endpoint.split(",")]
     if robot is not None:
@@ -199,9 +227,11 @@ def sim(
         raise typer.BadParameter(f"expected {exc.expected}, got {exc.got}",
                                  param_hint=_FLAGS.get(exc.argument, exc.argument)) from None
     opts = options(ctx)
+    health: dict[str, Any] | None = None
     if (endpoint is None and zenoh_config is None) or prefix is None:
         try:
-            found, found_prefix = live_endpoint(health_document(opts), opts.url)
+            health = health_document(opts)
+            found, found_prefix = live_endpoint(health, opts.url)
         except CanalClientError as exc:
             if endpoint is None and zenoh_config is None:
                 if isinstance(exc, ConnectionFailedError | RequestTimeoutError):
@@ -248,6 +278,11 @@ def sim(
         raise typer.Exit(EXIT_REFUSED) from None
     except (ConnectionFailedError, RequestTimeoutError) as exc:
         raise fail_unreachable(exc, opts.url) from None
+    except NoBridgeError as exc:
+        # a token is no part of a --zenoh-config session: its file says its own credentials
+        refusal = None if exc.reached or zenoh_config else token_refusal(ctx, skill, health)
+        error(f"simulation failed: {refusal or exc}")
+        raise typer.Exit(EXIT_REFUSED) from None
     except (CanalClientError, TimeoutError, OSError, ValueError, RuntimeError) as exc:
         error(f"simulation failed: {exc}")
         raise typer.Exit(EXIT_REFUSED) from None
