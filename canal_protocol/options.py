@@ -42,6 +42,7 @@ __all__ = [
     "OutsideRule",
     "Persistence",
     "RecordingKind",
+    "TimeUnit",
 ]
 
 
@@ -79,6 +80,8 @@ MAX_CORRECTION_WEIGHT = 1000.0
 #: Longest label of a demonstration and of a correction, over REST and live.
 MAX_DEMO_LABEL = 256
 MAX_CORRECTION_LABEL = 200
+#: The units a demonstration's or a correction's ``time_unit`` names.
+TimeUnit = Literal["s", "ms", "us", "ns"]
 #: Seconds per unit of a demonstration's ``time_unit`` (a CSV/NPY time column, JSON timestamps).
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 #: The recordings a skill has: Rerun (.rrd) and MCAP.

@@ -80,3 +80,8 @@ def test_a_request_passes_to_the_core_as_it_is() -> None:
                          frame_smoothing=0.1, alignment="dtw", directrix="gmr")
     fitted = core.fit_options(**request.model_dump(include=CORE_OPTIONS))
     assert dataclasses.asdict(fitted) == request.model_dump(include=CORE_OPTIONS)
+
+
+def test_the_time_units_a_route_takes_are_the_ones_converted() -> None:
+    # the route's query parameter is typed by TimeUnit, the conversion reads TIME_UNITS
+    assert set(get_args(options.TimeUnit)) == set(options.TIME_UNITS)

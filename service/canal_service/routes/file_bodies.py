@@ -11,6 +11,7 @@ from starlette.datastructures import UploadFile
 from starlette.exceptions import HTTPException
 
 from canal_protocol.options import MAX_DEMO_LABEL
+from canal_protocol.options import TimeUnit as TimeUnitName
 
 from ..errors import BadUpload, InvalidInput, PayloadTooLarge, UnsupportedMediaType
 from ..lanes import Lane
@@ -25,7 +26,7 @@ BINARY: dict[str, Any] = {"type": "string", "format": "binary"}
 Format = Annotated[Literal["csv", "npy", "mcap"] | None,
                    Query(description="File format; guessed when omitted.")]
 Topic = Annotated[str | None, Query(max_length=1024, description="MCAP pose topic.")]
-TimeUnit = Annotated[Literal["s", "ms", "us", "ns"] | None, Query(
+TimeUnit = Annotated[TimeUnitName | None, Query(
     description="Unit of the timestamps (JSON) or of the CSV/NPY time column, seconds when "
                 "omitted; with ms, us or ns they are stored as seconds from the first sample. "
                 "Not for MCAP (its message stamps are read as such).")]
