@@ -32,7 +32,12 @@ Either way the corrected section is S'_i = delta_i + k_i S_i (centre c'_i = c_i 
 so every reproduction, the tracker and its compiled kernel use it with no change: the ratio
 rule carries the ratio in the corrected sections. Over a short blend on each side of the span,
 delta and k fade (smootherstep) to 0 and 1; outside the span and its blend every array of the
-canal is the parent's, bit for bit. Frames in the changed range are carried by double
+canal is the parent's, bit for bit. The blend is long enough to keep the directrix's slope
+gentle, but never longer than :data:`LONGEST_BLEND_FACTOR` times the default one (9 % of the
+sections, at least 9): a larger shift is blended more steeply rather than over more of the
+canal (:func:`locally_moved`, B1 and B2). Demonstrated samples an exclude's blend leaves outside
+are marked excluded as those in its span are (:func:`blend_dropped_crossings` says which
+crossings). Frames in the changed range are carried by double
 reflection from the frame before it, and the twist they pick up is unwound over the trailing
 blend, so the frame after it is the parent's again (rotation-minimising frames would otherwise
 carry the twist to the end of the canal).
@@ -67,7 +72,7 @@ from .options import (
     CorrectionKind,
 )
 from .preprocess import check_time_order, glitch_rows
-from .reproduce import located_points, section_basis, smootherstep
+from .reproduce import CONTAINS_TOLERANCE, located_points, section_basis, smootherstep
 from .validation import (
     BoolArray,
     FloatArray,
@@ -97,9 +102,13 @@ MIN_BLEND = 3
 #: Relative margin by which an include section holds the path (planes tilt a little).
 INCLUDE_MARGIN = 0.01
 #: Steepest slope of the directrix's displacement over a blend (the blend grows with the
-#: shift to keep it); smootherstep's steepest slope is 15/8 of its mean.
+#: shift to keep it, up to LONGEST_BLEND_FACTOR times); smootherstep's steepest slope is 15/8 of its mean.
 MAX_BLEND_SLOPE = 0.2
 SMOOTHERSTEP_SLOPE = 1.875
+#: Longest blend on each side of a span: this many times the default one (:func:`blend_width`).
+#: A shift too large for MAX_BLEND_SLOPE within it is blended more steeply, never over more of
+#: the canal.
+LONGEST_BLEND_FACTOR = 3
 #: Sections past each end of an include's path that hold its end crossing (the path ends
 #: between planes, which the span's moved planes tilt).
 END_PAD = 2
@@ -107,6 +116,9 @@ END_PAD = 2
 HOLD_MARGIN = 1e-3
 #: Boundary directions sampled when growing a section around its old boundary.
 BOUNDARY_SAMPLES = 64
+#: Points times sections per block when a correction locates many points at once (path
+#: crossings, dropped demo crossings): keeps their tables within a few MB.
+LOCATE_BLOCK = 1 << 18
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,6 +344,12 @@ def cleaned_samples(samples: FloatArray) -> FloatArray:
 def blend_width(n_sections: int) -> int:
     """Sections of blend on each side of a corrected span."""
     return max(MIN_BLEND, round(BLEND_FRACTION * n_sections))
+
+
+def longest_blend(n_sections: int) -> int:
+    """Most sections of blend on each side of a corrected span (B2): a correction changes at
+    most its span and this many sections either side, whatever its shift."""
+    return LONGEST_BLEND_FACTOR * blend_width(n_sections)
 
 
 def path_crossings(
@@ -574,7 +592,16 @@ def locally_moved(
     held: FloatArray | None = None,
 ) -> tuple[Canal, int, int]:
     """The canal with sections first..last moved by ``shift`` (S, D - 1, in-plane) and scaled
-    by ``scale`` (S,) about their moved centres, faded out over ``blend`` sections each side.
+    by ``scale`` (S,) about their moved centres, faded out over a blend each side.
+
+    The blend has ``blend`` sections, or more where the shift at the span's edge needs them to
+    keep the directrix's slope below :data:`MAX_BLEND_SLOPE` (B1), and never more than
+    :func:`longest_blend` (B2; docs/method.md section 5b)::
+
+        b = min(max(blend, ceil(15/8 |delta_edge| / (MAX_BLEND_SLOPE * ds))), longest_blend(N))   (B1, B2)
+
+    where ds is the median section spacing. A shift that B2 cuts short is blended more steeply
+    (the planes in the blend tilt more); the change never reaches farther along the canal.
 
     ``scale`` None: grow each section of the changed range just enough to hold its parent's
     boundary and the world points ``held`` (S, D) of the span (C2).
@@ -584,10 +611,13 @@ def locally_moved(
     """
     n = canal.n_sections
     # A blend long enough that the directrix's slope over it stays gentle (planes tilt by
-    # at most about atan(MAX_BLEND_SLOPE)).
+    # at most about atan(MAX_BLEND_SLOPE)), but local: an exclude keeps one wall and cuts at
+    # the pushed line, so its shift at the span's edge is about half a radius or more however
+    # gently the push began, and a blend sized for that alone could cover the whole canal.
     step = float(np.median(np.diff(canal.arclength))) if n > 1 else 1.0
     edge_shift = max(float(np.linalg.norm(shift[0])), float(np.linalg.norm(shift[-1])))
-    blend = max(blend, int(np.ceil(SMOOTHERSTEP_SLOPE * edge_shift / (MAX_BLEND_SLOPE * max(step, 1e-300)))))
+    gentle = int(np.ceil(SMOOTHERSTEP_SLOPE * edge_shift / (MAX_BLEND_SLOPE * max(step, 1e-300))))
+    blend = max(blend, min(gentle, longest_blend(n)))
     lo, hi, w = _ramp(n, first, last, blend)
     idx = np.arange(lo, hi + 1)
     edge = np.clip(idx, first, last) - first
@@ -774,6 +804,43 @@ def exempt_crossings(canal: Canal) -> BoolArray:
     return excluded_points(canal, world.reshape(n * m, -1)).reshape(n, m)
 
 
+def blend_dropped_crossings(parent: Canal, refined: Canal) -> BoolArray:
+    """Which demo crossings (N, n) in the blend of ``refined``'s latest correction (its changed
+    range outside its span) its parent held and ``refined`` does not: what an exclude's blend
+    narrows away on the way into its span (none for an include, which only grows sections).
+    :func:`excluded_points` marks them excluded.
+
+    Each crossing is measured in its own section first (O(N n)); only those its corrected
+    section leaves out are located in the whole corrected canal, a block at a time.
+    """
+    applied = refined.corrections[-1]
+    out = np.zeros(refined.section_points.shape[:2], dtype=bool)
+    rows = np.r_[applied.lo : applied.first, applied.last + 1 : applied.hi + 1]
+    if rows.size == 0:
+        return out
+    out[rows] = _section_holds(parent, rows) & ~_section_holds(refined, rows)
+    # The blend of the neighbouring planes may still hold a crossing its own section leaves out.
+    where = np.argwhere(out)
+    world = parent.directrix[where[:, 0]] + np.einsum(
+        "ck,ckd->cd", parent.section_points[where[:, 0], where[:, 1]], parent.basis[where[:, 0]])
+    block = max(1, LOCATE_BLOCK // refined.n_sections)
+    for lo in range(0, world.shape[0], block):
+        held = refined.contains(world[lo : lo + block])
+        out[where[lo : lo + block][held, 0], where[lo : lo + block][held, 1]] = False
+    return out
+
+
+def _section_holds(canal: Canal, rows: IntArray) -> BoolArray:
+    """Whether section i holds its demo crossings (rows (R,) -> (R, n)), as :meth:`Canal.contains` would."""
+    coords = canal.section_points[rows]
+    r, m = coords.shape[:2]
+    norm = np.linalg.norm(coords, axis=2)
+    unit = coords / np.where(norm > 0.0, norm, 1.0)[:, :, None]
+    unit[norm == 0.0, 0] = 1.0
+    reach = boundary_distance(canal.sections, np.repeat(rows, m), unit.reshape(r * m, -1)).reshape(r, m)
+    return np.asarray(norm <= reach * (1.0 + CONTAINS_TOLERANCE))
+
+
 def correction_from_dict(data: dict[str, Any], dim: int) -> Correction:
     """A checked :class:`Correction` from its JSON form (the REST body, a stored row)."""
     return checked_correction(
@@ -786,6 +853,7 @@ __all__ = [
     "BLEND_FRACTION",
     "CORRECTION_KINDS",
     "INCLUDE_MARGIN",
+    "LONGEST_BLEND_FACTOR",
     "MAX_CORRECTION_SAMPLES",
     "MIN_BLEND",
     "MIN_CORRECTION_SAMPLES",
@@ -796,6 +864,7 @@ __all__ = [
     "AppliedCorrection",
     "Correction",
     "CorrectionKind",
+    "blend_dropped_crossings",
     "blend_width",
     "canal_digest",
     "checked_correction",
@@ -804,7 +873,8 @@ __all__ = [
     "exclude_geometry",
     "excluded_points",
     "exempt_crossings",
-        "locally_moved",
+    "locally_moved",
+    "longest_blend",
     "moved_frames",
     "path_crossings",
     "planned_coords",

@@ -16,7 +16,12 @@ import numpy as np
 
 import canal_core
 from canal_core.corrections import Correction as Correction_
-from canal_core.corrections import checked_correction, corrected_canal, correction_glitches
+from canal_core.corrections import (
+    blend_dropped_crossings,
+    checked_correction,
+    corrected_canal,
+    correction_glitches,
+)
 from canal_core.routes import Routes, served_model, single_route
 from canal_protocol import schemas
 
@@ -146,7 +151,7 @@ class ModelCorrections:
             return self._store_refined(
                 name, options, demo_ids, refined,
                 StoredLineage(base_version, lineage.fit_version, lineage.correction_ids, store),
-                _glitch_notes(correction.samples), instance=now,
+                _glitch_notes(correction.samples) + _blend_notes(routes, refined), instance=now,
                 base=base_version if version is None else None)
 
         summary = self.versions.on_latest(name, "correction", build)
@@ -315,6 +320,26 @@ def _glitch_notes(samples: arrays.FloatArray) -> list[str]:
     return [f"{len(rows)} of the {samples.shape[0]} samples {'was' if one else 'were'} left out as "
             f"{'a glitch' if one else 'glitches'} (far off the path and straight back, the rule "
             f"demonstrations are cleaned by at fit): sample{'' if one else 's'} {named}"]
+
+
+def _blend_notes(routes: Routes, refined: Routes) -> list[str]:
+    """A note per corrected canal whose blend, on the way into an exclude's narrowed span,
+    leaves demonstrated crossings outside it; none when it leaves none."""
+    notes = []
+    for k, (old, new) in enumerate(zip(routes.every_canal, refined.every_canal, strict=True)):
+        if len(new.corrections) == len(old.corrections):
+            continue  # a canal the correction did not change
+        lost = blend_dropped_crossings(old, new)
+        if not lost.any():
+            continue
+        rows, first = np.flatnonzero(lost.any(axis=1)), new.corrections[-1].first
+        where = " and ".join(f"{side[0]}..{side[-1]}" for side in (rows[rows < first], rows[rows > first])
+                             if side.size)
+        which = "" if refined.n_routes == 1 else (" of the canal of all" if k == 0 else f" of route {k - 1}")
+        notes.append(f"{int(lost.sum())} demonstrated crossings in sections {where}{which}, where the "
+                     "canal narrows into the exclude's span, are outside the corrected canal: "
+                     "excluded by this correction, as those on its excluded side are")
+    return notes
 
 
 __all__: Sequence[str] = ["ModelCorrections", "StoredCorrection", "corrected_routes",

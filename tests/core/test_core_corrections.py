@@ -7,12 +7,15 @@ import json
 import numpy as np
 import pytest
 from core_data import helix_demos, sleeve_demos
+from raw_logs import ur5e_demos
 
 import canal_core
 from canal_core import InvalidInputError
 from canal_core.corrections import (
     MIN_WIDTH_FRACTION,
+    blend_dropped_crossings,
     correction_glitches,
+    longest_blend,
     path_crossings,
     reapplied_canal,
 )
@@ -344,3 +347,48 @@ def test_a_correction_left_too_short_by_its_glitches_is_refused_naming_the_sampl
     with pytest.raises(InvalidInputError, match=r"at least 4 samples in samples, got 3 after dropping 3 as glitches") as caught:
         canal.corrected("include", path)
     assert caught.value.field == "samples"
+
+
+def wide_demos() -> list[np.ndarray]:
+    """Four demonstrations of a 30 cm move 10 cm around its axis: fitted on 200 sections
+    1.5 mm apart, a shift of half a radius needs a blend longer than the canal to stay gentle."""
+    x = np.linspace(0.0, 0.3, 60)
+    return [np.column_stack([x, dy + 0.004 * np.sin(20 * x + i), dz + 0.004 * np.sin(20 * x + i + 1)])
+            for i, (dy, dz) in enumerate([(0.1, 0.0), (-0.1, 0.0), (0.0, 0.1), (0.0, -0.1)])]
+
+
+@pytest.mark.parametrize("source", ["real UR5e demos", "wide synthetic canal"])
+def test_an_exclude_over_the_middle_changes_only_its_span_and_a_bounded_blend(source: str) -> None:
+    # The robot on its directrix was pushed half a radius off over sections 60-120. The cut
+    # sections keep a quarter of their width, their centres moved 3/4 of a radius: blended
+    # gently, that shift reached every section, moved the first one and left demonstrated
+    # starts outside the canal, unmarked.
+    demos = ur5e_demos()[0] if source == "real UR5e demos" else wide_demos()
+    canal = canal_core.fit(demos)
+    idx = np.arange(60, 121)
+    pushed = canal.directrix[idx] + 0.5 * canal.radii[idx, None] * canal.normals[idx]
+    refined = canal.corrected("exclude", pushed, plan=canal.directrix[idx])
+    applied = refined.corrections[0]
+    blend = longest_blend(canal.n_sections)
+    assert blend == 18
+    assert (applied.first, applied.last) == (60, 119) or (applied.first, applied.last) == (61, 119)
+    assert applied.first - blend <= applied.lo and applied.hi <= applied.last + blend
+    unchanged_outside(canal, refined, applied.lo, applied.hi)
+    starts = np.array([d[0] for d in demos])
+    assert refined.contains(starts).all()
+    # Every demonstrated sample is still inside, or where the person's exclude removed the canal.
+    for demo in demos:
+        assert (refined.contains(demo) | refined.excluded(demo)).all()
+    # Those the blend gave up on the way into the narrowed span lie in the blend, nowhere else.
+    dropped = blend_dropped_crossings(canal, refined)
+    rows = np.flatnonzero(dropped.any(axis=1))
+    assert rows.size > 0
+    world = (canal.directrix[:, None, :] + np.einsum("snk,skd->snd", canal.section_points, canal.basis))[dropped]
+    assert canal.contains(world).all() and not refined.contains(world).any() and refined.excluded(world).all()
+    assert np.all(((applied.lo <= rows) & (rows < applied.first)) | ((applied.last < rows) & (rows <= applied.hi)))
+    # A reproduction from a demonstrated start stays in the corrected canal.
+    for demo in demos:
+        run = refined.reproduce(demo[0])
+        assert refined.contains(run[1:]).all()
+
+

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 
 import httpx
@@ -212,6 +213,35 @@ def test_a_glitch_sample_in_a_correction_is_left_out_and_the_answer_says_so(http
         "the rule demonstrations are cleaned by at fit): sample 20"]
     grown = served_canal(http).radii / fitted.radii
     assert grown.max() < 1.02 * (served_canal(http, "2").radii / fitted.radii).max()
+
+
+def test_an_exclude_stays_local_and_its_answer_counts_what_its_blend_excludes(http: httpx.Client) -> None:
+    # The robot on its directrix pushed half a radius off over the middle third: blended
+    # gently, the exclude reached every section and left demonstrated starts outside.
+    fitted = served_canal(http)
+    idx = np.arange(25, 56)
+    pushed = fitted.directrix[idx] + 0.5 * fitted.radii[idx, None] * fitted.normals[idx]
+    r = http.post("/skills/pour/corrections", json={"kind": "exclude", "samples": pushed.tolist(),
+                                                   "plan": fitted.directrix[idx].tolist()})
+    assert r.status_code == 201, r.text
+    refined = served_canal(http)
+    applied = refined.corrections[0]
+    blend = canal_core.corrections.longest_blend(fitted.n_sections)
+    assert applied.first - blend <= applied.lo and applied.hi <= applied.last + blend
+    changed = np.flatnonzero(np.any(refined.directrix != fitted.directrix, axis=1))
+    assert applied.lo <= changed.min() and changed.max() <= applied.hi
+    demos = [demo_positions(j) for j in range(5)]
+    assert refined.contains(np.array([d[0] for d in demos])).all()
+    lost = canal_core.corrections.blend_dropped_crossings(fitted, refined)
+    notes = [n for n in r.json()["notes"] if "excluded by this correction" in n]
+    assert len(notes) == 1, r.json()["notes"]
+    said = re.fullmatch(rf"{int(lost.sum())} demonstrated crossings in sections (\d+)\.\.(\d+) and "
+                        r"(\d+)\.\.(\d+), where the canal narrows into the exclude's span, are "
+                        r"outside the corrected canal: excluded by this correction, as those "
+                        r"on its excluded side are", notes[0])
+    assert said is not None, notes[0]
+    a, b, c, d = map(int, said.groups())
+    assert applied.lo <= a <= b < applied.first and applied.last < c <= d <= applied.hi
 
 
 def test_a_sample_row_a_value_short_is_named_in_words_not_numpy_s(http: httpx.Client) -> None:
