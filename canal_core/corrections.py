@@ -287,7 +287,8 @@ def checked_correction(
     timestamps : array_like, shape (M,), optional
     orientations : array_like, shape (M, 4), optional
     plan : array_like, shape (P, D), optional
-        Exclude: the path the robot was on before the push.
+        Exclude only: the path the robot was on before the push (an include with one is
+        refused naming ``plan``).
     """
     check_choice(kind, CORRECTION_KINDS, "kind")
     points = check_positions(samples, "samples", dim)
@@ -301,6 +302,10 @@ def checked_correction(
     if times is not None:
         check_time_order(times, "timestamps")
     quats = None if orientations is None else check_quaternions(orientations, points.shape[0], "orientations")
+    if plan is not None and kind != "exclude":
+        # A plan is where an exclude's push started from; an include has none to read.
+        raise InvalidInputError(f"expected no plan on an {kind} correction (a plan is the path the robot "
+                                "was on before an exclude's push), got a plan", field="plan")
     path = None if plan is None else check_positions(plan, "plan", dim)
     return Correction(str(kind), points, check_positive(weight, "weight"), label, times, quats, path)
 
@@ -411,23 +416,24 @@ def _near_crossings(path: FloatArray, dist: FloatArray, centres: FloatArray, bas
 def _span(crossed: BoolArray, field: str, path: FloatArray | None = None,
           spacing: float = 0.0) -> tuple[int, int]:
     hit = np.flatnonzero(crossed)
+    noun, move = ("samples", "move") if field == "samples" else (f"a {field}", "moves")
     if hit.size == 0 and path is not None:
         spread = float(np.max(np.linalg.norm(path - path[0], axis=1)))
         if spread < spacing:
             # No plane is crossed because the path does not move, wherever it is.
             raise InvalidInputError(
-                "expected samples that move along the canal (across at least "
-                f"{MIN_SPAN_SECTIONS} sections), got samples within {spread:.3g} of one point, "
+                f"expected {noun} that {move} along the canal (across at least "
+                f"{MIN_SPAN_SECTIONS} sections), got {field} within {spread:.3g} of one point, "
                 f"less than one section's spacing ({spacing:.3g})", field=field)
     if hit.size == 0:
         raise InvalidInputError(
-            "expected samples over the canal (crossing section planes within "
+            f"expected {noun} over the canal (crossing section planes within "
             f"{REACH:g} radii of the directrix), got a path outside every section", field=field
         )
     first, last = int(hit[0]), int(hit[-1])
     if last - first + 1 < MIN_SPAN_SECTIONS:
         raise InvalidInputError(
-            f"expected samples across at least {MIN_SPAN_SECTIONS} sections, got {last - first + 1}", field=field
+            f"expected {noun} across at least {MIN_SPAN_SECTIONS} sections, got {last - first + 1}", field=field
         )
     return first, last
 
@@ -692,8 +698,9 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
     Raises
     ------
     InvalidInputError
-        ``samples``: wrong dimension, too short (glitches left out), outside every section; ``kind``: an
-        exclude that would close the canal.
+        ``samples``: wrong dimension, too short (glitches left out), outside every section; ``plan``:
+        outside every section or off the samples' sections; ``kind``: an exclude that would close
+        the canal.
     """
     # Glitches (one reading far off the path) are left out, as a demonstration's are at fit.
     samples = cleaned_samples(check_positions(correction.samples, "samples", canal.dim))
@@ -722,6 +729,13 @@ def corrected_canal(canal: Canal, correction: Correction, plan: FloatArray | Non
         else:
             path = check_positions(plan, "plan", canal.dim)
             p_crossed, p_coords = path_crossings(path, canal.directrix, canal.tangents, canal.basis, reach)
+            # A plan the person sent is at fault when it misses the canal or the samples' sections.
+            p_first, p_last = _span(p_crossed, "plan", path, float(np.median(np.diff(canal.arclength))))
+            overlap = np.flatnonzero(crossed & p_crossed)
+            if overlap.size == 0 or overlap[-1] - overlap[0] + 1 < MIN_SPAN_SECTIONS:
+                raise InvalidInputError(
+                    f"expected a plan over the sections the samples cross ({first}..{last}, at least "
+                    f"{MIN_SPAN_SECTIONS} of them), got one over sections {p_first}..{p_last}", field="plan")
         both = crossed & p_crossed
         first, last = _span(both, "samples")
         pushed = _filled(crossed, coords, first, last)

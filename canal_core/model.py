@@ -238,14 +238,15 @@ class Canal:
         weight : float
             How much an include counts against one demonstration.
         plan : array_like, shape (P, D), optional
-            Exclude: the path the robot was on before the push (the canal's own
+            Exclude only: the path the robot was on before the push (the canal's own
             reproduction from the first sample when None).
 
         Raises
         ------
         InvalidInputError
-            ``samples`` malformed, too short or outside every section; ``kind`` unknown or
-            an exclude that would close the canal.
+            ``samples`` malformed, too short or outside every section; ``plan`` sent with an
+            include, or outside every section or off the samples' sections; ``kind`` unknown
+            or an exclude that would close the canal.
         """
         correction = checked_correction(kind, samples, self.dim, weight, label, timestamps,
                                         orientations, plan)

@@ -405,7 +405,8 @@ class CorrectionIn(_In):
     plan: list[list[Coordinate]] | None = Field(
         None, max_length=options.MAX_CORRECTION_SAMPLES,
         description="exclude only, optional: (P, D) the path the robot was on before the push "
-                    "(default: the model's reproduction from the first sample).")
+                    "(default: the model's reproduction from the first sample); an include "
+                    "with a plan is refused (422 naming plan).")
     model: ModelRef = Field(
         "latest", description="The model version corrected; the result is always the new latest.")
     weight: float = Field(

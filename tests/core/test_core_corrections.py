@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -171,6 +172,23 @@ def test_malformed_corrections_name_their_field(canal: canal_core.Canal, kind: s
     with pytest.raises(InvalidInputError) as err:
         canal.corrected(kind, include_path(canal) if samples is None else samples)
     assert err.value.field == field
+
+
+def test_a_plan_at_fault_is_named_plan_and_an_include_takes_none(canal: canal_core.Canal) -> None:
+    # The same pushed samples: a fine exclude with the directrix as plan; with a plan over
+    # other sections, 5 m to the side or still, the plan is at fault (the samples were named).
+    idx = np.arange(60, 90)
+    pushed = canal.directrix[idx] + 0.5 * canal.radii[idx, None] * canal.normals[idx]
+    assert canal.corrected("exclude", pushed, plan=canal.directrix[idx]).corrections[0].first >= 60
+    for plan, said in ((canal.directrix[120:150], "over the sections the samples cross (60..89"),
+                       (canal.directrix[idx] + [0.0, 5.0, 0.0], "a plan over the canal"),
+                       (np.repeat(canal.directrix[70:71], 10, axis=0), "a plan that moves along")):
+        with pytest.raises(InvalidInputError, match=re.escape(said)) as err:
+            canal.corrected("exclude", pushed, plan=plan)
+        assert err.value.field == "plan"
+    with pytest.raises(InvalidInputError, match="expected no plan on an include correction") as err:
+        canal.corrected("include", include_path(canal), plan=canal.directrix[80:111])
+    assert err.value.field == "plan"
 
 
 def test_short_far_and_weightless_corrections_are_refused(canal: canal_core.Canal) -> None:

@@ -244,6 +244,28 @@ def test_an_exclude_stays_local_and_its_answer_counts_what_its_blend_excludes(ht
     assert applied.lo <= a <= b < applied.first and applied.last < c <= d <= applied.hi
 
 
+def test_a_correction_s_plan_is_named_when_it_is_at_fault(http: httpx.Client) -> None:
+    # The same pushed samples are a fine exclude with the directrix as plan; with a plan over
+    # other sections or 5 m to the side the fault is the plan's, and an include takes none.
+    fitted = served_canal(http)
+    idx = np.arange(20, 40)
+    pushed = (fitted.directrix[idx] + 0.5 * fitted.radii[idx, None] * fitted.normals[idx]).tolist()
+    for plan in (fitted.directrix[50:70], fitted.directrix[idx] + [0.0, 5.0, 0.0]):
+        r = http.post("/skills/pour/corrections", json={"kind": "exclude", "samples": pushed,
+                                                       "plan": plan.tolist()})
+        assert r.status_code == 422, r.text
+        assert r.json()["error"]["field"] == "plan", r.json()
+    r = http.post("/skills/pour/corrections", json={"kind": "include", "samples": wider_path(fitted),
+                                                   "plan": fitted.directrix[30:51].tolist()})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["field"] == "plan" and "no plan on an include" in error["message"], error
+    assert http.get("/skills/pour/corrections").json()["total"] == 0
+    ok = http.post("/skills/pour/corrections", json={"kind": "exclude", "samples": pushed,
+                                                    "plan": fitted.directrix[idx].tolist()})
+    assert ok.status_code == 201, ok.text
+
+
 def test_a_sample_row_a_value_short_is_named_in_words_not_numpy_s(http: httpx.Client) -> None:
     # Null rows and non-numbers are refused by the schema; a row of the wrong length reached
     # numpy and came back as "inhomogeneous shape after 1 dimensions".
