@@ -380,10 +380,24 @@ def path_crossings(
     coords : array, shape (N, D - 1)
         In-plane coordinates of the crossing (0 where not crossed).
     """
-    n = centres.shape[0]
-    dist = (path @ tangents.T) - np.einsum("nd,nd->n", centres, tangents)[None, :]  # (M, N)
-    step, section, coords = _near_crossings(path, dist, centres, basis, reach)
-    backwards = _near_crossings(path[::-1], dist[::-1], centres, basis, reach)
+    n, m = centres.shape[0], path.shape[0]
+    offsets = np.einsum("nd,nd->n", centres, tangents)
+    # The samples' distances to every plane, a block of rows at a time (blocks share their
+    # edge sample, so each step is in one): memory stays bounded for the longest path on the
+    # finest canal, and only the crossings near their section are kept.
+    rows = max(2, LOCATE_BLOCK // max(n, 1))
+    ahead: list[tuple[IntArray, IntArray, FloatArray]] = []
+    behind: list[tuple[IntArray, IntArray, FloatArray]] = []
+    for lo in range(0, max(m - 1, 1), rows - 1):
+        hi = min(lo + rows, m)
+        part = path[lo:hi]
+        dist = part @ tangents.T - offsets[None, :]  # (hi - lo, N)
+        s, sec, c = _near_crossings(part, dist, centres, basis, reach)
+        ahead.append((s + lo, sec, c))
+        s, sec, c = _near_crossings(part[::-1], dist[::-1], centres, basis, reach)
+        behind.append((s + (m - hi), sec, c))
+    step, section, coords = _joined(ahead, basis.shape[1])
+    backwards = _joined(behind, basis.shape[1])
     if backwards[0].size > step.size:
         # More of them backwards: the path read from its last sample to its first.
         step, section, coords = backwards
@@ -399,11 +413,20 @@ def path_crossings(
     return crossed, out
 
 
+def _joined(parts: list[tuple[IntArray, IntArray, FloatArray]], k: int
+            ) -> tuple[IntArray, IntArray, FloatArray]:
+    """The crossings of every block as one (steps, sections, coords (C, k))."""
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, k))
+    return (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+            np.concatenate([p[2] for p in parts]))
+
+
 def _near_crossings(path: FloatArray, dist: FloatArray, centres: FloatArray, basis: FloatArray,
                     reach: FloatArray) -> tuple[IntArray, IntArray, FloatArray]:
     """The forward plane crossings of ``path`` (M, D) within ``reach`` of their section
-    (``dist``: the samples' signed distances to every plane, (M, N)): the step before each,
-    its section and its in-plane coordinates (C, D - 1)."""
+    (``dist``: the samples' signed distances to every plane, (M, N)): the step before each
+    (along ``path``), its section and its in-plane coordinates (C, D - 1)."""
     # Only the sign changes are interpolated: memory grows with the crossings, not M x N.
     step, section = np.nonzero((dist[:-1] <= 0.0) & (dist[1:] > 0.0))
     before, after = dist[step, section], dist[step + 1, section]
