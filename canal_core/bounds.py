@@ -9,6 +9,9 @@ The bounds, and why:
 * **Coordinates**: ``|x| <= MAX_COORDINATE`` (1e15, the preparation stage's limit on
   demonstrations): squares and products of coordinates must stay far from float64 overflow.
   Obstacles' points and lengths (centre, ends, radius, half extents, clearance) too.
+* **Angles**: a 2-D box's ``rotation`` (radians) within ``+-MAX_ANGLE`` (1e3, about 160
+  turns): its sine and cosine keep ~1e-13 of absolute precision there; an angle of 1e16 or
+  more has no fraction left and 1e300 is rounding, whatever box it stood for.
 * **Reach**: a start or goal lies within ``MAX_REACH`` (1e6) canal sizes of the canal's
   centre, the size being the diagonal of the box around the directrix widened by its largest
   radius. Further out, the canal's own geometry vanishes in the rounding of the point's
@@ -37,6 +40,8 @@ FloatArray = npt.NDArray[np.float64]
 
 #: Largest absolute coordinate of any point (demonstrations, starts, goals).
 MAX_COORDINATE = 1e15
+#: Largest absolute angle of a 2-D box's rotation, radians.
+MAX_ANGLE = 1e3
 #: Farthest a start or goal may be from the canal's centre, in canal sizes.
 MAX_REACH = 1e6
 #: Shortest reproduction duration, seconds (one tick of a 1 kHz controller).
@@ -84,9 +89,13 @@ OBSTACLE_NUMBERS = ("center", "a", "b", "radius", "half_extents", "clearance")
 
 def check_obstacle_numbers(obstacle: Any, field: str) -> None:
     """Refuse an obstacle (its JSON form) whose points or lengths exceed ``MAX_COORDINATE``,
-    naming ``field.key``; its shape and kind are :mod:`canal_core.obstacles`' to check."""
+    or whose 2-D rotation angle exceeds ``MAX_ANGLE``, naming ``field.key``; its shape and
+    kind are :mod:`canal_core.obstacles`' to check (a 3-D rotation is a unit quaternion)."""
     if not isinstance(obstacle, dict):
         return
+    angle = obstacle.get("rotation")
+    if isinstance(angle, int | float) and not isinstance(angle, bool):
+        check_coordinates(angle, f"{field}.rotation", MAX_ANGLE)
     for key in OBSTACLE_NUMBERS:
         value = obstacle.get(key)
         if value is not None:

@@ -161,6 +161,18 @@ def test_obstacles_beyond_the_coordinate_range_are_refused_and_not_stored(
     assert (after.status_code, after.json()) == (before.status_code, before.json())
 
 
+def test_a_2d_box_turned_past_the_angle_bound_is_refused_and_not_stored(http: httpx.Client) -> None:
+    # 1e300 rad has no fraction left: it was stored as -2.18, a box turned some other way.
+    assert http.post("/skills", json={"name": "flat", "dim": 2}).status_code == 201
+    box = {"kind": "box", "center": [0.5, 0.0], "half_extents": [0.1, 0.1]}
+    for angle in (1e300, -1000.5):
+        _refused(http.put("/skills/flat/scene", json={"obstacles": [{**box, "rotation": angle}]}),
+                 "obstacles[0].rotation")
+    assert http.get("/skills/flat/scene").json()["obstacles"] == []
+    r = http.put("/skills/flat/scene", json={"obstacles": [{**box, "rotation": 1000.0}]})
+    assert r.status_code == 200, r.text
+
+
 @pytest.mark.parametrize(("change", "field"), [
     ({"samples": [[1e308, 0, 0]] + [[0.1 * k, 0.0, 0.0] for k in range(1, 8)]}, "samples[0]"),
     ({"samples": [[0.1 * k, 0.0, 0.0] for k in range(8)],
