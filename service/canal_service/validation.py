@@ -88,15 +88,16 @@ def _check_finite(array: FloatArray, field: str) -> None:
                            field=f"{field}[{row}]")
 
 
-def check_positions(value: Any, dim: int) -> FloatArray:
-    """Positions as a finite (T, dim) array with T >= 4."""
+def check_positions(value: Any, dim: int, field: str = "positions") -> FloatArray:
+    """Positions as a finite (T, dim) array with T >= 4; a bad one named ``field``
+    (``positions`` of a demonstration, ``samples`` of a correction's path)."""
     axes = "x, y" if dim == 2 else "x, y, z"
-    positions = _matrix(value, "positions", dim, f"{axes} for a {dim}-D skill")
+    positions = _matrix(value, field, dim, f"{axes} for a {dim}-D skill")
     if positions.shape[0] < MIN_POINTS:
         raise InvalidInput(
-            f"expected at least {MIN_POINTS} points, got {positions.shape[0]}", field="positions"
+            f"expected at least {MIN_POINTS} points, got {positions.shape[0]}", field=field
         )
-    _check_finite(positions, "positions")
+    _check_finite(positions, field)
     return positions
 
 
@@ -193,10 +194,11 @@ def check_demonstration(
     After the per-field checks, the demo goes through canal_core's preparation stage
     (:func:`check_fittable`): identical points, coordinates beyond +-1e15 or a demo that
     only stands still are refused here with a 422, never found out at fit time. A
-    correction's path (``fittable=False``) is not fitted: its own checks say what it needs.
+    correction's path (``fittable=False``) is not fitted: its own checks say what it needs,
+    and its rows are named ``samples``, as in a JSON correction.
     ``time_unit`` is the unit of ``timestamps`` (:func:`check_timestamps`; None: seconds).
     """
-    checked = check_positions(positions, dim)
+    checked = check_positions(positions, dim, "positions" if fittable else "samples")
     n = checked.shape[0]
     if timestamps is None and time_unit is not None:
         raise InvalidInput(f"time_unit={time_unit} was given, but the demonstration has no "

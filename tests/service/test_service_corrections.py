@@ -325,6 +325,9 @@ def test_a_correction_sent_as_a_file_is_read_as_a_demonstration_upload(http: htt
     ({"kind": "include"}, b"", 400, "file", "empty"),
     # a robot held still: the correction's own rule, not a demonstration's "cannot be fitted"
     ({"kind": "include"}, b"x,y,z\n" + b"0.4,0.1,0.01\n" * 5, 422, "samples", "move along the canal"),
+    # a correction's rows are its samples, not a demonstration's positions
+    ({"kind": "include"}, b"x,y,z\n0.1,0,0\nnan,0.01,0\n0.3,0,0\n0.4,0,0\n", 422, "samples[1]", "NaN"),
+    ({"kind": "include"}, b"x,y,z\n0.1,0,0\n0.2,0,0\n", 422, "samples", "at least 4 points"),
 ])
 def test_a_file_correction_refused_names_the_part_and_changes_nothing(
         http: httpx.Client, params: dict[str, object], content: bytes, status: int, field: str,
