@@ -186,8 +186,8 @@ UPLOAD_DEMO = Endpoint("POST", "/skills/{name}/demonstrations", None, DemoCreate
                        media_type="multipart/form-data")
 LIST_DEMOS = Endpoint("GET", "/skills/{name}/demonstrations", response=Page[DemoSummary],
                       query=_PAGED)
-GET_DEMO = Endpoint("GET", "/skills/{name}/demonstrations/{demo_id}", response=Demonstration)
-DELETE_DEMO = Endpoint("DELETE", "/skills/{name}/demonstrations/{demo_id}", status=204)
+GET_DEMO = Endpoint("GET", "/skills/{name}/demonstrations/{id}", response=Demonstration)
+DELETE_DEMO = Endpoint("DELETE", "/skills/{name}/demonstrations/{id}", status=204)
 FIT = Endpoint("POST", "/skills/{name}/fit", FitRequest, ModelSummary, status=201)
 LIST_MODELS = Endpoint("GET", "/skills/{name}/models", response=Page[ModelSummary],
                        query=_PAGED)
@@ -208,9 +208,9 @@ CORRECT_FILE = Endpoint("POST", "/skills/{name}/corrections/file", None, Correct
                         status=201, media_type="multipart/form-data")
 LIST_CORRECTIONS = Endpoint("GET", "/skills/{name}/corrections", response=Page[CorrectionOut],
                             query=_PAGED)
-GET_CORRECTION = Endpoint("GET", "/skills/{name}/corrections/{correction_id}",
+GET_CORRECTION = Endpoint("GET", "/skills/{name}/corrections/{id}",
                          response=CorrectionPath)
-UNDO_CORRECTION = Endpoint("DELETE", "/skills/{name}/corrections/{correction_id}",
+UNDO_CORRECTION = Endpoint("DELETE", "/skills/{name}/corrections/{id}",
                            response=CorrectedModel)
 RECORDING_RRD = Endpoint("GET", "/skills/{name}/recording.rrd")
 RECORDING_MCAP = Endpoint("GET", "/skills/{name}/recording.mcap", query=("profile",))
@@ -552,12 +552,12 @@ def _list_demos(skill: str) -> _Steps[list[DemoSummary]]:
 
 def _get_demo(skill: str, id: int) -> _Steps[Demonstration]:
     """One demonstration with its arrays as numpy."""
-    return (yield _request(GET_DEMO, name=skill, demo_id=int(id)))
+    return (yield _request(GET_DEMO, name=skill, id=int(id)))
 
 
 def _delete_demo(skill: str, id: int) -> _Steps[None]:
     """Delete one demonstration (model versions keep the ids they used)."""
-    yield _request(DELETE_DEMO, name=skill, demo_id=int(id))
+    yield _request(DELETE_DEMO, name=skill, id=int(id))
 
 
 def _fit(skill: str, *, cross_section: CrossSection | None = None,
@@ -634,12 +634,12 @@ def _list_corrections(skill: str) -> _Steps[list[CorrectionOut]]:
 
 def _get_correction(skill: str, id: int) -> _Steps[CorrectionPath]:
     """Correction ``id`` with its path as it was sent (model versions name it by id)."""
-    return (yield _request(GET_CORRECTION, name=skill, correction_id=int(id)))
+    return (yield _request(GET_CORRECTION, name=skill, id=int(id)))
 
 
 def _undo_correction(skill: str, id: int) -> _Steps[CorrectedModel]:
     """A new latest model version without correction ``id`` (the others re-applied)."""
-    return (yield _request(UNDO_CORRECTION, name=skill, correction_id=int(id)))
+    return (yield _request(UNDO_CORRECTION, name=skill, id=int(id)))
 
 
 def _list_models(skill: str) -> _Steps[list[ModelSummary]]:

@@ -75,7 +75,8 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 SkillName = Annotated[
     str, Path(pattern=SKILL_NAME_PATTERN, description="Skill name", examples=["pour"])
 ]
-DemoId = Annotated[int, Path(ge=1, le=MAX_ID, description="Demonstration id")]
+#: The path parameter is ``{id}`` (docs/rest.md), the name its refusals and 404s give.
+DemoId = Annotated[int, Path(ge=1, le=MAX_ID, alias="id", description="Demonstration id")]
 Offset = Annotated[int, Query(ge=0, le=MAX_ID, description="Items to skip")]
 Limit = Annotated[int, Query(ge=1, le=1000, description="Page size")]
 

@@ -371,9 +371,13 @@ def test_start_outside_the_canal(client: TestClient, fitted: str) -> None:
 
 
 def test_bad_ids_and_versions_in_paths(client: TestClient, fitted: str) -> None:
-    assert_error(client.get(f"/skills/{fitted}/demonstrations/0"), 422, "demo_id")
+    assert_error(client.get(f"/skills/{fitted}/demonstrations/0"), 422, "id")
     assert_error(client.get(f"/skills/{fitted}/demonstrations/99"), 404, "id")
     assert_error(client.delete(f"/skills/{fitted}/demonstrations/99"), 404, "id")
+    # The path's {id} (docs/rest.md) is what a refusal and a 404 both name.
+    assert_error(client.delete(f"/skills/{fitted}/demonstrations/0"), 422, "id")
+    assert_error(client.delete(f"/skills/{fitted}/corrections/0"), 422, "id")
+    assert_error(client.delete(f"/skills/{fitted}/corrections/99"), 404, "id")
     assert_error(client.get(f"/skills/{fitted}/models/99"), 404, "model")
     assert_error(client.get(f"/skills/{fitted}/models/first"), 422, "version")
     assert_error(client.get(f"/skills/{fitted}/models/1/mesh?format=stl"), 422, "format")

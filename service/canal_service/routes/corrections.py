@@ -41,7 +41,8 @@ router = APIRouter(prefix="/skills/{name}/corrections", tags=["corrections"])
 _ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (404, 409, 422)
 }
-CorrectionId = Annotated[int, Path(ge=1, le=MAX_ID)]
+#: ``{id}`` in the path (docs/rest.md), the name its refusals and 404s give.
+CorrectionId = Annotated[int, Path(ge=1, le=MAX_ID, alias="id", description="Correction id")]
 _FILE_ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 404, 409, 413, 415, 422, 503)
 }
@@ -74,7 +75,7 @@ def list_corrections(name: SkillName, service: ServiceDep, offset: Offset = 0,
     return service.list_corrections(name, offset, limit)
 
 
-@router.get("/{correction_id}", response_model=CorrectionPath, responses=_ERRORS)
+@router.get("/{id}", response_model=CorrectionPath, responses=_ERRORS)
 def get_correction(name: SkillName, correction_id: CorrectionId,
                    service: ServiceDep) -> CorrectionPath:
     """One correction with its path (samples, and timestamps, orientations and plan when
@@ -82,7 +83,7 @@ def get_correction(name: SkillName, correction_id: CorrectionId,
     return service.get_correction(name, correction_id)
 
 
-@router.delete("/{correction_id}", response_model=CorrectedModel, responses=_ERRORS)
+@router.delete("/{id}", response_model=CorrectedModel, responses=_ERRORS)
 def undo_correction(name: SkillName, correction_id: CorrectionId,
                     service: ServiceDep) -> CorrectedModel:
     """Undo one correction: a new latest version with the skill's other corrections

@@ -129,13 +129,13 @@ def list_demonstrations(name: SkillName, service: ServiceDep, offset: Offset = 0
     return service.list_demonstrations(name, offset, limit)
 
 
-@router.get("/{demo_id}", response_model=DemonstrationOut, responses=_ERRORS)
+@router.get("/{id}", response_model=DemonstrationOut, responses=_ERRORS)
 def get_demonstration(name: SkillName, demo_id: DemoId, service: ServiceDep) -> DemonstrationOut:
     """One demonstration with its full arrays."""
     return service.get_demonstration(name, demo_id)
 
 
-@router.delete("/{demo_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
+@router.delete("/{id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response,
                responses=_ERRORS)
 def delete_demonstration(name: SkillName, demo_id: DemoId, service: ServiceDep) -> Response:
     """Delete a demonstration; model versions that used it keep their record of its id."""
