@@ -19,7 +19,7 @@ import numpy as np
 
 from .cross_sections import CrossSections
 from .crossings import WORK_CHUNK, in_row_blocks, sign_changes
-from .reproduce import Location, blended_location, growth_locations
+from .reproduce import Location, blended_location, growth_locations, location_columns
 from .validation import BoolArray, FloatArray, IntArray
 
 #: Largest eta at which a demo sample near its own phase enlarges the two sections around it
@@ -129,15 +129,11 @@ def _far_locations(
     """:func:`growth_locations` over blocks of rows, so memory stays bounded for large N."""
     n = centres.shape[0]
     parts = in_row_blocks(
-        lambda rows: _location_columns(growth_locations(samples[rows], centres, tangents, basis, sections)),
+        lambda rows: location_columns(growth_locations(samples[rows], centres, tangents, basis, sections)),
         samples.shape[0],
         4 * n,
     )
     return Location(parts[0], parts[1], parts[2], parts[3], parts[4], parts[5])
-
-
-def _location_columns(loc: Location) -> tuple[np.ndarray, ...]:
-    return (loc.index, loc.alpha, loc.coords, loc.direction, loc.eta, loc.axial)
 
 
 @dataclass(frozen=True, eq=False)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cross_sections import CrossSections, boundary_distance
-from .crossings import crosses_plane
+from .crossings import crosses_plane, in_row_blocks
 from .entry import inside_stays_inside
 from .validation import BoolArray, FloatArray, IntArray
 
@@ -228,6 +228,11 @@ def _candidates(
     return pt, sec, alpha, axial, coords, direction, eta
 
 
+def location_columns(loc: Location) -> tuple[np.ndarray, ...]:
+    """``loc``'s arrays in the order ``Location`` takes them (to join blocks of points)."""
+    return (loc.index, loc.alpha, loc.coords, loc.direction, loc.eta, loc.axial)
+
+
 def _picked(
     first: IntArray,
     sec: IntArray,
@@ -284,8 +289,20 @@ def located_points(
     -------
     Location
     """
-    candidates = _candidates(points, centres, tangents, basis, sections)
-    return _located_among(points.shape[0], candidates, end_depths)
+    plane = np.einsum("nd,nd->n", centres, tangents)
+
+    def located(rows: slice) -> tuple[np.ndarray, ...]:
+        # A block of points at a time: the plane distances are (points, sections), gigabytes
+        # for tens of thousands of points on a canal of thousands of sections.
+        block = points[rows]
+        loc = _located_among(block.shape[0],
+                             _candidates(block, centres, tangents, basis, sections, plane),
+                             end_depths)
+        return location_columns(loc)
+
+    # each point's candidates take a few arrays of one row per section
+    parts = in_row_blocks(located, points.shape[0], 4 * centres.shape[0])
+    return Location(*parts)
 
 
 Candidates = tuple[IntArray, IntArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
