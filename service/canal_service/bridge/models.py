@@ -189,15 +189,25 @@ class ModelTable:
             if (old is not None and old.status == "ok" and entry.status == "ok"
                     and not entry.succeeds(old)):
                 return False
-            entry.used = time.monotonic() if used is None else used
-            self.models[skill] = entry  # built completely before: one atomic assignment
         if old is None or old.created_ns != entry.created_ns:
             with self._scene_lock:
                 # Another skill under the name, or no entry to tell (the deleted skill's was
                 # dropped): the scene known may be the deleted one's, whose version a new
                 # skill's scenes start below. Read again from the database.
                 self.scenes.pop(skill, None)
-        if entry.status == "ok":
+        # The scene goes into the entry before any pose can reach it: published first, the
+        # entry's streams were answered without the skill's obstacles until it was built.
+        applied = self._apply_scene(skill, entry) if entry.status == "ok" else None
+        with self._install_lock:
+            now = self.models.get(skill)
+            if (now is not None and now is not old and now.status == "ok"
+                    and entry.status == "ok" and not entry.succeeds(now)):
+                return False  # a newer version was installed while the scene was built
+            entry.used = time.monotonic() if used is None else used
+            self.models[skill] = entry  # built completely before: one atomic assignment
+        if entry.status == "ok" and self.scenes.get(skill) is not applied:
+            # A scene changed between building this entry's and publishing it, and went to
+            # the entry it replaced.
             self._apply_scene(skill, entry)
         return True
 
@@ -227,25 +237,40 @@ class ModelTable:
             return
         self.scene_changed(skill, 0 if version is None else version, scene)
 
-    def _apply_scene(self, skill: str, entry: ModelEntry) -> None:
-        """Give the entry's bank the skill's scene (read from the service the first time)."""
-        if skill not in self.scenes:
-            try:
-                version, scene = self.service.scene_of(skill, entry.dim)
-            except (SkillNotFound, InvalidInputError):
-                version, scene = None, None
+    def _apply_scene(self, skill: str, entry: ModelEntry) -> tuple[int, Any] | None:
+        """Give the entry's banks the skill's scene (read from the service the first time);
+        the (version, scene) given, or None for an entry without a model.
+
+        Tables are built outside the lock (a large scene takes tens of ms) and given to the
+        banks only if that scene is still the skill's: two threads building two versions at
+        once (a refit's install and a scene notice) would otherwise leave the older one."""
+        while True:
             with self._scene_lock:
-                self.scenes.setdefault(skill, (0 if version is None else version, scene))
-        version, scene = self.scenes[skill]
-        # A scene applies to every route: each route's bank goes around it too.
-        for each in (entry, *(entry.routes or ())):
-            bank = each.bank
-            if bank is None:
-                continue
-            if scene is None or not len(scene) or scene.dim != each.dim:
-                bank.scene = None
-            else:
-                bank.scene = scene_tables(bank.geometry, scene, each.canal.section_steps, version)
+                known = self.scenes.get(skill)
+            if known is None:
+                try:
+                    version, scene = self.service.scene_of(skill, entry.dim)
+                except (SkillNotFound, InvalidInputError):
+                    version, scene = None, None
+                with self._scene_lock:
+                    known = self.scenes.setdefault(
+                        skill, (0 if version is None else version, scene))
+            version, scene = known
+            # A scene applies to every route: each route's bank goes around it too.
+            built = []
+            for each in (entry, *(entry.routes or ())):
+                if each.bank is None:
+                    continue
+                tables = (None if scene is None or not len(scene) or scene.dim != each.dim
+                          else scene_tables(each.bank.geometry, scene, each.canal.section_steps,
+                                            version))
+                built.append((each.bank, tables))
+            with self._scene_lock:
+                if self.scenes.get(skill) is known:
+                    for bank, tables in built:
+                        bank.scene = tables
+                    return known
+            # a newer scene came while these were built: build that one
 
     def _drop(self, skill: str, entry: ModelEntry) -> None:
         """Forget the skill's entry if it is still ``entry`` (not one installed meanwhile)."""
