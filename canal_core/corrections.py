@@ -72,7 +72,13 @@ from .options import (
     CorrectionKind,
 )
 from .preprocess import check_time_order, glitch_rows
-from .reproduce import CONTAINS_TOLERANCE, located_points, section_basis, smootherstep
+from .reproduce import (
+    CONTAINS_TOLERANCE,
+    located_points,
+    section_basis,
+    smootherstep,
+    unit_directions,
+)
 from .validation import (
     BoolArray,
     FloatArray,
@@ -871,11 +877,9 @@ def _section_holds(canal: Canal, rows: IntArray) -> BoolArray:
     """Whether section i holds its demo crossings (rows (R,) -> (R, n)), as :meth:`Canal.contains` would."""
     coords = canal.section_points[rows]
     r, m = coords.shape[:2]
-    norm = np.linalg.norm(coords, axis=2)
-    unit = coords / np.where(norm > 0.0, norm, 1.0)[:, :, None]
-    unit[norm == 0.0, 0] = 1.0
-    reach = boundary_distance(canal.sections, np.repeat(rows, m), unit.reshape(r * m, -1)).reshape(r, m)
-    return np.asarray(norm <= reach * (1.0 + CONTAINS_TOLERANCE))
+    norm, unit = unit_directions(coords.reshape(r * m, -1))
+    reach = boundary_distance(canal.sections, np.repeat(rows, m), unit)
+    return np.asarray(norm <= reach * (1.0 + CONTAINS_TOLERANCE)).reshape(r, m)
 
 
 def correction_from_dict(data: dict[str, Any], dim: int) -> Correction:
