@@ -16,7 +16,7 @@ A dict stored with its paths inside (written before paths were stored once) has 
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,15 @@ def _canals(model: dict[str, Any]) -> Iterator[dict[str, Any]]:
             yield model["pooled"]
     else:
         yield model
+
+
+def _each_canal(model: dict[str, Any],
+                change: Callable[[dict[str, Any]], dict[str, Any]]) -> dict[str, Any]:
+    """A copy of ``model`` with ``change`` made to each of its canal dicts (:func:`_canals`)."""
+    if model.get("format") == "canal-routes":
+        return {**model, "routes": [change(c) for c in model.get("routes") or ()],
+                "pooled": change(model["pooled"])}
+    return change(model)
 
 
 def _key(packed: tuple[bytes | None, ...]) -> bytes:
@@ -63,7 +72,6 @@ def without_paths(model: dict[str, Any], rows: list[Correction]) -> dict[str, An
     matching no row keeps its path.
     """
     ids = {_row_key(r): int(r.id) for r in rows}
-    out = dict(model)
 
     def stripped(canal: dict[str, Any]) -> dict[str, Any]:
         corrections = []
@@ -76,11 +84,7 @@ def without_paths(model: dict[str, Any], rows: list[Correction]) -> dict[str, An
                                 "orientations": None, "plan": None, "correction_id": found})
         return {**canal, "corrections": corrections}
 
-    if out.get("format") == "canal-routes":
-        out["routes"] = [stripped(c) for c in out.get("routes") or ()]
-        out["pooled"] = stripped(out["pooled"])
-        return out
-    return stripped(out)
+    return _each_canal(model, stripped)
 
 
 def path_ids(model: dict[str, Any]) -> list[int]:
@@ -122,10 +126,7 @@ def with_paths(model: dict[str, Any], paths: Mapping[int, dict[str, Any]]) -> di
         ]
         return {**canal, "corrections": corrections}
 
-    if model.get("format") == "canal-routes":
-        return {**model, "routes": [filled(c) for c in model.get("routes") or ()],
-                "pooled": filled(model["pooled"])}
-    return filled(model)
+    return _each_canal(model, filled)
 
 
 __all__ = ["PATH_KEYS", "path_ids", "path_of", "with_paths", "without_paths"]
